@@ -1,0 +1,39 @@
+"""A real writer process for the crash and lock tests (run as a script, not collected).
+
+usage: python store_writer_proc.py STORE SEED N_FRAMES [HOLD_SECONDS]
+
+Writes stage /hsc with N_FRAMES deterministic frames (content derived from SEED) through
+the store, frame by frame, printing "writing" once the transaction has started. With
+HOLD_SECONDS it sleeps inside the transaction (to hold the lock).
+"""
+import sys
+import time
+
+import numpy as np
+
+from vfcli.store import Store
+
+
+def frames_for(seed: int, n: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.integers(0, 4096, size=(n, 128, 128), dtype=np.uint16)
+
+
+def main() -> None:
+    path, seed, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    hold = float(sys.argv[4]) if len(sys.argv) > 4 else 0.0
+    frames = frames_for(seed, n)
+    with Store(path).write(f"writer {seed}") as w:
+        print("writing", flush=True)
+        if hold:
+            time.sleep(hold)
+        with w.stage("hsc", config_json=f'{{"seed": {seed}}}') as s:
+            ds = s.create("frames", frames.shape, np.uint16)
+            for i, fr in enumerate(frames):
+                ds[i] = fr
+            s.put("frame_time", np.arange(n) / 10000.0)
+            s.set_attrs(seed=seed)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,114 @@
+"""Configs: validation, overrides, one-line errors, schemas kept in step with the models."""
+from __future__ import annotations
+
+import json
+import typing
+from pathlib import Path
+
+import annotated_types
+import pytest
+from pydantic import BaseModel
+
+from vfcli import layout
+from vfcli.config import SCHEMA_MODELS, RecordingConfig, export_schemas, load_config
+from vfcli.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_committed_schemas_match_the_models(tmp_path):
+    written = export_schemas(tmp_path)
+    for p in written:
+        committed = ROOT / "schemas" / p.name
+        assert committed.exists(), f"schemas/{p.name} missing: run `make schemas`"
+        assert json.loads(committed.read_text()) == json.loads(p.read_text()), f"schemas/{p.name} is out of date: run `make schemas`"
+    assert sorted(p.name for p in (ROOT / "schemas").glob("*.schema.json")) == sorted(p.name for p in written)
+
+
+def test_committed_layout_page_matches_the_layout():
+    page = (ROOT / "docs" / "store-layout.md").read_text()
+    assert page.strip() == layout.layout_markdown().strip(), "docs/store-layout.md is out of date: run `make schemas`"
+
+
+def _numeric(annotation) -> bool:
+    """A scalar int or float field (optionally None)."""
+    if typing.get_origin(annotation) in (tuple, list, typing.Literal):
+        return False
+    args = typing.get_args(annotation) or (annotation,)
+    return any(a in (int, float) for a in args)
+
+
+@pytest.mark.parametrize("name", [n for n in SCHEMA_MODELS if n != "recording"])
+def test_every_field_has_a_description_a_default_and_bounds(name):
+    model: type[BaseModel] = SCHEMA_MODELS[name]
+    for field_name, field in model.model_fields.items():
+        assert field.description, f"{name}.{field_name} has no description"
+        assert not field.is_required(), f"{name}.{field_name} has no default"
+        if _numeric(field.annotation):
+            kinds = {type(m) for m in field.metadata}
+            assert kinds & {annotated_types.Gt, annotated_types.Ge}, f"{name}.{field_name} has no lower bound"
+            assert kinds & {annotated_types.Lt, annotated_types.Le}, f"{name}.{field_name} has no upper bound"
+
+
+def test_file_then_overrides(tmp_path):
+    cfg = tmp_path / "rec.toml"
+    cfg.write_text('name = "rig A"\n[camera]\npx_per_mm = 25.0\n[mesh]\ndepth_mm = 6.0\n')
+    stored, effective = load_config(cfg, None, ["camera.px_per_mm=30", "flow.method=dis"])
+    assert stored.camera.px_per_mm == 25.0 and stored.mesh.depth_mm == 6.0
+    assert effective.camera.px_per_mm == 30.0 and effective.flow.method == "dis"
+    assert effective.mesh.depth_mm == 6.0 and effective.name == "rig A"
+    # the stored config comes back from JSON when no file is given
+    again, _ = load_config(None, stored.model_dump_json(), None)
+    assert again == stored
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ("[mesh]\ntarget_edge_mm = -1\n", "mesh.target_edge_mm = -1: Input should be greater than or equal to 0.1"),
+        ("[mesh]\ntarget_edge = 0.5\n", "mesh.target_edge: unknown setting"),
+        ("[flow]\nmethod = 'farneback'\n", "flow.method = 'farneback'"),
+        ("[camera\n", "not valid TOML"),
+    ],
+)
+def test_invalid_config_is_one_line_naming_field_and_value(tmp_path, text, needle):
+    cfg = tmp_path / "rec.toml"
+    cfg.write_text(text)
+    with pytest.raises(ConfigError) as exc:
+        load_config(cfg)
+    msg = str(exc.value)
+    assert needle in msg and "\n" not in msg and str(cfg) in msg
+
+
+def test_invalid_value_exits_2_and_leaves_the_store_untouched(tmp_path, vfcli):
+    store = tmp_path / "r.h5"
+    good = tmp_path / "good.toml"
+    good.write_text("[camera]\npx_per_mm = 25\n")
+    assert vfcli("config", store, "--config", good).returncode == 0
+    before = store.read_bytes()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sync]\nmin_quality = 3\n")
+    res = vfcli("config", store, "--config", bad)
+    assert res.returncode == 2
+    assert res.stderr.strip().count("\n") == 0 and "sync.min_quality = 3" in res.stderr
+    assert "Traceback" not in res.stderr
+    res = vfcli("config", store, "--set", "camera.px_per_mm=-4")
+    assert res.returncode == 2 and "camera.px_per_mm = -4" in res.stderr
+    assert store.read_bytes() == before
+
+
+def test_stored_config_is_updated_by_a_new_file(tmp_path, vfcli):
+    store = tmp_path / "r.h5"
+    cfg = tmp_path / "rec.toml"
+    cfg.write_text("[camera]\npx_per_mm = 25\n")
+    vfcli("config", store, "--config", cfg)
+    cfg.write_text("[camera]\npx_per_mm = 40\n")
+    vfcli("config", store, "--config", cfg)
+    shown = json.loads(vfcli("config", store, "--show").stdout)
+    assert shown["camera"]["px_per_mm"] == 40.0
+    assert RecordingConfig.model_validate(shown).camera.px_per_mm == 40.0
+
+
+def test_the_example_config_is_valid_and_spells_out_the_defaults():
+    stored, _ = load_config(ROOT / "examples" / "recording.toml")
+    assert stored == RecordingConfig()

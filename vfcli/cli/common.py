@@ -1,0 +1,61 @@
+"""Options every store command shares, and turning a library result into output."""
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import shlex
+import sys
+from typing import Any, Callable
+
+import click
+
+from ..progress import make_progress
+from ..stages.base import RunContext, StageResult
+
+
+def setup_logging(verbose: int, quiet: bool) -> None:
+    level = logging.WARNING - 10 * verbose if not quiet else logging.ERROR
+    logging.basicConfig(level=max(level, logging.DEBUG), format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+
+def store_command(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Add FILE, --config, --set, --force, --quiet, --json, -v; pass a RunContext as ``ctx``."""
+
+    @click.argument("file", type=click.Path(dir_okay=False))
+    @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="recording.toml; stored with the recording (replaces the stored config).")
+    @click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value for this run (repeatable).")
+    @click.option("--force", is_flag=True, help="Rerun even when inputs and config are unchanged.")
+    @click.option("--quiet", "-q", is_flag=True, help="No progress bars, errors only.")
+    @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary (JSON) on stdout.")
+    @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
+    @functools.wraps(func)
+    def wrapper(file: str, config_path: str | None, overrides: tuple[str, ...], force: bool, quiet: bool, as_json: bool, verbose: int, **kwargs: Any) -> None:
+        setup_logging(verbose, quiet)
+        ctx = RunContext.open(
+            file,
+            config_path,
+            list(overrides),
+            command=" ".join(shlex.quote(a) for a in ["vfcli", *sys.argv[1:]]),
+            force=force,
+            progress=make_progress(False if quiet else None),
+        )
+        result = func(ctx=ctx, **kwargs)
+        report(result, as_json)
+
+    return wrapper
+
+
+def report(result: StageResult | list[StageResult], as_json: bool) -> None:
+    """Print what a command did: one line per stage, or JSON."""
+    results = result if isinstance(result, list) else [result]
+    if as_json:
+        payload = [r.to_json() for r in results]
+        click.echo(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, default=str))
+        return
+    for r in results:
+        if r.status == "up-to-date":
+            click.echo(f"{r.stage}: up to date (inputs and config unchanged; --force reruns)")
+        else:
+            extras = ", ".join(f"{k}={v}" for k, v in r.summary.items() if not isinstance(v, (dict, list)))
+            click.echo(f"{r.stage}: written" + (f" ({extras})" if extras else ""))

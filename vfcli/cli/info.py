@@ -1,0 +1,39 @@
+"""`vfcli info FILE`: stages present, provenance, sizes, stale and interrupted writes."""
+from __future__ import annotations
+
+import json
+
+import click
+
+from ..info import store_info
+
+
+@click.command("info")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the same as JSON.")
+def info_cmd(file: str, as_json: bool) -> None:
+    """Show the stages in FILE with their provenance, sizes and staleness.
+
+    Reads every group; writes nothing.
+    """
+    info = store_info(file)
+    if as_json:
+        click.echo(json.dumps(info, indent=2, default=str))
+        return
+    click.echo(f"{info['path']}  ({info['size_bytes'] / 1e6:.1f} MB, format {info['format']} v{info['format_version']}, created {info['created_utc']})")
+    for leftover in info["interrupted_writes"]:
+        click.echo(f"  ! interrupted write left {leftover} (the store itself is intact; the next write removes it)")
+    if not info["stages"]:
+        click.echo("  no stages yet")
+    for st in info["stages"]:
+        prov = st["provenance"]
+        flag = "incomplete" if not st["complete"] else ("STALE: " + "; ".join(st["stale_because"]) if st["stale"] else "ok")
+        click.echo(f"  {st['path']:<22} {st['size_bytes'] / 1e6:9.2f} MB  {flag}")
+        click.echo(f"      written {prov.get('created_utc', '?')} by vfcli {prov.get('vfcli_version', '?')}: {prov.get('command', '?')}")
+        for path, meta in prov.get("inputs", {}).items():
+            click.echo(f"      input {path}  sha256 {meta['sha256'][:16]}...")
+        for path, digest in prov.get("upstream", {}).items():
+            click.echo(f"      uses {path} @ {digest}")
+    missing = info["missing_stages"]
+    if missing:
+        click.echo("  not yet written: " + ", ".join(missing))

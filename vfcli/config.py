@@ -1,0 +1,238 @@
+"""Configs: one pydantic model per subcommand, gathered in one recording-level TOML file.
+
+Every field has a unit in its name or description, a default and a range. Models are
+frozen and reject unknown keys, so a typo in ``recording.toml`` is an error, not a
+silently ignored setting. The CLI loads a config once: the file (``--config``), then
+``--set section.field=value`` overrides; a core function receives only its own section.
+"""
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from .errors import ConfigError
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class CameraConfig(_Section):
+    """Calibration of the high-speed camera (superior view), see docs/conventions.md."""
+
+    fps_hz: float | None = Field(None, gt=0, le=1e7, description="Frame rate in Hz; null: from the video's metadata")
+    px_per_mm: float = Field(20.0, gt=0, le=1000, description="Image scale from a calibration target, px/mm")
+    rotation_deg: float = Field(0.0, ge=-180, le=180, description="In-plane rotation of the model frame in the image, degrees")
+    offset_px: tuple[float, float] = Field(
+        (0.0, 0.0), description="Pixel (col, row) of the model origin (x = 0, y = 0), px"
+    )
+
+
+class LdvFrameConfig(_Section):
+    """How the vibrometer's point coordinates map into the camera frame (mm)."""
+
+    units_scale_to_mm: float = Field(
+        1.0, gt=0, le=1e6, description="Factor from the scan file's coordinate unit to mm (1000 when the file is in m)"
+    )
+    affine: tuple[tuple[float, float, float], tuple[float, float, float]] = Field(
+        ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+        description="2x3 affine map from scan (x, y) in mm to camera-frame (x, y) in mm",
+    )
+
+
+class IngestHscConfig(_Section):
+    """`vfcli ingest-hsc`: which frames and region to keep, where the pressure is."""
+
+    first_frame: int = Field(0, ge=0, le=10**9, description="First frame to ingest (index)")
+    n_frames: int | None = Field(None, ge=1, le=10**9, description="Number of frames to ingest; null: to the end")
+    roi_px: tuple[int, int, int, int] | None = Field(
+        None, description="Region of interest (col0, row0, width, height) in px; null: whole frame"
+    )
+    pressure_group: str | None = Field(None, description="TDMS group of the pressure; null: the only one")
+    pressure_channel: str | None = Field(None, description="TDMS/CSV channel of the pressure; null: auto")
+    wav_full_scale_pa: float = Field(1000.0, gt=0, le=1e7, description="WAV pressure: Pa at digital full scale")
+
+
+class IngestLdvConfig(_Section):
+    """`vfcli ingest-ldv`: scan grid and channel labels."""
+
+    grid_rows: int = Field(17, ge=1, le=1000, description="Rows of the scan grid (points)")
+    grid_cols: int = Field(22, ge=1, le=1000, description="Columns of the scan grid (points)")
+    velocity_id1: str = Field("Response Time Trace", description="UFF id1 of the vibrometer channel")
+    reference_id1: str = Field("Reference Time Trace", description="UFF id1 of the pressure reference channel")
+
+
+class SyncConfig(_Section):
+    """`vfcli sync`: pressure-based alignment of the LDV epochs to the video."""
+
+    f0_min_hz: float = Field(50.0, gt=0, le=5000, description="Lowest admissible fundamental frequency, Hz")
+    f0_max_hz: float = Field(500.0, gt=0, le=5000, description="Highest admissible fundamental frequency, Hz")
+    max_drift: float = Field(0.05, gt=0, le=0.5, description="Largest relative f0 difference of an epoch from the video (1)")
+    min_quality: float = Field(0.9, ge=0, le=1, description="Alignment quality below which a point is rejected (1)")
+
+
+class FlowConfig(_Section):
+    """`vfcli flow`: gap segmentation and optical flow."""
+
+    method: Literal["sparse_to_dense", "dis"] = Field("sparse_to_dense", description="Optical flow method")
+    threshold: float | None = Field(None, ge=0, le=65535, description="Gap intensity threshold in counts; null: automatic (Otsu)")
+    median_px: int = Field(5, ge=1, le=31, description="Median filter size of the gap mask, px (odd)")
+    rbf_smoothing: float = Field(0.0, ge=0, le=1e6, description="Thin-plate-spline smoothing of the LDV fit (1)")
+
+
+class MeshConfig(_Section):
+    """`vfcli mesh`: the M5 model (Scherer et al. 2001, uniform glottis) and its tetrahedralisation."""
+
+    thickness_mm: float = Field(3.0, gt=0.5, le=10, description="T: medial surface thickness incl. exit arc, mm")
+    exit_radius_mm: float = Field(0.987, gt=0.05, le=5, description="R_O: radius of the exit arc, mm")
+    entrance_radius_mm: float = Field(1.5, gt=0.05, le=5, description="R_L: radius of the entrance arc, mm")
+    entrance_angle_deg: float = Field(50.0, gt=0, lt=90, description="Sweep of the entrance arc, degrees")
+    inferior_angle_deg: float = Field(40.0, gt=0, lt=90, description="Inferior surface angle to the medial-lateral plane, degrees")
+    depth_mm: float = Field(8.0, gt=2, le=20, description="D: medial-lateral depth of one fold, mm")
+    length_mm: float = Field(15.0, gt=2, le=40, description="L: anterior-posterior length, mm")
+    gap_mm: float = Field(0.1, ge=0, le=2, description="Pre-phonatory gap between the folds, mm")
+    fold_offset_mm: tuple[tuple[float, float], tuple[float, float]] = Field(
+        ((0.0, 0.0), (0.0, 0.0)), description="Per-fold (left, right) mounting offset (y, z), mm"
+    )
+    fold_rotation_deg: tuple[float, float] = Field(
+        (0.0, 0.0), description="Per-fold (left, right) mounting rotation about the x axis, degrees"
+    )
+    target_edge_mm: float = Field(0.8, ge=0.1, le=5, description="Target tetrahedron edge length, mm")
+    youngs_modulus_pa: float = Field(4400.0, gt=0, le=1e8, description="Young's modulus E, Pa")
+    poisson_ratio: float = Field(0.499, ge=0, lt=0.5, description="Poisson's ratio nu (1)")
+    density_kg_m3: float = Field(1070.0, gt=0, le=1e5, description="Density of the silicone, kg/m^3")
+
+
+class OptimizeConfig(_Section):
+    """`vfcli optimize`: force-field resolution and optimiser (see docs)."""
+
+    setup: Literal["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"] = Field(
+        "5x5x15-two-sided", description="The paper's force-field setups: control points (u x v x t) and sides"
+    )
+    method: Literal["lbfgs", "paper"] = Field("lbfgs", description="Optimiser; 'paper': FD gradient descent")
+    max_iterations: int = Field(200, ge=1, le=100000, description="Iteration limit")
+
+
+class RecordingConfig(_Section):
+    """Everything vfcli knows about one recording, as in ``recording.toml``."""
+
+    name: str = Field("recording", description="A label for the recording")
+    camera: CameraConfig = CameraConfig()
+    ldv_frame: LdvFrameConfig = LdvFrameConfig()
+    ingest_hsc: IngestHscConfig = IngestHscConfig()
+    ingest_ldv: IngestLdvConfig = IngestLdvConfig()
+    sync: SyncConfig = SyncConfig()
+    flow: FlowConfig = FlowConfig()
+    mesh: MeshConfig = MeshConfig()
+    optimize: OptimizeConfig = OptimizeConfig()
+
+
+#: The models exported as JSON Schema into ``schemas/``.
+SCHEMA_MODELS: dict[str, type[BaseModel]] = {
+    "recording": RecordingConfig,
+    "camera": CameraConfig,
+    "ldv_frame": LdvFrameConfig,
+    "ingest_hsc": IngestHscConfig,
+    "ingest_ldv": IngestLdvConfig,
+    "sync": SyncConfig,
+    "flow": FlowConfig,
+    "mesh": MeshConfig,
+    "optimize": OptimizeConfig,
+}
+
+
+def _one_line(exc: ValidationError, source: str) -> str:
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        if err["type"] == "extra_forbidden":
+            parts.append(f"{loc}: unknown setting")
+        else:
+            parts.append(f"{loc} = {err.get('input')!r}: {err['msg']}")
+    return f"{source}: invalid config: " + "; ".join(parts)
+
+
+def _validate(data: dict[str, Any], source: str) -> RecordingConfig:
+    try:
+        return RecordingConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(_one_line(exc, source)) from None
+
+
+def _parse_value(text: str) -> Any:
+    """A ``--set`` value: TOML/JSON literal when it parses as one, else the plain string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(base: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Apply ``section.field=value`` overrides to a config dict (returns a new dict)."""
+    out = json.loads(json.dumps(base))
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set {item!r}: expected section.field=value")
+        node = out
+        *parents, leaf = key.strip().split(".")
+        for p in parents:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"--set {item!r}: {p} is not a section")
+        node[leaf] = _parse_value(value.strip())
+    return out
+
+
+def load_config(
+    path: str | Path | None = None, stored_json: str | None = None, overrides: list[str] | None = None
+) -> tuple[RecordingConfig, RecordingConfig]:
+    """The recording config to store and the one to run with.
+
+    Parameters
+    ----------
+    path
+        ``recording.toml`` given with ``--config``; it replaces the stored config.
+    stored_json
+        The config stored in the recording's store, used when no file is given.
+    overrides
+        ``--set section.field=value`` items: they apply to this run only.
+
+    Returns
+    -------
+    (stored, effective)
+        ``stored`` goes into the store; ``effective`` (stored + overrides) drives the run.
+    """
+    if path is not None:
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"{path}: config file not found") from None
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+        stored = _validate(data, str(path))
+    elif stored_json:
+        stored = _validate(json.loads(stored_json), "stored recording config")
+    else:
+        stored = RecordingConfig()
+    effective = stored
+    if overrides:
+        effective = _validate(apply_overrides(stored.model_dump(mode="json"), overrides), "--set")
+    return stored, effective
+
+
+def export_schemas(out_dir: str | Path) -> list[Path]:
+    """Write one JSON Schema per config model into ``out_dir``; returns the paths."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, model in SCHEMA_MODELS.items():
+        p = out_dir / f"{name}.schema.json"
+        p.write_text(json.dumps(model.model_json_schema(), indent=2, sort_keys=True) + "\n")
+        written.append(p)
+    return written

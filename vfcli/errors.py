@@ -1,0 +1,72 @@
+"""Errors a user can cause, each with its documented exit code.
+
+The CLI turns every :class:`VfcliError` into one line on stderr and exits with
+``exit_code``; anything else is a bug and keeps its traceback.
+
+Exit codes
+----------
+0  done (or nothing to do: inputs unchanged)
+1  internal error (a bug: please report it with the traceback)
+2  usage or config error (bad option, invalid config value)
+3  bad input data (unreadable, truncated, inconsistent or non-physical raw files)
+4  store locked by another writer, or not a vfcli store / incompatible version
+5  a stage this command needs is missing or incomplete (run the upstream command first)
+6  not implemented yet
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_USAGE = 2
+EXIT_BAD_INPUT = 3
+EXIT_STORE = 4
+EXIT_MISSING_STAGE = 5
+EXIT_NOT_IMPLEMENTED = 6
+
+
+class VfcliError(Exception):
+    """Base class: a problem the user can fix; printed as one line."""
+
+    exit_code = EXIT_INTERNAL
+
+    def __init__(self, message: str, path: str | Path | None = None) -> None:
+        self.path = None if path is None else str(path)
+        super().__init__(f"{self.path}: {message}" if self.path else message)
+
+
+class ConfigError(VfcliError):
+    """An invalid option or config value (exit 2)."""
+
+    exit_code = EXIT_USAGE
+
+
+class InputDataError(VfcliError):
+    """A raw input file that cannot be used as it is (exit 3)."""
+
+    exit_code = EXIT_BAD_INPUT
+
+
+class StoreLockedError(VfcliError):
+    """Another process is writing the store (exit 4)."""
+
+    exit_code = EXIT_STORE
+
+
+class StoreFormatError(VfcliError):
+    """Not a vfcli store, or written by an incompatible version (exit 4)."""
+
+    exit_code = EXIT_STORE
+
+
+class MissingStageError(VfcliError):
+    """A stage the command reads is absent or incomplete (exit 5)."""
+
+    exit_code = EXIT_MISSING_STAGE
+
+
+class NotImplementedYet(VfcliError):
+    """A subcommand that is not built yet (exit 6)."""
+
+    exit_code = EXIT_NOT_IMPLEMENTED

@@ -1,0 +1,225 @@
+"""The store layout: every group and dataset of a vfcli store, with units and axes.
+
+This module is the one place that names HDF5 paths. Stage modules refer to datasets
+by the keys declared here; :mod:`vfcli.store` turns them into paths, attaches the
+units and attaches the time axes as HDF5 dimension scales. ``docs/store-layout.md``
+is generated from this table (``vfcli schemas`` writes it), so the documentation
+cannot drift from the code.
+
+A store has one group per stage (``/hsc``, ``/ldv``, ``/sync`` ...). Stages that can
+run several times with different settings (``optimize``, ``diagnose``) keep one
+subgroup per run: ``/optimize/<run>``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+FORMAT_NAME = "vfcli-store"
+FORMAT_VERSION = 1
+
+#: Root attribute holding the recording's config (JSON of :class:`vfcli.config.RecordingConfig`).
+ROOT_CONFIG_ATTR = "recording_config_json"
+
+#: Attributes every stage group carries (its provenance).
+PROVENANCE_ATTRS = (
+    "stage",
+    "vfcli_version",
+    "command",
+    "created_utc",
+    "config_json",
+    "inputs_json",
+    "upstream_json",
+    "digest",
+)
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """One dataset of a stage.
+
+    Parameters
+    ----------
+    units
+        Physical unit of the values (``"1"`` for dimensionless, ``"bool"``, ``"index"``).
+    description
+        One line, shown in ``docs/store-layout.md`` and as the dataset's ``description``.
+    dims
+        Name of each axis; an axis named after another dataset of the same stage
+        (``"frame_time"``) is attached to it as an HDF5 dimension scale.
+    frame_chunked
+        Large per-frame arrays: chunked one frame (first axis) per chunk and compressed.
+    """
+
+    units: str
+    description: str
+    dims: tuple[str, ...] = ()
+    frame_chunked: bool = False
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A stage group: which command writes it, what it reads, what it holds."""
+
+    name: str
+    written_by: str
+    description: str
+    reads: tuple[str, ...] = ()
+    datasets: dict[str, Dataset] = field(default_factory=dict)
+    has_runs: bool = False
+
+    def group_path(self, run: str | None = None) -> str:
+        """HDF5 path of the stage group (``/optimize/<run>`` for stages with runs)."""
+        if self.has_runs:
+            if not run:
+                raise ValueError(f"stage {self.name!r} needs a run name")
+            return f"/{self.name}/{run}"
+        return f"/{self.name}"
+
+
+D = Dataset
+
+STAGES: dict[str, Stage] = {
+    s.name: s
+    for s in [
+        Stage(
+            "hsc",
+            "ingest-hsc",
+            "High-speed video of the superior surface and the subglottal pressure recorded with it.",
+            datasets={
+                "frames": D("counts", "Video frames, unchanged bit depth", ("frame_time", "row", "col"), True),
+                "frame_time": D("s", "Time of each frame from the first frame", ("frame_time",)),
+                "pressure": D("Pa", "Subglottal pressure recorded with the video", ("pressure_time",)),
+                "pressure_time": D("s", "Time of each pressure sample, video time base", ("pressure_time",)),
+            },
+        ),
+        Stage(
+            "ldv",
+            "ingest-ldv",
+            "Scanning-vibrometer grid: one epoch per point, with the pressure reference channel.",
+            datasets={
+                "node_id": D("index", "Scan point number in the source file", ("point",)),
+                "grid_index": D("index", "(row, col) of each point in the scan grid", ("point", "rc")),
+                "coords_mm": D("mm", "Point coordinates in the camera frame (x, y, z)", ("point", "xyz")),
+                "velocity": D("mm/s", "Vertical surface velocity per point", ("point", "sample")),
+                "reference": D("Pa", "Pressure reference channel recorded with each point", ("point", "sample")),
+                "dropout": D("bool", "Point whose signal drops out (flagged, kept)", ("point",)),
+                "dropout_reason": D("text", "Why a point was flagged", ("point",)),
+            },
+        ),
+        Stage(
+            "sync",
+            "sync",
+            "LDV epochs mapped onto the video's time base through the subglottal pressure.",
+            reads=("hsc", "ldv"),
+            datasets={
+                "offset_s": D("s", "Start of each LDV epoch relative to the video's phase reference", ("point",)),
+                "f0_hz": D("Hz", "Fundamental frequency of each LDV epoch", ("point",)),
+                "drift": D("1", "Relative f0 difference of each epoch against the video", ("point",)),
+                "quality": D("1", "Alignment quality in [0, 1]", ("point",)),
+                "ok": D("bool", "Point aligned", ("point",)),
+                "reason": D("text", "Why a point could not be aligned", ("point",)),
+                "aligned_w": D("mm/s", "Vertical velocity on the video frame times", ("point", "frame_time")),
+                "frame_time": D("s", "Video frame times", ("frame_time",)),
+            },
+        ),
+        Stage(
+            "flow",
+            "flow",
+            "Gap mask, glottal area, opening function and horizontal optical flow per frame.",
+            reads=("hsc",),
+            datasets={
+                "gap_mask": D("bool", "Glottal gap per frame", ("frame_time", "row", "col"), True),
+                "glottal_area": D("mm^2", "Glottal area waveform", ("frame_time",)),
+                "opening": D("mm", "Gap opening function o(y, t)", ("frame_time", "row", "col"), True),
+                "flow": D("mm/s", "Horizontal surface velocity (u, v)", ("frame_time", "row", "col", "uv"), True),
+                "frame_time": D("s", "Time at which each flow frame applies", ("frame_time",)),
+            },
+        ),
+        Stage(
+            "fields",
+            "flow",
+            "Tri-variate surface velocity field v(y, t) = (u, v, w) on the pixel grid.",
+            reads=("flow", "sync", "ldv"),
+            datasets={
+                "velocity": D("mm/s", "Surface velocity (u, v, w)", ("frame_time", "row", "col", "uvw"), True),
+                "valid": D("bool", "Fold surface visible (velocity valid)", ("frame_time", "row", "col"), True),
+                "frame_time": D("s", "Frame times", ("frame_time",)),
+            },
+        ),
+        Stage(
+            "mesh",
+            "mesh",
+            "Tetrahedral M5 model of both folds with tagged boundary and (u, v) surface maps.",
+            datasets={
+                "nodes": D("mm", "Node coordinates (x, y, z)", ("node", "xyz")),
+                "tets": D("index", "Tetrahedra (node indices)", ("tet", "corner")),
+                "tet_fold": D("index", "Fold of each tetrahedron (0 left, 1 right)", ("tet",)),
+                "faces": D("index", "Boundary triangles (node indices, outward)", ("face", "corner")),
+                "face_tag": D("index", "1 inferior, 2 superior, 3 medial, 4 fixture", ("face",)),
+                "face_fold": D("index", "Fold of each boundary triangle", ("face",)),
+                "uv": D("1", "(u, v) surface coordinates, NaN off the parameterised sides", ("node", "uv")),
+                "node_side": D("index", "0 none, 1 inferior side, 2 superior side", ("node",)),
+            },
+        ),
+        Stage(
+            "optimize",
+            "optimize",
+            "One optimisation run: force-field control values, history and reconstruction.",
+            reads=("mesh", "fields", "flow"),
+            has_runs=True,
+        ),
+        Stage(
+            "diagnose",
+            "diagnose",
+            "Missing-physics diagnosis of one optimisation run.",
+            reads=("optimize",),
+            has_runs=True,
+        ),
+    ]
+}
+
+
+def stage(name: str) -> Stage:
+    """The :class:`Stage` called ``name``; ``KeyError`` lists the known ones."""
+    try:
+        return STAGES[name]
+    except KeyError:
+        raise KeyError(f"unknown stage {name!r}; known: {', '.join(STAGES)}") from None
+
+
+def dataset_path(stage_name: str, key: str, run: str | None = None) -> str:
+    """HDF5 path of dataset ``key`` of a stage; ``KeyError`` if the layout does not declare it."""
+    st = stage(stage_name)
+    if st.datasets and key not in st.datasets:
+        raise KeyError(f"stage {stage_name!r} declares no dataset {key!r}")
+    return f"{st.group_path(run)}/{key}"
+
+
+def layout_markdown() -> str:
+    """The layout as a Markdown page (written to ``docs/store-layout.md``)."""
+    lines = [
+        "# Store layout",
+        "",
+        "One HDF5 file per recording. Generated from `vfcli/layout.py` by `vfcli schemas`; do not edit.",
+        "",
+        f"Root attributes: `format` = `{FORMAT_NAME}`, `format_version` = {FORMAT_VERSION}, "
+        f"`{ROOT_CONFIG_ATTR}` (the recording's config as JSON).",
+        "",
+        "Every stage group carries its provenance as attributes: "
+        + ", ".join(f"`{a}`" for a in PROVENANCE_ATTRS)
+        + ". Every dataset carries `units` and `description`; time axes are HDF5 dimension scales.",
+        "",
+    ]
+    for st in STAGES.values():
+        path = st.group_path("<run>") if st.has_runs else st.group_path()
+        lines += [f"## `{path}`", "", f"{st.description} Written by `vfcli {st.written_by}`."]
+        if st.reads:
+            lines.append(f"Reads: {', '.join('`/' + r + '`' for r in st.reads)}.")
+        lines.append("")
+        if st.datasets:
+            lines += ["| dataset | units | axes | description |", "| --- | --- | --- | --- |"]
+            for key, ds in st.datasets.items():
+                axes = ", ".join(ds.dims)
+                lines.append(f"| `{key}` | {ds.units} | {axes} | {ds.description} |")
+            lines.append("")
+    return "\n".join(lines)

@@ -1,0 +1,117 @@
+"""What every stage runner shares: the run context and the idempotent, atomic write."""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Literal
+
+from ..config import RecordingConfig, load_config
+from ..errors import MissingStageError
+from ..progress import Progress, no_progress
+from ..store import StageWriter, Store, StoreReader, describe_files
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class RunContext:
+    """One command's view of a recording: its store, its configs and how to report."""
+
+    store: Store
+    stored_config: RecordingConfig
+    config: RecordingConfig
+    command: str = "vfcli"
+    force: bool = False
+    progress: Progress = no_progress
+
+    @classmethod
+    def open(
+        cls,
+        path: str | Path,
+        config_path: str | Path | None = None,
+        overrides: list[str] | None = None,
+        **kwargs: Any,
+    ) -> "RunContext":
+        """Load the recording config (file, else the stored one, else defaults) plus overrides."""
+        store = Store(path)
+        stored_json = None
+        if store.exists():
+            with store.read() as r:
+                stored_json = r.recording_config_json()
+        stored, effective = load_config(config_path, stored_json, overrides)
+        return cls(store=store, stored_config=stored, config=effective, **kwargs)
+
+
+@dataclass
+class StageResult:
+    """What a stage run did, for the CLI's summary (``--json``)."""
+
+    stage: str
+    status: Literal["written", "up-to-date"]
+    summary: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stage": self.stage, "status": self.status, **self.summary}
+
+
+Body = Callable[[StoreReader, StageWriter], dict[str, Any]]
+
+
+def run_stage(
+    ctx: RunContext,
+    name: str,
+    *,
+    config_json: str,
+    body: Body,
+    input_paths: list[str | Path] | None = None,
+    upstream: list[tuple[str, str | None]] | None = None,
+    run: str | None = None,
+) -> StageResult:
+    """Write stage ``name`` with ``body`` unless it is up to date (``ctx.force`` reruns).
+
+    ``body(reader, stage_writer)`` reads what it needs through ``reader`` (the store as it
+    is inside the transaction), writes through ``stage_writer`` and returns a summary.
+    """
+    from .. import layout
+
+    path = layout.stage(name).group_path(run)
+    upstream = upstream or []
+    inputs = describe_files(ctx.store, name, input_paths, run) if input_paths else {}
+    stored_json = ctx.stored_config.model_dump_json()
+    if ctx.store.exists():
+        with ctx.store.read() as r:
+            r.upstream_digests(upstream)  # MissingStageError when an upstream stage is absent
+            current = not ctx.force and r.is_current(name, config_json, inputs, upstream, run)
+            config_changed = r.recording_config_json() != stored_json
+    elif upstream:
+        up = layout.stage(upstream[0][0])
+        raise MissingStageError(f"stage /{up.name} is missing; run `vfcli {up.written_by}` first", ctx.store.path)
+    else:
+        current, config_changed = False, True
+    if current:
+        if config_changed:
+            with ctx.store.write(ctx.command) as w:
+                w.set_recording_config(stored_json)
+        log.info("%s is up to date (inputs and config unchanged); --force reruns", path)
+        return StageResult(path, "up-to-date")
+    with ctx.store.write(ctx.command) as w:
+        w.set_recording_config(stored_json)
+        with w.stage(name, config_json=config_json, inputs=inputs, upstream=upstream, run=run) as s:
+            summary = body(w.reader, s)
+    return StageResult(path, "written", summary)
+
+
+def save_recording_config(ctx: RunContext) -> bool:
+    """Store the recording config (``--config``) in the store, creating it if needed.
+
+    Returns True when the store changed.
+    """
+    stored_json = ctx.stored_config.model_dump_json()
+    if ctx.store.exists():
+        with ctx.store.read() as r:
+            if r.recording_config_json() == stored_json:
+                return False
+    with ctx.store.write(ctx.command) as w:
+        w.set_recording_config(stored_json)
+    return True

@@ -1,0 +1,457 @@
+"""The experiment store: one HDF5 file per recording, the only module that opens HDF5.
+
+Crash safety
+------------
+A write never touches the store file itself. The writer takes an exclusive lock
+(``flock`` on the sidecar ``.<name>.lock``, released by the kernel if the process
+dies), copies the store to ``<name>.tmp-<pid>``, writes the stage there, flushes and
+fsyncs it, and atomically renames it over the store. A process killed at any moment
+therefore leaves either the old file or the new one, never a half-written stage; a
+leftover ``.tmp-`` file is the only trace and is removed by the next writer (``vfcli
+info`` reports it as an interrupted write). Readers open the store read-only and keep
+the version they opened. Files are created with persistent free-space tracking, so a
+stage that is rewritten reuses the space of its previous version.
+
+Provenance and idempotence
+--------------------------
+Every stage group records its validated config (JSON), the vfcli version, the command
+line, the time, the SHA-256 of each raw input file, and the digest of each upstream
+stage it used. :meth:`StoreReader.is_current` tells a command that its inputs, config
+and upstream stages are unchanged, so it can skip the work; a stage whose upstream was
+rewritten since is reported as stale.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import errno
+import fcntl
+import json
+import os
+import secrets
+import shutil
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import h5py
+import numpy as np
+
+from . import __version__, layout
+from .errors import ConfigError, MissingStageError, StoreFormatError, StoreLockedError
+from .provenance import describe_inputs, same_inputs, stage_digest
+
+_TMP_MARK = ".tmp-"
+_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+
+
+def _lock_path(path: Path) -> Path:
+    return path.with_name(f".{path.name}.lock")
+
+
+def _leftover_tmp_files(path: Path) -> list[Path]:
+    return sorted(path.parent.glob(f"{path.name}{_TMP_MARK}*"))
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _open_h5(path: Path, mode: str) -> h5py.File:
+    try:
+        return h5py.File(path, mode)
+    except OSError as exc:
+        raise StoreFormatError(f"cannot open as an HDF5 store ({exc})", path) from None
+
+
+def _check_format(f: h5py.File, path: Path) -> None:
+    if f.attrs.get("format") != layout.FORMAT_NAME:
+        raise StoreFormatError("not a vfcli store (no 'format' attribute)", path)
+    version = int(f.attrs.get("format_version", -1))
+    if version > layout.FORMAT_VERSION:
+        raise StoreFormatError(
+            f"written by a newer vfcli (store format {version}, this vfcli reads up to "
+            f"{layout.FORMAT_VERSION}); upgrade vfcli",
+            path,
+        )
+
+
+@dataclass
+class StageStatus:
+    """What ``vfcli info`` shows of one stage."""
+
+    path: str
+    complete: bool
+    provenance: dict[str, Any]
+    size_bytes: int
+    stale_because: list[str] = field(default_factory=list)
+
+    @property
+    def stale(self) -> bool:
+        return bool(self.stale_because)
+
+    def to_json(self) -> dict[str, Any]:
+        prov = dict(self.provenance)
+        for k in ("config_json", "inputs_json", "upstream_json"):
+            if k in prov:
+                prov[k.removesuffix("_json")] = json.loads(prov.pop(k))
+        return {
+            "path": self.path,
+            "complete": self.complete,
+            "stale": self.stale,
+            "stale_because": self.stale_because,
+            "size_bytes": self.size_bytes,
+            "provenance": prov,
+        }
+
+
+def _group_size(g: h5py.Group) -> int:
+    total = 0
+
+    def visit(_name: str, obj: Any) -> None:
+        nonlocal total
+        if isinstance(obj, h5py.Dataset):
+            total += obj.id.get_storage_size()
+
+    g.visititems(visit)
+    return total
+
+
+class StoreReader:
+    """Read-only view of a store (an open HDF5 file)."""
+
+    def __init__(self, f: h5py.File, path: Path) -> None:
+        self._f = f
+        self.path = path
+
+    # -- stages -----------------------------------------------------------
+    def stage_paths(self) -> list[str]:
+        """Paths of every stage group present (``/hsc``, ``/optimize/run1`` ...)."""
+        out = []
+        for name, st in layout.STAGES.items():
+            if name not in self._f:
+                continue
+            if st.has_runs:
+                out.extend(f"/{name}/{run}" for run in self._f[name])
+            else:
+                out.append(f"/{name}")
+        return out
+
+    def has_stage(self, name: str, run: str | None = None, complete: bool = True) -> bool:
+        path = layout.stage(name).group_path(run)
+        if path not in self._f:
+            return False
+        return bool(self._f[path].attrs.get("complete", False)) or not complete
+
+    def group(self, name: str, run: str | None = None) -> h5py.Group:
+        """The stage group; :class:`MissingStageError` when it is absent or incomplete."""
+        st = layout.stage(name)
+        if not self.has_stage(name, run):
+            raise MissingStageError(
+                f"stage {st.group_path(run) if (run or not st.has_runs) else '/' + name} is missing; "
+                f"run `vfcli {st.written_by}` first",
+                self.path,
+            )
+        return self._f[st.group_path(run)]
+
+    def read(self, name: str, key: str, run: str | None = None) -> np.ndarray:
+        """A whole dataset as a numpy array (text datasets as ``str``)."""
+        ds = self.dataset(name, key, run)
+        if h5py.check_string_dtype(ds.dtype):
+            return ds.asstr()[()]
+        return ds[()]
+
+    def dataset(self, name: str, key: str, run: str | None = None) -> h5py.Dataset:
+        """A dataset, lazily (for streaming frame by frame)."""
+        g = self.group(name, run)
+        path = layout.dataset_path(name, key, run)
+        if path not in self._f:
+            raise MissingStageError(f"{path} is missing from the stage", self.path)
+        return g[key]
+
+    def attrs(self, name: str, run: str | None = None) -> dict[str, Any]:
+        return dict(self.group(name, run).attrs)
+
+    def digest(self, name: str, run: str | None = None) -> str:
+        return str(self.group(name, run).attrs["digest"])
+
+    def root_attrs(self) -> dict[str, Any]:
+        """The store's own attributes (format, version, creation time ...)."""
+        return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in self._f.attrs.items()}
+
+    def recording_config_json(self) -> str | None:
+        v = self._f.attrs.get(layout.ROOT_CONFIG_ATTR)
+        return None if v is None else str(v)
+
+    # -- provenance checks ---------------------------------------------------
+    def status(self, path: str) -> StageStatus:
+        g = self._f[path]
+        prov = {k: g.attrs[k] for k in layout.PROVENANCE_ATTRS if k in g.attrs}
+        prov = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in prov.items()}
+        stale = []
+        for up_path, up_digest in json.loads(prov.get("upstream_json", "{}")).items():
+            if up_path not in self._f:
+                stale.append(f"{up_path} is gone")
+            elif str(self._f[up_path].attrs.get("digest")) != up_digest:
+                stale.append(f"{up_path} was rewritten")
+        return StageStatus(path, bool(g.attrs.get("complete", False)), prov, _group_size(g), stale)
+
+    def is_current(
+        self,
+        name: str,
+        config_json: str,
+        inputs: Mapping[str, Mapping[str, Any]] | None = None,
+        upstream: list[tuple[str, str | None]] | None = None,
+        run: str | None = None,
+    ) -> bool:
+        """True when the stage exists, is complete, and its config, inputs and upstream are unchanged."""
+        if not self.has_stage(name, run):
+            return False
+        st = self.status(layout.stage(name).group_path(run))
+        if st.stale or st.provenance.get("config_json") != config_json:
+            return False
+        if inputs is not None and not same_inputs(json.loads(st.provenance["inputs_json"]), inputs):
+            return False
+        recorded = json.loads(st.provenance.get("upstream_json", "{}"))
+        wanted = self.upstream_digests(upstream or [])
+        return recorded == wanted
+
+    def previous_inputs(self, name: str, run: str | None = None) -> dict[str, Any]:
+        if not self.has_stage(name, run):
+            return {}
+        return json.loads(self.group(name, run).attrs.get("inputs_json", "{}"))
+
+    def upstream_digests(self, upstream: list[tuple[str, str | None]]) -> dict[str, str]:
+        """``{group path: digest}`` of the upstream stages ``[(name, run), ...]`` (must be present)."""
+        return {layout.stage(n).group_path(r): self.digest(n, r) for n, r in upstream}
+
+
+class StageWriter:
+    """Writes the datasets of one stage inside an open write transaction."""
+
+    def __init__(self, group: h5py.Group, stage: layout.Stage) -> None:
+        self._g = group
+        self._stage = stage
+
+    def _spec(self, key: str) -> layout.Dataset | None:
+        if self._stage.datasets:
+            if key not in self._stage.datasets:
+                raise KeyError(f"stage {self._stage.name!r} declares no dataset {key!r} (see vfcli/layout.py)")
+            return self._stage.datasets[key]
+        return None
+
+    def _decorate(self, ds: h5py.Dataset, key: str, units: str | None, description: str | None) -> None:
+        spec = self._spec(key)
+        ds.attrs["units"] = units or (spec.units if spec else "1")
+        ds.attrs["description"] = description or (spec.description if spec else key)
+
+    def put(
+        self,
+        key: str,
+        data: Any,
+        *,
+        units: str | None = None,
+        description: str | None = None,
+        attrs: Mapping[str, Any] | None = None,
+    ) -> h5py.Dataset:
+        """Write a whole array (strings become variable-length UTF-8 text)."""
+        spec = self._spec(key)
+        arr = np.asarray(data)
+        if arr.dtype.kind in "UO":
+            arr = arr.astype(object)
+            ds = self._g.create_dataset(key, data=arr, dtype=h5py.string_dtype())
+        elif spec is not None and spec.frame_chunked and arr.ndim >= 2:
+            ds = self._g.create_dataset(key, data=arr, chunks=(1, *arr.shape[1:]), **_COMPRESSION)
+        else:
+            ds = self._g.create_dataset(key, data=arr)
+        self._decorate(ds, key, units, description)
+        for k, v in (attrs or {}).items():
+            ds.attrs[k] = v
+        return ds
+
+    def create(
+        self,
+        key: str,
+        shape: tuple[int, ...],
+        dtype: Any,
+        *,
+        units: str | None = None,
+        description: str | None = None,
+        attrs: Mapping[str, Any] | None = None,
+    ) -> h5py.Dataset:
+        """An empty dataset to fill frame by frame (chunked one frame per chunk, compressed)."""
+        chunks = (1, *shape[1:]) if len(shape) >= 2 else True
+        ds = self._g.create_dataset(key, shape=shape, dtype=dtype, chunks=chunks, **_COMPRESSION)
+        self._decorate(ds, key, units, description)
+        for k, v in (attrs or {}).items():
+            ds.attrs[k] = v
+        return ds
+
+    def set_attrs(self, **attrs: Any) -> None:
+        """Stage-level attributes (sampling rates, calibration ...)."""
+        for k, v in attrs.items():
+            self._g.attrs[k] = v
+
+    def attach_scales(self) -> None:
+        """Attach every axis named after a dataset of this stage as an HDF5 dimension scale."""
+        if not self._stage.datasets:
+            return
+        for key, spec in self._stage.datasets.items():
+            if key not in self._g:
+                continue
+            ds = self._g[key]
+            for axis, dim in enumerate(spec.dims[: ds.ndim]):
+                ds.dims[axis].label = dim
+                if dim != key and dim in self._g and self._g[dim].ndim == 1 and self._g[dim].shape[0] == ds.shape[axis]:
+                    scale = self._g[dim]
+                    if not scale.is_scale:
+                        scale.make_scale(dim)
+                    ds.dims[axis].attach_scale(scale)
+
+
+class StoreWriter:
+    """A write transaction on a store copy; committed by an atomic rename."""
+
+    def __init__(self, f: h5py.File, path: Path, command: str) -> None:
+        self._f = f
+        self.path = path
+        self.command = command
+        self.reader = StoreReader(f, path)
+
+    def set_recording_config(self, config_json: str) -> None:
+        self._f.attrs[layout.ROOT_CONFIG_ATTR] = config_json
+
+    @contextmanager
+    def stage(
+        self,
+        name: str,
+        *,
+        config_json: str,
+        inputs: Mapping[str, Mapping[str, Any]] | None = None,
+        upstream: list[tuple[str, str | None]] | None = None,
+        run: str | None = None,
+    ) -> Iterator[StageWriter]:
+        """Replace stage ``name`` (and ``run``) with what the block writes.
+
+        The provenance is recorded when the block ends without an exception; a block that
+        raises aborts the whole transaction (nothing reaches the store file).
+        """
+        st = layout.stage(name)
+        path = st.group_path(run)
+        upstream_digests = self.reader.upstream_digests(upstream or [])
+        if path in self._f:
+            del self._f[path]
+        g = self._f.require_group(path)
+        g.attrs["complete"] = False
+        writer = StageWriter(g, st)
+        yield writer
+        writer.attach_scales()
+        record = {
+            "stage": path,
+            "vfcli_version": __version__,
+            "command": self.command,
+            "created_utc": _now(),
+            "config_json": config_json,
+            "inputs_json": json.dumps(dict(inputs or {}), sort_keys=True),
+            "upstream_json": json.dumps(upstream_digests, sort_keys=True),
+        }
+        record["digest"] = stage_digest({**record, "nonce": secrets.token_hex(8)})
+        for k, v in record.items():
+            g.attrs[k] = v
+        g.attrs["complete"] = True
+
+
+class Store:
+    """A recording's store file.
+
+    >>> store = Store("rec.h5")                                   # doctest: +SKIP
+    >>> with store.write("vfcli mesh rec.h5") as w:               # doctest: +SKIP
+    ...     with w.stage("mesh", config_json=cfg.model_dump_json()) as s:
+    ...         s.put("nodes", nodes)
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def exists(self) -> bool:
+        return self.path.exists()
+
+    @contextmanager
+    def read(self) -> Iterator[StoreReader]:
+        """Open read-only; :class:`StoreFormatError` if it is not a vfcli store."""
+        if not self.path.exists():
+            raise ConfigError("no such store file; the first writing command creates it", self.path)
+        f = _open_h5(self.path, "r")
+        try:
+            _check_format(f, self.path)
+            yield StoreReader(f, self.path)
+        finally:
+            f.close()
+
+    def interrupted_writes(self) -> list[Path]:
+        """Leftovers of writers that died (cleaned up by the next writer)."""
+        return _leftover_tmp_files(self.path)
+
+    @contextmanager
+    def _lock(self) -> Iterator[None]:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(_lock_path(self.path), os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    raise StoreLockedError(
+                        "another vfcli process is writing this store; try again when it has finished",
+                        self.path,
+                    ) from None
+                raise
+            yield
+        finally:
+            os.close(fd)
+
+    @contextmanager
+    def write(self, command: str) -> Iterator[StoreWriter]:
+        """An exclusive write transaction: all of it reaches the store, or none of it."""
+        with self._lock():
+            for leftover in _leftover_tmp_files(self.path):
+                leftover.unlink(missing_ok=True)
+            tmp = self.path.with_name(f"{self.path.name}{_TMP_MARK}{os.getpid()}")
+            if self.path.exists():
+                with self.read():  # refuses files that are not vfcli stores
+                    pass
+                shutil.copyfile(self.path, tmp)
+                f = _open_h5(tmp, "r+")
+            else:
+                f = h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True, libver=("v110", "latest"))
+                f.attrs["format"] = layout.FORMAT_NAME
+                f.attrs["format_version"] = layout.FORMAT_VERSION
+                f.attrs["created_utc"] = _now()
+                f.attrs["generated_by"] = f"vfcli {__version__}"
+            try:
+                yield StoreWriter(f, self.path, command)
+                f.flush()
+                f.close()
+                with open(tmp, "rb+") as fh:
+                    os.fsync(fh.fileno())
+                os.replace(tmp, self.path)
+                dfd = os.open(self.path.parent, os.O_RDONLY)
+                try:
+                    os.fsync(dfd)
+                finally:
+                    os.close(dfd)
+            except BaseException:
+                try:
+                    f.close()
+                finally:
+                    tmp.unlink(missing_ok=True)
+                raise
+
+
+def describe_files(store: Store, stage_name: str, paths: list[str | Path], run: str | None = None) -> dict[str, Any]:
+    """Hashes of raw inputs, reusing the hashes the store recorded when files are unchanged."""
+    previous: dict[str, Any] = {}
+    if store.exists():
+        with store.read() as r:
+            previous = r.previous_inputs(stage_name, run)
+    return describe_inputs(paths, previous)
