@@ -90,18 +90,19 @@ class MeshConfig(_Section):
     thickness_mm: float = Field(3.0, gt=0.5, le=10, description="T: medial surface thickness incl. exit arc, mm")
     exit_radius_mm: float = Field(0.987, gt=0.05, le=5, description="R_O: radius of the exit arc, mm")
     entrance_radius_mm: float = Field(1.5, gt=0.05, le=5, description="R_L: radius of the entrance arc, mm")
-    entrance_angle_deg: float = Field(50.0, gt=0, lt=90, description="Sweep of the entrance arc, degrees")
-    inferior_angle_deg: float = Field(40.0, gt=0, lt=90, description="Inferior surface angle to the medial-lateral plane, degrees")
+    entrance_sweep_deg: float = Field(50.0, gt=0, le=90, description="Sweep of the entrance arc, degrees")
+    inferior_angle_deg: float = Field(40.0, ge=0, lt=90, description="Inferior surface angle to the medial-lateral plane, degrees")
     depth_mm: float = Field(8.0, gt=2, le=20, description="D: medial-lateral depth of one fold, mm")
     length_mm: float = Field(15.0, gt=2, le=40, description="L: anterior-posterior length, mm")
     gap_mm: float = Field(0.1, ge=0, le=2, description="Pre-phonatory gap between the folds, mm")
-    fold_offset_mm: tuple[tuple[float, float], tuple[float, float]] = Field(
-        ((0.0, 0.0), (0.0, 0.0)), description="Per-fold (left, right) mounting offset (y, z), mm"
-    )
-    fold_rotation_deg: tuple[float, float] = Field(
+    offset_y_mm: tuple[float, float] = Field((0.0, 0.0), description="Per-fold (left, right) lateral mounting offset, mm")
+    offset_z_mm: tuple[float, float] = Field((0.0, 0.0), description="Per-fold (left, right) vertical mounting offset, mm")
+    rotation_deg: tuple[float, float] = Field(
         (0.0, 0.0), description="Per-fold (left, right) mounting rotation about the x axis, degrees"
     )
-    target_edge_mm: float = Field(0.8, ge=0.1, le=5, description="Target tetrahedron edge length, mm")
+    target_edge_mm: float = Field(1.25, ge=0.1, le=5, description="Target tetrahedron edge length, mm")
+    min_ratio: float = Field(1.5, gt=1, le=5, description="tetgen radius-edge ratio bound (1)")
+    min_dihedral_deg: float = Field(15.0, ge=0, lt=35, description="tetgen minimum dihedral angle target, degrees")
     youngs_modulus_pa: float = Field(4400.0, gt=0, le=1e8, description="Young's modulus E, Pa")
     poisson_ratio: float = Field(0.499, ge=0, lt=0.5, description="Poisson's ratio nu (1)")
     density_kg_m3: float = Field(1070.0, gt=0, le=1e5, description="Density of the silicone, kg/m^3")

@@ -8,8 +8,8 @@ from .common import store_command
 
 
 @click.command("config")
-@click.option("--show", is_flag=True, help="Print the effective config (stored + --set) as JSON.")
 @store_command
+@click.option("--show", is_flag=True, help="Print the effective config (stored + --set) as JSON.")
 def config_cmd(ctx, show: bool):  # type: ignore[no-untyped-def]
     """Store the recording config given with --config (creates FILE if needed).
 

@@ -56,12 +56,10 @@ def _register() -> None:
     cli.add_command(config_cmd)
     cli.add_command(info_cmd)
     cli.add_command(schemas_cmd)
-    built = {}
-    try:
-        from .mesh import mesh_cmd
-        built["mesh"] = mesh_cmd
-    except ImportError:
-        pass
+    from .ingest import ingest_hsc_cmd, ingest_ldv_cmd
+    from .mesh import mesh_cmd
+
+    built = {"ingest-hsc": ingest_hsc_cmd, "ingest-ldv": ingest_ldv_cmd, "mesh": mesh_cmd}
     todo = [
         ("ingest-hsc", "Ingest the high-speed video and the pressure recorded with it."),
         ("ingest-ldv", "Ingest the scanning-vibrometer grid."),

@@ -1,0 +1,19 @@
+"""`vfcli mesh FILE`: the M5 model of both folds."""
+from __future__ import annotations
+
+import click
+
+from ..stages.mesh import run_mesh
+from .common import store_command
+
+
+@click.command("mesh")
+@store_command
+@click.option("--preview", type=click.Path(dir_okay=False), help="Render the tagged mesh to this PNG.")
+def mesh_cmd(ctx, preview: str | None):  # type: ignore[no-untyped-def]
+    """Build and tetrahedralise the M5 model of both folds (config section [mesh]).
+
+    Reads: the recording config. Writes: /mesh (nodes, tetrahedra, tagged boundary
+    triangles, (u, v) maps of the inferior and superior sides).
+    """
+    return run_mesh(ctx, preview)

@@ -1,0 +1,143 @@
+"""`vfcli ingest-hsc` and `vfcli ingest-ldv`: the instruments' files into the store."""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import ConfigError, InputDataError
+from ..io.ldv import LdvChannels, read_ldv
+from ..io.pressure import PA_PER_UNIT, read_pressure
+from ..io.video import open_video
+from ..store import StageWriter, StoreReader
+from .base import RunContext, StageResult, run_stage
+
+log = logging.getLogger(__name__)
+
+_PHOTRON_SUFFIXES = (".mraw", ".cih", ".cihx")
+
+
+def _video_files(video: Path) -> list[Path]:
+    """The files a video consists of (an MRAW and its CIH/CIHX travel together)."""
+    if video.suffix.lower() in _PHOTRON_SUFFIXES:
+        return sorted(p for s in _PHOTRON_SUFFIXES for p in [video.with_suffix(s)] if p.exists())
+    return [video]
+
+
+def _roi_rows_cols(roi_px: tuple[int, int, int, int] | None) -> tuple[int, int, int, int] | None:
+    if roi_px is None:
+        return None
+    col0, row0, width, height = roi_px
+    return row0, row0 + height, col0, col0 + width
+
+
+def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | None = None) -> StageResult:
+    """Stream the video into /hsc (unchanged bit depth, one frame per chunk) with its pressure."""
+    cfg, cam = ctx.config.ingest_hsc, ctx.config.camera
+    video = Path(video)
+    inputs = _video_files(video) + ([Path(pressure)] if pressure else [])
+    config_json = json.dumps({"ingest_hsc": cfg.model_dump(mode="json"), "camera": cam.model_dump(mode="json")}, sort_keys=True)
+
+    def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        with open_video(video) as src:
+            meta = src.meta
+            fps = cam.fps_hz or meta.fps
+            if fps is None:
+                raise ConfigError(f"{video}: the video does not record its frame rate; set camera.fps_hz in the config")
+            if cam.fps_hz and meta.fps and abs(cam.fps_hz - meta.fps) > 1e-6 * meta.fps:
+                log.warning("%s: camera.fps_hz = %g overrides the file's %g", video, cam.fps_hz, meta.fps)
+            start = cfg.first_frame
+            stop = meta.n_frames if cfg.n_frames is None else start + cfg.n_frames
+            if stop > meta.n_frames or start >= meta.n_frames:
+                raise ConfigError(
+                    f"{video}: ingest_hsc frame range {start}..{stop} is outside the video's {meta.n_frames} frames"
+                )
+            roi = _roi_rows_cols(cfg.roi_px)
+            h, w = (meta.height, meta.width) if roi is None else (roi[1] - roi[0], roi[3] - roi[2])
+            n = stop - start
+            ds = s.create("frames", (n, h, w), meta.dtype, attrs={"bit_depth": meta.bit_depth})
+            bar = ctx.progress(total=n, desc="ingest-hsc", unit="frame")
+            i = 0
+            for batch in src.iter_frames(start, stop, roi):
+                ds[i:i + len(batch)] = batch
+                i += len(batch)
+                bar.update(len(batch))
+            bar.close()
+            s.put("frame_time", np.arange(n) / fps)
+            s.set_attrs(
+                fps_hz=fps,
+                n_frames=n,
+                first_frame=start,
+                trigger_time_s=(meta.start_frame + start) / fps,
+                bit_depth=meta.bit_depth,
+                px_per_mm=cam.px_per_mm,
+                rotation_deg=cam.rotation_deg,
+                offset_px=np.asarray(cam.offset_px) - (0 if roi is None else np.array([roi[2], roi[0]])),
+                roi_px=np.asarray(cfg.roi_px if cfg.roi_px else (0, 0, meta.width, meta.height)),
+                source=meta.description or meta.kind,
+            )
+        summary: dict[str, Any] = {"frames": n, "height": h, "width": w, "fps_hz": fps, "bit_depth": meta.bit_depth}
+        if pressure is not None:
+            rec = read_pressure(pressure, cfg.pressure_group, cfg.pressure_channel,
+                                wav_pa_per_full_scale=cfg.wav_full_scale_pa)
+            t = rec.t0 + np.arange(rec.samples.size) / rec.fs - start / fps
+            duration = n / fps
+            if t[0] > 0 or t[-1] < duration - 1 / fps:
+                log.warning("%s: pressure covers %.4f..%.4f s, the video 0..%.4f s", pressure, t[0], t[-1], duration)
+            s.put("pressure", rec.samples, attrs={"fs_hz": rec.fs, "unit_in_file": rec.unit, "source": rec.source})
+            s.put("pressure_time", t)
+            s.set_attrs(pressure_fs_hz=rec.fs)
+            summary["pressure_samples"] = int(rec.samples.size)
+        return summary
+
+    return run_stage(ctx, "hsc", config_json=config_json, body=body, input_paths=inputs)
+
+
+def _to_camera_frame(coords_mm: np.ndarray, scale: float, affine: np.ndarray) -> np.ndarray:
+    """Scan coordinates (file units) to camera-frame mm with the config's scale and 2x3 affine."""
+    xyz = coords_mm * scale
+    xy = xyz[:, :2] @ affine[:, :2].T + affine[:, 2]
+    return np.column_stack([xy, xyz[:, 2]])
+
+
+def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
+    """Read a vibrometer scan into /ldv, points by node number, dropouts flagged."""
+    cfg, frame = ctx.config.ingest_ldv, ctx.config.ldv_frame
+    config_json = json.dumps({"ingest_ldv": cfg.model_dump(mode="json"), "ldv_frame": frame.model_dump(mode="json")}, sort_keys=True)
+
+    def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        channels = LdvChannels(velocity_id1=cfg.velocity_id1, reference_id1=cfg.reference_id1)
+        scan = read_ldv(scan_path, channels, expected_grid=(cfg.grid_rows, cfg.grid_cols))
+        if scan.reference is None:
+            raise InputDataError("the scan has no reference (pressure) channel; sync needs it", scan_path)
+        for note in scan.notes:
+            log.warning("%s: %s", scan_path, note)
+        ref_unit = scan.reference_unit or "V"
+        key = ref_unit.replace(" ", "").lower()
+        ref, ref_units = scan.reference, ref_unit
+        if key in PA_PER_UNIT:
+            ref, ref_units = scan.reference * PA_PER_UNIT[key], "Pa"
+        coords = _to_camera_frame(scan.coords_mm, frame.units_scale_to_mm, np.asarray(frame.affine))
+        s.put("node_id", scan.node_ids)
+        s.put("grid_index", scan.grid_index if scan.grid_index is not None else np.full((scan.n_points, 2), -1))
+        s.put("coords_mm", coords)
+        s.put("velocity", scan.velocity_mm_s.astype(np.float32), attrs={"fs_hz": scan.fs})
+        s.put("reference", ref.astype(np.float32), units=ref_units, attrs={"fs_hz": scan.fs})
+        s.put("epoch_t0", scan.t0 if scan.t0 is not None else np.zeros(scan.n_points))
+        s.put("dropout", scan.dropout)
+        s.put("dropout_reason", np.array(scan.dropout_reasons, dtype=object))
+        s.set_attrs(fs_hz=scan.fs, source=scan.source, notes=json.dumps(scan.notes),
+                    grid_shape=np.asarray(scan.grid_shape or (0, 0)))
+        return {
+            "points": scan.n_points,
+            "grid": "x".join(map(str, scan.grid_shape)) if scan.grid_shape else "irregular",
+            "samples": scan.n_samples,
+            "fs_hz": scan.fs,
+            "dropouts": int(scan.dropout.sum()),
+            "notes": scan.notes,
+        }
+
+    return run_stage(ctx, "ldv", config_json=config_json, body=body, input_paths=[scan_path])

@@ -1,0 +1,63 @@
+"""`vfcli mesh`: build the M5 model of both folds and store it in /mesh."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import layout
+from ..config import MeshConfig
+from ..m5 import M5Params
+from ..mesh import FoldMesh, build_mesh
+from ..store import StageWriter, StoreReader
+from .base import RunContext, StageResult, run_stage
+
+_SHAPE_FIELDS = (
+    "thickness_mm", "exit_radius_mm", "entrance_radius_mm", "entrance_sweep_deg", "inferior_angle_deg",
+    "depth_mm", "length_mm", "gap_mm", "offset_y_mm", "offset_z_mm", "rotation_deg",
+)
+
+
+def m5_params(cfg: MeshConfig) -> M5Params:
+    """The M5 shape of a mesh config."""
+    return M5Params(**{k: getattr(cfg, k) for k in _SHAPE_FIELDS})
+
+
+def read_mesh(reader: StoreReader) -> FoldMesh:
+    """The FoldMesh stored in /mesh."""
+    return FoldMesh(**{k: reader.read("mesh", k) for k in layout.stage("mesh").datasets})
+
+
+def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:
+    """Mesh the folds (unless /mesh is up to date) and optionally render a preview PNG."""
+    cfg = ctx.config.mesh
+
+    def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        mesh = build_mesh(m5_params(cfg), cfg.target_edge_mm, cfg.min_ratio, cfg.min_dihedral_deg)
+        for key, arr in mesh.to_arrays().items():
+            s.put(key, arr)
+        volumes = [mesh.fold_volume(0), mesh.fold_volume(1)]
+        s.set_attrs(
+            youngs_modulus_pa=cfg.youngs_modulus_pa,
+            poisson_ratio=cfg.poisson_ratio,
+            density_kg_m3=cfg.density_kg_m3,
+            fold_volume_mm3=np.array(volumes),
+            min_dihedral_deg=mesh.min_dihedral_deg(),
+        )
+        return {
+            "nodes": int(mesh.n_nodes),
+            "tets": int(len(mesh.tets)),
+            "volume_mm3": round(float(sum(volumes)), 2),
+            "min_dihedral_deg": round(float(mesh.min_dihedral_deg()), 1),
+        }
+
+    result = run_stage(ctx, "mesh", config_json=cfg.model_dump_json(), body=body)
+    if preview is not None:
+        from ..preview import render_mesh_png
+
+        with ctx.store.read() as r:
+            mesh = read_mesh(r)
+        render_mesh_png(mesh, preview)
+        result.summary["preview"] = str(preview)
+    return result

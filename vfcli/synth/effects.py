@@ -1,0 +1,243 @@
+"""The true motion of the phantom folds: the baseline physics plus one hidden effect.
+
+Baseline: quasi-static linear elasticity of two symmetric M5 folds, clamped fixture faces, no
+collision, loaded by the aerodynamic pressure of :mod:`vfcli.synth.aero`. The load is periodic
+at f0 and given over one cycle by coefficients ``c (P, J)`` of the load patterns (inferior
+uniform pressure, medial hat patterns), sampled at the phases ``arange(P) / P``.
+
+Each effect is simulated in full, as its own physics, not as a shortcut:
+
+``none``
+    ``K u(t) = F(t)``.
+``inertia``
+    ``M u'' + K (1 + i eta_s) u = F``, steady state, harmonic by harmonic (a complex sparse
+    LU of ``K (1 + i eta_s) - (k omega)^2 M`` per harmonic). ``eta_s`` is a small structural
+    loss factor (0.02) that keeps resonances bounded. Strength: density factor (1 = 1070 kg/m^3).
+``damping``
+    Kelvin-Voigt viscoelasticity with the elastic Poisson ratio, ``K (u + beta u') = F``:
+    each harmonic of the quasi-static response is multiplied by ``1 / (1 + i k omega beta)``.
+    Strength: the loss factor ``omega0 beta`` at f0.
+``contact``
+    The folds collide at the midplane and cannot interpenetrate: at every phase the
+    quasi-static response plus contact forces ``lambda >= 0`` on the medial nodes solves the
+    linear complementarity problem ``g + G lambda >= 0, lambda . (g + G lambda) = 0``
+    (``G`` the compliance of the candidate nodes, exact with one factorisation).
+    Strength: factor on the medial adduction (how hard the folds are pressed together).
+``asymmetry``
+    The left fold is softer: ``E_left = (1 - s) E_right`` with the same load on both.
+
+All effects but asymmetry are symmetric, so fold 1 is solved and fold 0 is its mirror image.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import cho_factor, solve_triangular
+from scipy.optimize import nnls
+
+from ..fem import ElasticModel
+from ..mesh import TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR
+from . import aero
+
+EFFECTS = ("none", "inertia", "damping", "contact", "asymmetry")
+
+#: default strength of each effect and its documented range
+DEFAULT_STRENGTH = {"none": 0.0, "inertia": 1.0, "damping": 0.2, "contact": 1.0, "asymmetry": 0.2}
+STRENGTH_RANGE = {"none": (0.0, 0.0), "inertia": (0.25, 2.0), "damping": (0.05, 0.5),
+                  "contact": (0.5, 2.0), "asymmetry": (0.05, 0.4)}
+STRUCTURAL_LOSS = 0.02
+
+
+@dataclass
+class LoadPatterns:
+    """Load vectors of the phantom's pressure patterns and their static responses.
+
+    Attributes
+    ----------
+    loads : (n_dofs, J) load vectors (1 Pa on column 0: inferior; columns 1..: medial hats).
+    static : (J, N, 3) vertex displacement responses, mm per Pa.
+    grid : the medial hat grid.
+    """
+
+    loads: np.ndarray
+    static: np.ndarray
+    grid: aero.MedialGrid
+
+
+def load_patterns(model: ElasticModel, grid: aero.MedialGrid) -> LoadPatterns:
+    """Assemble the pattern loads (both folds alike) and solve them once."""
+    q = model.quadrature
+    inf = model.quadrature_mask(tags=[TAG_INFERIOR])
+    med = model.quadrature_mask(tags=[TAG_MEDIAL])
+    f_inf = model.pressure_operator(inf) @ np.ones(int(inf.sum()))
+    hats = aero.hat_weights(grid, q.positions[med, 0], q.positions[med, 2])
+    f_med = (model.pressure_operator(med) @ hats).toarray()
+    loads = np.column_stack([f_inf, f_med])
+    static = model.vertex_displacements(model.solve(loads))
+    return LoadPatterns(loads, static, grid)
+
+
+def right_medial_nodes(model: ElasticModel) -> np.ndarray:
+    """Vertex indices on the medial surface of fold 1."""
+    mesh = model.mesh
+    faces = mesh.faces[(mesh.face_tag == TAG_MEDIAL) & (mesh.face_fold == 1)]
+    return np.unique(faces)
+
+
+def aerodynamic_coefficients(
+    patterns: LoadPatterns,
+    half_width0: np.ndarray,
+    width_op: sp.csr_matrix,
+    p_sub: np.ndarray,
+    closed_fraction: float,
+    n_iter: int = 30,
+) -> tuple[np.ndarray, float]:
+    """Load coefficients over one cycle, consistent with the glottal shape they produce.
+
+    Parameters
+    ----------
+    patterns : the load patterns.
+    half_width0 : (G,) rest half-width of the channel at the hat nodes (no adduction), mm.
+    width_op : (G, N) map from vertex y-displacements to half-width change.
+    p_sub : (P,) subglottal pressure over one cycle, Pa.
+    closed_fraction : fraction of the cycle in which the glottis is fully closed; sets the
+        medial adduction (how far each fold is pressed past the midplane at rest).
+
+    Returns
+    -------
+    c : (P, J) load coefficients (Pa) of the patterns.
+    adduction_mm : shift of each fold towards the midplane at rest, mm.
+    """
+    n_x, n_z = patterns.grid.shape
+    resp = width_op @ patterns.static[:, :, 1].T  # (G, J) half-width per unit coefficient
+    c = np.column_stack([p_sub, np.outer(p_sub, np.ones(resp.shape[1] - 1))])
+    adduction = 0.0
+    for _ in range(n_iter):
+        half = half_width0[None] + c @ resp.T  # (P, G) without adduction
+        opening = half.reshape(-1, n_x, n_z).min(axis=2)[:, 1:-1].max(axis=1)  # widest slice's narrowest point
+        adduction = float(np.quantile(opening, closed_fraction))
+        prof = aero.bernoulli_profile(2 * (half - adduction).reshape(-1, n_x, n_z)).reshape(len(p_sub), -1)
+        c_new = np.column_stack([p_sub, p_sub[:, None] * prof])
+        if np.max(np.abs(c_new - c)) < 1e-3 * np.max(np.abs(p_sub)):
+            c = c_new
+            break
+        c = 0.5 * (c + c_new)
+    return c, adduction
+
+
+def band_limit(c: np.ndarray, n_harmonics: int) -> np.ndarray:
+    """Keep the mean and the first ``n_harmonics`` harmonics of periodic samples (P, ...)."""
+    spec = np.fft.rfft(c, axis=0)
+    spec[n_harmonics + 1:] = 0
+    return np.fft.irfft(spec, n=c.shape[0], axis=0)
+
+
+def _harmonics(c: np.ndarray) -> np.ndarray:
+    return np.fft.rfft(c, axis=0)
+
+
+def _from_harmonics(spec: np.ndarray, p: int) -> np.ndarray:
+    return np.fft.irfft(spec, n=p, axis=0)
+
+
+def quasi_static(patterns: LoadPatterns, c: np.ndarray) -> np.ndarray:
+    """(P, N, 3) vertex displacements of the baseline, mm."""
+    return np.tensordot(c, patterns.static, axes=(1, 0))
+
+
+def kelvin_voigt(patterns: LoadPatterns, c: np.ndarray, loss_factor: float) -> np.ndarray:
+    """Quasi-static Kelvin-Voigt response: harmonic k scaled by 1 / (1 + i k loss_factor)."""
+    p = c.shape[0]
+    spec = _harmonics(c)
+    k = np.arange(spec.shape[0])
+    spec = spec / (1.0 + 1j * k * loss_factor)[:, None]
+    return quasi_static(patterns, _from_harmonics(spec, p))
+
+
+def _fold_blocks(model: ElasticModel, fold: int) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
+    """(K_ff, M_ff, free DOFs, vertex DOFs (3, N_k), vertex node ids) of one fold, fold-local."""
+    f = model.folds[fold]
+    o = model.offsets
+    m = model.mass[o[fold]:o[fold + 1], o[fold]:o[fold + 1]]
+    free = f.free
+    return f.stiffness[free][:, free].tocsc(), m[free][:, free].tocsc(), free, f.vertex_dofs, f.nodes
+
+
+def _mirror_fold1(model: ElasticModel, u1: np.ndarray) -> np.ndarray:
+    """(..., N, 3) displacements of both folds from fold 1's (..., N1, 3) by mirror symmetry."""
+    f0, f1 = model.folds
+    out = np.zeros(u1.shape[:-2] + (model.mesh.n_nodes, 3), dtype=u1.dtype)
+    out[..., f1.nodes, :] = u1
+    mirrored = u1 * np.array([1.0, -1.0, 1.0])
+    # node i of fold 0 mirrors node i + N/2 of fold 1 (vfcli.mesh construction)
+    half = model.mesh.n_nodes // 2
+    out[..., f1.nodes - half, :] = mirrored
+    return out
+
+
+def inertia(model: ElasticModel, patterns: LoadPatterns, c: np.ndarray, f0_hz: float) -> np.ndarray:
+    """Steady-state dynamic response (P, N, 3), mm, harmonic by harmonic on fold 1."""
+    from scipy.sparse.linalg import splu
+
+    p = c.shape[0]
+    spec = _harmonics(c)  # (K+1, J)
+    k_ff, m_ff, free, vdofs, _ = _fold_blocks(model, 1)
+    o = model.offsets[1]
+    loads1 = patterns.loads[o:model.offsets[2]][free]  # (n_free, J)
+    out = np.zeros((spec.shape[0], vdofs.shape[1], 3), dtype=complex)
+    n1 = model.folds[1].n_dofs
+    for k in range(spec.shape[0]):
+        if not np.any(np.abs(spec[k]) > 1e-12 * np.abs(spec).max()):
+            continue
+        omega = 2 * np.pi * f0_hz * k
+        a = (k_ff * (1 + 1j * STRUCTURAL_LOSS) - omega**2 * m_ff).tocsc() if k else k_ff.astype(complex)
+        x = splu(a, permc_spec="MMD_AT_PLUS_A").solve(loads1 @ spec[k].astype(complex))
+        full = np.zeros(n1, dtype=complex)
+        full[free] = x
+        out[k] = full[vdofs.T]
+    u1 = np.fft.irfft(out, n=p, axis=0)
+    return _mirror_fold1(model, u1)
+
+
+def contact(model: ElasticModel, patterns: LoadPatterns, c: np.ndarray, rest_nodes: np.ndarray) -> np.ndarray:
+    """Quasi-static response with unilateral contact at the midplane y = 0 (P, N, 3), mm.
+
+    ``rest_nodes`` are the rest positions including the adduction (fold 1 at y >= -adduction).
+    """
+    mesh = model.mesh
+    free_resp = quasi_static(patterns, c)
+    f1 = model.folds[1]
+    near = (mesh.face_fold == 1) & np.isin(mesh.face_tag, [TAG_MEDIAL, TAG_SUPERIOR])
+    cand = np.unique(mesh.faces[near])
+    lo = rest_nodes[cand, 1].min()
+    cand = cand[rest_nodes[cand, 1] < lo + 1.0]  # within 1 mm of the medial edge
+    # unit +y point forces at the candidate vertices of fold 1 (fold-local vertex DOFs)
+    local = np.searchsorted(f1.nodes, cand)
+    ydof = f1.vertex_dofs[1, local] + model.offsets[1]
+    rhs = sp.csr_matrix((np.ones(len(cand)), (ydof, np.arange(len(cand)))), shape=(model.n_dofs, len(cand))).toarray()
+    resp = model.vertex_displacements(model.solve(rhs))  # (n_c, N, 3)
+    g_mat = resp[:, cand, 1].T  # compliance: y at cand per unit force at cand
+    g_mat = 0.5 * (g_mat + g_mat.T)
+    chol, _ = cho_factor(g_mat, lower=True)
+    l_mat = np.tril(chol)
+    out = free_resp.copy()
+    for i in range(c.shape[0]):
+        gap = rest_nodes[cand, 1] + free_resp[i, cand, 1]
+        if gap.min() >= 0:
+            continue
+        # min 1/2 l^T G l + g^T l, l >= 0  <=>  nnls(L^T, -L^-1 g)
+        rhs_i = -solve_triangular(l_mat, gap, lower=True)
+        lam, _ = nnls(l_mat.T, rhs_i, maxiter=50 * len(cand))
+        out[i] += np.tensordot(lam, resp, axes=(0, 0))
+    # fold 0 mirrors fold 1
+    return _mirror_fold1(model, out[:, f1.nodes])
+
+
+def asymmetric(patterns: LoadPatterns, c: np.ndarray, model: ElasticModel, softening: float) -> np.ndarray:
+    """Quasi-static response with the left fold's modulus scaled by (1 - softening)."""
+    u = quasi_static(patterns, c)
+    left = np.zeros(model.mesh.n_nodes, bool)
+    left[model.folds[0].nodes] = True
+    return np.where(left[None, :, None], u / (1.0 - softening), u)
