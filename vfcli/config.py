@@ -35,9 +35,6 @@ class CameraConfig(_Section):
 class LdvFrameConfig(_Section):
     """How the vibrometer's point coordinates map into the camera frame (mm)."""
 
-    units_scale_to_mm: float = Field(
-        1.0, gt=0, le=1e6, description="Factor from the scan file's coordinate unit to mm (1000 when the file is in m)"
-    )
     affine: tuple[tuple[float, float, float], tuple[float, float, float]] = Field(
         ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
         description="2x3 affine map from scan (x, y) in mm to camera-frame (x, y) in mm",
@@ -67,21 +64,43 @@ class IngestLdvConfig(_Section):
 
 
 class SyncConfig(_Section):
-    """`vfcli sync`: pressure-based alignment of the LDV epochs to the video."""
+    """`vfcli sync`: pressure-based alignment of the LDV epochs to the video (see vfcli/sync.py)."""
 
     f0_min_hz: float = Field(50.0, gt=0, le=5000, description="Lowest admissible fundamental frequency, Hz")
     f0_max_hz: float = Field(500.0, gt=0, le=5000, description="Highest admissible fundamental frequency, Hz")
     max_drift: float = Field(0.05, gt=0, le=0.5, description="Largest relative f0 difference of an epoch from the video (1)")
     min_quality: float = Field(0.9, ge=0, le=1, description="Alignment quality below which a point is rejected (1)")
+    n_harmonics: int = Field(10, ge=1, le=50, description="Harmonics of the pressure template (1)")
+    knot_cycles: float = Field(2.0, ge=0.5, le=50, description="Knot spacing of the phase track, cycles")
+    min_cycles: float = Field(2.0, ge=1, le=1000, description="Fewest full cycles an epoch must cover, cycles")
+    smooth: float = Field(0.1, ge=0, le=100, description="Smoothing penalty of the phase track (1)")
+    phase_reference: Literal["fundamental", "template"] = Field(
+        "fundamental", description="Phase zero: peak of each record's pressure fundamental, or the video's whole waveform"
+    )
 
 
 class FlowConfig(_Section):
-    """`vfcli flow`: gap segmentation and optical flow."""
+    """`vfcli flow`: gap segmentation and optical flow (/flow), then the surface velocity field (/fields)."""
 
     method: Literal["sparse_to_dense", "dis"] = Field("sparse_to_dense", description="Optical flow method")
-    threshold: float | None = Field(None, ge=0, le=65535, description="Gap intensity threshold in counts; null: automatic (Otsu)")
+    threshold: float | None = Field(
+        None, ge=0, le=65535,
+        description="Gap intensity threshold in counts; null: automatic (minimum-error + Otsu near the gap, vfcli.gap)",
+    )
     median_px: int = Field(5, ge=1, le=31, description="Median filter size of the gap mask, px (odd)")
     rbf_smoothing: float = Field(0.0, ge=0, le=1e6, description="Thin-plate-spline smoothing of the LDV fit (1)")
+    sample_frames: int = Field(
+        64, ge=2, le=100000,
+        description="Frames sampled evenly over the video for the automatic threshold and the 8-bit intensity range",
+    )
+    split_folds: bool = Field(
+        False, description="Optical flow of each fold separately (sharper next to the gap, twice the cost)"
+    )
+    grid_step: int = Field(8, ge=2, le=64, description="sparse_to_dense: spacing of the Lucas-Kanade match grid, px")
+    dis_preset: Literal["ultrafast", "fast", "medium"] = Field("medium", description="dis: OpenCV DIS preset")
+    w_inside_hull: bool = Field(
+        True, description="Velocity valid only inside the convex hull of the good LDV points (no TPS extrapolation)"
+    )
 
 
 class MeshConfig(_Section):
@@ -118,6 +137,42 @@ class OptimizeConfig(_Section):
     max_iterations: int = Field(200, ge=1, le=100000, description="Iteration limit")
 
 
+class SynthConfig(_Section):
+    """`vfcli synth`: a phantom recording (the fold geometry comes from the [mesh] section)."""
+
+    effect: Literal["none", "inertia", "damping", "contact", "asymmetry", "random"] = Field(
+        "none", description="Hidden physics effect; 'random' draws one and names it only in truth.h5"
+    )
+    strength: float | None = Field(
+        None, ge=0, le=2,
+        description="Effect strength; null: the effect's default (inertia: density factor 1; damping: loss factor 0.2 "
+        "at f0; contact: adduction factor 1; asymmetry: left-fold softening 0.2)",
+    )
+    seed: int = Field(1, ge=0, le=2**31 - 1, description="Random seed (same seed, same bytes)")
+    f0_hz: float = Field(120.0, ge=50, le=400, description="Fundamental frequency of the phonation, Hz")
+    f0_drift_rel: float = Field(0.01, ge=0, le=0.05, description="Bound of the f0 random walk between LDV epochs (1)")
+    mean_pressure_pa: float = Field(800.0, ge=100, le=3000, description="Mean subglottal pressure, Pa")
+    pressure_amplitude_rel: float = Field(0.45, ge=0.05, le=0.9, description="Half peak-to-peak pressure swing over the mean (1)")
+    pressure_noise_pa: float = Field(4.0, ge=0, le=100, description="Pressure sensor noise, Pa RMS")
+    closed_fraction: float = Field(0.35, ge=0.0, le=0.8, description="Fraction of the cycle the glottis is closed (sets the adduction)")
+    load_harmonics: int = Field(4, ge=1, le=12, description="Harmonics of f0 kept in the aerodynamic load (1)")
+    n_phase: int = Field(128, ge=32, le=1024, description="Phase samples per cycle for the true motion (1)")
+    target_edge_mm: float = Field(1.25, ge=0.3, le=5, description="Element size of the phantom's own (true) mesh, mm")
+    fps_hz: float = Field(10000.0, ge=500, le=200000, description="Camera frame rate, Hz")
+    duration_s: float = Field(0.05, ge=0.002, le=2, description="Length of the video, s")
+    width_px: int = Field(256, ge=32, le=2048, description="Frame width, px")
+    height_px: int = Field(256, ge=32, le=2048, description="Frame height, px")
+    px_per_mm: float = Field(15.0, ge=3, le=200, description="Image scale, px/mm")
+    camera_rotation_max_deg: float = Field(2.0, ge=0, le=20, description="Largest unknown in-plane camera rotation, degrees")
+    camera_offset_max_px: float = Field(3.0, ge=0, le=100, description="Largest unknown camera offset from the nominal centre, px")
+    supersample: int = Field(2, ge=1, le=4, description="Anti-aliasing supersampling factor (1)")
+    snr: float = Field(40.0, ge=5, le=1000, description="Camera signal-to-noise ratio at the surface brightness (1)")
+    ldv_fs_hz: float = Field(50000.0, ge=1000, le=500000, description="Vibrometer sampling rate, Hz")
+    ldv_epoch_s: float = Field(0.1, ge=0.01, le=2, description="Length of each LDV point's recording, s")
+    ldv_noise_rel: float = Field(0.01, ge=0, le=0.5, description="LDV noise floor relative to the signal RMS (1)")
+    ldv_dropout_fraction: float = Field(0.02, ge=0, le=0.5, description="Fraction of LDV points with signal dropouts (1)")
+
+
 class RecordingConfig(_Section):
     """Everything vfcli knows about one recording, as in ``recording.toml``."""
 
@@ -130,6 +185,7 @@ class RecordingConfig(_Section):
     flow: FlowConfig = FlowConfig()
     mesh: MeshConfig = MeshConfig()
     optimize: OptimizeConfig = OptimizeConfig()
+    synth: SynthConfig = SynthConfig()
 
 
 #: The models exported as JSON Schema into ``schemas/``.
@@ -143,6 +199,7 @@ SCHEMA_MODELS: dict[str, type[BaseModel]] = {
     "flow": FlowConfig,
     "mesh": MeshConfig,
     "optimize": OptimizeConfig,
+    "synth": SynthConfig,
 }
 
 

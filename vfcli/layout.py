@@ -116,6 +116,9 @@ STAGES: dict[str, Stage] = {
                 "offset_s": D("s", "Start of each LDV epoch relative to the video's phase reference", ("point",)),
                 "f0_hz": D("Hz", "Fundamental frequency of each LDV epoch", ("point",)),
                 "drift": D("1", "Relative f0 difference of each epoch against the video", ("point",)),
+                "drift_rate_per_s": D("1/s", "Linear trend of each epoch's f0 relative to its mean", ("point",)),
+                "n_cycles": D("1", "Cycles averaged per point", ("point",)),
+                "video_phase": D("cycles", "Cycle phase of the video at each frame", ("frame_time",)),
                 "quality": D("1", "Alignment quality in [0, 1]", ("point",)),
                 "ok": D("bool", "Point aligned", ("point",)),
                 "reason": D("text", "Why a point could not be aligned", ("point",)),
@@ -145,6 +148,8 @@ STAGES: dict[str, Stage] = {
                 "velocity": D("mm/s", "Surface velocity (u, v, w)", ("frame_time", "row", "col", "uvw"), True),
                 "valid": D("bool", "Fold surface visible (velocity valid)", ("frame_time", "row", "col"), True),
                 "frame_time": D("s", "Frame times", ("frame_time",)),
+                "ldv_px": D("px", "Screen position (col, row) of each LDV point", ("point", "colrow")),
+                "ldv_used": D("bool", "LDV point used by the thin-plate spline (aligned, no dropout)", ("point",)),
             },
         ),
         Stage(
@@ -177,6 +182,40 @@ STAGES: dict[str, Stage] = {
             has_runs=True,
         ),
     ]
+}
+
+
+#: The phantom's ``truth.h5`` (written by `vfcli synth`, read only by tests and benchmarks):
+#: key -> dataset. Root attributes: effect, strength, seed, config_json, camera_*, adduction_mm.
+TRUTH: dict[str, Dataset] = {
+    "mesh/nodes": D("mm", "Rest positions of the phantom's own mesh (with the adduction)", ("node", "xyz")),
+    "mesh/tets": D("index", "Tetrahedra", ("tet", "corner")),
+    "mesh/tet_fold": D("index", "Fold of each tetrahedron", ("tet",)),
+    "mesh/faces": D("index", "Boundary triangles", ("face", "corner")),
+    "mesh/face_tag": D("index", "1 inferior, 2 superior, 3 medial, 4 fixture", ("face",)),
+    "mesh/face_fold": D("index", "Fold of each boundary triangle", ("face",)),
+    "mesh/uv": D("1", "(u, v) surface coordinates", ("node", "uv")),
+    "mesh/node_side": D("index", "0 none, 1 inferior side, 2 superior side", ("node",)),
+    "motion/coeffs_real": D("mm", "Fourier coefficients of the vertex displacement over one cycle (real)", ("harmonic", "node", "xyz")),
+    "motion/coeffs_imag": D("mm", "Fourier coefficients (imaginary part)", ("harmonic", "node", "xyz")),
+    "motion/load_coefficients": D("Pa", "Aerodynamic load pattern coefficients over one cycle", ("phase", "pattern")),
+    "frames/time": D("s", "Frame times", ("frame",)),
+    "frames/phase": D("cycles", "Cycle phase at each frame", ("frame",)),
+    "frames/displacement": D("mm", "Vertex displacements at the frame times", ("frame", "node", "xyz"), True),
+    "frames/velocity": D("mm/s", "Vertex velocities at the frame times", ("frame", "node", "xyz"), True),
+    "screen/velocity": D("mm/s", "True screen-space surface velocity (x, y, z), NaN off the folds", ("frame", "row", "col", "xyz"), True),
+    "screen/gap": D("bool", "True glottal gap at the pixel centres", ("frame", "row", "col"), True),
+    "screen/visible": D("bool", "Fold surface visible", ("frame", "row", "col"), True),
+    "screen/glottal_area": D("mm^2", "True glottal area", ("frame",)),
+    "ldv/points_model_mm": D("mm", "Scan points in the model frame (x, y)", ("point", "xy")),
+    "ldv/points_camera_mm": D("mm", "Scan points in the camera frame as written to the scan file", ("point", "xy")),
+    "ldv/start_phase": D("cycles", "Cycle phase at each epoch's first sample", ("point",)),
+    "ldv/f0_hz": D("Hz", "Fundamental during each epoch", ("point",)),
+    "ldv/sync_offset_s": D("s", "Epoch time whose phase equals the first frame's (what sync estimates)", ("point",)),
+    "ldv/dropout_kind": D("index", "0 none, 1 spikes, 2 flat", ("point",)),
+    "ldv/clean_velocity": D("mm/s", "True vertical velocity at each point, NaN where no surface", ("point", "sample")),
+    "pressure/true_pa": D("Pa", "True subglottal pressure beside the video", ("sample",)),
+    "pressure/phase": D("cycles", "Cycle phase at each pressure sample", ("sample",)),
 }
 
 
@@ -223,4 +262,9 @@ def layout_markdown() -> str:
                 axes = ", ".join(ds.dims)
                 lines.append(f"| `{key}` | {ds.units} | {axes} | {ds.description} |")
             lines.append("")
+    lines += ["## Phantom `truth.h5` (`vfcli synth`; read by tests and benchmarks only)", "",
+              "| dataset | units | axes | description |", "| --- | --- | --- | --- |"]
+    for key, ds in TRUTH.items():
+        lines.append(f"| `/{key}` | {ds.units} | {', '.join(ds.dims)} | {ds.description} |")
+    lines.append("")
     return "\n".join(lines)

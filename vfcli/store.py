@@ -455,3 +455,51 @@ def describe_files(store: Store, stage_name: str, paths: list[str | Path], run: 
         with store.read() as r:
             previous = r.previous_inputs(stage_name, run)
     return describe_inputs(paths, previous)
+
+
+class TruthWriter:
+    """Writes a phantom's ``truth.h5`` (keys from :data:`vfcli.layout.TRUTH`)."""
+
+    def __init__(self, f: h5py.File) -> None:
+        self._f = f
+
+    def _decorate(self, ds: h5py.Dataset, key: str) -> h5py.Dataset:
+        spec = layout.TRUTH[key]
+        ds.attrs["units"] = spec.units
+        ds.attrs["description"] = spec.description
+        return ds
+
+    def put(self, key: str, data: Any) -> h5py.Dataset:
+        arr = np.asarray(data)
+        spec = layout.TRUTH[key]
+        kw = dict(chunks=(1, *arr.shape[1:]), **_COMPRESSION) if spec.frame_chunked and arr.ndim >= 2 else {}
+        return self._decorate(self._f.create_dataset(key, data=arr, **kw), key)
+
+    def create(self, key: str, shape: tuple[int, ...], dtype: Any) -> h5py.Dataset:
+        """An empty per-frame dataset to fill frame by frame."""
+        ds = self._f.create_dataset(key, shape=shape, dtype=dtype, chunks=(1, *shape[1:]), **_COMPRESSION)
+        return self._decorate(ds, key)
+
+    def set_attrs(self, **attrs: Any) -> None:
+        for k, v in attrs.items():
+            self._f.attrs[k] = v
+
+
+@contextmanager
+def write_truth(path: str | Path) -> Iterator[TruthWriter]:
+    """Create ``truth.h5`` (overwrites)."""
+    f = h5py.File(path, "w", libver=("v110", "latest"))
+    try:
+        f.attrs["format"] = "vfcli-phantom-truth"
+        f.attrs["generated_by"] = f"vfcli {__version__}"
+        yield TruthWriter(f)
+    finally:
+        f.close()
+
+
+def read_truth(path: str | Path, keys: list[str] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """(datasets, root attributes) of a phantom's ``truth.h5`` (tests and benchmarks only)."""
+    with h5py.File(path, "r") as f:
+        attrs = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
+        wanted = keys if keys is not None else [k for k in layout.TRUTH if k in f]
+        return {k: f[k][()] for k in wanted}, attrs

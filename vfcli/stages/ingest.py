@@ -96,11 +96,10 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
     return run_stage(ctx, "hsc", config_json=config_json, body=body, input_paths=inputs)
 
 
-def _to_camera_frame(coords_mm: np.ndarray, scale: float, affine: np.ndarray) -> np.ndarray:
-    """Scan coordinates (file units) to camera-frame mm with the config's scale and 2x3 affine."""
-    xyz = coords_mm * scale
-    xy = xyz[:, :2] @ affine[:, :2].T + affine[:, 2]
-    return np.column_stack([xy, xyz[:, 2]])
+def _to_camera_frame(coords_mm: np.ndarray, affine: np.ndarray) -> np.ndarray:
+    """Scan coordinates (mm, the reader converts the file's unit) to the camera frame (2x3 affine on x, y)."""
+    xy = coords_mm[:, :2] @ affine[:, :2].T + affine[:, 2]
+    return np.column_stack([xy, coords_mm[:, 2]])
 
 
 def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
@@ -120,7 +119,7 @@ def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
         ref, ref_units = scan.reference, ref_unit
         if key in PA_PER_UNIT:
             ref, ref_units = scan.reference * PA_PER_UNIT[key], "Pa"
-        coords = _to_camera_frame(scan.coords_mm, frame.units_scale_to_mm, np.asarray(frame.affine))
+        coords = _to_camera_frame(scan.coords_mm, np.asarray(frame.affine))
         s.put("node_id", scan.node_ids)
         s.put("grid_index", scan.grid_index if scan.grid_index is not None else np.full((scan.n_points, 2), -1))
         s.put("coords_mm", coords)

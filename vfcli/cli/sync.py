@@ -1,0 +1,19 @@
+"""`vfcli sync`."""
+from __future__ import annotations
+
+import click
+
+from ..stages.sync import run_sync
+from .common import store_command
+
+
+@click.command("sync")
+@store_command
+def sync_cmd(ctx):  # type: ignore[no-untyped-def]
+    """Align the sequential LDV epochs to the video through the subglottal pressure.
+
+    Reads: /hsc, /ldv. Writes: /sync (per point: offset, f0, drift, quality, whether it
+    aligned and why not, and the vertical velocity on the video's frame times).
+    Config section [sync].
+    """
+    return run_sync(ctx)

@@ -1,0 +1,38 @@
+"""`vfcli synth OUTDIR`: a phantom recording."""
+from __future__ import annotations
+
+import click
+
+from ..config import load_config
+from ..progress import make_progress
+from ..stages.synth import run_synth
+from .common import report, setup_logging
+
+EFFECTS = ["none", "inertia", "damping", "contact", "asymmetry", "random"]
+
+
+@click.command("synth")
+@click.argument("outdir", type=click.Path(file_okay=False))
+@click.option("--effect", type=click.Choice(EFFECTS), help="Hidden physics effect (default: none); 'random' names it only in truth.h5.")
+@click.option("--strength", type=float, help="Effect strength (see `synth.strength` in schemas/synth.schema.json).")
+@click.option("--seed", type=int, help="Random seed: the same seed writes the same bytes.")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="A TOML with [synth] and [mesh] sections.")
+@click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value (repeatable).")
+@click.option("--force", is_flag=True, help="Replace OUTDIR even when it holds other files.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
+@click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary.")
+@click.option("-v", "--verbose", count=True, help="More logging.")
+def synth_cmd(outdir, effect, strength, seed, config_path, overrides, force, quiet, as_json, verbose):  # type: ignore[no-untyped-def]
+    """Write a phantom recording into OUTDIR: the instruments' raw files and truth.h5.
+
+    Reads: nothing (config [synth], [mesh]). Writes: OUTDIR with video.mraw + video.cihx,
+    video.tif, video_pressure.tdms/.csv, scan.uff/.csv, recording.toml and truth.h5
+    (which no other command reads).
+    """
+    setup_logging(verbose, quiet)
+    sets = list(overrides)
+    sets += [f"synth.effect={effect!r}"] if effect else []
+    sets += [f"synth.strength={strength}"] if strength is not None else []
+    sets += [f"synth.seed={seed}"] if seed is not None else []
+    _, cfg = load_config(config_path, None, sets)
+    report(run_synth(outdir, cfg, force=force, progress=make_progress(False if quiet else None)), as_json)

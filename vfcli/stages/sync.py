@@ -1,0 +1,57 @@
+"""`vfcli sync`: map every LDV epoch onto the video's time base through the pressure."""
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputDataError
+from ..store import StageWriter, StoreReader
+from ..sync import sync_scan
+from .base import RunContext, StageResult, run_stage
+
+log = logging.getLogger(__name__)
+
+
+def run_sync(ctx: RunContext) -> StageResult:
+    """Phase-lock every LDV point to the video (/hsc pressure) and store the aligned velocities."""
+    cfg = ctx.config.sync
+
+    def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
+            raise InputDataError("no pressure was recorded with the video: rerun `vfcli ingest-hsc` with --pressure", reader.path)
+        p_time = reader.read("hsc", "pressure_time")
+        p = reader.read("hsc", "pressure")
+        fs_p = float(reader.attrs("hsc")["pressure_fs_hz"])
+        frame_time = reader.read("hsc", "frame_time")
+        ref = reader.read("ldv", "reference").astype(np.float64)
+        vel = reader.read("ldv", "velocity").astype(np.float64)
+        fs_ldv = float(reader.attrs("ldv")["fs_hz"])
+        res = sync_scan(
+            p, fs_p, float(p_time[0]), frame_time, ref, vel, fs_ldv,
+            f_range=(cfg.f0_min_hz, cfg.f0_max_hz), n_harmonics=cfg.n_harmonics, knot_cycles=cfg.knot_cycles,
+            max_f0_deviation=cfg.max_drift, min_quality=cfg.min_quality, min_cycles=cfg.min_cycles,
+            smooth=cfg.smooth, phase_reference=cfg.phase_reference, source=f"{reader.path}:/hsc/pressure",
+        )
+        for key in ("offset_s", "f0_hz", "drift", "drift_rate_per_s", "quality", "ok", "n_cycles"):
+            s.put(key, getattr(res, key))
+        s.put("reason", np.asarray(res.reason, dtype=object))
+        s.put("aligned_w", res.aligned_w.astype(np.float32))
+        s.put("frame_time", frame_time)
+        s.put("video_phase", res.video_phase)
+        s.set_attrs(f0_video_hz=res.f0_video_hz, template_real=res.template.real, template_imag=res.template.imag)
+        reasons = Counter(r for r in res.reason if r)
+        for why, n in reasons.items():
+            log.warning("%d LDV point(s) not aligned: %s", n, why)
+        return {
+            "points": int(res.ok.size),
+            "aligned": int(res.ok.sum()),
+            "f0_video_hz": round(float(res.f0_video_hz), 4),
+            "not_aligned": dict(reasons),
+        }
+
+    config_json = json.dumps({"sync": cfg.model_dump(mode="json")}, sort_keys=True)
+    return run_stage(ctx, "sync", config_json=config_json, body=body, upstream=[("hsc", None), ("ldv", None)])
