@@ -119,7 +119,7 @@ class MeshConfig(_Section):
     rotation_deg: tuple[float, float] = Field(
         (0.0, 0.0), description="Per-fold (left, right) mounting rotation about the x axis, degrees"
     )
-    target_edge_mm: float = Field(1.25, ge=0.1, le=5, description="Target tetrahedron edge length, mm")
+    target_edge_mm: float = Field(1.5, ge=0.1, le=5, description="Target tetrahedron edge length, mm")
     min_ratio: float = Field(1.5, gt=1, le=5, description="tetgen radius-edge ratio bound (1)")
     min_dihedral_deg: float = Field(15.0, ge=0, lt=35, description="tetgen minimum dihedral angle target, degrees")
     youngs_modulus_pa: float = Field(4400.0, gt=0, le=1e8, description="Young's modulus E, Pa")

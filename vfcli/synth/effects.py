@@ -39,7 +39,7 @@ from scipy.linalg import cho_factor, solve_triangular
 from scipy.optimize import nnls
 
 from ..fem import ElasticModel
-from ..mesh import TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR
+from ..mesh import TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR
 from . import aero
 
 EFFECTS = ("none", "inertia", "damping", "contact", "asymmetry")
@@ -260,7 +260,7 @@ def contact(model: ElasticModel, patterns: LoadPatterns, c: np.ndarray, rest_nod
     free_resp = quasi_static(patterns, c)
     f1 = model.folds[1]
     near = (mesh.face_fold == 1) & np.isin(mesh.face_tag, [TAG_MEDIAL, TAG_SUPERIOR])
-    cand = np.unique(mesh.faces[near])
+    cand = np.setdiff1d(np.unique(mesh.faces[near]), np.unique(mesh.faces[mesh.face_tag == TAG_FIXTURE]))
     lo = rest_nodes[cand, 1].min()
     cand = cand[rest_nodes[cand, 1] < lo + 1.0]  # within 1 mm of the medial edge
     # unit +y point forces at the candidate vertices of fold 1 (fold-local vertex DOFs)

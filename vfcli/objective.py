@@ -1,0 +1,345 @@
+"""The paper's error E (section 3.4) with exact gradients for a frozen raster.
+
+Frames and times
+----------------
+The measurement has F frames at uniformly spaced ``times`` (dt apart).  The model
+is evaluated at the F + 1 times ``times`` and ``times[-1] + dt``
+(:attr:`Problem.sim_times`); a force field's time range should be
+``(sim_times[0], sim_times[-1])``.  Frame f compares the measured v(y, t_f) with
+the forward difference ``(x(u, v, t_f + dt) - x(u, v, t_f)) / dt`` of the
+material point seen in pixel y at t_f (paper, eq. for v-bar).
+
+E = motion_weight * E_motion + gap_weight * E_gap, both means over the F frames.
+
+Motion term (paper's three cases)
+---------------------------------
+Per frame: rasterise the deformed visible surface (faces with ``visible_tags``,
+default superior + medial) with the camera; per pixel, the visible triangle and
+barycentrics fix the material point.  With m_sim (a surface is visible) and
+m_exp (``measurement.valid``)::
+
+    both:       |v - v_bar|^2        only m_exp:  |v|^2        otherwise: 0
+
+summed over the pixels and divided by N_f = number of valid measured pixels of
+the frame (so E_motion is a mean squared velocity error, (mm/s)^2).
+
+Gap term (our differentiable definition of the arctan term)
+------------------------------------------------------------
+Rays are the lateral image lines (one per column when ``lateral_axis == 0``, as in
+:mod:`vfcli.opening`).  On a ray at integer ray coordinate c, each fold's
+simulated silhouette is the lateral screen position (px) of its medial-most
+point: the extreme (max for the fold at smaller lateral px, min for the other)
+over the crossings of the fold's surface-mesh edges with the ray, where an edge
+(a, b) crosses at ``s = lat_a + (c - ray_a) / (ray_b - ray_a) (lat_b - lat_a)``.
+The measured silhouettes are the outermost gap-mask transitions of the ray
+(:func:`measured_silhouettes`); on a closed ray both are the last known opening
+location (the paper's fallback), so a closed measured gap asks the folds to meet
+there.  With ``d = (s_sim - s_meas) / px_per_mm`` (mm) and the length scale l::
+
+    E_gap = mean over frames of  (1 / (2 n_rays)) sum_rays sum_folds arctan((d / l)^2)
+
+It is bounded (each term < pi/2), smooth in d (d^2 inside the arctan), and
+penalises small differences most, as the paper's arctan intends.  The ray set
+is fixed at construction (rays crossed by both folds at rest, minus
+``ray_margin`` rays at each end).
+
+Exact gradient "almost everywhere"
+----------------------------------
+Freezing (per frame) the raster (visible triangle and barycentrics of every
+pixel) and the silhouette edge chosen on each ray makes E a smooth function of
+the vertex positions, hence of the control values.  :meth:`Problem.value_and_grad`
+returns E with the raster of the current iterate and the exact gradient of that
+frozen function (chain rule through the interpolation matrices, the edge
+crossings and the linear response, accumulated in one pass over the frames).
+It is the true gradient wherever the raster and the chosen edges do not change
+under a small perturbation, i.e. almost everywhere.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vfcli.camera import Camera, rasterize
+from vfcli.errors import ConfigError
+from vfcli.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
+from vfcli.silhouette import edge_crossings, extreme_per_ray, measured_silhouettes, surface_edges
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the optimisation fits (all on the camera's pixel grid).
+
+    Attributes
+    ----------
+    times : (F,) uniformly spaced frame times, s.
+    velocity : (F, H, W, 3) measured v = (u, v, w), mm/s.
+    valid : (F, H, W) bool, m_exp.
+    gap_lo, gap_hi : (F, n_rays) lateral px of the measured silhouettes facing
+        the fold at smaller / larger lateral px; NaN: no target on that ray.
+    """
+
+    times: np.ndarray
+    velocity: np.ndarray
+    valid: np.ndarray
+    gap_lo: np.ndarray
+    gap_hi: np.ndarray
+
+    @property
+    def dt(self) -> float:
+        return float(self.times[1] - self.times[0])
+
+    @classmethod
+    def from_gap_masks(cls, times: np.ndarray, velocity: np.ndarray, valid: np.ndarray, gap_masks: np.ndarray,
+                       lateral_axis: int = 0, initial_center: np.ndarray | float | None = None) -> Measurement:
+        """Measurement with silhouettes from (F, H, W) bool gap masks (:func:`measured_silhouettes`).
+
+        velocity, valid : as :func:`vfcli.fields.combine_fields` returns them for the frames at ``times``.
+        """
+        lo, hi = measured_silhouettes(gap_masks, lateral_axis, initial_center)
+        return cls(np.asarray(times, float), np.asarray(velocity), np.asarray(valid, bool), lo, hi)
+
+
+@dataclass(frozen=True)
+class ObjectiveSettings:
+    """Weights and definitions of E (see module docstring)."""
+
+    motion_weight: float = 1.0
+    gap_weight: float = 1.0
+    gap_length_mm: float = 0.25
+    visible_tags: tuple[int, ...] = (TAG_SUPERIOR, TAG_MEDIAL)
+    lateral_axis: int = 0
+    ray_margin: int = 1
+
+    def __post_init__(self) -> None:
+        if not (self.motion_weight >= 0 and self.gap_weight >= 0):
+            raise ConfigError("objective weights must be >= 0")
+        if not self.gap_length_mm > 0:
+            raise ConfigError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
+        if self.lateral_axis not in (0, 1):
+            raise ConfigError(f"lateral_axis must be 0 or 1, got {self.lateral_axis!r}")
+
+
+@dataclass(frozen=True)
+class Terms:
+    """Value of E and its two weighted terms."""
+
+    total: float
+    motion: float
+    gap: float
+
+
+@dataclass
+class _Frame:
+    """Frozen linearisation data of one frame."""
+
+    m_both: object          # csr (n_both, N): interpolation rows of pixels valid in both
+    v_both: np.ndarray      # (n_both, 3) measured velocity there, mm/s
+    const: float            # sum of |v|^2 over pixels valid only in the measurement
+    n_norm: float           # N_f
+    sil: list               # per fold side (lo, hi): (ray coordinate, edge, target px)
+
+
+class Problem:
+    """E(x) for a linear response, a camera and a measurement.
+
+    Parameters
+    ----------
+    mesh : FoldMesh.
+    camera : Camera.
+    response : linear map x -> vertex displacements (e.g. :class:`vfcli.response.QuasiStaticResponse`).
+    measurement : Measurement (its velocity/valid images must match ``camera.shape``).
+    settings : ObjectiveSettings.
+    """
+
+    def __init__(self, mesh: FoldMesh, camera: Camera, response, measurement: Measurement,
+                 settings: ObjectiveSettings | None = None) -> None:
+        self.mesh, self.camera, self.response = mesh, camera, response
+        self.meas, self.settings = measurement, settings or ObjectiveSettings()
+        st = self.settings
+        times = np.asarray(measurement.times, dtype=float)
+        if times.ndim != 1 or len(times) < 2 or not np.allclose(np.diff(times), times[1] - times[0], rtol=1e-6):
+            raise ConfigError("measurement times must be (F,) uniformly spaced, F >= 2")
+        if not times[1] > times[0]:
+            raise ConfigError("measurement times must increase")
+        f, (h, w) = len(times), camera.shape
+        if measurement.velocity.shape != (f, h, w, 3) or measurement.valid.shape != (f, h, w):
+            raise ConfigError(f"measurement velocity/valid must be ({f}, {h}, {w}, 3)/({f}, {h}, {w}), got "
+                              f"{measurement.velocity.shape}/{measurement.valid.shape}")
+        self.dt = float(times[1] - times[0])
+        self.sim_times = np.append(times, times[-1] + self.dt)
+        self.n_frames = f
+        self.ray_comp = 0 if st.lateral_axis == 0 else 1
+        self.n_rays_img = w if st.lateral_axis == 0 else h
+        if measurement.gap_lo.shape != (f, self.n_rays_img) or measurement.gap_hi.shape != (f, self.n_rays_img):
+            raise ConfigError(f"measurement gap_lo/gap_hi must be ({f}, {self.n_rays_img})")
+        self.tri = mesh.faces[np.isin(mesh.face_tag, st.visible_tags)]
+        self.fold_edges = [surface_edges(mesh.faces[mesh.face_fold == k]) for k in (0, 1)]
+        rest = camera.project(mesh.nodes)
+        lat = rest[:, 1 - self.ray_comp]
+        means = [lat[mesh.fold_nodes(k)].mean() for k in (0, 1)]
+        self.fold_order = (0, 1) if means[0] < means[1] else (1, 0)   # (fold at low lateral px, high)
+        rays = None
+        for k in (0, 1):
+            _, c, _ = edge_crossings(rest, self.fold_edges[k], self.ray_comp)
+            c = np.unique(c[(c >= 0) & (c < self.n_rays_img)])
+            rays = c if rays is None else np.intersect1d(rays, c)
+        m = int(st.ray_margin)
+        self.rays = rays[m:len(rays) - m] if len(rays) > 2 * m else rays[:0]
+        self._in_rays = np.zeros(self.n_rays_img, bool)
+        self._in_rays[self.rays] = True
+
+    @property
+    def n_params(self) -> int:
+        return int(self.response.n_params)
+
+    def displacements(self, x: np.ndarray) -> np.ndarray:
+        """(F + 1, N, 3) vertex displacements at :attr:`sim_times`, mm."""
+        return self.response.displacements(np.asarray(x, dtype=float), self.sim_times)
+
+    # ------------------------------------------------------------ freezing
+    def silhouettes(self, positions: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Simulated silhouettes of one frame on the ray set.
+
+        positions : (N, 3) deformed vertices, mm.  Returns, for the (low, high)
+        folds, (rays c, chosen edge, lateral px).
+        """
+        scr = self.camera.project(positions)
+        out = []
+        for side, k in enumerate(self.fold_order):
+            e, c, s = edge_crossings(scr, self.fold_edges[k], self.ray_comp)
+            keep = (c >= 0) & (c < self.n_rays_img)
+            keep[keep] = self._in_rays[c[keep]]
+            rays, edge = extreme_per_ray(e[keep], c[keep], s[keep], take_max=(side == 0))
+            ee = self.fold_edges[k][edge]
+            lam = (rays - scr[ee[:, 0], self.ray_comp]) / (scr[ee[:, 1], self.ray_comp] - scr[ee[:, 0], self.ray_comp])
+            lc = 1 - self.ray_comp
+            out.append((rays, edge, scr[ee[:, 0], lc] + lam * (scr[ee[:, 1], lc] - scr[ee[:, 0], lc])))
+        return out
+
+    def freeze(self, x: np.ndarray, disp: np.ndarray | None = None) -> list[_Frame]:
+        """Rasters and silhouette edges of every frame at ``x`` (the linearisation point)."""
+        u = self.displacements(x) if disp is None else disp
+        frames = []
+        for f in range(self.n_frames):
+            pos = self.mesh.nodes + u[f]
+            raster = rasterize(self.camera, pos, self.tri)
+            valid = self.meas.valid[f].ravel()
+            vel = self.meas.velocity[f].reshape(-1, 3).astype(float)
+            vis = raster.visible_index
+            both = valid[vis]
+            only = valid.copy()
+            only[vis] = False
+            m_both = raster.interpolation_matrix()[np.flatnonzero(both)]
+            sil = []
+            targets = (self.meas.gap_lo[f], self.meas.gap_hi[f])
+            for side, (rays, edge, _) in enumerate(self.silhouettes(pos)):
+                tgt = targets[side][rays]
+                ok = np.isfinite(tgt)
+                sil.append((rays[ok], edge[ok], tgt[ok]))
+            frames.append(_Frame(m_both, vel[vis[both]], float(np.sum(vel[only] ** 2)),
+                                 float(max(1, valid.sum())), sil))
+        return frames
+
+    # ------------------------------------------------------------ value and gradient
+    def _frozen(self, x: np.ndarray, frames: list[_Frame], disp: np.ndarray | None,
+                grad: bool) -> tuple[Terms, np.ndarray | None]:
+        st = self.settings
+        u = self.displacements(x) if disp is None else disp
+        g = np.zeros_like(u) if grad else None
+        n_f = self.n_frames
+        motion = gap = 0.0
+        p = self.camera.matrix
+        ell = st.gap_length_mm
+        n_sil = 2.0 * max(len(self.rays), 1)
+        rc, lc = self.ray_comp, 1 - self.ray_comp
+        for f, fr in enumerate(frames):
+            du = u[f + 1] - u[f]
+            r = fr.m_both @ du / self.dt - fr.v_both
+            motion += (np.sum(r * r) + fr.const) / fr.n_norm
+            if grad and st.motion_weight:
+                gd = (fr.m_both.T @ r) * (2.0 * st.motion_weight / (n_f * fr.n_norm * self.dt))
+                g[f + 1] += gd
+                g[f] -= gd
+            if not st.gap_weight:
+                continue
+            scr = self.camera.project(self.mesh.nodes + u[f])
+            for side, (rays, edge, tgt) in enumerate(fr.sil):
+                if rays.size == 0:
+                    continue
+                ee = self.fold_edges[self.fold_order[side]][edge]
+                a, b = scr[ee[:, 0], rc], scr[ee[:, 1], rc]
+                la, lb = scr[ee[:, 0], lc], scr[ee[:, 1], lc]
+                lam = (rays - a) / (b - a)
+                s = la + lam * (lb - la)
+                q = ((s - tgt) / (self.camera.px_per_mm * ell)) ** 2
+                gap += np.sum(np.arctan(q)) / n_sil
+                if grad:
+                    # d arctan(q)/ds, q = ((s - m) / (k l))^2
+                    dphi = (2.0 * (s - tgt) / (self.camera.px_per_mm * ell) ** 2) / (1.0 + q * q)
+                    dphi *= st.gap_weight / (n_f * n_sil)
+                    gs = np.zeros((len(scr), 2))
+                    d_a = (lb - la) * (lam - 1.0) / (b - a)
+                    d_b = -(lb - la) * lam / (b - a)
+                    np.add.at(gs[:, rc], ee[:, 0], dphi * d_a)
+                    np.add.at(gs[:, rc], ee[:, 1], dphi * d_b)
+                    np.add.at(gs[:, lc], ee[:, 0], dphi * (1.0 - lam))
+                    np.add.at(gs[:, lc], ee[:, 1], dphi * lam)
+                    g[f, :, :2] += gs @ p
+        terms = Terms(st.motion_weight * motion / n_f + st.gap_weight * gap / n_f,
+                      st.motion_weight * motion / n_f, st.gap_weight * gap / n_f)
+        if not grad:
+            return terms, None
+        return terms, self.response.adjoint(g, self.sim_times)
+
+    def frozen_value(self, x: np.ndarray, frames: list[_Frame]) -> Terms:
+        """E at ``x`` with rasters and silhouette edges frozen at an earlier :meth:`freeze`."""
+        return self._frozen(np.asarray(x, float), frames, None, grad=False)[0]
+
+    def frozen_value_and_grad(self, x: np.ndarray, frames: list[_Frame]) -> tuple[Terms, np.ndarray]:
+        """E and its exact gradient with a frozen linearisation."""
+        return self._frozen(np.asarray(x, float), frames, None, grad=True)
+
+    def evaluate(self, x: np.ndarray) -> Terms:
+        """E at ``x`` (rasterised at ``x``)."""
+        x = np.asarray(x, float)
+        u = self.displacements(x)
+        return self._frozen(x, self.freeze(x, u), u, grad=False)[0]
+
+    def value_and_grad(self, x: np.ndarray) -> tuple[Terms, np.ndarray]:
+        """E at ``x`` and its exact gradient for the raster of ``x`` ((n_params,) per unit x)."""
+        x = np.asarray(x, float)
+        u = self.displacements(x)
+        return self._frozen(x, self.freeze(x, u), u, grad=True)
+
+
+def synthesize_measurement(mesh: FoldMesh, camera: Camera, response, times: np.ndarray, x: np.ndarray,
+                           settings: ObjectiveSettings | None = None) -> Measurement:
+    """Forward-simulate a measurement from control values (for tests and phantoms).
+
+    The velocity is the model's forward-difference v_bar on the visible surface
+    (valid where a surface is visible), the gap targets are the model's own
+    silhouettes on every ray both folds cross (NaN elsewhere): a fit of the same
+    model can reach E = 0.
+    """
+    settings = settings or ObjectiveSettings()
+    times = np.asarray(times, dtype=float)
+    f, (h, w) = len(times), camera.shape
+    n_rays = w if settings.lateral_axis == 0 else h
+    dummy = Measurement(times, np.zeros((f, h, w, 3)), np.zeros((f, h, w), bool),
+                        np.full((f, n_rays), np.nan), np.full((f, n_rays), np.nan))
+    prob = Problem(mesh, camera, response, dummy, ObjectiveSettings(**{**settings.__dict__, "ray_margin": 0}))
+    u = prob.displacements(x)
+    vel = np.zeros((f, h * w, 3))
+    valid = np.zeros((f, h * w), bool)
+    lo, hi = np.full((f, n_rays), np.nan), np.full((f, n_rays), np.nan)
+    for k in range(f):
+        pos = mesh.nodes + u[k]
+        raster = rasterize(camera, pos, prob.tri)
+        vel[k, raster.visible_index] = raster.interpolate_visible((u[k + 1] - u[k]) / prob.dt)
+        valid[k, raster.visible_index] = True
+        (r0, _, s0), (r1, _, s1) = prob.silhouettes(pos)
+        common = np.intersect1d(r0, r1)
+        lo[k, common] = s0[np.searchsorted(r0, common)]
+        hi[k, common] = s1[np.searchsorted(r1, common)]
+    return Measurement(times, vel.reshape(f, h, w, 3), valid.reshape(f, h, w), lo, hi)

@@ -1,0 +1,93 @@
+"""Gap silhouettes: the measured ones from gap masks, the simulated ones from mesh edges.
+
+Rays are the lateral image lines (``lateral_axis == 0``: rows are lateral, one ray
+per column, as in :mod:`vfcli.opening`).  A fold's simulated silhouette on a ray
+is the lateral screen position of its medial-most point, the extreme over the
+crossings of its surface edges with the ray (:func:`edge_crossings`,
+:func:`extreme_per_ray`); for a fixed choice of edge it is a smooth function of
+the two end vertices, which is what :mod:`vfcli.objective` differentiates.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from vfcli.opening import OpeningTracker
+
+
+def measured_silhouettes(gap_masks: np.ndarray, lateral_axis: int = 0,
+                         initial_center: np.ndarray | float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Measured gap silhouettes per frame and ray from gap masks.
+
+    Parameters
+    ----------
+    gap_masks : (F, H, W) bool.
+    lateral_axis : 0 (rows lateral, one ray per column) or 1.
+    initial_center : fallback opening location before a ray is seen open (see
+        :class:`vfcli.opening.OpeningTracker`).
+
+    Returns
+    -------
+    lo, hi : (F, n_rays) float64 lateral px of the outermost transitions (edges at
+        half-integers); on closed rays both are the last known opening location.
+    """
+    masks = np.asarray(gap_masks, dtype=bool)
+    tracker = OpeningTracker(masks.shape[1:], lateral_axis, initial_center)
+    lo = np.empty((len(masks), tracker.n_rays))
+    hi = np.empty_like(lo)
+    for f, mask in enumerate(masks):
+        m = mask if lateral_axis == 0 else mask.T
+        trans = m[1:] != m[:-1]
+        has = trans.any(axis=0)
+        first = np.argmax(trans, axis=0) + 0.5
+        last = trans.shape[0] - 1 - np.argmax(trans[::-1], axis=0) + 0.5
+        tracker.observe(mask)
+        fb = tracker.fallback_center()
+        lo[f] = np.where(has, first, fb)
+        hi[f] = np.where(has, last, fb)
+    return lo, hi
+
+
+def surface_edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) sorted unique edges of triangles (K, 3)."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    return np.unique(e, axis=0)
+
+
+def _ragged_arange(counts: np.ndarray) -> np.ndarray:
+    starts = np.cumsum(counts) - counts
+    return np.arange(int(counts.sum())) - np.repeat(starts, counts)
+
+
+def edge_crossings(screen: np.ndarray, edges: np.ndarray, ray_comp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Crossings of screen-space edges with the integer rays ``screen[:, ray_comp] = c``.
+
+    Parameters
+    ----------
+    screen : (N, 2) vertex screen positions (col, row), px.
+    edges : (E, 2) vertex indices.
+    ray_comp : screen component that is constant along a ray (0: columns are rays).
+
+    Returns
+    -------
+    edge : (n,) edge index, ray : (n,) int ray coordinate c, lateral : (n,) px
+    (half-open: an edge covers the rays c with min <= c < max of its ends).
+    """
+    lat_comp = 1 - ray_comp
+    a, b = screen[edges[:, 0], ray_comp], screen[edges[:, 1], ray_comp]
+    c0 = np.ceil(np.minimum(a, b))
+    counts = np.maximum(np.ceil(np.maximum(a, b)) - c0, 0).astype(np.int64)
+    e = np.repeat(np.arange(len(edges)), counts)
+    c = np.repeat(c0, counts) + _ragged_arange(counts)
+    lam = (c - a[e]) / (b[e] - a[e])
+    la, lb = screen[edges[e, 0], lat_comp], screen[edges[e, 1], lat_comp]
+    return e, c.astype(np.int64), la + lam * (lb - la)
+
+
+def extreme_per_ray(e: np.ndarray, c: np.ndarray, s: np.ndarray, take_max: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(rays, edge) with the max (or min) lateral crossing on each ray present."""
+    if e.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    order = np.lexsort((s if take_max else -s, c))
+    cs = c[order]
+    last = np.flatnonzero(np.r_[cs[1:] != cs[:-1], True])
+    return cs[last], e[order[last]]
