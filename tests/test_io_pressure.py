@@ -1,0 +1,232 @@
+"""Pressure readers and writers, checked against npTDMS and scipy's WAV reader."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from vfcli.errors import InputDataError
+from vfcli.io.pressure import (WAV_PA_PER_FULL_SCALE, read_pressure, write_pressure_csv,
+                               write_pressure_tdms)
+
+FS = 50_000.0
+
+
+def _signal(n=2000):
+    t = np.arange(n) / FS
+    return 800.0 + 300.0 * np.sin(2 * np.pi * 150 * t) + 0.1234567890123 * np.cos(7e3 * t)
+
+
+# --------------------------------------------------------------------------- TDMS
+
+def test_tdms_round_trip_through_nptdms(tmp_path):
+    from nptdms import TdmsFile
+
+    x = _signal()
+    path = write_pressure_tdms(tmp_path / "p.tdms", x, FS, t0=0.25)
+    ch = TdmsFile.read(path)["pressure"]["p_sub"]
+    assert np.array_equal(ch[:], x)
+    assert ch.properties["unit_string"] == "Pa"
+    assert ch.time_track()[1] == pytest.approx(0.25 + 1 / FS)
+    rec = read_pressure(path)
+    assert np.array_equal(rec.samples, x)
+    assert (rec.fs, rec.t0, rec.unit) == (FS, 0.25, "Pa")
+    assert "p_sub" in rec.source
+
+
+def _tdms_with(tmp_path, channels, unit="kPa", name="lab.tdms"):
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    path = tmp_path / name
+    objs = [RootObject(), GroupObject("daq")]
+    for cname, data, props in channels:
+        objs.append(ChannelObject("daq", cname, data, properties=props))
+    with TdmsWriter(path) as w:
+        w.write_segment(objs)
+    return path
+
+
+def test_tdms_picks_the_pressure_channel_and_converts_kpa(tmp_path):
+    x = _signal(100)
+    wf = {"wf_increment": 1 / FS, "unit_string": "kPa"}
+    path = _tdms_with(tmp_path, [("Mic", x * 0, {"wf_increment": 1 / FS}),
+                                 ("P_sub", x / 1000, wf)])
+    rec = read_pressure(path)
+    assert np.allclose(rec.samples, x, rtol=1e-15) and rec.unit == "kPa"
+    assert read_pressure(path, group="daq", channel="Mic").samples.max() == 0
+
+
+def test_tdms_with_two_unnamed_channels_needs_the_channel_named(tmp_path):
+    wf = {"wf_increment": 1 / FS}
+    path = _tdms_with(tmp_path, [("ai0", _signal(10), wf), ("ai1", _signal(10), wf)])
+    with pytest.raises(InputDataError, match="cannot choose.*ai0.*lab.tdms|lab.tdms.*cannot"):
+        read_pressure(path)
+    assert read_pressure(path, channel="ai1", unit="Pa").samples.size == 10
+
+
+def test_tdms_unit_mismatch_with_the_config(tmp_path):
+    path = _tdms_with(tmp_path, [("p_sub", _signal(10), {"wf_increment": 1 / FS,
+                                                         "unit_string": "kPa"})])
+    with pytest.raises(InputDataError, match="unit mismatch.*kPa.*Pa"):
+        read_pressure(path, unit="Pa")
+
+
+def test_tdms_with_a_non_pressure_unit(tmp_path):
+    path = _tdms_with(tmp_path, [("p_sub", _signal(10), {"wf_increment": 1 / FS,
+                                                         "unit_string": "V"})])
+    with pytest.raises(InputDataError, match="'V' is not a pressure unit"):
+        read_pressure(path)
+
+
+def test_tdms_nan_samples(tmp_path):
+    x = _signal(10)
+    x[4] = np.nan
+    path = _tdms_with(tmp_path, [("p_sub", x, {"wf_increment": 1 / FS})])
+    with pytest.raises(InputDataError, match="lab.tdms.*NaN/Inf.*index \\(4,\\)"):
+        read_pressure(path)
+
+
+def test_tdms_without_wf_increment(tmp_path):
+    path = _tdms_with(tmp_path, [("p_sub", _signal(10), {})])
+    with pytest.raises(InputDataError, match="no wf_increment"):
+        read_pressure(path)
+
+
+# --------------------------------------------------------------------------- CSV
+
+def test_csv_round_trip_with_and_without_time_column(tmp_path):
+    x = _signal()
+    for with_time in (True, False):
+        path = write_pressure_csv(tmp_path / f"p{with_time}.csv", x, FS, t0=0.5,
+                                  with_time=with_time)
+        rec = read_pressure(path)
+        assert np.array_equal(rec.samples, x)
+        assert rec.fs == FS and rec.t0 == 0.5
+
+
+def test_csv_time_column_in_ms_and_unit_in_header(tmp_path):
+    path = tmp_path / "lab.csv"
+    t_ms = np.arange(50) / FS * 1e3
+    rows = "\n".join(f"{a:.6f};{b}" for a, b in zip(t_ms, np.arange(50) * 0.01))
+    path.write_text("Time [ms];Pressure (kPa)\n" + rows + "\n")
+    rec = read_pressure(path)
+    assert rec.fs == pytest.approx(FS, rel=1e-9) and rec.unit == "kPa"
+    assert np.allclose(rec.samples, np.arange(50) * 10.0)
+
+
+def test_csv_non_uniform_time_column(tmp_path):
+    t = np.arange(100) / FS
+    t[60:] += 1 / FS  # one sample missing
+    path = tmp_path / "gap.csv"
+    path.write_text("t,p_sub\n" + "\n".join(f"{float(a)!r},1.0" for a in t) + "\n")
+    with pytest.raises(InputDataError, match="gap.csv.*non-uniform time column"):
+        read_pressure(path)
+
+
+def test_csv_without_rate(tmp_path):
+    path = tmp_path / "norate.csv"
+    path.write_text("p_sub\n1\n2\n3\n")
+    with pytest.raises(InputDataError, match="norate.csv.*neither a time column nor"):
+        read_pressure(path)
+
+
+def test_csv_with_inf_and_text(tmp_path):
+    bad = tmp_path / "inf.csv"
+    bad.write_text("# fs = 1000\np\n1\ninf\n")
+    with pytest.raises(InputDataError, match="inf.csv.*NaN/Inf"):
+        read_pressure(bad)
+    txt = tmp_path / "words.csv"
+    txt.write_text("# fs = 1000\np\n1\nbanana\n")
+    with pytest.raises(InputDataError, match="words.csv.*not all numbers"):
+        read_pressure(txt)
+
+
+# --------------------------------------------------------------------------- WAV
+
+def test_wav_scaled_by_the_documented_full_scale(tmp_path):
+    from scipy.io import wavfile
+
+    x = (np.sin(np.arange(500) / 5) * 20000).astype(np.int16)
+    path = tmp_path / "p.wav"
+    wavfile.write(path, 44100, x)
+    rec = read_pressure(path)
+    assert rec.fs == 44100
+    assert np.allclose(rec.samples, x / 32768 * WAV_PA_PER_FULL_SCALE)
+    rec2 = read_pressure(path, wav_pa_per_full_scale=2000.0)
+    assert np.allclose(rec2.samples, x / 32768 * 2000.0)
+
+
+def test_stereo_float_wav_channel_choice(tmp_path):
+    from scipy.io import wavfile
+
+    x = np.column_stack([np.zeros(100), np.linspace(-1, 1, 100)]).astype(np.float32)
+    path = tmp_path / "s.wav"
+    wavfile.write(path, 8000, x)
+    rec = read_pressure(path, channel=1, wav_pa_per_full_scale=100.0)
+    assert np.allclose(rec.samples, x[:, 1] * 100.0)
+
+
+# --------------------------------------------------------------------------- bad input
+
+@pytest.mark.parametrize("name,content,match", [
+    ("empty.tdms", b"", "empty"),
+    ("note.tdms", b"hello, this is text\n", "not a TDMS"),
+    ("note.wav", b"hello, this is text\n", "not a WAV"),
+    ("bin.csv", b"\xff\xfe\x00\x81garbage", "not a text CSV"),
+    ("p.xlsx", b"PK\x03\x04", "unsupported pressure file type"),
+])
+def test_bad_files_name_the_file(tmp_path, name, content, match):
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(InputDataError, match=match) as exc:
+        read_pressure(path)
+    assert name in str(exc.value)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(InputDataError, match="nothere.tdms: pressure file not found"):
+        read_pressure(tmp_path / "nothere.tdms")
+
+
+# --------------------------------------------------------------------------- fuzz
+
+_SETTINGS = settings(max_examples=400, deadline=None,
+                     suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+@_SETTINGS
+@given(kind=st.sampled_from(["tdms", "csv", "wav"]), cut=st.integers(0, 300),
+       flips=st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 7)), max_size=6))
+def test_fuzzed_pressure_files_raise_only_input_errors(tmp_path, kind, cut, flips):
+    from scipy.io import wavfile
+
+    path = tmp_path / f"f.{kind}"
+    x = _signal(64)
+    if kind == "tdms":
+        write_pressure_tdms(path, x, FS)
+    elif kind == "csv":
+        write_pressure_csv(path, x, FS)
+    else:
+        wavfile.write(path, 8000, (x * 10).astype(np.int16))
+    b = bytearray(path.read_bytes()[: max(0, len(path.read_bytes()) - cut)])
+    for pos, bit in flips:
+        if b:
+            b[pos % len(b)] ^= 1 << bit
+    path.write_bytes(bytes(b))
+    try:
+        rec = read_pressure(path)
+        assert np.isfinite(rec.samples).all() and rec.fs > 0
+    except InputDataError:
+        pass
+
+
+@_SETTINGS
+@given(data=st.binary(max_size=400), ext=st.sampled_from(["tdms", "csv", "wav"]))
+def test_random_bytes_raise_only_input_errors(tmp_path, data, ext):
+    path = tmp_path / f"r.{ext}"
+    path.write_bytes(data)
+    try:
+        read_pressure(path)
+    except InputDataError:
+        pass

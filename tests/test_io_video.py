@@ -1,0 +1,377 @@
+"""High-speed video readers and writers, checked against the libraries that read
+these formats in the wild (pyMRAW, tifffile, OpenCV)."""
+from __future__ import annotations
+
+import tracemalloc
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.io.photron import pack_12bit, read_cih, unpack_12bit, write_mraw
+from vfcli.io.video import open_video, video_kinds
+from vfcli.io.video_formats import write_tiff
+
+FPS = 20000.0
+
+
+def _frames(n=9, h=6, w=10, bits=12, seed=0):
+    return np.random.default_rng(seed).integers(0, 2**bits, (n, h, w)).astype(
+        np.uint8 if bits == 8 else np.uint16)
+
+
+def _load_pymraw(cih_path):
+    import pyMRAW
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # pyMRAW warns "Not 12bit image!" for 8 bit
+        images, cih = pyMRAW.load_video(str(cih_path))
+    return np.asarray(images), cih
+
+
+# --------------------------------------------------------------------------- 12-bit codec
+
+def test_unpack_12bit_matches_pymraws_decoder_on_random_bytes():
+    import pyMRAW
+
+    raw = np.random.default_rng(3).integers(0, 256, 3 * 5000, dtype=np.uint8)
+    assert np.array_equal(unpack_12bit(raw), pyMRAW.nb_read_uint12(raw))
+
+
+def test_pack_12bit_is_the_inverse_of_unpack_and_big_endian():
+    v = np.array([0xABC, 0x123, 0x000, 0xFFF], np.uint16)
+    packed = pack_12bit(v)
+    assert packed.tolist() == [0xAB, 0xC1, 0x23, 0x00, 0x0F, 0xFF]
+    assert np.array_equal(unpack_12bit(packed), v)
+
+
+# --------------------------------------------------------------------------- MRAW round trips
+
+@pytest.mark.parametrize("bits,metadata", [(12, "cihx"), (16, "cihx"), (8, "cihx"),
+                                           (12, "cih"), (16, "cih")])
+def test_pymraw_reads_our_mraw_back_exactly(tmp_path, bits, metadata):
+    frames = _frames(bits=8 if bits == 8 else 12)
+    _, cih_path = write_mraw(tmp_path / "rec", iter(frames), fps=FPS, bit_depth=bits,
+                             start_frame=-4, metadata=metadata)
+    images, cih = _load_pymraw(cih_path)
+    assert np.array_equal(images, frames)
+    assert cih["Record Rate(fps)"] == FPS
+    assert cih["Total Frame"] == 9
+    assert (cih["Image Width"], cih["Image Height"]) == (10, 6)
+    assert cih["Color Bit"] == bits
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+def test_we_read_mraw_files_written_by_pymraw(tmp_path, bits):
+    import pyMRAW
+
+    frames = _frames(n=5, bits=8 if bits == 8 else 12)
+    _, cih = pyMRAW.save_mraw(frames, str(tmp_path / "theirs.cih"), bit_depth=bits,
+                              info_dict={"Record Rate(fps)": 7500, "Start Frame": -2})
+    with open_video(cih) as v:
+        assert (v.meta.fps, v.meta.n_frames, v.meta.start_frame) == (7500.0, 5, -2)
+        assert np.array_equal(v.read(), frames)
+
+
+def test_cihx_has_a_binary_prefix_before_the_xml(tmp_path):
+    _, cihx = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
+    raw = cihx.read_bytes()
+    assert raw.index(b"<?xml") > 0 and b"\xff" in raw[: raw.index(b"<?xml")]
+
+
+@pytest.mark.parametrize("bits", [8, 12, 16])
+def test_open_video_streams_mraw_metadata_and_frames(tmp_path, bits):
+    frames = _frames(n=11, bits=8 if bits == 8 else 12)
+    mraw, _ = write_mraw(tmp_path / "rec", (f for f in frames), fps=FPS, bit_depth=bits,
+                         start_frame=-4)
+    with open_video(mraw) as v:
+        m = v.meta
+        assert (m.n_frames, m.height, m.width, m.fps) == (11, 6, 10, FPS)
+        assert m.bit_depth == (8 if bits == 8 else 12)
+        assert m.start_frame == -4 and m.trigger_index == 4
+        assert m.t0 == pytest.approx(-4 / FPS)
+        batches = list(v.iter_frames(batch=4))
+        assert [b.shape[0] for b in batches] == [4, 4, 3]
+        assert np.array_equal(np.concatenate(batches), frames)
+        part = v.read(3, 8, roi=(1, 5, 2, 9))
+        assert np.array_equal(part, frames[3:8, 1:5, 2:9])
+
+
+def test_open_video_accepts_the_cihx_or_the_mraw_path(tmp_path):
+    mraw, cihx = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
+    with open_video(mraw) as a, open_video(cihx) as b:
+        assert np.array_equal(a.read(), b.read())
+
+
+def test_read_cih_agrees_with_pymraw_get_cih(tmp_path):
+    import pyMRAW
+
+    _, cihx = write_mraw(tmp_path / "rec", [_frames()], fps=FPS, start_frame=7,
+                         comment="phantom & <test>")
+    ours, theirs = read_cih(cihx), pyMRAW.get_cih(str(cihx))
+    assert ours["fps"] == theirs["Record Rate(fps)"]
+    assert ours["n_frames"] == theirs["Total Frame"]
+    assert ours["start_frame"] == 7
+    assert theirs["Comment Text"] == "phantom & <test>"
+
+
+def test_frame_range_outside_the_video_is_a_config_error(tmp_path):
+    mraw, _ = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
+    with open_video(mraw) as v:
+        with pytest.raises(ConfigError):
+            next(v.iter_frames(5, 20))
+        with pytest.raises(ConfigError):
+            next(v.iter_frames(roi=(0, 7, 0, 3)))
+
+
+def test_writer_rejects_values_beyond_12_bits(tmp_path):
+    with pytest.raises(ConfigError, match="0..4095"):
+        write_mraw(tmp_path / "rec", [np.full((2, 4), 5000, np.uint16)], fps=FPS)
+
+
+# --------------------------------------------------------------------------- bad MRAW input
+
+def _valid(tmp_path, bits=12):
+    return write_mraw(tmp_path / "rec", [_frames(bits=8 if bits == 8 else 12)], fps=FPS,
+                      bit_depth=bits)
+
+
+def _expect_error(path, match):
+    with pytest.raises(InputDataError, match=match) as exc:
+        with open_video(path) as v:
+            v.read()
+    assert path.name in str(exc.value) or path.stem in str(exc.value)
+
+
+def test_truncated_mraw_not_a_multiple_of_the_frame_size(tmp_path):
+    mraw, _ = _valid(tmp_path)
+    mraw.write_bytes(mraw.read_bytes()[:-7])
+    _expect_error(mraw, "not a whole number")
+
+
+def test_mraw_shorter_than_the_cihx_says(tmp_path):
+    mraw, _ = _valid(tmp_path)
+    mraw.write_bytes(mraw.read_bytes()[: 90 * 3])  # 3 of 9 frames (60 px x 1.5 B = 90 B)
+    _expect_error(mraw, "truncated: holds 3 frames")
+
+
+def test_cihx_that_disagrees_with_the_mraw_size(tmp_path):
+    mraw, _ = _valid(tmp_path)
+    mraw.write_bytes(mraw.read_bytes() * 2)
+    _expect_error(mraw, "holds 18 frames")
+
+
+def test_missing_cihx_next_to_the_mraw(tmp_path):
+    mraw, cihx = _valid(tmp_path)
+    cihx.unlink()
+    _expect_error(mraw, "no rec.cihx or rec.cih")
+
+
+def test_missing_mraw_next_to_the_cihx(tmp_path):
+    mraw, cihx = _valid(tmp_path)
+    mraw.unlink()
+    _expect_error(cihx, "no rec.mraw")
+
+
+def test_unsupported_bit_depth(tmp_path):
+    mraw, cihx = _valid(tmp_path)
+    cihx.write_bytes(cihx.read_bytes().replace(b"<bit>12</bit>", b"<bit>10</bit>"))
+    _expect_error(mraw, "unsupported bit depth 10")
+
+
+def test_empty_mraw(tmp_path):
+    mraw, _ = _valid(tmp_path)
+    mraw.write_bytes(b"")
+    _expect_error(mraw, "empty")
+
+
+def test_text_file_named_cihx(tmp_path):
+    mraw, cihx = _valid(tmp_path)
+    cihx.write_text("this is a lab note, not a camera header\n")
+    _expect_error(mraw, "no <cih>")
+
+
+def test_corrupt_cihx_xml(tmp_path):
+    mraw, cihx = _valid(tmp_path)
+    cihx.write_bytes(cihx.read_bytes().replace(b"</recordInfo>", b"</recordInf>"))
+    _expect_error(mraw, "corrupt CIHX XML")
+
+
+def test_text_file_named_tif(tmp_path):
+    bad = tmp_path / "video.tif"
+    bad.write_text("hello\n")
+    _expect_error(bad, "not a TIFF")
+
+
+def test_text_file_named_avi(tmp_path):
+    bad = tmp_path / "video.avi"
+    bad.write_text("hello\n")
+    _expect_error(bad, "not an AVI")
+
+
+def test_unknown_extension(tmp_path):
+    bad = tmp_path / "video.mp9"
+    bad.write_bytes(b"x")
+    _expect_error(bad, "unsupported video file extension")
+
+
+# --------------------------------------------------------------------------- TIFF, folder, AVI
+
+def test_tifffile_reads_our_tiff_and_we_read_tifffiles(tmp_path):
+    import tifffile
+
+    frames = _frames(n=5)
+    path = write_tiff(tmp_path / "v.tif", iter(frames), fps=FPS)
+    assert np.array_equal(tifffile.imread(path), frames)
+    with open_video(path) as v:
+        assert v.meta.fps == FPS and v.meta.n_frames == 5 and v.meta.kind == "tiff"
+        assert np.array_equal(np.concatenate(list(v.iter_frames(batch=2))), frames)
+    other = tmp_path / "theirs.tif"
+    tifffile.imwrite(other, frames)
+    with open_video(other) as v:
+        assert v.meta.fps is None
+        assert np.array_equal(v.read(1, 4, roi=(0, 3, 0, 5)), frames[1:4, :3, :5])
+
+
+def test_folder_of_numbered_pngs_is_read_in_natural_order(tmp_path):
+    import cv2
+
+    frames = _frames(n=12, bits=8)
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for k, f in enumerate(frames):
+        cv2.imwrite(str(folder / f"frame{k + 1}.png"), f)   # frame10 sorts after frame9
+    (folder / "notes.txt").write_text("ignored")
+    with open_video(folder) as v:
+        assert v.meta.kind == "folder" and v.meta.fps is None and v.meta.n_frames == 12
+        assert np.array_equal(v.read(), frames)
+
+
+def test_folder_with_a_different_sized_image_names_that_image(tmp_path):
+    import cv2
+
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a1.png"), np.zeros((4, 4), np.uint8))
+    cv2.imwrite(str(folder / "a2.png"), np.zeros((5, 4), np.uint8))
+    with pytest.raises(InputDataError, match="a2.png"):
+        open_video(folder).read()
+
+
+def test_empty_folder_is_an_input_error(tmp_path):
+    with pytest.raises(InputDataError, match="no image files"):
+        open_video(tmp_path)
+
+
+def test_avi_written_by_opencv_is_streamed_with_its_fps(tmp_path):
+    import cv2
+
+    frames = _frames(n=8, h=32, w=48, bits=8)
+    path = tmp_path / "v.avi"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 250.0, (48, 32),
+                        isColor=False)
+    for f in frames:
+        w.write(f)
+    w.release()
+    with open_video(path) as v:
+        assert v.meta.fps == pytest.approx(250.0) and v.meta.n_frames == 8
+        assert np.array_equal(v.read(), frames)   # FFV1 is lossless
+        assert np.array_equal(v.read(5, 7), frames[5:7])
+
+
+def test_registry_lists_every_kind():
+    kinds = video_kinds()
+    assert {".mraw", ".cihx", ".cih"} <= set(kinds["photron"])
+    assert {"tiff", "folder", "avi"} <= set(kinds)
+
+
+# --------------------------------------------------------------------------- streaming memory
+
+def test_streaming_a_200mb_12bit_mraw_uses_little_memory(tmp_path):
+    h = w = 256
+    n = 2048                                   # 2048 x 96 KiB = 192 MiB packed
+    base = (np.arange(h * w, dtype=np.uint32).reshape(h, w) % 4096).astype(np.uint16)
+
+    def gen():
+        for k0 in range(0, n, 16):
+            ks = np.arange(k0, k0 + 16, dtype=np.uint16)[:, None, None]
+            yield (base[None] + ks * 7) % 4096
+
+    tracemalloc.start()
+    mraw, _ = write_mraw(tmp_path / "big", gen(), fps=FPS)
+    _, write_peak = tracemalloc.get_traced_memory()
+    tracemalloc.reset_peak()
+    size = mraw.stat().st_size
+    assert size == n * h * w * 3 // 2
+    seen = 0
+    with open_video(mraw) as v:
+        for batch in v.iter_frames(batch=32):
+            ks = np.arange(seen, seen + batch.shape[0], dtype=np.uint16)[:, None, None]
+            assert np.array_equal(batch, (base[None] + ks * 7) % 4096)
+            seen += batch.shape[0]
+    _, read_peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert seen == n
+    assert read_peak < size / 8, f"read peak {read_peak / 2**20:.0f} MiB"
+    assert write_peak < size / 8, f"write peak {write_peak / 2**20:.0f} MiB"
+
+
+# --------------------------------------------------------------------------- fuzz
+
+def _mutate(data: bytes, cut: int, flips: list[tuple[int, int]]) -> bytes:
+    b = bytearray(data[: max(0, len(data) - cut)] if cut >= 0 else data + data[:-cut])
+    for pos, bit in flips:
+        if b:
+            b[pos % len(b)] ^= 1 << bit
+    return bytes(b)
+
+
+_FLIPS = st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 7)), max_size=6)
+_FUZZ = settings(max_examples=1000, deadline=None,
+                 suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def _read_all_or_input_error(path):
+    try:
+        with open_video(path) as v:
+            for _ in v.iter_frames(batch=3):
+                pass
+    except InputDataError:
+        pass
+
+
+@_FUZZ
+@given(which=st.sampled_from(["mraw", "cihx", "cih"]), cut=st.integers(-40, 200),
+       flips=_FLIPS)
+def test_fuzzed_photron_files_raise_only_input_errors(tmp_path, which, cut, flips):
+    meta = "cih" if which == "cih" else "cihx"
+    d = tmp_path / f"f_{which}"
+    d.mkdir(exist_ok=True)
+    mraw, cih = write_mraw(d / "rec", [_frames(n=3)], fps=FPS, metadata=meta)
+    target = mraw if which == "mraw" else cih
+    target.write_bytes(_mutate(target.read_bytes(), cut, flips))
+    _read_all_or_input_error(mraw)
+
+
+@_FUZZ
+@given(cut=st.integers(-40, 400), flips=_FLIPS)
+def test_fuzzed_tiff_files_raise_only_input_errors(tmp_path, cut, flips):
+    path = tmp_path / "v.tif"
+    write_tiff(path, [_frames(n=3)], fps=FPS)
+    path.write_bytes(_mutate(path.read_bytes(), cut, flips))
+    _read_all_or_input_error(path)
+
+
+@settings(max_examples=300, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.binary(max_size=600), ext=st.sampled_from([".mraw", ".cihx", ".cih", ".tif",
+                                                          ".avi"]))
+def test_random_bytes_raise_only_input_errors(tmp_path, data, ext):
+    path = tmp_path / f"rand{ext}"
+    path.write_bytes(data)
+    if ext == ".mraw":
+        (tmp_path / "rand.cihx").write_bytes(data[::-1])
+    _read_all_or_input_error(path)

@@ -1,0 +1,76 @@
+"""M5 profile: published heights, analytic area, placement of the two folds."""
+import math
+
+import numpy as np
+import pytest
+
+from vfcli.errors import ConfigError
+from vfcli.m5 import M5Params
+
+
+@pytest.mark.parametrize("depth, height", [(5.0, 7.895), (8.0, 10.41)])
+def test_height_matches_published_formula_values(depth, height):
+    p = M5Params(depth_mm=depth)
+    assert p.height_mm == pytest.approx(height, abs=1e-3 if depth == 5.0 else 5e-3)
+    contour, _ = p.contour(0.1)
+    assert contour[:, 1].min() == pytest.approx(-p.height_mm, abs=1e-12)
+
+
+def test_contour_is_closed_tangent_continuous_and_round():
+    p = M5Params()
+    ends = []
+    for _, kind, data in p.segments():
+        if kind == "line":
+            ends.append((np.array(data[0]), np.array(data[1])))
+        else:
+            (cs, cz), r, a0, a1 = data
+            ends.append((np.array([cs + r * math.cos(a0), cz + r * math.sin(a0)]),
+                         np.array([cs + r * math.cos(a1), cz + r * math.sin(a1)])))
+    for (_, end), (start, _) in zip(ends, ends[1:] + ends[:1]):
+        np.testing.assert_allclose(end, start, atol=1e-12)
+    # medial straight has length T - R_O = 2.013 mm, entrance arc ends on the 40 degree slope
+    assert ends[2][0][1] - ends[2][1][1] == pytest.approx(2.013, abs=1e-12)
+    slope = ends[4][1] - ends[4][0]
+    assert math.degrees(math.atan2(-slope[1], slope[0])) == pytest.approx(40.0)
+
+
+def test_analytic_area_equals_fine_polygon_area():
+    p = M5Params()
+    contour, _ = p.contour(0.002)
+    s, z = contour[:, 0], contour[:, 1]
+    poly = 0.5 * np.sum(s * np.roll(z, -1) - np.roll(s, -1) * z)
+    assert poly > 0  # counter-clockwise
+    assert p.area_mm2() == pytest.approx(poly, rel=1e-6)
+    # independent bound: the profile lies inside the D x H box minus the triangle under the slope
+    assert p.area_mm2() < p.depth_mm * p.height_mm
+    assert p.volume_mm3() == pytest.approx(p.area_mm2() * 15.0)
+
+
+def test_split_point_is_a_contour_vertex_in_the_middle_of_the_medial_surface():
+    p = M5Params()
+    contour, seg = p.contour(1.5)
+    hit = np.flatnonzero((np.abs(contour[:, 0]) < 1e-12) & (np.abs(contour[:, 1] - p.split_z_mm) < 1e-12))
+    assert len(hit) == 1
+    assert p.split_z_mm == pytest.approx(-(0.987 + 3.0) / 2)
+
+
+def test_folds_are_mirror_images_then_offset_and_rotated():
+    pts = np.array([[1.0, 0.0, 0.0], [2.0, 3.0, -4.0]])
+    p = M5Params(gap_mm=0.2)
+    left, right = p.place(pts, 0), p.place(pts, 1)
+    np.testing.assert_allclose(left, right * [1, -1, 1])
+    assert right[0, 1] == pytest.approx(0.1)
+    q = M5Params(gap_mm=0.2, offset_y_mm=(0.0, 0.5), offset_z_mm=(-0.3, 0.0), rotation_deg=(0.0, 90.0))
+    moved = q.place(pts, 1)
+    # rotation by +90 deg about x around the pivot (0.1, 0): (dy, dz) = (3, -4) -> (4, 3)
+    np.testing.assert_allclose(moved[1], [2.0, 0.1 + 4.0 + 0.5, 3.0])
+    np.testing.assert_allclose(q.place(pts, 0), left + [0, 0, -0.3])
+
+
+@pytest.mark.parametrize("kwargs", [
+    {"exit_radius_mm": 3.0}, {"depth_mm": -1.0}, {"gap_mm": -0.1}, {"entrance_sweep_deg": 120.0},
+    {"offset_y_mm": (1.0, 2.0, 3.0)}, {"depth_mm": 0.5},
+])
+def test_invalid_shapes_raise_config_error(kwargs):
+    with pytest.raises(ConfigError):
+        M5Params(**kwargs)
