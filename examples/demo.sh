@@ -3,6 +3,7 @@
 # Runs every stage that exists, in order, and says plainly which stages are still missing
 # or were skipped because a stage they need is missing. Never fakes a stage.
 # usage: examples/demo.sh [OUTDIR]      (make demo runs it with OUTDIR=demo)
+# EFFECT=random SEED=3 make demo   hides a physics effect in the phantom (named only in truth.h5)
 set -u
 OUT=${1:-demo}
 VF=${VFCLI:-.venv/bin/vfcli}
@@ -30,7 +31,7 @@ step() {  # step NAME "NEEDS" ARGS...
     esac
 }
 
-step synth      ""                "$RAW" --seed 1 --effect none
+step synth      ""                "$RAW" --seed "${SEED:-1}" --effect "${EFFECT:-none}"
 step ingest-hsc "synth"           "$STORE" "$RAW/video.cihx" --pressure "$RAW/video_pressure.tdms" --config "$RAW/recording.toml"
 step ingest-ldv "synth"           "$STORE" "$RAW/scan.uff"
 step sync       "ingest-hsc ingest-ldv" "$STORE"

@@ -119,7 +119,7 @@ def test_threshold_warns_when_the_gap_never_opens(video, caplog):
     closed = np.stack([f for f, k in zip(frames, CYCLE) if ph.gap_area_px2(ph.frame_time(k)) == 0])
     with caplog.at_level(logging.WARNING, logger="vfcli.gap"):
         gap_threshold(closed)
-    assert "no distinct dark gap" in caplog.text or "no gap core" in caplog.text
+    assert "no distinct edge" in caplog.text or "no gap core" in caplog.text
 
 
 def test_bad_settings_raise_config_errors():

@@ -166,22 +166,20 @@ def test_sigkill_at_random_moments_never_damages_the_store(tmp_path):
     assert _stage_state(path) == (True, 0)
     last_complete = 0
     outcomes = {"killed": 0, "finished": 0}
-    for i in range(30):
-        seed = i + 1
+    seed = 0
+    while outcomes["killed"] < 30:  # 30 kills that landed while the stage was being written
+        seed += 1
+        assert seed <= 90, outcomes
         proc = subprocess.Popen([*WRITER, str(path), str(seed), str(n_frames)], stdout=subprocess.PIPE)
         assert proc.stdout.readline().strip() == b"writing"
-        time.sleep(rng.uniform(0.0, full * 1.2))
+        time.sleep(rng.uniform(0.0, full))
         proc.send_signal(signal.SIGKILL)
         proc.wait()
         ok, seen = _stage_state(path)
-        assert seen in (last_complete, seed), f"kill {i}: /hsc holds seed {seen}"
-        if seen == seed:
-            outcomes["finished"] += 1
-        else:
-            outcomes["killed"] += 1
+        assert seen in (last_complete, seed), f"kill {seed}: /hsc holds seed {seen}"
+        outcomes["finished" if seen == seed else "killed"] += 1
         last_complete = seen
     print("kill outcomes:", outcomes)
-    assert outcomes["killed"] >= 10, outcomes  # most kills landed mid-write
     # the next writer cleans up what the killed ones left
     subprocess.run([*WRITER, str(path), "99", "5"], check=True)
     assert store.interrupted_writes() == []

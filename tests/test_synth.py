@@ -28,7 +28,7 @@ SMALL = [
 @pytest.fixture(scope="module")
 def phantom(tmp_path_factory):
     out = tmp_path_factory.mktemp("ph") / "raw"
-    from tests.conftest import run_vfcli
+    from conftest import run_vfcli
 
     res = run_vfcli("synth", out, "--seed", "3", "--effect", "random", *sum((["--set", s] for s in SMALL), []))
     assert res.returncode == 0, res.stderr
@@ -97,7 +97,7 @@ def test_no_file_but_truth_names_the_effect(phantom):
 
 
 def test_same_seed_same_bytes(phantom, tmp_path):
-    from tests.conftest import run_vfcli
+    from conftest import run_vfcli
 
     again = tmp_path / "again"
     res = run_vfcli("synth", again, "--seed", "3", "--effect", "random", *sum((["--set", s] for s in SMALL), []))

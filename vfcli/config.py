@@ -51,6 +51,9 @@ class IngestHscConfig(_Section):
     )
     pressure_group: str | None = Field(None, description="TDMS group of the pressure; null: the only one")
     pressure_channel: str | None = Field(None, description="TDMS/CSV channel of the pressure; null: auto")
+    compression: Literal["gzip", "gzip4", "none"] = Field(
+        "gzip", description="Filter of the stored frames: gzip (deflate 1 + shuffle, portable), gzip4, none"
+    )
     wav_full_scale_pa: float = Field(1000.0, gt=0, le=1e7, description="WAV pressure: Pa at digital full scale")
 
 
@@ -151,10 +154,10 @@ class SynthConfig(_Section):
     seed: int = Field(1, ge=0, le=2**31 - 1, description="Random seed (same seed, same bytes)")
     f0_hz: float = Field(120.0, ge=50, le=400, description="Fundamental frequency of the phonation, Hz")
     f0_drift_rel: float = Field(0.01, ge=0, le=0.05, description="Bound of the f0 random walk between LDV epochs (1)")
-    mean_pressure_pa: float = Field(800.0, ge=100, le=3000, description="Mean subglottal pressure, Pa")
-    pressure_amplitude_rel: float = Field(0.45, ge=0.05, le=0.9, description="Half peak-to-peak pressure swing over the mean (1)")
+    mean_pressure_pa: float = Field(1000.0, ge=100, le=3000, description="Mean subglottal pressure, Pa")
+    pressure_amplitude_rel: float = Field(0.6, ge=0.05, le=0.9, description="Half peak-to-peak pressure swing over the mean (1)")
     pressure_noise_pa: float = Field(4.0, ge=0, le=100, description="Pressure sensor noise, Pa RMS")
-    closed_fraction: float = Field(0.35, ge=0.0, le=0.8, description="Fraction of the cycle the glottis is closed (sets the adduction)")
+    closed_fraction: float = Field(0.25, ge=0.0, le=0.8, description="Fraction of the cycle the glottis is closed (sets the adduction)")
     load_harmonics: int = Field(4, ge=1, le=12, description="Harmonics of f0 kept in the aerodynamic load (1)")
     n_phase: int = Field(128, ge=32, le=1024, description="Phase samples per cycle for the true motion (1)")
     target_edge_mm: float = Field(1.25, ge=0.3, le=5, description="Element size of the phantom's own (true) mesh, mm")

@@ -67,6 +67,10 @@ def _min_error(hist: np.ndarray, min_fraction: float = 1e-3) -> int:
     return int(np.argmin(crit)) + 1
 
 
+#: level of the gap core between the darkest pixels and the surface median (see gap_threshold)
+CORE_LEVEL = 0.15
+
+
 def gap_threshold(
     frames_sample: np.ndarray,
     *,
@@ -84,18 +88,20 @@ def gap_threshold(
     1. *Open frames.* The frames of the sample are ranked by their
        ``dark_percentile``-th intensity percentile (low when a dark gap is visible);
        the darkest ``open_fraction`` of them (at least one) are pooled.
-    2. *Gap core.* The Kittler-Illingworth minimum-error threshold of the pooled
-       histogram (two Gaussian classes of very unequal size, which it handles and
-       Otsu does not) finds the dark mode; its pixels, median-filtered 5 x 5, are the
-       gap core of each open frame.
+    2. *Gap core.* The gap is the darkest object of an open frame: pixels darker than
+       ``darkest + CORE_LEVEL (median - darkest)`` (darkest = 0.05th percentile of the
+       pooled frames, median = the fold surface), median-filtered 5 x 5, are the gap
+       core of each open frame. (A minimum-error threshold of the whole histogram
+       was tried first and picked up the dark fixture border instead of a narrow gap.)
     3. *Edge threshold.* Otsu's threshold of the pixels within ``band_px`` of the core
        (the gap and the fold surface right next to it, in comparable proportions):
        the intensity half-way between gap and adjacent surface, where an edge pixel is
        about half covered.
 
-    If the pooled frames have no distinct dark class (Otsu separation in step 3 below
-    :data:`MIN_SEPARATION`, e.g. a recording whose gap never opens) a warning is
-    logged: set the threshold by hand (config ``flow.threshold``) then.
+    If the band has no distinct edge (Otsu separation in step 3 below
+    :data:`MIN_SEPARATION`: a gap whose walls look dark edge-on, or one that never opens),
+    the gap-core level of step 2 is returned and a warning logged (set the threshold by
+    hand with ``flow.threshold`` if the mask looks wrong).
 
     Parameters
     ----------
@@ -131,8 +137,9 @@ def gap_threshold(
     lo, hi = float(chosen.min()), float(chosen.max())
     if hi <= lo:
         return hi + 0.5
-    hist, edges = np.histogram(chosen, bins=n_bins, range=(lo, hi))
-    core_threshold = float(edges[_min_error(hist)])
+    # the gap is the darkest object in an open frame: its core lies well below the surface
+    darkest = float(np.percentile(chosen, 0.05))
+    core_threshold = darkest + CORE_LEVEL * (float(np.median(chosen)) - darkest)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
     band = []
     for f in chosen:
@@ -149,10 +156,12 @@ def gap_threshold(
     threshold = float(edges[k])
     if separation < MIN_SEPARATION:
         log.warning(
-            "gap threshold %.1f counts: no distinct dark gap in the sampled frames "
-            "(Otsu separation %.2f < %.1f); set flow.threshold by hand if the gap opens",
-            threshold, separation, MIN_SEPARATION,
+            "gap threshold: no distinct edge between gap and surface (Otsu separation %.2f < %.1f, "
+            "e.g. dark medial walls seen edge-on); using the gap-core level %.1f counts instead of %.1f. "
+            "Set flow.threshold by hand if the gap mask looks wrong",
+            separation, MIN_SEPARATION, core_threshold, threshold,
         )
+        return core_threshold
     return threshold
 
 
@@ -173,7 +182,8 @@ def gap_mask(
     2. Median filter of the binary image, ``median_px`` x ``median_px`` (the paper's
        robustness to noise; it also erases a closed glottis's thin dark contact line,
        of width below about ``median_px / 2``).
-    3. Keep the gap component(s), rejecting the dark specks of the texture and of a
+    3. Keep the gap component(s), rejecting components that touch the image border (the
+       fixture; the glottis lies inside the field of view), the dark specks of the texture and of a
        closed glottis's contact line: an 8-connected dark component is kept when
 
        * it holds at least ``median_px`` *core* pixels, darker than
@@ -234,6 +244,11 @@ def gap_mask(
     if band_px is None:
         band_px = 0.15 * dark.shape[lateral_axis]
     keep = (area >= min_area_px) & (n_core >= median_px)
+    # the glottis lies inside the field of view (the folds are clamped at both ends): a dark
+    # component touching the image border is the fixture or the channel wall, not the gap
+    left, top = stats[1:, cv2.CC_STAT_LEFT], stats[1:, cv2.CC_STAT_TOP]
+    right, bottom = left + stats[1:, cv2.CC_STAT_WIDTH], top + stats[1:, cv2.CC_STAT_HEIGHT]
+    keep &= (left > 0) & (top > 0) & (right < dark.shape[1]) & (bottom < dark.shape[0])
     if not keep.any():
         return np.zeros(dark.shape, dtype=bool)
     if midline is None:

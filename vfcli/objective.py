@@ -9,7 +9,12 @@ is evaluated at the F + 1 times ``times`` and ``times[-1] + dt``
 the forward difference ``(x(u, v, t_f + dt) - x(u, v, t_f)) / dt`` of the
 material point seen in pixel y at t_f (paper, eq. for v-bar).
 
-E = motion_weight * E_motion + gap_weight * E_gap, both means over the F frames.
+E = motion_weight * E_motion + gap_weight * E_gap (both means over the F frames)
++ ridge_weight * mean(x^2), the last an optional bound on the loads (default 0,
+the paper's E).  The superior-surface velocity fixes the displacement only up to
+a time-constant field (the gap silhouette pins the medial edge), and the
+inferior surface not at all (/work/shared/reference/identifiability.md): a
+reconstruction that reports them should bound its loads.
 
 Motion term (paper's three cases)
 ---------------------------------
@@ -110,9 +115,10 @@ class ObjectiveSettings:
     visible_tags: tuple[int, ...] = (TAG_SUPERIOR, TAG_MEDIAL)
     lateral_axis: int = 0
     ray_margin: int = 1
+    ridge_weight: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (self.motion_weight >= 0 and self.gap_weight >= 0):
+        if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0):
             raise ConfigError("objective weights must be >= 0")
         if not self.gap_length_mm > 0:
             raise ConfigError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
@@ -122,11 +128,12 @@ class ObjectiveSettings:
 
 @dataclass(frozen=True)
 class Terms:
-    """Value of E and its two weighted terms."""
+    """Value of E and its weighted terms (``total = motion + gap + ridge``)."""
 
     total: float
     motion: float
     gap: float
+    ridge: float = 0.0
 
 
 @dataclass
@@ -286,11 +293,12 @@ class Problem:
                     np.add.at(gs[:, lc], ee[:, 0], dphi * (1.0 - lam))
                     np.add.at(gs[:, lc], ee[:, 1], dphi * lam)
                     g[f, :, :2] += gs @ p
-        terms = Terms(st.motion_weight * motion / n_f + st.gap_weight * gap / n_f,
-                      st.motion_weight * motion / n_f, st.gap_weight * gap / n_f)
+        ridge = st.ridge_weight * float(x @ x) / len(x)
+        terms = Terms(st.motion_weight * motion / n_f + st.gap_weight * gap / n_f + ridge,
+                      st.motion_weight * motion / n_f, st.gap_weight * gap / n_f, ridge)
         if not grad:
             return terms, None
-        return terms, self.response.adjoint(g, self.sim_times)
+        return terms, self.response.adjoint(g, self.sim_times) + (2.0 * st.ridge_weight / len(x)) * x
 
     def frozen_value(self, x: np.ndarray, frames: list[_Frame]) -> Terms:
         """E at ``x`` with rasters and silhouette edges frozen at an earlier :meth:`freeze`."""

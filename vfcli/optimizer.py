@@ -5,7 +5,7 @@ Methods
 ``"lbfgs"`` (default)
     Limited-memory BFGS (two-loop recursion, ``memory`` pairs) on the exact
     frozen-raster gradient of :meth:`vfcli.objective.Problem.value_and_grad`,
-    with an Armijo backtracking line search (the first iteration, which has no
+    with an Armijo backtracking line search (quadratic interpolation; the first iteration, which has no
     curvature information, expands its step by doubling while E decreases).
     Implemented here rather than taken from scipy so that its whole state (x,
     E, gradient, curvature pairs) is saved in :class:`FitState`: a resumed run
@@ -52,10 +52,10 @@ from vfcli.objective import Terms
 log = logging.getLogger(__name__)
 
 METHODS = ("lbfgs", "scipy-lbfgsb", "paper")
-#: per-iteration history: iteration number, E and its weighted motion and gap terms, length of the
+#: per-iteration history: iteration number, E and its weighted motion, gap and ridge terms, length of the
 #: accepted step |x_k - x_{k-1}| (x units), cumulative wall time (s, over resumed runs too) and the
 #: cumulative number of objective evaluations (a paper-method gradient counts n_params of them)
-HISTORY_FIELDS = ("iteration", "total", "motion", "gap", "step", "wall_time", "n_evals")
+HISTORY_FIELDS = ("iteration", "total", "motion", "gap", "ridge", "step", "wall_time", "n_evals")
 
 
 @dataclass(frozen=True)
@@ -92,7 +92,7 @@ class FitOptions:
 class FitState:
     """Everything needed to continue a fit (see :meth:`to_arrays` for storing it).
 
-    x, value (total, motion, gap), grad : the current iterate.
+    x, value (total, motion, gap, ridge), grad : the current iterate.
     memory_s, memory_y : (m, n) L-BFGS pairs (lbfgs), oldest first.
     gamma : current step of the paper method.
     history : per iteration lists of :data:`HISTORY_FIELDS`.
@@ -183,12 +183,12 @@ class _Counter:
 
 
 def _terms_array(t: Terms) -> np.ndarray:
-    return np.array([t.total, t.motion, t.gap], dtype=float)
+    return np.array([t.total, t.motion, t.gap, t.ridge], dtype=float)
 
 
 def _record(state: FitState, step: float, opts: FitOptions, t_start: float, force_keep: bool = False) -> None:
     h = state.history
-    for k, v in zip(("iteration", "total", "motion", "gap", "step", "wall_time", "n_evals"),
+    for k, v in zip(HISTORY_FIELDS,
                     (state.iteration, *state.value, step, state.wall_time + time.perf_counter() - t_start,
                      state.n_evals)):
         h[k].append(v)
@@ -229,7 +229,10 @@ def _lbfgs_step(obj: _Counter, st: FitState, opts: FitOptions) -> tuple[bool, fl
         if terms.total <= f0 + opts.armijo * alpha * slope:
             best = (alpha, terms, g)
             break
-        alpha *= 0.5
+        # backtrack to the minimiser of the quadratic through f0, slope and f(alpha), within [0.1, 0.5] alpha
+        curv = terms.total - f0 - slope * alpha
+        alpha = float(np.clip(-slope * alpha * alpha / (2.0 * curv), 0.1 * alpha, 0.5 * alpha)) \
+            if curv > 0 else 0.5 * alpha
     if best is not None and not len(st.memory_s) and best[0] == 1.0:
         # no curvature information yet and the first trial was accepted: expand while E decreases
         for _ in range(opts.max_line_search):
@@ -344,7 +347,7 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
         x = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
         if x.shape != (problem.n_params,):
             raise ConfigError(f"x0 must have shape ({problem.n_params},), got {x.shape}")
-        state = FitState(method=method, x=x, value=np.zeros(3), grad=np.zeros_like(x))
+        state = FitState(method=method, x=x, value=np.zeros(4), grad=np.zeros_like(x))
         obj = _Counter(problem, state)
         if method == "paper":
             t = obj.value(x)
@@ -372,7 +375,8 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
             break
         state.iteration += 1
         _record(state, step, opts, t_start)
-        log.info("fit %s iteration %d: E = %.6g (motion %.6g, gap %.6g)", method, state.iteration, *state.value)
+        log.info("fit %s iteration %d: E = %.6g (motion %.6g, gap %.6g, ridge %.6g)", method, state.iteration,
+                 *state.value)
         if f_before - state.value[0] <= opts.ftol * max(abs(f_before), 1e-300):
             state.converged, state.message = True, "relative decrease below ftol"
             break

@@ -42,7 +42,15 @@ from .errors import ConfigError, MissingStageError, StoreFormatError, StoreLocke
 from .provenance import describe_inputs, same_inputs, stage_digest
 
 _TMP_MARK = ".tmp-"
-_COMPRESSION = {"compression": "gzip", "compression_opts": 4, "shuffle": True}
+#: Filters of large per-frame datasets, by name. "gzip" (deflate level 1 + shuffle) is the
+#: default: every HDF5 reader opens it without plugins (HDFView, MATLAB, h5py); see
+#: docs/benchmarks.md ("Ingest") for the measured speed of each.
+COMPRESSIONS: dict[str, dict[str, Any]] = {
+    "gzip": {"compression": "gzip", "compression_opts": 1, "shuffle": True},
+    "gzip4": {"compression": "gzip", "compression_opts": 4, "shuffle": True},
+    "none": {},
+}
+_COMPRESSION = COMPRESSIONS["gzip"]
 
 
 def _lock_path(path: Path) -> Path:
@@ -278,10 +286,12 @@ class StageWriter:
         units: str | None = None,
         description: str | None = None,
         attrs: Mapping[str, Any] | None = None,
+        compression: str = "gzip",
     ) -> h5py.Dataset:
-        """An empty dataset to fill frame by frame (chunked one frame per chunk, compressed)."""
+        """An empty dataset to fill frame by frame (chunked one frame per chunk, compressed
+        with one of :data:`COMPRESSIONS`)."""
         chunks = (1, *shape[1:]) if len(shape) >= 2 else True
-        ds = self._g.create_dataset(key, shape=shape, dtype=dtype, chunks=chunks, **_COMPRESSION)
+        ds = self._g.create_dataset(key, shape=shape, dtype=dtype, chunks=chunks, **COMPRESSIONS[compression])
         self._decorate(ds, key, units, description)
         for k, v in (attrs or {}).items():
             ds.attrs[k] = v

@@ -178,7 +178,6 @@ def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_uni
     grid = infer_grid(coords, expected_grid)
     if grid.message:
         notes.append(grid.message)
-        logger.warning("%s: %s", path, grid.message)
     flags, reasons = detect_dropouts(vel, fs)
     if flags.any():
         notes.append(f"{int(flags.sum())} of {p} points flagged for signal dropout")

@@ -41,6 +41,9 @@ log = logging.getLogger(__name__)
 #: Frames read from the store at once (video batches, field chunks).
 CHUNK_FRAMES = 16
 
+#: A sampled gap covering more than this fraction of the image is implausible (a slit).
+MAX_GAP_FRACTION = 0.05
+
 #: FlowConfig fields that shape /flow (the others only shape /fields).
 _FLOW_FIELDS = ("method", "threshold", "median_px", "sample_frames", "split_folds", "grid_step", "dis_preset")
 _FIELDS_FIELDS = ("rbf_smoothing", "w_inside_hull")
@@ -78,6 +81,26 @@ def _config_json(cfg: FlowConfig, keys: tuple[str, ...]) -> str:
     return json.dumps({"flow": cfg.model_dump(mode="json", include=set(keys))}, sort_keys=True)
 
 
+def _check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool) -> None:
+    """Warn when the gap masks of the sampled frames (k, H, W) bool do not look like a glottis.
+
+    The folds close in every cycle and the gap is a slit: a "gap" in every sampled frame
+    or one covering more than :data:`MAX_GAP_FRACTION` of the image is more likely a dark
+    fixture, shadow or texture below the threshold.
+    """
+    how = "automatic" if auto else "configured"
+    open_share = float(masks.any(axis=(1, 2)).mean())
+    area_share = float(masks.mean())
+    if open_share == 0:
+        log.warning("flow: no glottal gap in the %d sampled frames (%s threshold %.1f counts); "
+                    "set flow.threshold if the glottis opens", len(masks), how, threshold)
+    elif len(masks) >= 8 and (open_share == 1 or area_share > MAX_GAP_FRACTION):
+        log.warning("flow: the %s threshold %.1f counts finds a gap in %.0f%% of the %d sampled frames, covering "
+                    "%.1f%% of the image on average; the folds close every cycle and the gap is a slit, so it "
+                    "probably segments a dark fixture, shadow or texture: set flow.threshold (counts) by hand",
+                    how, threshold, 100 * open_share, len(masks), 100 * area_share)
+
+
 def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
     """Body of /flow: stream /hsc frames through the flow step, one frame at a time."""
     hsc = reader.attrs("hsc")
@@ -98,13 +121,12 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     auto = cfg.threshold is None
     threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
     counts_range = intensity_range(sample)
-    centre = midline_from_masks(np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample]), lateral)
+    masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample])
+    _check_sampled_gap(masks, threshold, auto)
+    centre = midline_from_masks(masks, lateral)
     seen = np.isfinite(centre)
     midline = float(np.median(centre[seen])) if seen.any() else None
-    if midline is None:
-        log.warning("flow: no glottal gap in the %d sampled frames (threshold %.1f counts); "
-                    "set flow.threshold if the glottis opens", len(sample), threshold)
-    del sample
+    del sample, masks
 
     estimator = FlowEstimator(cfg.method, grid_step=cfg.grid_step, dis_preset=cfg.dis_preset)
     ds_mask = s.create("gap_mask", (n, h, w), bool)
@@ -140,6 +162,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         px_per_mm=px_per_mm,
         rotation_deg=rotation,
         offset_px=offset,
+        roi_origin_px=np.asarray(hsc.get("roi_px", (0, 0, 0, 0)), dtype=float)[:2],
     )
     return {
         "frames": n,
@@ -196,8 +219,8 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
             reader.path,
         )
     coords, good = _good_points(reader, n)
-    camera = Camera(float(fl["px_per_mm"]), float(fl["rotation_deg"]), tuple(np.asarray(fl["offset_px"], float)), w, h)
-    points_px = camera.project(coords)
+    # LDV coordinates are camera-frame mm: full-frame pixel / px_per_mm (docs/conventions.md)
+    points_px = coords[:, :2] * float(fl["px_per_mm"]) - np.asarray(fl.get("roi_origin_px", (0.0, 0.0)), float)
     tps = LdvTps(points_px, good, smoothing=cfg.rbf_smoothing).fit_grid((h, w))
     inside = hull_mask(points_px[good], (h, w)) if cfg.w_inside_hull else None
     aligned = reader.dataset("sync", "aligned_w")

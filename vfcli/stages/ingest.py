@@ -58,7 +58,7 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             roi = _roi_rows_cols(cfg.roi_px)
             h, w = (meta.height, meta.width) if roi is None else (roi[1] - roi[0], roi[3] - roi[2])
             n = stop - start
-            ds = s.create("frames", (n, h, w), meta.dtype, attrs={"bit_depth": meta.bit_depth})
+            ds = s.create("frames", (n, h, w), meta.dtype, attrs={"bit_depth": meta.bit_depth}, compression=cfg.compression)
             bar = ctx.progress(total=n, desc="ingest-hsc", unit="frame")
             i = 0
             for batch in src.iter_frames(start, stop, roi):
@@ -112,6 +112,12 @@ def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
         scan = read_ldv(scan_path, channels, expected_grid=(cfg.grid_rows, cfg.grid_cols))
         if scan.reference is None:
             raise InputDataError("the scan has no reference (pressure) channel; sync needs it", scan_path)
+        expected = cfg.grid_rows * cfg.grid_cols
+        if scan.n_points != expected or scan.grid_shape != (cfg.grid_rows, cfg.grid_cols):
+            found = "x".join(map(str, scan.grid_shape)) if scan.grid_shape else "no regular grid"
+            raise InputDataError(
+                f"found {scan.n_points} scan points ({found}), expected a {cfg.grid_rows} x {cfg.grid_cols} scan "
+                f"of {expected}; set ingest_ldv.grid_rows/grid_cols for another rig", scan_path)
         for note in scan.notes:
             log.warning("%s: %s", scan_path, note)
         ref_unit = scan.reference_unit or "V"

@@ -1,0 +1,133 @@
+"""Fitting a forward-simulated case: recovery, monotone decrease, speed against the paper's method, resume."""
+import doctest
+import time
+
+import numpy as np
+import pytest
+
+import vfcli.optimizer
+from vfcli.errors import ConfigError
+from vfcli.mesh import TAG_SUPERIOR
+from vfcli.optimizer import FitOptions, FitState, fit, resume
+
+try:  # tests/ on sys.path (no tests/__init__.py)
+    from _forward_case import forward_case
+except ModuleNotFoundError:  # tests/ is a package
+    from tests._forward_case import forward_case
+
+OPTS = FitOptions(initial_step=100.0)
+
+
+@pytest.fixture(scope="module")
+def case():
+    return forward_case(resolution=(2, 2, 6), sides=("inferior",), n_frames=12)
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return forward_case(resolution=(2, 2, 3), sides=("inferior",), n_frames=8)
+
+
+def superior_velocity_error(case, x):
+    p = case.problem
+    sup = np.unique(case.model.mesh.faces[case.model.mesh.face_tag == TAG_SUPERIOR])
+    vt = np.diff(p.displacements(case.x_true), axis=0)[:, sup]
+    vf = np.diff(p.displacements(x), axis=0)[:, sup]
+    return np.linalg.norm(vf - vt) / np.linalg.norm(vt)
+
+
+def test_docstring_examples_run():
+    assert doctest.testmod(vfcli.optimizer).failed == 0
+
+
+def test_lbfgs_from_zero_recovers_the_superior_motion_and_decreases_e_monotonically(case):
+    res = fit(case.problem, method="lbfgs", max_iter=60, options=OPTS)
+    total = res.history["total"]
+    assert len(total) == 61 and res.history["iteration"][-1] == 60
+    assert np.all(np.diff(total) < 0)
+    assert total[-1] < 3e-3 * total[0]
+    assert superior_velocity_error(case, np.zeros_like(res.x)) == pytest.approx(1.0)
+    assert superior_velocity_error(case, res.x) < 0.05
+    np.testing.assert_allclose(res.history["motion"] + res.history["gap"], total, rtol=1e-12)
+    assert np.all(np.diff(res.history["wall_time"]) >= 0) and np.all(np.diff(res.history["n_evals"]) > 0)
+    assert res.kept_x.shape == (61, case.problem.n_params)
+    np.testing.assert_array_equal(res.kept_x[-1], res.x)
+
+
+def test_resume_after_stopping_ends_where_an_uninterrupted_run_ends(case):
+    full = fit(case.problem, method="lbfgs", max_iter=12, options=OPTS)
+    stops = []
+    part = fit(case.problem, method="lbfgs", max_iter=12, options=OPTS,
+               callback=lambda st: stops.append(st.iteration) or st.iteration == 5)
+    assert part.state.iteration == 5 and part.message == "stopped by callback" and stops == [1, 2, 3, 4, 5]
+    saved = {k: np.array(v, copy=True) for k, v in part.state.to_arrays().items()}   # a checkpoint
+    cont = resume(case.problem, FitState.from_arrays(saved), max_iter=12, options=OPTS)
+    np.testing.assert_allclose(cont.x, full.x, rtol=1e-10, atol=1e-10 * np.abs(full.x).max())
+    np.testing.assert_allclose(cont.history["total"], full.history["total"], rtol=1e-10)
+    np.testing.assert_array_equal(cont.history["iteration"], np.arange(13))
+    assert cont.history["n_evals"][-1] == full.history["n_evals"][-1]
+
+
+def test_keep_every_keeps_every_kth_and_the_last(case):
+    res = fit(case.problem, method="lbfgs", max_iter=7, options=FitOptions(initial_step=100.0, keep_every=3))
+    np.testing.assert_array_equal(res.kept_iterations, [0, 3, 6, 7])
+
+
+def test_scipy_lbfgsb_decreases_e(tiny):
+    res = fit(tiny.problem, method="scipy-lbfgsb", max_iter=10, options=OPTS)
+    assert res.history["total"][-1] < 0.1 * res.history["total"][0]
+    assert res.state.iteration == len(res.history["total"]) - 1
+
+
+def test_bad_method_and_start_are_config_errors(tiny):
+    with pytest.raises(ConfigError):
+        fit(tiny.problem, method="newton")
+    with pytest.raises(ConfigError):
+        fit(tiny.problem, x0=np.zeros(3))
+
+
+@pytest.mark.slow
+def test_lbfgs_reaches_the_paper_methods_error_with_far_fewer_evaluations(tiny):
+    paper = fit(tiny.problem, method="paper", max_iter=2, options=OPTS)
+    assert np.all(np.diff(paper.history["total"]) < 0)
+    target = paper.history["total"][-1]
+    lb = fit(tiny.problem, method="lbfgs", max_iter=50, options=OPTS,
+             callback=lambda st: st.value[0] <= target)
+    assert lb.terms.total <= target
+    n_lb, n_paper = lb.history["n_evals"][-1], paper.history["n_evals"][-1]
+    print(f"evaluations to E <= {target:.4g}: lbfgs {n_lb}, paper {n_paper} (ratio {n_paper / n_lb:.0f})")
+    assert 10 * n_lb < n_paper
+
+
+def test_paper_method_resumes_deterministically():
+    micro = forward_case(resolution=(1, 1, 3), sides=("inferior",), n_frames=6)
+    full = fit(micro.problem, method="paper", max_iter=3, options=OPTS)
+    part = fit(micro.problem, method="paper", max_iter=1, options=OPTS)
+    cont = resume(micro.problem, FitState.from_arrays(part.state.to_arrays()), max_iter=3, options=OPTS)
+    assert np.all(np.diff(full.history["total"]) < 0) and full.state.iteration == 3
+    np.testing.assert_allclose(cont.x, full.x, rtol=1e-10, atol=1e-10 * np.abs(full.x).max())
+
+
+@pytest.mark.slow
+def test_exact_gradient_is_over_100_times_faster_than_the_fd_gradient():
+    """3x3x10 one-sided (780 controls), 20 frames: time per gradient.
+
+    The FD gradient is timed on 40 of its 780 evaluations and scaled (each one is a
+    full objective evaluation of the same cost)."""
+    c = forward_case(resolution=(3, 3, 10), sides=("inferior",), n_frames=20)
+    p, x = c.problem, 0.5 * c.x_true
+    p.value_and_grad(x)
+    t0 = time.perf_counter()
+    for _ in range(3):
+        p.value_and_grad(x)
+    t_exact = (time.perf_counter() - t0) / 3
+    f0 = p.evaluate(x).total
+    k = 40
+    t0 = time.perf_counter()
+    for i in range(k):
+        e = np.zeros_like(x)
+        e[i] = 0.1
+        p.evaluate(x + e).total - f0
+    t_fd = (time.perf_counter() - t0) / k * p.n_params
+    print(f"per gradient: exact {t_exact * 1e3:.0f} ms, FD {t_fd:.1f} s (n = {p.n_params}), ratio {t_fd / t_exact:.0f}")
+    assert t_fd > 100 * t_exact
