@@ -131,13 +131,20 @@ class MeshConfig(_Section):
 
 
 class OptimizeConfig(_Section):
-    """`vfcli optimize`: force-field resolution and optimiser (see docs)."""
+    """`vfcli optimize`: force field, time window, objective and optimiser (see docs/optimize.md)."""
 
     setup: Literal["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"] = Field(
         "5x5x15-two-sided", description="The paper's force-field setups: control points (u x v x t) and sides"
     )
-    method: Literal["lbfgs", "paper"] = Field("lbfgs", description="Optimiser; 'paper': FD gradient descent")
-    max_iterations: int = Field(200, ge=1, le=100000, description="Iteration limit")
+    tie_folds: bool = Field(False, description="Mirror one fold's force field onto the other")
+    method: Literal["lbfgs", "paper"] = Field("lbfgs", description="Optimiser; 'paper': finite-difference gradient descent")
+    max_iterations: int = Field(60, ge=1, le=100000, description="Iteration limit")
+    first_frame: int = Field(0, ge=0, le=10**9, description="First video frame of the window [T1, T2] (index)")
+    n_frames: int = Field(84, ge=2, le=100000, description="Frames in the window (84: one cycle at 120 Hz, 10 kHz)")
+    motion_weight: float = Field(1e-4, ge=0, le=1e6, description="Weight of the motion term, 1/(mm/s)^2")
+    gap_weight: float = Field(1.0, ge=0, le=1e6, description="Weight of the arctan gap term (1)")
+    gap_length_mm: float = Field(0.25, gt=0, le=10, description="Length scale of the gap term's arctan((d/l)^2), mm")
+    keep_every: int = Field(1, ge=1, le=10000, description="Store the control values of every k-th iteration")
 
 
 class SynthConfig(_Section):

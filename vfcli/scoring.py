@@ -31,3 +31,32 @@ def relative_rms_error(estimate: np.ndarray, truth: np.ndarray) -> float:
     """RMS(estimate - truth) / RMS(truth) over entries finite in both."""
     ok = np.isfinite(estimate) & np.isfinite(truth)
     return rms((estimate - truth)[ok]) / rms(truth[ok])
+
+
+def surface_displacement_at(
+    nodes_uv: np.ndarray, nodes_fold: np.ndarray, side_mask: np.ndarray,
+    source_uv: np.ndarray, source_fold: np.ndarray, source_disp: np.ndarray,
+) -> np.ndarray:
+    """Displacements of one mesh's surface side, interpolated at another mesh's (u, v).
+
+    Parameters
+    ----------
+    nodes_uv, nodes_fold : (N, 2), (N,) target nodes' (u, v) and fold.
+    side_mask : (N,) bool, target nodes to fill (e.g. the inferior side).
+    source_uv, source_fold : (M, 2), (M,) the source side's nodes.
+    source_disp : (T, M, 3) source displacements.
+
+    Returns
+    -------
+    (T, N, 3): linear interpolation in (u, v) per fold, NaN off ``side_mask`` or outside.
+    """
+    from scipy.interpolate import LinearNDInterpolator
+
+    out = np.full((source_disp.shape[0], len(nodes_uv), 3), np.nan)
+    for fold in (0, 1):
+        src = source_fold == fold
+        dst = side_mask & (nodes_fold == fold)
+        values = np.moveaxis(source_disp[:, src], 0, 1).reshape(int(src.sum()), -1)
+        interp = LinearNDInterpolator(source_uv[src], values)
+        out[:, dst] = np.moveaxis(interp(nodes_uv[dst]).reshape(int(dst.sum()), source_disp.shape[0], 3), 1, 0)
+    return out

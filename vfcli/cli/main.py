@@ -59,10 +59,11 @@ def _register() -> None:
     from .flow import flow_cmd
     from .ingest import ingest_hsc_cmd, ingest_ldv_cmd
     from .mesh import mesh_cmd
+    from .optimize import optimize_cmd
     from .sync import sync_cmd
     from .synth import synth_cmd
 
-    built = {"ingest-hsc": ingest_hsc_cmd, "ingest-ldv": ingest_ldv_cmd, "mesh": mesh_cmd, "sync": sync_cmd, "synth": synth_cmd, "flow": flow_cmd}
+    built = {"ingest-hsc": ingest_hsc_cmd, "ingest-ldv": ingest_ldv_cmd, "mesh": mesh_cmd, "sync": sync_cmd, "synth": synth_cmd, "flow": flow_cmd, "optimize": optimize_cmd}
     todo = [
         ("ingest-hsc", "Ingest the high-speed video and the pressure recorded with it."),
         ("ingest-ldv", "Ingest the scanning-vibrometer grid."),

@@ -1,0 +1,130 @@
+"""## Optimize: the paper's three setups on a phantom, scored against truth.h5.
+
+Runs a phantom through `vfcli synth`, `ingest-hsc`, `ingest-ldv`, `sync`, `flow`, `mesh` and
+then `vfcli optimize` with the setups 3x3x10 one-sided, 3x3x10 two-sided and 5x5x15
+two-sided (L-BFGS with exact gradients), and reports for each: final error E, iterations,
+objective evaluations, wall time, and the RMS displacement error of the inferior surface
+(which no instrument sees) and of the superior surface, relative to the RMS true
+displacement, over the fitted window. Also the time of one exact gradient against one
+finite-difference gradient (the paper's method) on the same problem. Writes a combined
+convergence plot.
+
+Reproduce::
+
+    .venv/bin/python bench/bench_optimize.py [--store demo/recording.h5 --raw demo/raw] [--iters 60] [--plot docs/optimize_convergence.png]
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from vfcli.mesh import FoldMesh  # noqa: E402
+from vfcli.scoring import surface_displacement_at  # noqa: E402
+from vfcli.stages.base import RunContext  # noqa: E402
+from vfcli.stages.mesh import read_mesh  # noqa: E402
+from vfcli.stages.optimize import build_problem  # noqa: E402
+from vfcli.store import Store, read_truth  # noqa: E402
+
+SETUPS = ["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]
+
+
+def vfcli(*args) -> None:
+    res = subprocess.run([sys.executable, "-m", "vfcli.cli.main", *map(str, args)], capture_output=True, text=True)
+    if res.returncode:
+        raise SystemExit(f"vfcli {args[0]} failed: {res.stderr}")
+
+
+def surface_errors(store: Path, raw: Path, run: str) -> tuple[float, float]:
+    """(inferior, superior) RMS displacement error / RMS true displacement over the window."""
+    t, _ = read_truth(raw / "truth.h5")
+    truth_mesh = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
+    with Store(store).read() as r:
+        mesh = read_mesh(r)
+        disp = r.read("optimize", "displacements", run).astype(float)
+        sim_time = r.read("optimize", "sim_time", run)
+    frame_time = t["frames/time"]
+    idx = np.searchsorted(frame_time, sim_time[:-1] - 1e-9)
+    true = t["frames/displacement"][idx].astype(float)
+    out = []
+    for side in (1, 2):
+        mask = mesh.node_side == side
+        src = truth_mesh.node_side == side
+        ref = surface_displacement_at(mesh.uv, np.repeat([0, 1], mesh.n_nodes // 2), mask,
+                                      truth_mesh.uv[src], np.repeat([0, 1], truth_mesh.n_nodes // 2)[src], true[:, src])
+        est = disp[:-1][:, mask]
+        ref = ref[:, mask]
+        ok = np.all(np.isfinite(ref), axis=(0, 2))
+        out.append(float(np.sqrt(np.mean((est[:, ok] - ref[:, ok]) ** 2)) / np.sqrt(np.mean(ref[:, ok] ** 2))))
+    return out[0], out[1]
+
+
+def gradient_speed(store: Path) -> tuple[float, float, int]:
+    """(exact gradient s, finite-difference gradient s (extrapolated from 20 evaluations), n_params)."""
+    ctx = RunContext.open(store, None, ["optimize.setup='3x3x10-one-sided'"])
+    with Store(store).read() as r:
+        problem, _ = build_problem(r, ctx)
+    x = np.zeros(problem.n_params)
+    problem.value_and_grad(x)
+    t = time.perf_counter()
+    problem.value_and_grad(x)
+    exact = time.perf_counter() - t
+    t = time.perf_counter()
+    for _ in range(20):
+        problem.evaluate(x)
+    per_eval = (time.perf_counter() - t) / 20
+    return exact, per_eval * (problem.n_params + 1), problem.n_params
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--store", default="demo/recording.h5")
+    ap.add_argument("--raw", default="demo/raw")
+    ap.add_argument("--iters", type=int, default=60)
+    ap.add_argument("--plot", default="docs/optimize_convergence.png")
+    args = ap.parse_args()
+    store, raw = Path(args.store), Path(args.raw)
+    rows, hist = [], {}
+    for setup in SETUPS:
+        run = setup.replace("x", "_")
+        t0 = time.perf_counter()
+        vfcli("optimize", store, "--run", run, "--setup", setup, "--set", f"optimize.max_iterations={args.iters}", "-q", "--force")
+        wall = time.perf_counter() - t0
+        with Store(store).read() as r:
+            h = {k: r.read("optimize", f"history_{k}", run) for k in ("iteration", "total", "n_evals", "wall_time")}
+        hist[setup] = h
+        inf, sup = surface_errors(store, raw, run)
+        rows.append((setup, h["total"][-1], int(h["iteration"][-1]), int(h["n_evals"][-1]), wall, inf, sup))
+    exact, fd, n = gradient_speed(store)
+    print("| setup | final E | iterations | evaluations | wall time (s) | inferior error | superior error |")
+    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+    for setup, e, it, ne, wall, inf, sup in rows:
+        print(f"| {setup} | {e:.4g} | {it} | {ne} | {wall:.0f} | {100 * inf:.0f}% | {100 * sup:.0f}% |")
+    print(f"\nOne gradient, 3x3x10 one-sided ({n} control values): exact {exact:.2f} s, "
+          f"finite differences {fd:.0f} s (from 20 timed evaluations): {fd / exact:.0f}x")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    for setup, h in hist.items():
+        ax.semilogy(h["iteration"], h["total"], label=setup)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("error E")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(args.plot)
+    print(f"\nConvergence plot: {args.plot}\nReproduce: `.venv/bin/python bench/bench_optimize.py --iters {args.iters}`")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,163 @@
+"""`vfcli optimize FILE`: fit the force field so the FEM model matches the recording.
+
+Reads /mesh, /fields and /flow; writes /optimize/<run>. A long fit checkpoints after every
+iteration to ``<store>.optimize-<run>.ckpt.npz`` (written atomically next to the store), so
+``--resume`` after a killed job continues from the last iteration and ends where an
+uninterrupted run ends; the checkpoint is removed once the run is in the store.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import ConfigError
+from ..fem import ElasticModel
+from ..forces import ForceField, ForceFieldSpec
+from ..objective import Measurement, ObjectiveSettings, Problem
+from ..optimizer import FitOptions, FitState, fit, resume
+from ..pose import camera_to_model, estimate_pose
+from ..response import QuasiStaticResponse
+from ..store import StageWriter, StoreReader
+from .base import RunContext, StageResult, run_stage
+from .mesh import read_mesh
+
+log = logging.getLogger(__name__)
+
+
+def checkpoint_path(store_path: Path, run: str) -> Path:
+    return store_path.with_name(f"{store_path.name}.optimize-{run}.ckpt.npz")
+
+
+def _save_checkpoint(path: Path, state: FitState, settings_json: str) -> None:
+    tmp = path.with_name(path.name + f".tmp-{os.getpid()}.npz")
+    np.savez(tmp, settings_json=np.array(settings_json), **state.to_arrays())
+    os.replace(tmp, path)
+
+
+def _load_checkpoint(path: Path, settings_json: str) -> FitState | None:
+    if not path.exists():
+        return None
+    with np.load(path, allow_pickle=False) as z:
+        if str(z["settings_json"]) != settings_json:
+            log.warning("%s was written with other settings; starting afresh", path)
+            return None
+        return FitState.from_arrays({k: z[k] for k in z.files if k != "settings_json"})
+
+
+def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[str, Any]]:
+    """The optimisation problem of a store: mesh, model, force field, camera pose, measurement."""
+    cfg, cam_cfg, mesh_cfg = ctx.config.optimize, ctx.config.camera, ctx.config.mesh
+    mesh = read_mesh(reader)
+    times_all = reader.read("fields", "frame_time")
+    f0, n = cfg.first_frame, cfg.n_frames
+    if f0 + n > len(times_all):
+        raise ConfigError(f"optimize window: frames {f0}..{f0 + n} but the recording has {len(times_all)}; "
+                          "set optimize.first_frame / optimize.n_frames")
+    sl = slice(f0, f0 + n)
+    gaps = reader.dataset("flow", "gap_mask")[sl]
+    velocity = reader.dataset("fields", "velocity")[sl].astype(np.float64)
+    valid = reader.dataset("fields", "valid")[sl]
+    flow_attrs = reader.attrs("flow")
+    px_per_mm = float(flow_attrs["px_per_mm"])
+    if cam_cfg.rotation_deg or any(cam_cfg.offset_px):
+        rotation, offset = cam_cfg.rotation_deg, tuple(cam_cfg.offset_px)
+        pose_source = "config"
+    else:
+        rotation, offset = estimate_pose(reader.dataset("flow", "gap_mask")[()], px_per_mm, mesh_cfg.length_mm)
+        pose_source = "estimated from the glottal gap"
+    velocity[..., :2] = camera_to_model(velocity[..., :2], rotation)
+    h, w = gaps.shape[1:]
+    camera = Camera(px_per_mm, rotation, offset, w, h)
+    times = times_all[sl]
+    dt = float(times[1] - times[0])
+    field = ForceField(ForceFieldSpec.from_name(cfg.setup, tie_folds=cfg.tie_folds), (times[0], times[-1] + dt))
+    model = ElasticModel(mesh, mesh_cfg.youngs_modulus_pa, mesh_cfg.poisson_ratio, mesh_cfg.density_kg_m3)
+    response = QuasiStaticResponse(model, field)
+    settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight, gap_length_mm=cfg.gap_length_mm)
+    measurement = Measurement.from_gap_masks(times, velocity, valid, gaps)
+    info = {"rotation_deg": rotation, "offset_px": list(offset), "pose_source": pose_source, "field": field}
+    return Problem(mesh, camera, response, measurement, settings), info
+
+
+def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None) -> StageResult:
+    """Fit (or resume) an optimisation run and store it as /optimize/<run>."""
+    cfg = ctx.config.optimize
+    if not run.replace("-", "").replace("_", "").isalnum():
+        raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
+    settings_json = json.dumps({"optimize": cfg.model_dump(mode="json"), "camera": ctx.config.camera.model_dump(mode="json"),
+                                "mesh": ctx.config.mesh.model_dump(mode="json")}, sort_keys=True)
+    ckpt = checkpoint_path(ctx.store.path, run)
+
+    def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        problem, info = build_problem(reader, ctx)
+        opts = FitOptions(keep_every=cfg.keep_every)
+        bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")
+
+        def checkpoint(state: FitState) -> None:
+            _save_checkpoint(ckpt, state, settings_json)
+            bar.n = state.iteration
+            bar.set_postfix(E=f"{state.value[0]:.4g}")
+            bar.refresh()
+
+        state = _load_checkpoint(ckpt, settings_json) if resume_run else None
+        if state is not None:
+            log.info("resuming run %s from iteration %d", run, state.iteration)
+            result = resume(problem, state, cfg.max_iterations, checkpoint, opts)
+        else:
+            result = fit(problem, None, cfg.method, cfg.max_iterations, checkpoint, options=opts)
+        bar.close()
+        h = result.history
+        s.put("sim_time", problem.sim_times)
+        s.put("displacements", problem.displacements(result.x).astype(np.float32))
+        s.put("controls", result.x)
+        s.put("parameter_names", np.array(info["field"].parameter_names(), dtype=object))
+        s.put("kept_iterations", np.asarray(result.kept_iterations))
+        s.put("kept_controls", np.asarray(result.kept_x))
+        for key in ("iteration", "total", "motion", "gap", "step", "wall_time", "n_evals"):
+            s.put(f"history_{key}", np.asarray(h[key]))
+        s.set_attrs(setup=cfg.setup, method=cfg.method, converged=bool(result.converged), message=str(result.message),
+                    camera_rotation_deg=info["rotation_deg"], camera_offset_px=np.asarray(info["offset_px"]),
+                    pose_source=info["pose_source"], px_per_mm=problem.camera.px_per_mm)
+        if plot is not None:
+            convergence_plot(h, plot, f"{cfg.setup} ({cfg.method})")
+        return {
+            "iterations": int(h["iteration"][-1]) if len(h["iteration"]) else 0,
+            "E_final": float(h["total"][-1]),
+            "E_start": float(h["total"][0]),
+            "evaluations": int(h["n_evals"][-1]),
+            "wall_time_s": round(float(h["wall_time"][-1]), 1),
+            "converged": bool(result.converged),
+            "pose": info["pose_source"],
+        }
+
+    result = run_stage(ctx, "optimize", config_json=settings_json, body=body, run=run,
+                       upstream=[("mesh", None), ("fields", None), ("flow", None)])
+    ckpt.unlink(missing_ok=True)
+    return result
+
+
+def convergence_plot(history: dict[str, Any], path: str | Path, title: str) -> None:
+    """E and its terms against the iteration (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    it = np.asarray(history["iteration"])
+    for key, style in (("total", "-"), ("motion", "--"), ("gap", ":")):
+        ax.semilogy(it, np.maximum(np.asarray(history[key]), 1e-12), style, label=key)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("error E")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
