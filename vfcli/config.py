@@ -304,3 +304,13 @@ def export_schemas(out_dir: str | Path) -> list[Path]:
         p.write_text(json.dumps(model.model_json_schema(), indent=2, sort_keys=True) + "\n")
         written.append(p)
     return written
+
+
+def example_toml() -> str:
+    """``examples/recording.toml``: every setting with its default (written by `vfcli schemas`)."""
+    import tomli_w
+
+    data = RecordingConfig().model_dump(mode="json", exclude_none=True)
+    return ("# A recording config with every default spelled out; see schemas/recording.schema.json.\n"
+            "# Values a lab measures: camera.px_per_mm (calibration target), camera.fps_hz (else from the video).\n\n"
+            + tomli_w.dumps(data))
