@@ -224,3 +224,10 @@ class M5Params:
         y_r = pivot_y + c * dy - s * dz + self.offset_y_mm[fold]
         z_r = s * dy + c * dz + self.offset_z_mm[fold]
         return np.column_stack([p[:, 0], y_r, z_r])
+
+
+def m5_params_from(settings: object) -> M5Params:
+    """M5Params from any settings object (e.g. the [mesh] config) with the same field names."""
+    from dataclasses import fields
+
+    return M5Params(**{f.name: getattr(settings, f.name) for f in fields(M5Params)})

@@ -8,21 +8,10 @@ import numpy as np
 
 from .. import layout
 from ..config import MeshConfig
-from ..m5 import M5Params
+from ..m5 import m5_params_from
 from ..mesh import FoldMesh, build_mesh
 from ..store import StageWriter, StoreReader
 from .base import RunContext, StageResult, run_stage
-
-_SHAPE_FIELDS = (
-    "thickness_mm", "exit_radius_mm", "entrance_radius_mm", "entrance_sweep_deg", "inferior_angle_deg",
-    "depth_mm", "length_mm", "gap_mm", "offset_y_mm", "offset_z_mm", "rotation_deg",
-)
-
-
-def m5_params(cfg: MeshConfig) -> M5Params:
-    """The M5 shape of a mesh config."""
-    return M5Params(**{k: getattr(cfg, k) for k in _SHAPE_FIELDS})
-
 
 def read_mesh(reader: StoreReader) -> FoldMesh:
     """The FoldMesh stored in /mesh."""
@@ -34,7 +23,7 @@ def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:
     cfg = ctx.config.mesh
 
     def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
-        mesh = build_mesh(m5_params(cfg), cfg.target_edge_mm, cfg.min_ratio, cfg.min_dihedral_deg)
+        mesh = build_mesh(m5_params_from(cfg), cfg.target_edge_mm, cfg.min_ratio, cfg.min_dihedral_deg)
         for key, arr in mesh.to_arrays().items():
             s.put(key, arr)
         volumes = [mesh.fold_volume(0), mesh.fold_volume(1)]

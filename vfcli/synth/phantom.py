@@ -29,26 +29,13 @@ from ..instruments import (
     slow_f0_drift, video_pressure, vertical_velocity_table,
 )
 from ..instruments import LdvScan as SimulatedScan
-from ..m5 import M5Params
+from ..m5 import m5_params_from
 from ..mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh, build_mesh
 from ..render import FrameTruth, RenderSettings, make_scene_textures, render_frame
 from . import aero, effects
 from .motion import PeriodicMotion
 
 log = logging.getLogger(__name__)
-
-_SHAPE_FIELDS = (
-    "thickness_mm", "exit_radius_mm", "entrance_radius_mm", "entrance_sweep_deg", "inferior_angle_deg",
-    "depth_mm", "length_mm", "gap_mm", "offset_y_mm", "offset_z_mm", "rotation_deg",
-)
-
-
-def m5_params(cfg: MeshConfig, extra_offset_y: tuple[float, float] = (0.0, 0.0)) -> M5Params:
-    """The M5 shape of a mesh config, with an extra per-fold lateral offset (mm)."""
-    kw = {k: getattr(cfg, k) for k in _SHAPE_FIELDS}
-    kw["offset_y_mm"] = tuple(a + b for a, b in zip(cfg.offset_y_mm, extra_offset_y))
-    return M5Params(**kw)
-
 
 def resolve_effect(cfg: SynthConfig, rng: np.random.Generator) -> tuple[str, float]:
     """(effect, strength): 'random' draws an effect (none included) with the seeded generator."""
@@ -79,7 +66,7 @@ class TrueMotion:
 
 def true_motion(cfg: SynthConfig, mesh_cfg: MeshConfig, waveform: PressureWaveform, effect: str, strength: float) -> TrueMotion:
     """Solve the phantom's physics over one cycle (see the module docstring)."""
-    params = m5_params(mesh_cfg)
+    params = m5_params_from(mesh_cfg)
     mesh = build_mesh(params, cfg.target_edge_mm, mesh_cfg.min_ratio, mesh_cfg.min_dihedral_deg)
     density = mesh_cfg.density_kg_m3 * (strength if effect == "inertia" else 1.0)
     model = ElasticModel(mesh, mesh_cfg.youngs_modulus_pa, mesh_cfg.poisson_ratio, density)
