@@ -214,3 +214,21 @@ def test_pressure_without_periodicity_fails_sync_clearly(raw, tmp_path):
     assert res.returncode == 3 and res.stderr.count("\n") == 1, res.stderr
     assert "period" in res.stderr.lower()
     assert store.read_bytes() == before
+
+
+def test_mismatched_sampling_rates_in_a_scan_are_one_clear_line(tmp_path):
+    from vfcli.io.ldv import LdvScan
+
+    n = 4
+    rng = np.random.default_rng(0)
+    scan = LdvScan(node_ids=np.arange(1, n + 1), coords_mm=rng.random((n, 3)), velocity_mm_s=rng.random((n, 100)),
+                   fs=50000.0, reference=rng.random((n, 100)), reference_unit="Pa", t0=np.zeros(n))
+    path = tmp_path / "scan.uff"
+    write_ldv_uff(path, scan, binary=False)
+    text = path.read_text()
+    last = text.rfind("2.00000e-05")
+    path.write_text(text[:last] + "2.10000e-05" + text[last + len("2.10000e-05"):])
+    res = run_vfcli("ingest-ldv", tmp_path / "rec.h5", path, "--set", "ingest_ldv.grid_rows=2", "--set", "ingest_ldv.grid_cols=2")
+    assert res.returncode == 3 and res.stderr.count("\n") == 1, res.stderr
+    assert "sample interval" in res.stderr and "scan.uff" in res.stderr
+    assert not (tmp_path / "rec.h5").exists()
