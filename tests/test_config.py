@@ -112,3 +112,14 @@ def test_stored_config_is_updated_by_a_new_file(tmp_path, vfcli):
 def test_the_example_config_is_valid_and_spells_out_the_defaults():
     stored, _ = load_config(ROOT / "examples" / "recording.toml")
     assert stored == RecordingConfig()
+
+
+def test_the_store_keeps_only_the_settings_the_file_gave(tmp_path, vfcli):
+    """Defaults are not frozen into a store: a newer vfcli's defaults apply to what the file left out."""
+    from vfcli.store import Store
+
+    store, cfg = tmp_path / "r.h5", tmp_path / "rec.toml"
+    cfg.write_text("[camera]\npx_per_mm = 25\n")
+    assert vfcli("config", store, "--config", cfg).returncode == 0
+    with Store(store).read() as r:
+        assert json.loads(r.recording_config_json()) == {"camera": {"px_per_mm": 25.0}}

@@ -145,6 +145,25 @@ class OptimizeConfig(_Section):
     gap_weight: float = Field(1.0, ge=0, le=1e6, description="Weight of the arctan gap term (1)")
     gap_length_mm: float = Field(0.25, gt=0, le=10, description="Length scale of the gap term's arctan((d/l)^2), mm")
     keep_every: int = Field(1, ge=1, le=10000, description="Store the control values of every k-th iteration")
+    stop_rel_decrease: float = Field(
+        1e-5, ge=0, le=1, description="Stop when an iteration lowers E by less than this fraction of E (1)"
+    )
+    loads: Literal["free", "pressure"] = Field(
+        "pressure", description="Load model: 'free': the paper's force field (optimize.setup); 'pressure': normal pressure "
+        "on the inferior and medial surfaces, alike on both folds, tied in time to the recorded subglottal pressure "
+        "(needs /hsc pressure; see vfcli/loads.py)"
+    )
+    pressure_time_degree: int = Field(4, ge=0, le=30, description="Degree of the free Bernstein correction in time of "
+                                      "the pressure load model (1)")
+    pressure_medial_shapes: tuple[int, int] = Field(
+        (3, 2), description="Pressure load model: Legendre shapes on the medial surface (in height, even ones along the fold)"
+    )
+    pressure_inferior_linear: bool = Field(False, description="Pressure load model: add a linear variation along the "
+                                           "fold to the uniform inferior pressure")
+    ridge_weight: float | None = Field(
+        None, ge=0, le=1e6, description="Weight of ridge_weight * mean(x^2) on the control values, 1/Pa^2; null: the "
+        "load model's default (free: 0, the paper's E; pressure: 1e-7, which bounds its free correction)"
+    )
 
 
 class SynthConfig(_Section):

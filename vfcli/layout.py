@@ -171,7 +171,7 @@ STAGES: dict[str, Stage] = {
             "optimize",
             "optimize",
             "One optimisation run: force-field control values, history and the reconstructed motion.",
-            reads=("mesh", "fields", "flow"),
+            reads=("mesh", "fields", "flow", "hsc"),
             has_runs=True,
             datasets={
                 "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),

@@ -12,7 +12,8 @@ from .common import store_command
 @store_command
 @click.option("--run", "run_name", default="default", show_default=True, help="Name of the run (/optimize/<run>).")
 @click.option("--setup", type=click.Choice(["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]),
-              help="Force-field setup (overrides optimize.setup).")
+              help="Fit the paper's free force field with this setup (sets optimize.loads='free'); "
+                   "default: the pressure load model tied to the measured subglottal pressure.")
 @click.option("--method", type=click.Choice(["lbfgs", "paper"]), help="Optimiser (overrides optimize.method).")
 @click.option("--resume", "resume_run", is_flag=True, help="Continue an interrupted run from its checkpoint.")
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write the convergence plot to this PNG.")
@@ -22,7 +23,9 @@ def optimize_cmd(ctx, run_name, setup, method, resume_run, plot):  # type: ignor
     Reads: /mesh, /fields, /flow. Writes: /optimize/<run> (control values, history of
     every iteration, reconstructed vertex displacements). Config section [optimize].
     """
-    sets = ([f"optimize.setup={setup!r}"] if setup else []) + ([f"optimize.method={method!r}"] if method else [])
+    # a --setup names one of the paper's free force fields
+    sets = ([f"optimize.setup={setup!r}", "optimize.loads='free'"] if setup else [])
+    sets += [f"optimize.method={method!r}"] if method else []
     if sets:
         ctx.config = RecordingConfig.model_validate(apply_overrides(ctx.config.model_dump(mode="json"), sets))
     return run_optimize(ctx, run_name, resume_run, plot)

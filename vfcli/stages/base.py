@@ -78,7 +78,7 @@ def run_stage(
     path = layout.stage(name).group_path(run)
     upstream = upstream or []
     inputs = describe_files(ctx.store, name, input_paths, run) if input_paths else {}
-    stored_json = ctx.stored_config.model_dump_json()
+    stored_json = ctx.stored_config.model_dump_json(exclude_unset=True)
     if ctx.store.exists():
         with ctx.store.read() as r:
             r.upstream_digests(upstream)  # MissingStageError when an upstream stage is absent
@@ -107,7 +107,7 @@ def save_recording_config(ctx: RunContext) -> bool:
 
     Returns True when the store changed.
     """
-    stored_json = ctx.stored_config.model_dump_json()
+    stored_json = ctx.stored_config.model_dump_json(exclude_unset=True)
     if ctx.store.exists():
         with ctx.store.read() as r:
             if r.recording_config_json() == stored_json:

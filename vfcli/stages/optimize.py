@@ -1,6 +1,7 @@
 """`vfcli optimize FILE`: fit the force field so the FEM model matches the recording.
 
-Reads /mesh, /fields and /flow; writes /optimize/<run>. A long fit checkpoints after every
+Reads /mesh, /fields and /flow (and the subglottal pressure in /hsc when optimize.loads is
+"pressure", vfcli/loads.py); writes /optimize/<run>. A long fit checkpoints after every
 iteration to ``<store>.optimize-<run>.ckpt.npz`` (written atomically next to the store), so
 ``--resume`` after a killed job continues from the last iteration and ends where an
 uninterrupted run ends; the checkpoint is removed once the run is in the store.
@@ -16,9 +17,10 @@ from typing import Any
 import numpy as np
 
 from ..camera import Camera
-from ..errors import ConfigError
+from ..errors import ConfigError, InputDataError
 from ..fem import ElasticModel
-from ..forces import ForceField, ForceFieldSpec
+from ..forces import ForceField, ForceFieldSpec, LoadModel
+from ..loads import PressureLoad
 from ..objective import Measurement, ObjectiveSettings, Problem
 from ..optimizer import FitOptions, FitState, fit, resume
 from ..pose import camera_to_model, estimate_pose
@@ -50,6 +52,28 @@ def _load_checkpoint(path: Path, settings_json: str) -> FitState | None:
         return FitState.from_arrays({k: z[k] for k in z.files if k != "settings_json"})
 
 
+#: ridge weight (1/Pa^2) of each load model when optimize.ridge_weight is null
+DEFAULT_RIDGE = {"free": 0.0, "pressure": 1e-7}
+
+
+def load_model(reader: StoreReader, ctx: RunContext, t_range: tuple[float, float]) -> LoadModel:
+    """The load model optimize.loads selects, over the time window ``t_range`` (s).
+
+    'free': the paper's force field (optimize.setup, optimize.tie_folds); 'pressure':
+    :class:`vfcli.loads.PressureLoad` on the subglottal pressure recorded with the video (/hsc).
+    """
+    cfg = ctx.config.optimize
+    if cfg.loads == "free":
+        return ForceField(ForceFieldSpec.from_name(cfg.setup, tie_folds=cfg.tie_folds), t_range)
+    if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
+        raise InputDataError("optimize.loads='pressure' needs the subglottal pressure recorded with the video; "
+                             "ingest it with `vfcli ingest-hsc ... --pressure FILE`", ctx.store.path)
+    n_z, n_x = cfg.pressure_medial_shapes
+    return PressureLoad(reader.read("hsc", "pressure_time"), reader.read("hsc", "pressure"), t_range,
+                        time_degree=cfg.pressure_time_degree, medial_z=n_z, medial_x=n_x,
+                        inferior_linear_x=cfg.pressure_inferior_linear)
+
+
 def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[str, Any]]:
     """The optimisation problem of a store: mesh, model, force field, camera pose, measurement."""
     cfg, cam_cfg, mesh_cfg = ctx.config.optimize, ctx.config.camera, ctx.config.mesh
@@ -76,10 +100,12 @@ def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[s
     camera = Camera(px_per_mm, rotation, offset, w, h)
     times = times_all[sl]
     dt = float(times[1] - times[0])
-    field = ForceField(ForceFieldSpec.from_name(cfg.setup, tie_folds=cfg.tie_folds), (times[0], times[-1] + dt))
+    field = load_model(reader, ctx, (float(times[0]), float(times[-1] + dt)))
     model = ElasticModel(mesh, mesh_cfg.youngs_modulus_pa, mesh_cfg.poisson_ratio, mesh_cfg.density_kg_m3)
     response = QuasiStaticResponse(model, field)
-    settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight, gap_length_mm=cfg.gap_length_mm)
+    ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
+    settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
+                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge)
     measurement = Measurement.from_gap_masks(times, velocity, valid, gaps)
     info = {"rotation_deg": rotation, "offset_px": list(offset), "pose_source": pose_source, "field": field}
     return Problem(mesh, camera, response, measurement, settings), info
@@ -96,7 +122,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         problem, info = build_problem(reader, ctx)
-        opts = FitOptions(keep_every=cfg.keep_every)
+        opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease)
         bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")
 
         def checkpoint(state: FitState) -> None:
@@ -121,11 +147,12 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         s.put("kept_controls", np.asarray(result.kept_x))
         for key in ("iteration", "total", "motion", "gap", "step", "wall_time", "n_evals"):
             s.put(f"history_{key}", np.asarray(h[key]))
-        s.set_attrs(setup=cfg.setup, method=cfg.method, converged=bool(result.converged), message=str(result.message),
+        s.set_attrs(setup=cfg.setup if cfg.loads == "free" else "pressure", loads=cfg.loads,
+                    ridge_weight=problem.settings.ridge_weight, method=cfg.method, converged=bool(result.converged), message=str(result.message),
                     camera_rotation_deg=info["rotation_deg"], camera_offset_px=np.asarray(info["offset_px"]),
                     pose_source=info["pose_source"], px_per_mm=problem.camera.px_per_mm)
         if plot is not None:
-            convergence_plot(h, plot, f"{cfg.setup} ({cfg.method})")
+            convergence_plot(h, plot, f"{cfg.setup if cfg.loads == 'free' else 'pressure'} ({cfg.method})")
         return {
             "iterations": int(h["iteration"][-1]) if len(h["iteration"]) else 0,
             "E_final": float(h["total"][-1]),
@@ -137,7 +164,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         }
 
     result = run_stage(ctx, "optimize", config_json=settings_json, body=body, run=run,
-                       upstream=[("mesh", None), ("fields", None), ("flow", None)])
+                       upstream=[("mesh", None), ("fields", None), ("flow", None)]
+                       + ([("hsc", None)] if cfg.loads == "pressure" else []))
     ckpt.unlink(missing_ok=True)
     return result
 
