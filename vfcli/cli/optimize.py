@@ -14,10 +14,11 @@ from .common import store_command
 @click.option("--setup", type=click.Choice(["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]),
               help="Fit the paper's free force field with this setup (sets optimize.loads='free'); "
                    "default: the pressure load model tied to the measured subglottal pressure.")
+@click.option("--loads", type=click.Choice(["pressure", "free"]), help="Load model (overrides optimize.loads).")
 @click.option("--method", type=click.Choice(["lbfgs", "paper"]), help="Optimiser (overrides optimize.method).")
 @click.option("--resume", "resume_run", is_flag=True, help="Continue an interrupted run from its checkpoint.")
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write the convergence plot to this PNG.")
-def optimize_cmd(ctx, run_name, setup, method, resume_run, plot):  # type: ignore[no-untyped-def]
+def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot):  # type: ignore[no-untyped-def]
     """Fit the force field so the simulated superior surface and gap match the recording.
 
     Reads: /mesh, /fields, /flow. Writes: /optimize/<run> (control values, history of
@@ -25,6 +26,7 @@ def optimize_cmd(ctx, run_name, setup, method, resume_run, plot):  # type: ignor
     """
     # a --setup names one of the paper's free force fields
     sets = ([f"optimize.setup={setup!r}", "optimize.loads='free'"] if setup else [])
+    sets += [f"optimize.loads={loads!r}"] if loads else []
     sets += [f"optimize.method={method!r}"] if method else []
     if sets:
         ctx.config = RecordingConfig.model_validate(apply_overrides(ctx.config.model_dump(mode="json"), sets))
