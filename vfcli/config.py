@@ -131,7 +131,7 @@ class MeshConfig(_Section):
 
 
 class OptimizeConfig(_Section):
-    """`vfcli optimize`: force field, time window, objective and optimiser (see docs/optimize.md)."""
+    """`vfcli optimize`: load model, time window, objective and optimiser (see docs/optimize.md)."""
 
     setup: Literal["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"] = Field(
         "5x5x15-two-sided", description="The paper's force-field setups: control points (u x v x t) and sides"
