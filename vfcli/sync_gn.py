@@ -138,19 +138,21 @@ class BandedBasis:
         return out
 
 
-def normal_equations_banded(a: np.ndarray, cols: np.ndarray, r: np.ndarray,
-                            band: BandedBasis, base: np.ndarray
-                            ) -> tuple[np.ndarray, np.ndarray]:
-    """As :func:`normal_equations`, with the spline basis given by its band."""
+def _normal_equations(a: np.ndarray, cols: np.ndarray, r: np.ndarray, base: np.ndarray,
+                      weighted_gram, project) -> tuple[np.ndarray, np.ndarray]:
+    """J^T J and J^T r for J = [a * B, cols, base], with B given by two operations:
+    ``weighted_gram(f) = sum_s f[n, s] B[s, j] B[s, k]`` and ``project(f) = f @ B``."""
     n_rows = a.shape[0]
-    k, n_p, d = band.n_k, cols.shape[1], base.shape[1]
+    n_p, d = cols.shape[1], base.shape[1]
+    g = weighted_gram(a * a)
+    k = g.shape[1]
     m = k + n_p + d
     jtj = np.empty((n_rows, m, m))
-    jtj[:, :k, :k] = band.weighted_gram(a * a)
-    acb = band.project(a[:, None, :] * cols)                                  # (n, P, K)
+    jtj[:, :k, :k] = g
+    acb = project(a[:, None, :] * cols)                                       # (n, P, K)
     jtj[:, k:k + n_p, :k] = acb
     jtj[:, :k, k:k + n_p] = acb.transpose(0, 2, 1)
-    alb = band.project(a[:, None, :] * base.T[None])                          # (n, D, K)
+    alb = project(a[:, None, :] * base.T[None])                               # (n, D, K)
     jtj[:, k + n_p:, :k] = alb
     jtj[:, :k, k + n_p:] = alb.transpose(0, 2, 1)
     jtj[:, k:k + n_p, k:k + n_p] = np.matmul(cols, cols.transpose(0, 2, 1))
@@ -158,9 +160,15 @@ def normal_equations_banded(a: np.ndarray, cols: np.ndarray, r: np.ndarray,
     jtj[:, k:k + n_p, k + n_p:] = cl
     jtj[:, k + n_p:, k:k + n_p] = cl.transpose(0, 2, 1)
     jtj[:, k + n_p:, k + n_p:] = gram(base)
-    jtr = np.concatenate([band.project(a * r), np.matmul(cols, r[:, :, None])[..., 0],
-                          r @ base], axis=1)
+    jtr = np.concatenate([project(a * r), np.matmul(cols, r[:, :, None])[..., 0], r @ base], axis=1)
     return jtj, jtr
+
+
+def normal_equations_banded(a: np.ndarray, cols: np.ndarray, r: np.ndarray,
+                            band: BandedBasis, base: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """As :func:`normal_equations`, with the spline basis given by its band."""
+    return _normal_equations(a, cols, r, base, band.weighted_gram, band.project)
 
 
 def normal_equations(a: np.ndarray, cols: np.ndarray, r: np.ndarray, basis: np.ndarray,
@@ -170,26 +178,13 @@ def normal_equations(a: np.ndarray, cols: np.ndarray, r: np.ndarray, basis: np.n
     a, r : (n, S); cols : (n, P, S); basis : (S, K); base : (S, D)
     -> (n, M, M), (n, M) with M = K + P + D.
     """
-    n_rows, n_s = a.shape
-    k, n_p, d = basis.shape[1], cols.shape[1], base.shape[1]
-    m = k + n_p + d
-    jtj = np.empty((n_rows, m, m))
-    a2b = (a * a)[:, None, :] * basis.T[None]                                 # (n, K, S)
-    jtj[:, :k, :k] = (a2b.reshape(-1, n_s) @ basis).reshape(n_rows, k, k)
-    acb = ((a[:, None, :] * cols).reshape(-1, n_s) @ basis).reshape(n_rows, n_p, k)
-    jtj[:, k:k + n_p, :k] = acb
-    jtj[:, :k, k:k + n_p] = acb.transpose(0, 2, 1)
-    alb = ((a[:, None, :] * base.T[None]).reshape(-1, n_s) @ basis).reshape(n_rows, d, k)
-    jtj[:, k + n_p:, :k] = alb
-    jtj[:, :k, k + n_p:] = alb.transpose(0, 2, 1)
-    jtj[:, k:k + n_p, k:k + n_p] = np.matmul(cols, cols.transpose(0, 2, 1))
-    cl = cols @ base
-    jtj[:, k:k + n_p, k + n_p:] = cl
-    jtj[:, k + n_p:, k:k + n_p] = cl.transpose(0, 2, 1)
-    jtj[:, k + n_p:, k + n_p:] = gram(base)
-    jtr = np.concatenate([(a * r) @ basis, np.matmul(cols, r[:, :, None])[..., 0], r @ base],
-                         axis=1)
-    return jtj, jtr
+    n_s = a.shape[1]
+
+    def weighted_gram(f: np.ndarray) -> np.ndarray:
+        fb = f[:, None, :] * basis.T[None]                                     # (n, K, S)
+        return (fb.reshape(-1, n_s) @ basis).reshape(f.shape[0], basis.shape[1], basis.shape[1])
+
+    return _normal_equations(a, cols, r, base, weighted_gram, lambda f: f @ basis)
 
 
 def curvature_penalty(knots: np.ndarray, degree: int) -> np.ndarray:
