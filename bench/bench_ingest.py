@@ -89,7 +89,6 @@ def main() -> None:
         def pymraw():
             import warnings
 
-            import pyMRAW
 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")

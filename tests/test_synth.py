@@ -4,12 +4,11 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from vfcli.config import MeshConfig, RecordingConfig, SynthConfig
+from vfcli.config import MeshConfig, SynthConfig
 from vfcli.fem import ElasticModel
 from vfcli.m5 import M5Params
 from vfcli.mesh import TAG_MEDIAL, build_mesh

@@ -12,12 +12,13 @@ import numpy as np
 from .errors import InputDataError
 
 
-def estimate_pose(gap_masks: np.ndarray, px_per_mm: float, length_mm: float) -> tuple[float, tuple[float, float]]:
+def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float) -> tuple[float, tuple[float, float]]:
     """(rotation_deg, offset_px) of the model frame in the image (see docs/conventions.md).
 
     Parameters
     ----------
-    gap_masks : (F, H, W) bool, the gap per frame (rows lateral, columns longitudinal).
+    gap_counts : (H, W) number of frames in which each pixel is gap (rows lateral, columns
+        longitudinal): the sum of the gap masks, accumulated by the caller frame by frame.
     px_per_mm : image scale.
     length_mm : anterior-posterior length L of the folds.
 
@@ -25,14 +26,14 @@ def estimate_pose(gap_masks: np.ndarray, px_per_mm: float, length_mm: float) -> 
     -------
     rotation_deg, (offset_col_px, offset_row_px): ``[col, row] = s R(rot) [x, y] + offset``.
     """
-    masks = np.asarray(gap_masks, bool)
-    count = masks.sum(axis=(0, 1)).astype(float)  # gap pixels per column over the recording
+    counts = np.asarray(gap_counts, float)
+    count = counts.sum(axis=0)  # gap pixels per column over the recording
     cols = np.flatnonzero(count > 0)
     if cols.size < 3:
         raise InputDataError("the glottal gap never opens in the selected frames: cannot locate the folds; "
                              "set camera.rotation_deg and camera.offset_px in the config")
-    rows = np.arange(masks.shape[1], dtype=float)
-    mean_row = (masks.sum(axis=0) * rows[:, None]).sum(axis=0)[cols] / count[cols]
+    rows = np.arange(counts.shape[0], dtype=float)
+    mean_row = (counts * rows[:, None]).sum(axis=0)[cols] / count[cols]
     slope, intercept = np.polyfit(cols.astype(float), mean_row, 1, w=np.sqrt(count[cols]))
     rot = np.arctan(slope)
     weights = count[cols]

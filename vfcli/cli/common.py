@@ -19,16 +19,25 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     logging.basicConfig(level=max(level, logging.DEBUG), format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
 
 
+def run_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    """--config, --set, --force, --quiet, --json, -v: the options every command that runs work shares."""
+    for option in reversed([
+        click.option("--config", "config_path", type=click.Path(dir_okay=False), help="recording.toml; stored with the recording (replaces the stored config)."),
+        click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value for this run (repeatable)."),
+        click.option("--force", is_flag=True, help="Rerun even when inputs and config are unchanged."),
+        click.option("--quiet", "-q", is_flag=True, help="No progress bars, errors only."),
+        click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary (JSON) on stdout."),
+        click.option("-v", "--verbose", count=True, help="More logging (-vv for debug)."),
+    ]):
+        func = option(func)
+    return func
+
+
 def store_command(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Add FILE, --config, --set, --force, --quiet, --json, -v; pass a RunContext as ``ctx``."""
+    """Add FILE and the :func:`run_options`; pass a RunContext as ``ctx``."""
 
     @click.argument("file", type=click.Path(dir_okay=False))
-    @click.option("--config", "config_path", type=click.Path(dir_okay=False), help="recording.toml; stored with the recording (replaces the stored config).")
-    @click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value for this run (repeatable).")
-    @click.option("--force", is_flag=True, help="Rerun even when inputs and config are unchanged.")
-    @click.option("--quiet", "-q", is_flag=True, help="No progress bars, errors only.")
-    @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary (JSON) on stdout.")
-    @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
+    @run_options
     @functools.wraps(func)
     def wrapper(file: str, config_path: str | None, overrides: tuple[str, ...], force: bool, quiet: bool, as_json: bool, verbose: int, **kwargs: Any) -> None:
         setup_logging(verbose, quiet)

@@ -6,7 +6,7 @@ import click
 from ..config import load_config
 from ..progress import make_progress
 from ..stages.synth import run_synth
-from .common import report, setup_logging
+from .common import report, run_options, setup_logging
 
 EFFECTS = ["none", "inertia", "damping", "contact", "asymmetry", "random"]
 
@@ -16,16 +16,12 @@ EFFECTS = ["none", "inertia", "damping", "contact", "asymmetry", "random"]
 @click.option("--effect", type=click.Choice(EFFECTS), help="Hidden physics effect (default: none); 'random' names it only in truth.h5.")
 @click.option("--strength", type=float, help="Effect strength (see `synth.strength` in schemas/synth.schema.json).")
 @click.option("--seed", type=int, help="Random seed: the same seed writes the same bytes.")
-@click.option("--config", "config_path", type=click.Path(dir_okay=False), help="A TOML with [synth] and [mesh] sections.")
-@click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value (repeatable).")
-@click.option("--force", is_flag=True, help="Replace OUTDIR even when it holds other files.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bars.")
-@click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary.")
-@click.option("-v", "--verbose", count=True, help="More logging.")
+@run_options
 def synth_cmd(outdir, effect, strength, seed, config_path, overrides, force, quiet, as_json, verbose):  # type: ignore[no-untyped-def]
     """Write a phantom recording into OUTDIR: the instruments' raw files and truth.h5.
 
-    Reads: nothing (config [synth], [mesh]). Writes: OUTDIR with video.mraw + video.cihx,
+    Reads: nothing (config file: [synth] and [mesh] sections; --force replaces an OUTDIR
+    that holds other files). Writes: OUTDIR with video.mraw + video.cihx,
     video.tif, video_pressure.tdms/.csv, scan.uff/.csv, recording.toml and truth.h5
     (which no other command reads).
     """

@@ -27,7 +27,6 @@ from typing import Any, Iterator
 import numpy as np
 
 from .. import layout
-from ..camera import Camera
 from ..config import FlowConfig
 from ..errors import ConfigError, InputDataError, MissingStageError
 from ..fields import LdvTps, combine_fields, hull_mask

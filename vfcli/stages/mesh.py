@@ -7,7 +7,6 @@ from typing import Any
 import numpy as np
 
 from .. import layout
-from ..config import MeshConfig
 from ..m5 import m5_params_from
 from ..mesh import FoldMesh, build_mesh
 from ..store import StageWriter, StoreReader

@@ -93,7 +93,11 @@ def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[s
         rotation, offset = cam_cfg.rotation_deg, tuple(cam_cfg.offset_px)
         pose_source = "config"
     else:
-        rotation, offset = estimate_pose(reader.dataset("flow", "gap_mask")[()], px_per_mm, mesh_cfg.length_mm)
+        masks = reader.dataset("flow", "gap_mask")
+        counts = np.zeros(masks.shape[1:])
+        for i in range(0, masks.shape[0], 64):  # streamed: memory does not grow with the frames
+            counts += masks[i:i + 64].sum(axis=0)
+        rotation, offset = estimate_pose(counts, px_per_mm, mesh_cfg.length_mm)
         pose_source = "estimated from the glottal gap"
     velocity[..., :2] = camera_to_model(velocity[..., :2], rotation)
     h, w = gaps.shape[1:]
