@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vfcli.mesh import FoldMesh  # noqa: E402
-from vfcli.scoring import surface_displacement_at  # noqa: E402
+from vfcli.scoring import relative_rms_error, side_truth  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
 from vfcli.stages.mesh import read_mesh  # noqa: E402
 from vfcli.stages.optimize import build_problem  # noqa: E402
@@ -55,19 +55,12 @@ def surface_errors(store: Path, raw: Path, run: str) -> tuple[float, float]:
         mesh = read_mesh(r)
         disp = r.read("optimize", "displacements", run).astype(float)
         sim_time = r.read("optimize", "sim_time", run)
-    frame_time = t["frames/time"]
-    idx = np.searchsorted(frame_time, sim_time[:-1] - 1e-9)
+    idx = np.searchsorted(t["frames/time"], sim_time[:-1] - 1e-9)
     true = t["frames/displacement"][idx].astype(float)
     out = []
     for side in (1, 2):
-        mask = mesh.node_side == side
-        src = truth_mesh.node_side == side
-        ref = surface_displacement_at(mesh.uv, np.repeat([0, 1], mesh.n_nodes // 2), mask,
-                                      truth_mesh.uv[src], np.repeat([0, 1], truth_mesh.n_nodes // 2)[src], true[:, src])
-        est = disp[:-1][:, mask]
-        ref = ref[:, mask]
-        ok = np.all(np.isfinite(ref), axis=(0, 2))
-        out.append(float(np.sqrt(np.mean((est[:, ok] - ref[:, ok]) ** 2)) / np.sqrt(np.mean(ref[:, ok] ** 2))))
+        nodes, ref = side_truth(mesh.uv, mesh.node_side, truth_mesh.uv, truth_mesh.node_side, true, side)
+        out.append(relative_rms_error(disp[:-1][:, nodes], ref))
     return out[0], out[1]
 
 

@@ -5,21 +5,29 @@ sensor noise, ~400 MB) is
 
 * copied with ``shutil.copyfile`` and fsync'ed, after dropping the source from the page
   cache (``posix_fadvise(DONTNEED)``): the disk's plain copy speed;
-* ingested with the library call behind ``vfcli ingest-hsc`` (stream, decode 12-bit,
-  write one chunk per frame, atomic commit with fsync) for each frame filter, with the
-  source dropped from the cache the same way.
+* ingested with the library call behind ``vfcli ingest-hsc`` (hash the raw files, stream,
+  decode 12-bit, encode one chunk per frame, atomic commit with fsync) into a new store,
+  for each frame filter, with the source dropped from the cache the same way.
+
+The machine is shared, so both are timed in ``--rounds`` interleaved rounds (copy, then
+each filter) and each ingest is compared with the copy of its own round: the table shows
+median times, and the median (min-max) over rounds of copy time / ingest time. The CPU
+time (all threads) does not depend on the other jobs much: on N free cores an ingest
+cannot take less than CPU time / N.
 
 MB/s are MB of MRAW per second (1 MB = 10**6 bytes); the ratio is against the copy.
 
 Reproduce::
 
-    .venv/bin/python bench/bench_store_ingest.py [--mb 400] [--dir DIR]
+    .venv/bin/python bench/bench_store_ingest.py [--mb 400] [--rounds 3] [--dir DIR]
 """
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import shutil
+import statistics
 import sys
 import tempfile
 import time
@@ -52,36 +60,83 @@ def _frames(n: int, h: int, w: int):
         yield np.clip(shift + rng.normal(0, 25, (h, w)), 0, 4095).astype(np.uint16)
 
 
+def _timed(fn, *args) -> tuple[float, float]:
+    """(wall seconds, CPU seconds of every thread of this process) of ``fn(*args)``."""
+    t, c = time.perf_counter(), time.process_time()
+    fn(*args)
+    return time.perf_counter() - t, time.process_time() - c
+
+
+def _ingest(root: Path, cihx: Path, comp: str) -> tuple[float, float, int]:
+    """(wall s, CPU s, stored bytes) of one ingest into a new store."""
+    store = root / f"{comp}.h5"
+    for p in (store, root / f".{store.name}.lock"):
+        p.unlink(missing_ok=True)
+    ctx = RunContext.open(store, None, [f"ingest_hsc.compression={comp!r}"])
+    return (*_timed(run_ingest_hsc, ctx, cihx), store.stat().st_size)
+
+
+def _copy(root: Path, mraw: Path) -> tuple[float, float]:
+    """(wall s, CPU s) of one copy of the MRAW, fsync'ed."""
+    dst = root / "copy.mraw"
+    dst.unlink(missing_ok=True)
+
+    def copy() -> None:
+        shutil.copyfile(mraw, dst)
+        _drop_cache(dst)
+
+    return _timed(copy)
+
+
+def _ratio_cell(ratios: list[float]) -> str:
+    return f"{statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mb", type=float, default=400.0)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--compressions", default="none,gzip,gzip4", help="comma-separated ingest_hsc.compression values")
     ap.add_argument("--dir", default=None)
     args = ap.parse_args()
+    comps = args.compressions.split(",")
     h = w = 512
     n = int(args.mb * 1e6 / (h * w * 1.5))
     root = Path(tempfile.mkdtemp(dir=args.dir))
     try:
         mraw, cihx = write_mraw(root / "v.mraw", _frames(n, h, w), 10000.0)
         size = mraw.stat().st_size
-        _drop_cache(mraw)
-        t = time.perf_counter()
-        shutil.copyfile(mraw, root / "copy.mraw")
-        _drop_cache(root / "copy.mraw")
-        copy_s = time.perf_counter() - t
-        rows = [("copy (shutil.copyfile + fsync)", copy_s, size)]
-        for comp in ("none", "gzip", "gzip4"):
+        load0 = os.getloadavg()[0]
+        names = ["copy", *comps]
+        wall: dict[str, list[float]] = {k: [] for k in names}
+        cpu: dict[str, list[float]] = {k: [] for k in names}
+        ratios: dict[str, list[float]] = {k: [] for k in comps}
+        stored = {"copy": size}
+        for _ in range(args.rounds):
             _drop_cache(mraw)
-            store = root / f"{comp}.h5"
-            ctx = RunContext.open(store, None, [f"ingest_hsc.compression={comp!r}"])
-            t = time.perf_counter()
-            run_ingest_hsc(ctx, cihx)
-            rows.append((f"vfcli ingest-hsc, frames {comp}", time.perf_counter() - t, store.stat().st_size))
-        print(f"MRAW: {n} frames of {h} x {w}, 12-bit packed, {size / 1e6:.0f} MB\n")
-        print("| operation | time (s) | MB/s of MRAW | vs copy | stored size (MB) |")
-        print("| --- | ---: | ---: | ---: | ---: |")
-        for name, secs, out_size in rows:
-            print(f"| {name} | {secs:.2f} | {size / 1e6 / secs:.0f} | {copy_s / secs:.2f} | {out_size / 1e6:.0f} |")
-        print("\nReproduce: `.venv/bin/python bench/bench_store_ingest.py --mb %g`" % args.mb)
+            copy_s, copy_cpu = _copy(root, mraw)
+            wall["copy"].append(copy_s)
+            cpu["copy"].append(copy_cpu)
+            for comp in comps:
+                _drop_cache(mraw)
+                secs, cpus, stored[comp] = _ingest(root, cihx, comp)
+                wall[comp].append(secs)
+                cpu[comp].append(cpus)
+                ratios[comp].append(copy_s / secs)
+            print("round: " + ", ".join(f"{k} {wall[k][-1]:.2f} s" for k in names), file=sys.stderr)
+        print(f"MRAW: {n} frames of {h} x {w}, 12-bit packed, {size / 1e6:.0f} MB; {args.rounds} rounds; "
+              f"{os.cpu_count()} cores, load average {load0:.1f} before, {os.getloadavg()[0]:.1f} after\n")
+        print("| operation | time (s) | CPU time (s) | MB/s of MRAW | vs copy (min-max) | stored size (MB) |")
+        print("| --- | ---: | ---: | ---: | ---: | ---: |")
+        for name in names:
+            secs = statistics.median(wall[name])
+            label = "copy (shutil.copyfile + fsync)" if name == "copy" else f"vfcli ingest-hsc, frames {name}"
+            vs = "1.00" if name == "copy" else _ratio_cell(ratios[name])
+            print(f"| {label} | {secs:.2f} | {statistics.median(cpu[name]):.2f} | {size / 1e6 / secs:.0f} | {vs} | "
+                  f"{stored[name] / 1e6:.0f} |")
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"\nMedians over rounds; CPU time is summed over all threads. Peak RSS of the whole run: {peak:.0f} MB.")
+        print("Reproduce: `.venv/bin/python bench/bench_store_ingest.py --mb %g --rounds %d`" % (args.mb, args.rounds))
     finally:
         shutil.rmtree(root, ignore_errors=True)
 

@@ -37,7 +37,7 @@ step ingest-ldv "synth"           "$STORE" "$RAW/scan.uff"
 step sync       "ingest-hsc ingest-ldv" "$STORE"
 step flow       "sync"            "$STORE"
 step mesh       ""                "$STORE" --preview "$OUT/mesh.png"
-step optimize   "flow mesh"       "$STORE" --plot "$OUT/convergence.png"
+step optimize   "flow mesh"       "$STORE" --plot "$OUT/convergence.png" --uncertainty-map "$OUT/inferior_uncertainty.png"
 step export     "optimize"        "$STORE" --out "$OUT/export"
 
 echo

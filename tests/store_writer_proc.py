@@ -3,8 +3,10 @@
 usage: python store_writer_proc.py STORE SEED N_FRAMES [HOLD_SECONDS]
 
 Writes stage /hsc with N_FRAMES deterministic frames (content derived from SEED) through
-the store, frame by frame, printing "writing" once the transaction has started. With
-HOLD_SECONDS it sleeps inside the transaction (to hold the lock).
+the store's streaming frame writer (``StageWriter.write_frames``: worker threads, direct
+chunk writes; the path `vfcli ingest-hsc` takes), 16 frames per batch, printing "writing"
+once the transaction has started. With HOLD_SECONDS it sleeps inside the transaction (to
+hold the lock).
 """
 import sys
 import time
@@ -28,9 +30,7 @@ def main() -> None:
         if hold:
             time.sleep(hold)
         with w.stage("hsc", config_json=f'{{"seed": {seed}}}') as s:
-            ds = s.create("frames", frames.shape, np.uint16)
-            for i, fr in enumerate(frames):
-                ds[i] = fr
+            s.write_frames("frames", frames.shape, np.uint16, (frames[a:a + 16] for a in range(0, n, 16)))
             s.put("frame_time", np.arange(n) / 10000.0)
             s.set_attrs(seed=seed)
 

@@ -98,3 +98,21 @@ def test_time_basis_spans_the_time_range():
     np.testing.assert_allclose(b.sum(axis=1), 1.0)
     with pytest.raises(ConfigError):
         ForceField(ForceFieldSpec((2, 2, 5)), (0.03, 0.01))
+
+
+def test_penalty_operator_is_size_plus_squared_neighbour_differences():
+    from vfcli.forces import ForceField, ForceFieldSpec
+
+    field = ForceField(ForceFieldSpec((2, 3, 4), ("inferior",)), (0.0, 1.0))
+    omega = field.penalty_operator().toarray()
+    assert omega.shape == (field.n_params, field.n_params)
+    np.testing.assert_allclose(omega, omega.T)
+    assert np.linalg.eigvalsh(omega).min() >= 1.0 - 1e-12     # at least the size
+    c = np.ones((field.n_spatial, field.n_time))              # constant fields: no differences
+    np.testing.assert_allclose(c.ravel() @ omega @ c.ravel(), c.size)
+    c2 = np.zeros_like(c)
+    c2[0, 1] = 1.0                                            # one interior time value: two time differences
+    _, _, _, comp, sl = field.blocks[0]
+    a, b = field.component_shapes[comp]
+    n_space_neighbours = 1 + (1 if b > 1 else 0)              # the (0, 0) control value of a grid >= 2 x 2
+    assert c2.ravel() @ omega @ c2.ravel() == 1 + 2 + n_space_neighbours

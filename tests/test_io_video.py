@@ -100,6 +100,29 @@ def test_open_video_streams_mraw_metadata_and_frames(tmp_path, bits):
         assert np.array_equal(part, frames[3:8, 1:5, 2:9])
 
 
+@pytest.mark.parametrize("bits", [8, 12, 16])
+@pytest.mark.parametrize("start,stop,roi", [(0, None, None), (2, 9, (1, 5, 2, 9))])
+def test_lazy_batches_decode_the_same_frames_as_iter_frames(tmp_path, bits, start, stop, roi):
+    frames = _frames(n=11, bits=8 if bits == 8 else 12)
+    mraw, _ = write_mraw(tmp_path / "rec", iter(frames), fps=FPS, bit_depth=bits)
+    with open_video(mraw) as v:
+        eager = list(v.iter_frames(start, stop, roi, batch=3))
+        lazy = list(v.iter_lazy_frames(start, stop, roi, batch=3))
+    assert [b.shape for b in lazy] == [b.shape for b in eager]
+    for e, b in zip(eager, lazy):
+        assert b.dtype == e.dtype
+        assert np.array_equal(np.stack([b[i] for i in range(len(b))]), e)
+    with pytest.raises(IndexError):
+        lazy[0][len(lazy[0])]
+
+
+def test_lazy_batches_check_the_frame_range(tmp_path):
+    mraw, _ = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
+    with open_video(mraw) as v:
+        with pytest.raises(ConfigError):
+            next(v.iter_lazy_frames(5, 20))
+
+
 def test_open_video_accepts_the_cihx_or_the_mraw_path(tmp_path):
     mraw, cihx = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
     with open_video(mraw) as a, open_video(cihx) as b:
@@ -116,6 +139,32 @@ def test_read_cih_agrees_with_pymraw_get_cih(tmp_path):
     assert ours["n_frames"] == theirs["Total Frame"]
     assert ours["start_frame"] == 7
     assert theirs["Comment Text"] == "phantom & <test>"
+
+
+@pytest.mark.parametrize("metadata", ["cihx", "cih"])
+def test_read_cih_reads_every_field_pymraw_reads_the_same(tmp_path, metadata):
+    import pyMRAW
+
+    _, path = write_mraw(tmp_path / "rec", [_frames()], fps=FPS, bit_depth=16, start_frame=-5,
+                         comment="phantom & <test>", metadata=metadata)
+    ours, theirs = read_cih(path)["raw"], pyMRAW.get_cih(str(path))
+    assert {k: ours.get(k) for k in theirs} == theirs
+    assert type(ours["Total Frame"]) is type(theirs["Total Frame"]) is int
+
+
+def test_reading_photron_metadata_does_not_import_pymraw_or_numba(tmp_path):
+    """pyMRAW pulls numba (about a second per command): vfcli parses the CIH/CIHX itself."""
+    import subprocess
+    import sys
+
+    mraw, _ = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
+    code = ("import sys\n"
+            "from vfcli.io.video import open_video\n"
+            "with open_video(sys.argv[1]) as v:\n"
+            "    v.read()\n"
+            "heavy = {'pyMRAW', 'numba'} & set(sys.modules)\n"
+            "assert not heavy, heavy\n")
+    subprocess.run([sys.executable, "-c", code, str(mraw)], check=True)
 
 
 def test_frame_range_outside_the_video_is_a_config_error(tmp_path):

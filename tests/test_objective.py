@@ -26,7 +26,9 @@ def test_true_controls_have_zero_error_and_others_do_not(case):
     np.testing.assert_allclose(t.total, t.motion + t.gap, rtol=1e-14)
     p2 = Problem(case.model.mesh, CAMERA, case.response, case.measurement,
                  ObjectiveSettings(motion_weight=1e-4, ridge_weight=2.0))
-    np.testing.assert_allclose(p2.evaluate(case.x_true).ridge, 2.0 * np.mean(case.x_true ** 2), rtol=1e-14)
+    omega = case.field.penalty_operator()
+    np.testing.assert_allclose(p2.evaluate(case.x_true).ridge, 2.0 * case.x_true @ (omega @ case.x_true) / p2.n_params,
+                               rtol=1e-14)
 
 
 def _frozen_fd_check(case, weights, directions, ridge=0.0):
@@ -168,3 +170,15 @@ def test_another_load_model_plugs_into_the_response_and_objective(case):
     u = resp.displacements(np.full(4, 500.0), times_[:1])[0]
     medial = np.unique(case.model.mesh.faces[(case.model.mesh.face_tag == TAG_MEDIAL) & (case.model.mesh.face_fold == 1)])
     assert u[medial, 1].mean() > 0
+
+
+def test_motion_residuals_reproduce_the_motion_term(case):
+    p = Problem(case.model.mesh, CAMERA, case.response, case.measurement, ObjectiveSettings(motion_weight=1.0,
+                                                                                           gap_weight=0.0))
+    x = 0.5 * case.x_true
+    frames = p.freeze(x)
+    res = p.motion_residuals(x, frames)
+    assert res.shape == case.measurement.velocity.shape
+    per_frame = np.nansum(res ** 2, axis=(1, 2, 3)) / np.array([fr.n_norm for fr in frames])
+    assert np.mean(per_frame) == pytest.approx(p.frozen_value(x, frames).motion, rel=1e-12)
+    assert np.all(np.isnan(res[~case.measurement.valid]))

@@ -12,6 +12,7 @@ import pytest
 
 from conftest import ROOT, run_vfcli
 from vfcli.stages.optimize import checkpoint_path
+from vfcli.scoring import interval_coverage
 from vfcli.store import Store, read_truth
 
 PHANTOM = [
@@ -91,3 +92,45 @@ def test_resume_after_sigkill_ends_where_an_uninterrupted_run_ends(store):
         hb = r.read("optimize", "history_total", "killed")
     np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(hb, ha, rtol=1e-12)
+
+
+def _inferior_truth(path, raw, run):
+    """(estimate, stated std, truth) of the inferior-surface displacements over the run's window."""
+    from vfcli.mesh import FoldMesh
+    from vfcli.scoring import side_truth
+    from vfcli.stages.mesh import read_mesh
+
+    t, _ = read_truth(raw / "truth.h5")
+    tm = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
+    with Store(path).read() as r:
+        mesh = read_mesh(r)
+        disp = r.read("optimize", "displacements", run).astype(float)[:-1]
+        std = r.read("optimize", "displacement_std", run).astype(float)[:-1]
+        sim_time = r.read("optimize", "sim_time", run)
+    true = t["frames/displacement"][np.searchsorted(t["frames/time"], sim_time[:-1] - 1e-9)].astype(float)
+    nodes, ref = side_truth(mesh.uv, mesh.node_side, tm.uv, tm.node_side, true, 1)
+    return disp[:, nodes], std[:, nodes], ref
+
+
+def test_pressure_loads_state_an_uncertainty_that_covers_the_unseen_inferior_surface(store, tmp_path):
+    """The 90 % intervals of the reconstructed inferior surface (never observed) cover the phantom's
+    true displacement at about their rate, and the error is within the stated uncertainty."""
+    path, raw = store
+    png = tmp_path / "unc.png"
+    res = run_vfcli("optimize", path, "--loads", "pressure", "--set", "optimize.n_frames=48",
+                    "--set", "optimize.first_frame=10", "--set", "mesh.target_edge_mm=2.5", "--run", "p",
+                    "--uncertainty-map", png)
+    assert res.returncode == 0, res.stderr
+    est, std, ref = _inferior_truth(path, raw, "p")
+    err = est - ref
+    coverage = interval_coverage(est, std, ref)
+    rel_err = np.sqrt(np.mean(err ** 2)) / np.sqrt(np.mean(ref ** 2))
+    rel_std = np.sqrt(np.mean(std ** 2)) / np.sqrt(np.mean(est ** 2))
+    print(f"inferior: error {100 * rel_err:.1f} %, stated {100 * rel_std:.1f} %, 90 % interval coverage "
+          f"{100 * coverage:.1f} %")
+    assert 0.85 <= coverage <= 0.97
+    assert rel_err <= 1.5 * rel_std
+    assert png.stat().st_size > 5000
+    with Store(path).read() as r:
+        attrs = r.attrs("optimize", "p")
+    assert attrs["ridge_weight"] > 0 and attrs["residual_n_eff"] > 0

@@ -131,3 +131,24 @@ def test_exact_gradient_is_over_100_times_faster_than_the_fd_gradient():
     t_fd = (time.perf_counter() - t0) / k * p.n_params
     print(f"per gradient: exact {t_exact * 1e3:.0f} ms, FD {t_fd:.1f} s (n = {p.n_params}), ratio {t_fd / t_exact:.0f}")
     assert t_fd > 100 * t_exact
+
+
+def test_gauss_newton_recovers_the_superior_motion_in_few_iterations(case):
+    res = fit(case.problem, method="gauss-newton", max_iter=30, options=FitOptions(ftol=1e-8))
+    total = res.history["total"]
+    assert np.all(np.diff(total) < 0)
+    assert total[-1] < 3e-3 * total[0]
+    assert superior_velocity_error(case, res.x) < 0.05
+    lb = fit(case.problem, method="lbfgs", max_iter=60, options=OPTS)
+    print(f"gauss-newton: E {total[-1]:.3g} after {len(total) - 1} iterations / {res.history['n_evals'][-1]} "
+          f"evaluations; lbfgs: E {lb.history['total'][-1]:.3g} after 60 / {lb.history['n_evals'][-1]}")
+    assert total[-1] <= lb.history["total"][-1]
+    assert res.history["n_evals"][-1] < lb.history["n_evals"][-1]
+
+
+def test_gauss_newton_resumes_exactly(case):
+    full = fit(case.problem, method="gauss-newton", max_iter=6)
+    part = fit(case.problem, method="gauss-newton", max_iter=3)
+    cont = resume(case.problem, FitState.from_arrays(part.state.to_arrays()), max_iter=6)
+    np.testing.assert_allclose(cont.x, full.x, rtol=1e-10, atol=1e-10 * np.abs(full.x).max())
+    np.testing.assert_allclose(cont.history["total"], full.history["total"], rtol=1e-10)

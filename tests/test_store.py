@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+import zlib
 from pathlib import Path
 
 import h5py
@@ -220,3 +221,120 @@ def test_reader_never_sees_a_half_written_stage(tmp_path):
     proc.wait()
     seen.add(_stage_state(path)[1])
     assert seen <= {None, 7} and 7 in seen
+
+
+# --------------------------------------------------------------------------- streamed frames
+
+def _sensor_frames(n: int, h: int = 48, w: int = 40, seed: int = 0) -> np.ndarray:
+    """12-bit texture plus sensor noise (an incompressible low byte, as in real video)."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    texture = 1800 + 600 * np.sin(xx / 7.0) * np.cos(yy / 5.0)
+    return np.clip(texture + rng.normal(0, 200, (n, h, w)), 0, 4095).astype(np.uint16)
+
+
+def _write_streamed(path: Path, frames: np.ndarray, compression: str, batch: int = 7) -> None:
+    with Store(path).write("test") as w:
+        with w.stage("hsc", config_json="{}") as s:
+            s.write_frames("frames", frames.shape, frames.dtype,
+                           (frames[a:a + batch] for a in range(0, len(frames), batch)), compression=compression)
+
+
+@pytest.mark.parametrize("compression,filters,level", [
+    ("gzip", [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE], 1),
+    ("gzip4", [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE], 4),
+    ("none", [], None),
+])
+def test_streamed_frames_are_a_standard_dataset_plain_h5py_reads_bit_identically(tmp_path, compression, filters, level):
+    """The parallel writer leaves an ordinary dataset: standard filters (shuffle, then deflate),
+    one frame per chunk, every chunk written with all filters applied, and HDF5's own filters
+    decode it to the very frames written."""
+    frames = _sensor_frames(45)
+    path = tmp_path / "r.h5"
+    _write_streamed(path, frames, compression)
+    with h5py.File(path, "r") as f:
+        ds = f["hsc/frames"]
+        assert ds.chunks == (1, 48, 40) and ds.dtype == np.uint16
+        dcpl = ds.id.get_create_plist()
+        pipeline = [dcpl.get_filter(i) for i in range(dcpl.get_nfilters())]
+        assert [p[0] for p in pipeline] == filters
+        if level is not None:
+            assert pipeline[1][2] == (level,)       # deflate's cd_values: the level
+        assert ds.id.get_num_chunks() == len(frames)
+        for i in (0, 17, 44):
+            mask, raw = ds.id.read_direct_chunk((i, 0, 0))
+            assert mask == 0                          # no filter skipped
+            if filters:                               # a zlib stream of the shuffled frame
+                shuffled = frames[i].reshape(-1).view(np.uint8).reshape(-1, 2).T.tobytes()
+                assert zlib.decompress(raw) == shuffled
+        stored = ds[()]
+    assert stored.tobytes() == frames.tobytes()
+
+
+def test_streamed_frames_read_back_in_a_process_without_vfcli_or_plugins(tmp_path):
+    """What HDFView or MATLAB see: libhdf5 with its built-in filters only (no plugin path,
+    no vfcli, no isal imported)."""
+    frames = _sensor_frames(20, seed=3)
+    path = tmp_path / "r.h5"
+    _write_streamed(path, frames, "gzip")
+    out = tmp_path / "read.npy"
+    code = ("import sys, h5py, numpy as np\n"
+            "f = h5py.File(sys.argv[1], 'r')\n"
+            "np.save(sys.argv[2], f['hsc/frames'][()])\n"
+            "assert 'vfcli' not in sys.modules and 'isal' not in sys.modules\n")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["HDF5_PLUGIN_PATH"] = str(tmp_path / "no-plugins")
+    subprocess.run([sys.executable, "-c", code, str(path), str(out)], check=True, env=env, cwd=tmp_path)
+    assert np.load(out).tobytes() == frames.tobytes()
+
+
+def test_streamed_frames_report_progress_once_per_batch(tmp_path):
+    frames = _sensor_frames(30)
+    counts: list[int] = []
+    with Store(tmp_path / "r.h5").write("test") as w:
+        with w.stage("hsc", config_json="{}") as s:
+            s.write_frames("frames", frames.shape, frames.dtype, (frames[a:a + 8] for a in range(0, 30, 8)),
+                           on_frames=counts.append)
+    assert counts == [8, 8, 8, 6]
+
+
+@pytest.mark.parametrize("n_given", [44, 46])
+def test_streamed_frames_of_the_wrong_count_abort_the_transaction(tmp_path, n_given):
+    path = tmp_path / "r.h5"
+    _write_mesh(Store(path))
+    frames = _sensor_frames(n_given)
+    with pytest.raises(ValueError, match="frames"):
+        with Store(path).write("test") as w:
+            with w.stage("hsc", config_json="{}") as s:
+                s.write_frames("frames", (45, 48, 40), np.uint16, (frames[a:a + 10] for a in range(0, n_given, 10)))
+    assert _stage_state(path) == (True, None)
+    assert Store(path).interrupted_writes() == []
+
+
+def test_streamed_frames_memory_does_not_grow_with_the_number_of_frames(tmp_path, monkeypatch):
+    """Peak Python/numpy memory writing 4x more frames stays the same: a 4 GB video needs
+    no more than a small one (frames in flight capped at 2 MB here to keep the test small)."""
+    import tracemalloc
+
+    import vfcli.frame_chunks
+
+    monkeypatch.setattr(vfcli.frame_chunks, "DEFAULT_PENDING_BYTES", 2 * 2**20)
+
+    h = w = 128
+
+    def batches(n_batches):
+        for b in range(n_batches):
+            yield _sensor_frames(16, h, w, seed=b)
+
+    peaks = []
+    for n_batches in (40, 160):
+        tracemalloc.start()
+        with Store(tmp_path / f"m{n_batches}.h5").write("test") as wr:
+            with wr.stage("hsc", config_json="{}") as s:
+                s.write_frames("frames", (16 * n_batches, h, w), np.uint16, batches(n_batches))
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    total = 16 * 160 * h * w * 2
+    print("peaks (MiB):", [round(p / 2**20, 1) for p in peaks])
+    assert peaks[1] < 1.3 * peaks[0] + 2**20, f"peaks {peaks}"
+    assert peaks[1] < total / 8, f"peak {peaks[1] / 2**20:.0f} MiB for {total / 2**20:.0f} MiB of frames"

@@ -137,7 +137,9 @@ class OptimizeConfig(_Section):
         "5x5x15-two-sided", description="The paper's force-field setups: control points (u x v x t) and sides"
     )
     tie_folds: bool = Field(False, description="Mirror one fold's force field onto the other")
-    method: Literal["lbfgs", "paper"] = Field("lbfgs", description="Optimiser; 'paper': finite-difference gradient descent")
+    method: Literal["gauss-newton", "lbfgs", "paper"] = Field(
+        "gauss-newton", description="Optimiser: 'gauss-newton' (Levenberg-Marquardt on the frozen-raster Gauss-Newton "
+        "model), 'lbfgs' (exact gradients), 'paper' (finite-difference gradient descent)")
     max_iterations: int = Field(60, ge=1, le=100000, description="Iteration limit")
     first_frame: int = Field(0, ge=0, le=10**9, description="First video frame of the window [T1, T2] (index)")
     n_frames: int = Field(84, ge=2, le=100000, description="Frames in the window (84: one cycle at 120 Hz, 10 kHz)")
@@ -145,11 +147,14 @@ class OptimizeConfig(_Section):
     gap_weight: float = Field(1.0, ge=0, le=1e6, description="Weight of the arctan gap term (1)")
     gap_length_mm: float = Field(0.25, gt=0, le=10, description="Length scale of the gap term's arctan((d/l)^2), mm")
     keep_every: int = Field(1, ge=1, le=10000, description="Store the control values of every k-th iteration")
+    uncertainty: bool = Field(True, description="Compute the posterior standard deviation of every reconstructed "
+                              "displacement (vfcli/uncertainty.py)")
     stop_rel_decrease: float = Field(
         1e-5, ge=0, le=1, description="Stop when an iteration lowers E by less than this fraction of E (1)"
     )
-    loads: Literal["free", "pressure"] = Field(
-        "pressure", description="Load model: 'free': the paper's force field (optimize.setup); 'pressure': normal pressure "
+    loads: Literal["free", "free-regularised", "pressure"] = Field(
+        "pressure", description="Load model: 'free': the paper's force field (optimize.setup); 'free-regularised': the "
+        "same bounded by a Tikhonov term (size and smoothness) whose weight the L-curve chooses; 'pressure': normal pressure "
         "on the inferior and medial surfaces, alike on both folds, tied in time to the recorded subglottal pressure "
         "(needs /hsc pressure; see vfcli/loads.py)"
     )
@@ -161,8 +166,10 @@ class OptimizeConfig(_Section):
     pressure_inferior_linear: bool = Field(False, description="Pressure load model: add a linear variation along the "
                                            "fold to the uniform inferior pressure")
     ridge_weight: float | None = Field(
-        None, ge=0, le=1e6, description="Weight of ridge_weight * mean(x^2) on the control values, 1/Pa^2; null: the "
-        "load model's default (free: 0, the paper's E; pressure: 1e-7, which bounds its free correction)"
+        None, ge=0, le=1e6, description="Weight of ridge_weight * x^T Omega x / n on the control values, 1/Pa^2 (Omega: "
+        "identity for the pressure model; size + squared neighbour differences for the force fields); null: the load "
+        "model's default (free: 0, the paper's E; free-regularised and pressure: chosen from the data by the L-curve, "
+        "vfcli/regularization.py)"
     )
 
 

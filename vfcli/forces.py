@@ -82,6 +82,10 @@ class LoadModel:
         """n_params names, ``"<spatial name>@t<k>"`` in the order of ``x``."""
         return [f"{s}@t{k}" for s in self.spatial_names() for k in range(self.n_time)]
 
+    def penalty_operator(self) -> sp.csr_matrix:
+        """(n_params, n_params) PSD matrix Omega of the ridge term ``x^T Omega x`` (identity: the size)."""
+        return sp.identity(self.n_params, format="csr")
+
     def control_matrix(self, x: np.ndarray) -> np.ndarray:
         """(n_spatial, n_time) view of a parameter vector (n_params,)."""
         x = np.asarray(x, dtype=float)
@@ -206,6 +210,29 @@ class ForceField(LoadModel):
     def spatial_loads(self, model) -> sp.csr_matrix:
         """(n_dofs, n_spatial) FEM loads, Pa mm^2: ``model.traction_operator() @ S``."""
         return (model.traction_operator() @ self.spatial_basis(model.quadrature)).tocsr()
+
+    def penalty_operator(self) -> sp.csr_matrix:
+        """(n_params, n_params) Tikhonov matrix ``Omega = I + D_s^T D_s + D_t^T D_t``, dimensionless.
+
+        ``x^T Omega x`` is the size of the control values plus the squared first
+        differences between neighbouring control values of each scalar field in u, v
+        (within its control grid) and in time (Pa^2): the bound the regularised free
+        fields put on the loads (``optimize.loads = "free-regularised"``).
+        """
+        n_t = self.n_time
+        rows = []
+        for _, _, _, comp, sl in self.blocks:
+            a, b = self.component_shapes[comp]
+            grid = np.arange(sl.start, sl.stop).reshape(a, b)
+            for lo, hi in ((grid[:-1, :], grid[1:, :]), (grid[:, :-1], grid[:, 1:])):
+                rows.append(np.column_stack([lo.ravel(), hi.ravel()]))
+        pairs = np.concatenate(rows) if rows else np.zeros((0, 2), int)
+        d_space = sp.csr_matrix((np.tile([-1.0, 1.0], len(pairs)), (np.repeat(np.arange(len(pairs)), 2), pairs.ravel())),
+                                shape=(len(pairs), self.n_spatial))
+        d_time = sp.diags([-np.ones(n_t - 1), np.ones(n_t - 1)], [0, 1], shape=(n_t - 1, n_t))
+        d_s = sp.kron(d_space, sp.identity(n_t))
+        d_t = sp.kron(sp.identity(self.n_spatial), d_time)
+        return (sp.identity(self.n_params) + d_s.T @ d_s + d_t.T @ d_t).tocsr()
 
     def time_basis(self, times: np.ndarray) -> np.ndarray:
         """(T, n_t) Bernstein basis of degree n_t - 1 in ``(t - t1) / (t2 - t1)``."""

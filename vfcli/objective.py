@@ -10,8 +10,9 @@ the forward difference ``(x(u, v, t_f + dt) - x(u, v, t_f)) / dt`` of the
 material point seen in pixel y at t_f (paper, eq. for v-bar).
 
 E = motion_weight * E_motion + gap_weight * E_gap (both means over the F frames)
-+ ridge_weight * mean(x^2), the last an optional bound on the loads (default 0,
-the paper's E).  The superior-surface velocity fixes the displacement only up to
++ ridge_weight * x^T Omega x / n_params, the last an optional bound on the loads
+(default 0, the paper's E; Omega is the load model's ``penalty_operator()``, the
+identity unless the model says otherwise).  The superior-surface velocity fixes the displacement only up to
 a time-constant field (the gap silhouette pins the medial edge), and the
 inferior surface not at all (/work/shared/reference/identifiability.md): a
 reconstruction that reports them should bound its loads.
@@ -64,6 +65,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from vfcli.camera import Camera, rasterize
 from vfcli.errors import ConfigError
@@ -145,6 +147,8 @@ class _Frame:
     const: float            # sum of |v|^2 over pixels valid only in the measurement
     n_norm: float           # N_f
     sil: list               # per fold side (lo, hi): (ray coordinate, edge, target px)
+    pix_both: np.ndarray    # (n_both,) flat pixel indices of the rows of m_both
+    pix_only: np.ndarray    # flat pixel indices valid only in the measurement
 
 
 class Problem:
@@ -162,6 +166,9 @@ class Problem:
     def __init__(self, mesh: FoldMesh, camera: Camera, response, measurement: Measurement,
                  settings: ObjectiveSettings | None = None) -> None:
         self.mesh, self.camera, self.response = mesh, camera, response
+        lm = getattr(response, "load_model", None)
+        #: (n, n) sparse PSD matrix Omega of the ridge term (identity by default)
+        self.penalty = lm.penalty_operator() if hasattr(lm, "penalty_operator") else sp.identity(response.n_params)
         self.meas, self.settings = measurement, settings or ObjectiveSettings()
         st = self.settings
         times = np.asarray(measurement.times, dtype=float)
@@ -245,7 +252,7 @@ class Problem:
                 ok = np.isfinite(tgt)
                 sil.append((rays[ok], edge[ok], tgt[ok]))
             frames.append(_Frame(m_both, vel[vis[both]], float(np.sum(vel[only] ** 2)),
-                                 float(max(1, valid.sum())), sil))
+                                 float(max(1, valid.sum())), sil, vis[both], np.flatnonzero(only)))
         return frames
 
     # ------------------------------------------------------------ value and gradient
@@ -293,12 +300,27 @@ class Problem:
                     np.add.at(gs[:, lc], ee[:, 0], dphi * (1.0 - lam))
                     np.add.at(gs[:, lc], ee[:, 1], dphi * lam)
                     g[f, :, :2] += gs @ p
-        ridge = st.ridge_weight * float(x @ x) / len(x)
+        omega_x = self.penalty @ x
+        ridge = st.ridge_weight * float(x @ omega_x) / len(x)
         terms = Terms(st.motion_weight * motion / n_f + st.gap_weight * gap / n_f + ridge,
                       st.motion_weight * motion / n_f, st.gap_weight * gap / n_f, ridge)
         if not grad:
             return terms, None
-        return terms, self.response.adjoint(g, self.sim_times) + (2.0 * st.ridge_weight / len(x)) * x
+        return terms, self.response.adjoint(g, self.sim_times) + (2.0 * st.ridge_weight / len(x)) * omega_x
+
+    def motion_residuals(self, x: np.ndarray, frames: list[_Frame]) -> np.ndarray:
+        """(F, H, W, 3) simulated minus measured velocity, mm/s, for a frozen raster.
+
+        Pixels valid in both: ``v_bar - v``; valid only in the measurement: ``-v``
+        (the paper's second case); elsewhere NaN.
+        """
+        u = self.displacements(np.asarray(x, float))
+        h, w = self.camera.shape
+        out = np.full((self.n_frames, h * w, 3), np.nan)
+        for f, fr in enumerate(frames):
+            out[f, fr.pix_both] = fr.m_both @ (u[f + 1] - u[f]) / self.dt - fr.v_both
+            out[f, fr.pix_only] = -self.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
+        return out.reshape(self.n_frames, h, w, 3)
 
     def frozen_value(self, x: np.ndarray, frames: list[_Frame]) -> Terms:
         """E at ``x`` with rasters and silhouette edges frozen at an earlier :meth:`freeze`."""

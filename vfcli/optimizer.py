@@ -10,6 +10,15 @@ Methods
     Implemented here rather than taken from scipy so that its whole state (x,
     E, gradient, curvature pairs) is saved in :class:`FitState`: a resumed run
     continues exactly where it stopped and ends where an uninterrupted run ends.
+``"gauss-newton"``
+    Levenberg-Marquardt on the Gauss-Newton model of E around the raster of the
+    current iterate (:func:`vfcli.linearization.gauss_newton_model`: the motion
+    term's exact Hessian, the gap term's majoriser curvature, the ridge): solve
+    ``(H + mu D) s = -g`` with D the diagonal of H (floored at ``1e-6`` of its
+    mean), accept s when the re-rasterised E decreases, and adapt mu from the
+    ratio of actual to predicted decrease (Nielsen's rule).  Needs a
+    :class:`vfcli.objective.Problem` whose response exposes its basis.  The
+    damping mu is part of the saved state, so resuming is exact.
 ``"scipy-lbfgsb"``
     scipy's L-BFGS-B with the same gradient (resume restarts its memory, so a
     resumed run is close to, not identical with, an uninterrupted one).
@@ -51,7 +60,7 @@ from vfcli.objective import Terms
 
 log = logging.getLogger(__name__)
 
-METHODS = ("lbfgs", "scipy-lbfgsb", "paper")
+METHODS = ("lbfgs", "gauss-newton", "scipy-lbfgsb", "paper")
 #: per-iteration history: iteration number, E and its weighted motion, gap and ridge terms, length of the
 #: accepted step |x_k - x_{k-1}| (x units), cumulative wall time (s, over resumed runs too) and the
 #: cumulative number of objective evaluations (a paper-method gradient counts n_params of them)
@@ -69,6 +78,7 @@ class FitOptions:
     ftol : stop when the relative decrease of E in an iteration is below this.
     gtol : stop when max |grad| is below this.
     fd_step : forward-difference step of the paper method, x units.
+    lm_damping : initial Levenberg-Marquardt damping mu (gauss-newton), relative to diag(H).
     keep_every : keep the control values of every k-th iteration (and the last).
     """
 
@@ -79,6 +89,7 @@ class FitOptions:
     ftol: float = 1e-12
     gtol: float = 0.0
     fd_step: float = 1e-1
+    lm_damping: float = 1e-3
     keep_every: int = 1
 
     def __post_init__(self) -> None:
@@ -94,7 +105,7 @@ class FitState:
 
     x, value (total, motion, gap, ridge), grad : the current iterate.
     memory_s, memory_y : (m, n) L-BFGS pairs (lbfgs), oldest first.
-    gamma : current step of the paper method.
+    gamma : current step of the paper method; current damping mu of gauss-newton.
     history : per iteration lists of :data:`HISTORY_FIELDS`.
     kept_iterations, kept_x : control values kept (every k-th iteration).
     """
@@ -164,6 +175,7 @@ class _Counter:
 
     def __init__(self, problem, state: FitState) -> None:
         self.problem, self.state = problem, state
+        self.model = None   # Gauss-Newton model at state.x, when the last step built it
 
     def value_and_grad(self, x: np.ndarray) -> tuple[Terms, np.ndarray]:
         self.state.n_evals += 1
@@ -172,6 +184,22 @@ class _Counter:
     def value(self, x: np.ndarray) -> Terms:
         self.state.n_evals += 1
         return self.problem.evaluate(x)
+
+    def linearize(self, x: np.ndarray):
+        """E at x with the frozen rasters and displacements (one evaluation), for :meth:`quadratic`."""
+        self.state.n_evals += 1
+        u = self.problem.displacements(x)
+        frames = self.problem.freeze(x, u)
+        return self.problem.frozen_value(x, frames), (frames, u)
+
+    def quadratic(self, x: np.ndarray, frozen=None):
+        """The Gauss-Newton model at x (reusing ``frozen`` from :meth:`linearize` at the same x)."""
+        from vfcli.linearization import gauss_newton_model
+
+        if frozen is None:
+            self.state.n_evals += 1
+            return gauss_newton_model(self.problem, x)
+        return gauss_newton_model(self.problem, x, frozen[0], frozen[1])
 
     def fd_grad(self, x: np.ndarray, f0: float, h: float) -> np.ndarray:
         g = np.empty_like(x)
@@ -256,6 +284,43 @@ def _lbfgs_step(obj: _Counter, st: FitState, opts: FitOptions) -> tuple[bool, fl
     return True, float(np.linalg.norm(s))
 
 
+def _lm_solve(hess, grad: np.ndarray, mu: float) -> np.ndarray:
+    """The Levenberg-Marquardt step ``-(H + mu D)^-1 g`` (H a :class:`vfcli.linearization.BlockMatrix`),
+    D = diag(H) floored at 1e-6 of its mean."""
+    d = hess.diagonal()
+    mean = float(np.mean(d)) if np.mean(d) > 0 else 1.0
+    return -hess.solve(grad, mu * np.maximum(d, 1e-6 * mean))
+
+
+def _gn_step(obj: _Counter, st: FitState, opts: FitOptions) -> tuple[bool, float]:
+    """One Levenberg-Marquardt iteration on the Gauss-Newton model at the current raster."""
+    model = obj.model if obj.model is not None else obj.quadratic(st.x)
+    obj.model = None
+    f0, g, hess = st.value[0], model.grad, model.hessian
+    mu = st.gamma if st.gamma > 0 else opts.lm_damping
+    nu = 2.0
+    for _ in range(opts.max_line_search):
+        s = _lm_solve(hess, g, mu)
+        predicted = -(g @ s + 0.5 * s @ (hess @ s))
+        if predicted <= opts.ftol * abs(f0) and mu <= (st.gamma if st.gamma > 0 else opts.lm_damping):
+            # even the model's own minimiser would not lower E by the stopping fraction: converged
+            st.message = "predicted decrease below ftol"
+            return False, 0.0
+        x_new = st.x + s
+        terms, frozen = obj.linearize(x_new)
+        if terms.total < f0 and predicted > 0:
+            rho = (f0 - terms.total) / predicted
+            mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            st.x, st.gamma = x_new, mu
+            obj.model = obj.quadratic(x_new, frozen)
+            st.value, st.grad = _terms_array(obj.model.terms), obj.model.grad
+            return True, float(np.linalg.norm(s))
+        mu *= nu
+        nu *= 2.0
+    st.gamma = mu
+    return False, 0.0
+
+
 def _paper_step(obj: _Counter, st: FitState, opts: FitOptions) -> tuple[bool, float]:
     """One gradient-descent iteration with the increasing-step line search."""
     f0, g = st.value[0], st.grad
@@ -328,7 +393,7 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
     problem : object with ``n_params``, ``value_and_grad(x) -> (Terms, (n,))`` and
         ``evaluate(x) -> Terms`` (e.g. :class:`vfcli.objective.Problem`).
     x0 : (n,) start (default zeros, the paper's start); ignored when ``state`` is given.
-    method : "lbfgs", "scipy-lbfgsb" or "paper".
+    method : "lbfgs", "gauss-newton", "scipy-lbfgsb" or "paper".
     max_iter : total iteration count to reach (counting those of ``state``).
     callback : called with the :class:`FitState` after every iteration (checkpoint
         it with ``state.to_arrays()``); returning True stops the fit.
@@ -363,7 +428,7 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
             state.message = ""
     if method == "scipy-lbfgsb" and not state.converged and state.iteration < max_iter:
         _scipy_run(obj, state, opts, max_iter, t_start, callback)
-    step_fn = {"lbfgs": _lbfgs_step, "paper": _paper_step}.get(method)
+    step_fn = {"lbfgs": _lbfgs_step, "gauss-newton": _gn_step, "paper": _paper_step}.get(method)
     while step_fn is not None and not state.converged and state.iteration < max_iter:
         if np.max(np.abs(state.grad), initial=0.0) <= opts.gtol:
             state.converged, state.message = True, "gradient below gtol"
@@ -371,7 +436,7 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
         f_before = state.value[0]
         moved, step = step_fn(obj, state, opts)
         if not moved:
-            state.converged, state.message = True, "line search found no decrease"
+            state.converged, state.message = True, state.message or "line search found no decrease"
             break
         state.iteration += 1
         _record(state, step, opts, t_start)

@@ -67,6 +67,10 @@ class QuasiStaticResponse:
     def n_params(self) -> int:
         return self.load_model.n_params
 
+    def time_basis(self, times: np.ndarray) -> np.ndarray:
+        """(T, n_time) time basis of the load model at ``times`` (s): ``U(t) = R C time_basis(t)``."""
+        return np.atleast_2d(self.load_model.time_basis(times))
+
     def displacements(self, x: np.ndarray, times: np.ndarray) -> np.ndarray:
         """Vertex displacements at ``times``.
 

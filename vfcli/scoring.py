@@ -60,3 +60,32 @@ def surface_displacement_at(
         interp = LinearNDInterpolator(source_uv[src], values)
         out[:, dst] = np.moveaxis(interp(nodes_uv[dst]).reshape(int(dst.sum()), source_disp.shape[0], 3), 1, 0)
     return out
+
+
+def side_truth(mesh_uv: np.ndarray, mesh_side: np.ndarray, truth_uv: np.ndarray, truth_side: np.ndarray,
+               truth_disp: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray]:
+    """The phantom's true displacement of one surface side at the reconstruction mesh's nodes.
+
+    Parameters
+    ----------
+    mesh_uv, mesh_side : (N, 2), (N,) the reconstruction mesh (both folds, fold 0 first).
+    truth_uv, truth_side : (M, 2), (M,) the phantom's mesh (both folds, fold 0 first).
+    truth_disp : (T, M, 3) true displacements at the compared times, mm.
+    side : 1 inferior, 2 superior.
+
+    Returns
+    -------
+    nodes : (n,) int indices of the side's nodes inside the phantom's (u, v) range.
+    reference : (T, n, 3) true displacements there, mm.
+    """
+    n, m = len(mesh_uv), len(truth_uv)
+    sel, src = mesh_side == side, truth_side == side
+    ref = surface_displacement_at(mesh_uv, np.repeat([0, 1], n // 2), sel, truth_uv[src],
+                                  np.repeat([0, 1], m // 2)[src], truth_disp[:, src])
+    nodes = np.flatnonzero(sel & np.all(np.isfinite(ref), axis=(0, 2)))
+    return nodes, ref[:, nodes]
+
+
+def interval_coverage(estimate: np.ndarray, std: np.ndarray, truth: np.ndarray, z: float = 1.645) -> float:
+    """Fraction of entries whose truth lies within ``estimate +- z std`` (z = 1.645: 90 % intervals)."""
+    return float(np.mean(np.abs(np.asarray(estimate) - truth) <= z * np.asarray(std)))

@@ -12,6 +12,13 @@ info`` reports it as an interrupted write). Readers open the store read-only and
 the version they opened. Files are created with persistent free-space tracking, so a
 stage that is rewritten reuses the space of its previous version.
 
+Video frames
+------------
+:meth:`StageWriter.write_frames` streams a video into a one-frame-per-chunk dataset with
+the standard shuffle + gzip filters, but encodes the chunks itself, in worker threads
+(:mod:`vfcli.frame_chunks`), and writes them with ``write_direct_chunk``: about 5x faster
+than HDF5's own single-threaded filter, and read by every HDF5 reader as usual.
+
 Provenance and idempotence
 --------------------------
 Every stage group records its validated config (JSON), the vfcli version, the command
@@ -29,17 +36,22 @@ import json
 import os
 import secrets
 import shutil
+from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Mapping
 
 import h5py
 import numpy as np
 
 from . import __version__, layout
 from .errors import ConfigError, MissingStageError, StoreFormatError, StoreLockedError
-from .provenance import describe_inputs, same_inputs, stage_digest
+from .frame_chunks import ChunkCodec, encode_frames
+from .provenance import same_inputs, stage_digest
+
+if TYPE_CHECKING:
+    from .io.video import FrameBatch
 
 _TMP_MARK = ".tmp-"
 #: Filters of large per-frame datasets, by name. "gzip" (deflate level 1 + shuffle) is the
@@ -51,6 +63,16 @@ COMPRESSIONS: dict[str, dict[str, Any]] = {
     "none": {},
 }
 _COMPRESSION = COMPRESSIONS["gzip"]
+#: How :meth:`StageWriter.write_frames` encodes the chunks of each of :data:`COMPRESSIONS`
+#: itself (the dataset keeps the filters above, so every reader decodes them with plain
+#: zlib). Each byte plane is deflated on its own and incompressible planes are stored
+#: (:func:`vfcli.frame_chunks.deflate_planes`): "gzip" with ISA-L at level 1 (files the
+#: size of zlib's level 1, several times faster), "gzip4" with zlib's level 4.
+CHUNK_CODECS: dict[str, ChunkCodec] = {
+    "gzip": ChunkCodec(shuffle=True, deflate="isal", level=1, per_plane=True),
+    "gzip4": ChunkCodec(shuffle=True, deflate="zlib", level=4, per_plane=True),
+    "none": ChunkCodec(),
+}
 
 
 def _lock_path(path: Path) -> Path:
@@ -297,6 +319,91 @@ class StageWriter:
             ds.attrs[k] = v
         return ds
 
+    def write_frames(
+        self,
+        key: str,
+        shape: tuple[int, ...],
+        dtype: Any,
+        batches: Iterable[FrameBatch],
+        *,
+        units: str | None = None,
+        description: str | None = None,
+        attrs: Mapping[str, Any] | None = None,
+        compression: str = "gzip",
+        on_frames: Callable[[int], None] | None = None,
+        workers: int | None = None,
+    ) -> h5py.Dataset:
+        """A per-frame dataset filled from a stream of frame batches, encoded in parallel.
+
+        The dataset is the one :meth:`create` makes (one frame per chunk, the filters of
+        :data:`COMPRESSIONS`); vfcli encodes each chunk itself (:data:`CHUNK_CODECS`, in
+        threads, while the caller's iterator reads the next batch) and writes it unfiltered
+        with ``write_direct_chunk``. Readers see an ordinary shuffle + gzip dataset.
+
+        Parameters
+        ----------
+        key : str
+            Dataset name in the stage (declared in :mod:`vfcli.layout`).
+        shape : (n_frames, H, W) or (n_frames, ...)
+            Full dataset shape; one chunk is one ``shape[1:]`` frame.
+        dtype : numpy dtype
+            Stored element type; frames are converted to it (the file keeps its byte order).
+        batches : iterable of (k, *shape[1:]) arrays or lazy FrameBatch
+            The frames in order, ``shape[0]`` in all. Lazy batches
+            (:meth:`vfcli.io.video.VideoSource.iter_lazy_frames`) are decoded in the worker
+            threads. Memory stays about two batches plus
+            :data:`vfcli.frame_chunks.DEFAULT_PENDING_BYTES`, whatever ``n_frames``.
+        compression : str
+            One of :data:`COMPRESSIONS`.
+        on_frames : callable, optional
+            Called with the number of frames written after each batch's last frame (progress).
+        workers : int, optional
+            Decoding and encoding threads (default: one per core, at most 4).
+
+        Returns
+        -------
+        h5py.Dataset
+
+        Raises
+        ------
+        ValueError
+            A batch of another frame shape, or more or fewer than ``shape[0]`` frames.
+        """
+        if len(shape) < 2:
+            raise ValueError(f"write_frames needs (n_frames, ...) with frames of >= 1 axis, got {shape}")
+        ds = self.create(key, shape, dtype, units=units, description=description, attrs=attrs,
+                         compression=compression)
+        n = shape[0]
+        ends: deque[int] = deque()  # frame count at the end of each batch read so far
+
+        def checked() -> Iterator[FrameBatch]:
+            total = 0
+            for batch in batches:
+                if tuple(batch.shape[1:]) != tuple(shape[1:]):
+                    raise ValueError(f"{key}: a batch of frames {tuple(batch.shape[1:])}, the dataset's are {tuple(shape[1:])}")
+                if len(batch) == 0:
+                    continue
+                total += len(batch)
+                if total > n:
+                    raise ValueError(f"{key}: more than the {n} frames declared")
+                ends.append(total)
+                yield batch
+
+        zeros = (0,) * (len(shape) - 1)
+        written = reported = 0
+        # ds.dtype is the file's element type (byte order included): chunks are written as is
+        for index, chunk in encode_frames(checked(), ds.dtype, CHUNK_CODECS[compression], workers=workers):
+            ds.id.write_direct_chunk((index, *zeros), chunk)
+            written = index + 1
+            if ends and written == ends[0]:
+                ends.popleft()
+                if on_frames is not None:
+                    on_frames(written - reported)
+                reported = written
+        if written != n:
+            raise ValueError(f"{key}: {written} frames written, {n} declared")
+        return ds
+
     def set_attrs(self, **attrs: Any) -> None:
         """Stage-level attributes (sampling rates, calibration ...)."""
         for k, v in attrs.items():
@@ -337,14 +444,16 @@ class StoreWriter:
         name: str,
         *,
         config_json: str,
-        inputs: Mapping[str, Mapping[str, Any]] | None = None,
+        inputs: Mapping[str, Mapping[str, Any]] | Callable[[], Mapping[str, Mapping[str, Any]]] | None = None,
         upstream: list[tuple[str, str | None]] | None = None,
         run: str | None = None,
     ) -> Iterator[StageWriter]:
         """Replace stage ``name`` (and ``run``) with what the block writes.
 
         The provenance is recorded when the block ends without an exception; a block that
-        raises aborts the whole transaction (nothing reaches the store file).
+        raises aborts the whole transaction (nothing reaches the store file). ``inputs``
+        may be a function returning them, called when the block has ended (so the raw
+        files can be hashed while the block reads them).
         """
         st = layout.stage(name)
         path = st.group_path(run)
@@ -356,6 +465,8 @@ class StoreWriter:
         writer = StageWriter(g, st)
         yield writer
         writer.attach_scales()
+        if callable(inputs):
+            inputs = inputs()
         record = {
             "stage": path,
             "vfcli_version": __version__,
@@ -456,15 +567,6 @@ class Store:
                 finally:
                     tmp.unlink(missing_ok=True)
                 raise
-
-
-def describe_files(store: Store, stage_name: str, paths: list[str | Path], run: str | None = None) -> dict[str, Any]:
-    """Hashes of raw inputs, reusing the hashes the store recorded when files are unchanged."""
-    previous: dict[str, Any] = {}
-    if store.exists():
-        with store.read() as r:
-            previous = r.previous_inputs(stage_name, run)
-    return describe_inputs(paths, previous)
 
 
 class TruthWriter:

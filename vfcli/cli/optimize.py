@@ -14,15 +14,19 @@ from .common import store_command
 @click.option("--setup", type=click.Choice(["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]),
               help="Fit the paper's free force field with this setup (sets optimize.loads='free'); "
                    "default: the pressure load model tied to the measured subglottal pressure.")
-@click.option("--loads", type=click.Choice(["pressure", "free"]), help="Load model (overrides optimize.loads).")
-@click.option("--method", type=click.Choice(["lbfgs", "paper"]), help="Optimiser (overrides optimize.method).")
+@click.option("--loads", type=click.Choice(["pressure", "free-regularised", "free"]),
+              help="Load model (overrides optimize.loads; with --setup, 'free-regularised' bounds the paper's field).")
+@click.option("--method", type=click.Choice(["gauss-newton", "lbfgs", "paper"]), help="Optimiser (overrides optimize.method).")
 @click.option("--resume", "resume_run", is_flag=True, help="Continue an interrupted run from its checkpoint.")
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write the convergence plot to this PNG.")
-def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot):  # type: ignore[no-untyped-def]
+@click.option("--uncertainty-map", "uncertainty_plot", type=click.Path(dir_okay=False),
+              help="Write a map of the inferior surface's stated uncertainty to this PNG.")
+def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot, uncertainty_plot):  # type: ignore[no-untyped-def]
     """Fit the force field so the simulated superior surface and gap match the recording.
 
-    Reads: /mesh, /fields, /flow. Writes: /optimize/<run> (control values, history of
-    every iteration, reconstructed vertex displacements). Config section [optimize].
+    Reads: /mesh, /fields, /flow (and /hsc's pressure for the pressure loads). Writes:
+    /optimize/<run> (control values, history of every iteration, reconstructed vertex
+    displacements and their standard deviations). Config section [optimize].
     """
     # a --setup names one of the paper's free force fields
     sets = ([f"optimize.setup={setup!r}", "optimize.loads='free'"] if setup else [])
@@ -30,4 +34,4 @@ def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot):  # type
     sets += [f"optimize.method={method!r}"] if method else []
     if sets:
         ctx.config = RecordingConfig.model_validate(apply_overrides(ctx.config.model_dump(mode="json"), sets))
-    return run_optimize(ctx, run_name, resume_run, plot)
+    return run_optimize(ctx, run_name, resume_run, plot, uncertainty_plot)

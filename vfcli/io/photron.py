@@ -12,8 +12,9 @@ Format
 
 The metadata lies beside it in ``<stem>.cihx`` (PFV 4: a short binary block,
 then UTF-8 XML ``<cih> ... </cih>``) or ``<stem>.cih`` (older PFV: ``key : value``
-text lines). pyMRAW parses both (:func:`pyMRAW.get_cih`); this module adds the
-start/trigger frame and checks the metadata against the MRAW size.
+text lines). :mod:`vfcli.io.photron_cih` parses both without pyMRAW (whose numba
+import costs about a second) and checks them; the reader here checks them against the
+MRAW size.
 
 pyMRAW decodes a 12-bit file whole; :class:`MrawSource` instead seeks to
 ``frame_index * W * H * 12 / 8`` and decodes frame ranges with vectorised
@@ -24,20 +25,18 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import struct
-import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Iterator
 from xml.sax.saxutils import escape
 
 import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import require_file
-from vfcli.io.video import VideoMeta, VideoSource, register_reader
+from vfcli.io.photron_cih import SUPPORTED_BITS, read_cih
+from vfcli.io.video import FrameBatch, VideoMeta, VideoSource, register_reader
 
 logger = logging.getLogger(__name__)
-
-SUPPORTED_BITS = (8, 12, 16)
 
 
 # --------------------------------------------------------------------------- 12-bit codec
@@ -139,100 +138,12 @@ def find_mraw_pair(path: str | Path) -> tuple[Path, Path]:
     raise InputDataError(f"not a Photron file (expected .mraw, .cihx or .cih), got {p.suffix!r}", p)
 
 
-def _cihx_xml(raw: bytes, path: Path) -> ET.Element:
-    i0 = raw.find(b"<cih>")
-    i1 = raw.rfind(b"</cih>")
-    if i0 < 0 or i1 < i0:
-        raise InputDataError("not a CIHX file: no <cih> ... </cih> XML block", path)
-    try:
-        return ET.fromstring(raw[i0:i1 + len(b"</cih>")].decode("utf-8", errors="replace"))
-    except ET.ParseError as exc:
-        raise InputDataError(f"corrupt CIHX XML: {exc}", path) from None
-
-
-def read_cih(path: str | Path) -> dict:
-    """Parse a ``.cihx`` or ``.cih`` file into vfcli's metadata fields.
-
-    Returns
-    -------
-    dict
-        ``fps`` (frames/s), ``n_frames``, ``width``, ``height``, ``bit_depth``
-        (stored bits: 8, 12 or 16), ``effective_bits``, ``start_frame``,
-        ``camera``, ``comment``, ``file_format`` and ``raw`` (pyMRAW's dict).
-
-    Raises
-    ------
-    InputDataError
-        Unreadable, corrupt or incomplete metadata, or an unsupported layout.
-    """
-    import pyMRAW  # heavy (numba): import only here
-
-    p = require_file(path, "Photron metadata file")
-    ext = p.suffix.lower()
-    start_frame = 0
-    if ext == ".cihx":
-        root = _cihx_xml(p.read_bytes(), p)
-        sf = root.findtext("frameInfo/startFrame")
-    elif ext == ".cih":
-        head = p.read_bytes()[:4096]
-        if b"\x00" in head or b" : " not in head:
-            raise InputDataError("not a CIH text header (no 'key : value' lines)", p)
-        sf = None
-    else:
-        raise InputDataError(f"not a CIH/CIHX file: {p.suffix!r}", p)
-    try:
-        cih = pyMRAW.get_cih(str(p))
-        if ext == ".cih":
-            sf = cih.get("Start Frame", 0)
-        info = dict(
-            fps=float(cih["Record Rate(fps)"]),
-            n_frames=int(cih["Total Frame"]),
-            width=int(cih["Image Width"]),
-            height=int(cih["Image Height"]),
-            bit_depth=int(cih["Color Bit"]),
-            effective_bits=int(cih.get("EffectiveBit Depth", cih["Color Bit"])),
-            file_format=str(cih["File Format"]),
-            camera=str(cih.get("Camera Type", "") or ""),
-            comment=str(cih.get("Comment Text", "") or ""),
-            color_type=str(cih.get("Color Type", "Mono") or "Mono"),
-        )
-        start_frame = int(float(sf)) if sf not in (None, "") else 0
-    except InputDataError:
-        raise
-    except KeyError as exc:
-        raise InputDataError(f"metadata field {exc} missing", p) from None
-    except Exception as exc:  # pyMRAW/xmltodict raise bare exceptions on bad files
-        raise InputDataError(f"cannot parse Photron metadata: {type(exc).__name__}: {exc}",
-                             p) from None
-    info["start_frame"] = start_frame
-    info["raw"] = cih
-    _check_cih(info, p)
-    return info
-
-
-def _check_cih(info: dict, p: Path) -> None:
-    if info["file_format"].lower() != "mraw":
-        raise InputDataError(f"File Format is {info['file_format']!r}; only MRaw is supported", p)
-    if info["bit_depth"] not in SUPPORTED_BITS:
-        raise InputDataError(
-            f"unsupported bit depth {info['bit_depth']} (supported: 8, 12, 16)", p)
-    if not 1 <= info["effective_bits"] <= info["bit_depth"]:
-        raise InputDataError(
-            f"effective bit depth {info['effective_bits']} not in 1..{info['bit_depth']}", p)
-    if info["color_type"].lower() not in ("mono", ""):
-        raise InputDataError(f"Color Type {info['color_type']!r}: only monochrome is supported", p)
-    for key in ("width", "height", "n_frames"):
-        if info[key] < 1:
-            raise InputDataError(f"{key} is {info[key]}; must be >= 1", p)
-    if not np.isfinite(info["fps"]) or info["fps"] <= 0:
-        raise InputDataError(f"record rate {info['fps']} fps is not positive", p)
-    if (info["width"] * info["height"] * info["bit_depth"]) % 8:
-        raise InputDataError(
-            f"{info['width']} x {info['height']} pixels at {info['bit_depth']} bit is not a "
-            "whole number of bytes per frame: unsupported", p)
-
-
 # --------------------------------------------------------------------------- reader
+
+#: Default batch of :meth:`MrawSource.iter_lazy_frames`, bytes of decoded frames: reading
+#: is cheap there (decoding happens on indexing), so batches can be small.
+LAZY_BATCH_BYTES = 8 * 2**20
+
 
 class MrawSource(VideoSource):
     """Streaming reader of an MRAW + CIHX/CIH pair (8, 12 packed or 16 bit).
@@ -282,25 +193,83 @@ class MrawSource(VideoSource):
         if not self._fh.closed:
             self._fh.close()
 
-    def _read_range(self, start: int, stop: int) -> np.ndarray:
-        k = stop - start
-        h, w = self.meta.height, self.meta.width
+    def _read_raw(self, start: int, stop: int, into: np.ndarray | None = None) -> np.ndarray:
+        """The stored bytes of frames ``start..stop-1``, ``(k * frame_bytes,)`` uint8.
+
+        Read into ``into`` when given (large enough), else into a new array.
+        """
+        nbytes = (stop - start) * self.frame_bytes
+        raw = np.empty(nbytes, np.uint8) if into is None else into[:nbytes]
         self._fh.seek(start * self.frame_bytes)
-        nbytes = k * self.frame_bytes
-        if self.stored_bits == 12:
-            if self._raw.size < nbytes:           # reused read buffer
-                self._raw = np.empty(nbytes, np.uint8)
-            raw = self._raw[:nbytes]
-            got = self._fh.readinto(memoryview(raw))
-        else:
-            raw = np.empty(k * h * w, "<u2" if self.stored_bits == 16 else np.uint8)
-            got = self._fh.readinto(memoryview(raw).cast("B"))
+        got = self._fh.readinto(memoryview(raw))
         if got != nbytes:
             raise InputDataError(
                 f"file shrank while reading: frames {start}..{stop} incomplete", self.mraw_path)
+        return raw
+
+    def _read_range(self, start: int, stop: int) -> np.ndarray:
+        k = stop - start
+        h, w = self.meta.height, self.meta.width
         if self.stored_bits == 12:
-            return unpack_12bit(raw).reshape(k, h, w)
+            if self._raw.size < k * self.frame_bytes:           # reused read buffer
+                self._raw = np.empty(k * self.frame_bytes, np.uint8)
+            return unpack_12bit(self._read_raw(start, stop, self._raw)).reshape(k, h, w)
+        raw = self._read_raw(start, stop).view("<u2" if self.stored_bits == 16 else np.uint8)
         return raw.astype(self.meta.dtype, copy=False).reshape(k, h, w)
+
+    def iter_lazy_frames(self, start: int = 0, stop: int | None = None,
+                         roi: tuple[int, int, int, int] | None = None,
+                         batch: int | None = None) -> Iterator[FrameBatch]:
+        """As :meth:`VideoSource.iter_lazy_frames`: 12-bit batches are read here and
+        decoded frame by frame on indexing (:class:`Packed12Frames`)."""
+        if self.stored_bits != 12:
+            yield from self.iter_frames(start, stop, roi, batch)
+            return
+        if batch is None:  # small reads: the decoding threads start sooner
+            batch = max(1, LAZY_BATCH_BYTES // self.meta.frame_nbytes)
+        start, stop, batch = self._check_range(start, stop, batch)
+        rows, cols = self._roi_slices(roi)
+        for b0 in range(start, stop, batch):
+            b1 = min(b0 + batch, stop)
+            yield Packed12Frames(self._read_raw(b0, b1), self.meta.height, self.meta.width, rows, cols)
+
+
+class Packed12Frames:
+    """A batch of 12-bit packed frames, decoded one by one on indexing (a FrameBatch).
+
+    Parameters
+    ----------
+    raw : (k * H * W * 3 / 2,) uint8
+        The frames' packed bytes (kept, not copied).
+    height, width : int
+        Stored frame size, pixels.
+    rows, cols : slice
+        Window kept of each frame.
+    """
+
+    dtype = np.dtype(np.uint16)
+
+    def __init__(self, raw: np.ndarray, height: int, width: int, rows: slice, cols: slice) -> None:
+        self._raw = raw
+        self._hw = (height, width)
+        self._frame_bytes = height * width * 3 // 2
+        self._window = (rows, cols)
+        k = raw.size // self._frame_bytes
+        self.shape = (k, *(len(range(*s.indices(n))) for s, n in zip(self._window, self._hw)))
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        """Frame ``i``, (H', W') uint16 counts (a new array)."""
+        if not 0 <= i < len(self):
+            raise IndexError(f"frame {i} of a batch of {len(self)}")
+        fb = self._frame_bytes
+        frame = unpack_12bit(self._raw[i * fb:(i + 1) * fb]).reshape(self._hw)
+        rows, cols = self._window
+        if rows == slice(None) and cols == slice(None):
+            return frame
+        return np.ascontiguousarray(frame[rows, cols])
 
 
 register_reader("photron", MrawSource, (".mraw", ".cihx", ".cih"))

@@ -28,7 +28,7 @@ import abc
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
@@ -91,6 +91,22 @@ class VideoMeta:
         return self.height * self.width * np.dtype(self.dtype).itemsize
 
 
+class FrameBatch(Protocol):
+    """A batch of frames that may decode each frame only when it is asked for.
+
+    A ``(k, H, W)`` numpy array is one; :meth:`VideoSource.iter_lazy_frames` may yield
+    others, whose ``batch[i]`` decodes frame ``i`` (safe to call from several threads at
+    once, for different ``i``), so that the caller can decode in parallel.
+    """
+
+    shape: tuple[int, ...]
+    dtype: np.dtype
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, i: int) -> np.ndarray: ...
+
+
 class VideoSource(abc.ABC):
     """A video opened for streaming; subclasses implement :meth:`_read_range`.
 
@@ -149,22 +165,29 @@ class VideoSource(abc.ABC):
         InputDataError
             On a file that turns out to be unreadable while streaming.
         """
-        m = self.meta
-        stop = m.n_frames if stop is None else int(stop)
-        start = int(start)
-        if not 0 <= start <= stop <= m.n_frames:
-            raise ConfigError(
-                f"{m.path}: frame range {start}..{stop} outside the video's 0..{m.n_frames}"
-            )
+        start, stop, batch = self._check_range(start, stop, batch)
         rows, cols = self._roi_slices(roi)
-        batch = self.default_batch() if batch is None else int(batch)
-        if batch < 1:
-            raise ConfigError(f"batch must be >= 1 frame, got {batch}")
         for b0 in range(start, stop, batch):
             frames = self._read_range(b0, min(b0 + batch, stop))
             if roi is not None:
                 frames = np.ascontiguousarray(frames[:, rows, cols])
             yield frames
+
+    def iter_lazy_frames(
+        self,
+        start: int = 0,
+        stop: int | None = None,
+        roi: tuple[int, int, int, int] | None = None,
+        batch: int | None = None,
+    ) -> Iterator[FrameBatch]:
+        """Like :meth:`iter_frames`, but a batch may be read and not yet decoded.
+
+        Readers whose decoding costs CPU (12-bit MRAW) yield :class:`FrameBatch` objects
+        that decode frame ``i`` on ``batch[i]``, so a caller can decode the frames of a
+        batch in worker threads while this iterator reads the next one. The default
+        yields :meth:`iter_frames`'s arrays. Same parameters and errors.
+        """
+        return self.iter_frames(start, stop, roi, batch)
 
     def read(self, start: int = 0, stop: int | None = None,
              roi: tuple[int, int, int, int] | None = None) -> np.ndarray:
@@ -176,6 +199,20 @@ class VideoSource(abc.ABC):
                 h, w = roi[1] - roi[0], roi[3] - roi[2]
             return np.empty((0, h, w), self.meta.dtype)
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def _check_range(self, start: int, stop: int | None, batch: int | None) -> tuple[int, int, int]:
+        """``(start, stop, batch)`` checked and defaulted; ConfigError when outside the video."""
+        m = self.meta
+        stop = m.n_frames if stop is None else int(stop)
+        start = int(start)
+        if not 0 <= start <= stop <= m.n_frames:
+            raise ConfigError(
+                f"{m.path}: frame range {start}..{stop} outside the video's 0..{m.n_frames}"
+            )
+        batch = self.default_batch() if batch is None else int(batch)
+        if batch < 1:
+            raise ConfigError(f"batch must be >= 1 frame, got {batch}")
+        return start, stop, batch
 
     def _roi_slices(self, roi) -> tuple[slice, slice]:
         if roi is None:

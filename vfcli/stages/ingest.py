@@ -58,13 +58,9 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             roi = _roi_rows_cols(cfg.roi_px)
             h, w = (meta.height, meta.width) if roi is None else (roi[1] - roi[0], roi[3] - roi[2])
             n = stop - start
-            ds = s.create("frames", (n, h, w), meta.dtype, attrs={"bit_depth": meta.bit_depth}, compression=cfg.compression)
             bar = ctx.progress(total=n, desc="ingest-hsc", unit="frame")
-            i = 0
-            for batch in src.iter_frames(start, stop, roi):
-                ds[i:i + len(batch)] = batch
-                i += len(batch)
-                bar.update(len(batch))
+            s.write_frames("frames", (n, h, w), meta.dtype, src.iter_lazy_frames(start, stop, roi),
+                           attrs={"bit_depth": meta.bit_depth}, compression=cfg.compression, on_frames=bar.update)
             bar.close()
             s.put("frame_time", np.arange(n) / fps)
             s.set_attrs(

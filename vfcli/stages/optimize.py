@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +22,16 @@ from ..errors import ConfigError, InputDataError
 from ..fem import ElasticModel
 from ..forces import ForceField, ForceFieldSpec, LoadModel
 from ..loads import PressureLoad
+from ..linearization import gauss_newton_model
+from ..mesh import SIDE_INFERIOR, SIDE_SUPERIOR
 from ..objective import Measurement, ObjectiveSettings, Problem
 from ..optimizer import FitOptions, FitState, fit, resume
+from ..plots import convergence_plot, uncertainty_map
+from ..regularization import lcurve
 from ..pose import camera_to_model, estimate_pose
 from ..response import QuasiStaticResponse
 from ..store import StageWriter, StoreReader
+from ..uncertainty import displacement_std, effective_sample_size, posterior, relative_uncertainty
 from .base import RunContext, StageResult, run_stage
 from .mesh import read_mesh
 
@@ -52,18 +58,19 @@ def _load_checkpoint(path: Path, settings_json: str) -> FitState | None:
         return FitState.from_arrays({k: z[k] for k in z.files if k != "settings_json"})
 
 
-#: ridge weight (1/Pa^2) of each load model when optimize.ridge_weight is null
-DEFAULT_RIDGE = {"free": 0.0, "pressure": 1e-7}
+#: ridge weight (1/Pa^2) of each load model when optimize.ridge_weight is null (None: chosen by the L-curve)
+DEFAULT_RIDGE = {"free": 0.0, "free-regularised": None, "pressure": None}
 
 
 def load_model(reader: StoreReader, ctx: RunContext, t_range: tuple[float, float]) -> LoadModel:
     """The load model optimize.loads selects, over the time window ``t_range`` (s).
 
-    'free': the paper's force field (optimize.setup, optimize.tie_folds); 'pressure':
-    :class:`vfcli.loads.PressureLoad` on the subglottal pressure recorded with the video (/hsc).
+    'free' and 'free-regularised': the paper's force field (optimize.setup, optimize.tie_folds);
+    'pressure': :class:`vfcli.loads.PressureLoad` on the subglottal pressure recorded with the
+    video (/hsc).
     """
     cfg = ctx.config.optimize
-    if cfg.loads == "free":
+    if cfg.loads in ("free", "free-regularised"):
         return ForceField(ForceFieldSpec.from_name(cfg.setup, tie_folds=cfg.tie_folds), t_range)
     if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
         raise InputDataError("optimize.loads='pressure' needs the subglottal pressure recorded with the video; "
@@ -109,14 +116,49 @@ def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[s
     response = QuasiStaticResponse(model, field)
     ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
     settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
-                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge)
+                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0)
     measurement = Measurement.from_gap_masks(times, velocity, valid, gaps)
-    info = {"rotation_deg": rotation, "offset_px": list(offset), "pose_source": pose_source, "field": field}
-    return Problem(mesh, camera, response, measurement, settings), info
+    info: dict[str, Any] = {"rotation_deg": rotation, "offset_px": list(offset), "pose_source": pose_source,
+                            "field": field, "lcurve": None}
+    problem = Problem(mesh, camera, response, measurement, settings)
+    if ridge is None:
+        # the weight of the bounded free fields, from the data: the L-curve's corner on the
+        # Gauss-Newton model at the start (vfcli/regularization.py)
+        curve = lcurve(gauss_newton_model(problem, np.zeros(problem.n_params)), np.zeros(problem.n_params),
+                       problem.penalty)
+        log.info("L-curve: ridge weight %.3g 1/Pa^2", curve.chosen)
+        info["lcurve"] = curve
+        problem = Problem(mesh, camera, response, measurement, replace(settings, ridge_weight=curve.chosen))
+    return problem, info
 
 
-def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None) -> StageResult:
-    """Fit (or resume) an optimisation run and store it as /optimize/<run>."""
+def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+    """(F + 1, N, 3) standard deviation (mm) of the displacements of a fit at ``x``, and its summary.
+
+    Laplace posterior of the Gauss-Newton model at x, scaled by the motion residuals'
+    own size and correlation (vfcli/uncertainty.py).
+    """
+    u = problem.displacements(x)
+    frames = problem.freeze(x, u)
+    model = gauss_newton_model(problem, x, frames, u)
+    corr = effective_sample_size(problem.motion_residuals(x, frames))
+    post = posterior(model, corr)
+    std = displacement_std(post.covariance, problem.response.basis_, problem.response.time_basis(problem.sim_times))
+    inferior = problem.mesh.node_side == SIDE_INFERIOR
+    summary = {"inferior_uncertainty_rel": relative_uncertainty(std, u, inferior),
+               "superior_uncertainty_rel": relative_uncertainty(std, u, problem.mesh.node_side == SIDE_SUPERIOR),
+               "residual_n_eff": corr.n_eff, "residual_area_px": corr.area_px, "residual_tau_frames": corr.tau_frames,
+               "fitted_dof": post.dof}
+    return std, summary
+
+
+def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None,
+                 uncertainty_plot: str | Path | None = None) -> StageResult:
+    """Fit (or resume) an optimisation run and store it as /optimize/<run>.
+
+    plot : convergence plot (PNG).  uncertainty_plot : map of the inferior surface's stated
+    uncertainty (PNG; needs optimize.uncertainty).
+    """
     cfg = ctx.config.optimize
     if not run.replace("-", "").replace("_", "").isalnum():
         raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
@@ -126,6 +168,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         problem, info = build_problem(reader, ctx)
+        label = f"{'pressure loads' if cfg.loads == 'pressure' else f'{cfg.setup}, {cfg.loads}'} ({cfg.method})"
         opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease)
         bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")
 
@@ -144,19 +187,32 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         bar.close()
         h = result.history
         s.put("sim_time", problem.sim_times)
-        s.put("displacements", problem.displacements(result.x).astype(np.float32))
+        disp = problem.displacements(result.x)
+        s.put("displacements", disp.astype(np.float32))
+        unc: dict[str, float] = {}
+        if cfg.uncertainty:
+            std, unc = reconstruction_uncertainty(problem, result.x)
+            s.put("displacement_std", std.astype(np.float32))
+            if uncertainty_plot is not None:
+                uncertainty_map(problem.mesh, std, disp, uncertainty_plot, f"run {run} ({label})")
+        if info["lcurve"] is not None:
+            curve = info["lcurve"]
+            s.put("lcurve_weight", curve.weights)
+            s.put("lcurve_misfit", curve.misfit)
+            s.put("lcurve_penalty", curve.penalty)
         s.put("controls", result.x)
         s.put("parameter_names", np.array(info["field"].parameter_names(), dtype=object))
         s.put("kept_iterations", np.asarray(result.kept_iterations))
         s.put("kept_controls", np.asarray(result.kept_x))
-        for key in ("iteration", "total", "motion", "gap", "step", "wall_time", "n_evals"):
+        for key in ("iteration", "total", "motion", "gap", "ridge", "step", "wall_time", "n_evals"):
             s.put(f"history_{key}", np.asarray(h[key]))
-        s.set_attrs(setup=cfg.setup if cfg.loads == "free" else "pressure", loads=cfg.loads,
-                    ridge_weight=problem.settings.ridge_weight, method=cfg.method, converged=bool(result.converged), message=str(result.message),
-                    camera_rotation_deg=info["rotation_deg"], camera_offset_px=np.asarray(info["offset_px"]),
-                    pose_source=info["pose_source"], px_per_mm=problem.camera.px_per_mm)
+        s.set_attrs(setup=cfg.setup if cfg.loads != "pressure" else "pressure", loads=cfg.loads,
+                    ridge_weight=problem.settings.ridge_weight, method=cfg.method, converged=bool(result.converged),
+                    message=str(result.message), camera_rotation_deg=info["rotation_deg"],
+                    camera_offset_px=np.asarray(info["offset_px"]), pose_source=info["pose_source"],
+                    px_per_mm=problem.camera.px_per_mm, **unc)
         if plot is not None:
-            convergence_plot(h, plot, f"{cfg.setup if cfg.loads == 'free' else 'pressure'} ({cfg.method})")
+            convergence_plot(h, plot, label)
         return {
             "iterations": int(h["iteration"][-1]) if len(h["iteration"]) else 0,
             "E_final": float(h["total"][-1]),
@@ -165,6 +221,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             "wall_time_s": round(float(h["wall_time"][-1]), 1),
             "converged": bool(result.converged),
             "pose": info["pose_source"],
+            "ridge_weight": problem.settings.ridge_weight,
+            **{k: round(v, 4) for k, v in unc.items() if k.endswith("_rel")},
         }
 
     result = run_stage(ctx, "optimize", config_json=settings_json, body=body, run=run,
@@ -172,24 +230,3 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
                        + ([("hsc", None)] if cfg.loads == "pressure" else []))
     ckpt.unlink(missing_ok=True)
     return result
-
-
-def convergence_plot(history: dict[str, Any], path: str | Path, title: str) -> None:
-    """E and its terms against the iteration (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
-    it = np.asarray(history["iteration"])
-    for key, style in (("total", "-"), ("motion", "--"), ("gap", ":")):
-        ax.semilogy(it, np.maximum(np.asarray(history[key]), 1e-12), style, label=key)
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("error E")
-    ax.set_title(title)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

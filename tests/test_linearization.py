@@ -1,0 +1,99 @@
+"""The Gauss-Newton model of E: exact for the motion term, a majoriser's curvature for the gap term."""
+import numpy as np
+import pytest
+
+from vfcli.linearization import gap_rows, gauss_newton_model
+from vfcli.objective import ObjectiveSettings, Problem
+
+try:
+    from _forward_case import CAMERA, forward_case
+except ModuleNotFoundError:
+    from tests._forward_case import CAMERA, forward_case
+
+
+@pytest.fixture(scope="module")
+def case():
+    return forward_case(resolution=(2, 2, 4), sides=("inferior", "superior"), n_frames=8)
+
+
+def _problem(case, motion, gap, ridge=0.0):
+    return Problem(case.model.mesh, CAMERA, case.response, case.measurement,
+                   ObjectiveSettings(motion_weight=motion, gap_weight=gap, ridge_weight=ridge))
+
+
+def _x0(case):
+    rng = np.random.default_rng(3)
+    return 0.6 * case.x_true + rng.normal(0, 40.0, case.x_true.size)
+
+
+def test_motion_and_ridge_hessian_equal_the_derivative_of_the_exact_gradient(case):
+    """For a frozen raster the motion term is quadratic: H is its exact Hessian (central differences of g)."""
+    p = _problem(case, 1e-4, 0.0, ridge=1e-6)
+    x0 = _x0(case)
+    frames = p.freeze(x0)
+    model = gauss_newton_model(p, x0, frames)
+    rng = np.random.default_rng(0)
+    for d in rng.normal(size=(6, p.n_params)):
+        h = 1.0
+        fd = (p.frozen_value_and_grad(x0 + h * d, frames)[1] - p.frozen_value_and_grad(x0 - h * d, frames)[1]) / (2 * h)
+        np.testing.assert_allclose(model.hessian @ d, fd, rtol=1e-7, atol=1e-9 * np.abs(fd).max())
+    # and the quadratic model predicts the frozen E exactly
+    s = rng.normal(0, 20.0, p.n_params)
+    pred = model.terms.total + model.grad @ s + 0.5 * s @ (model.hessian @ s)
+    assert pred == pytest.approx(p.frozen_value(x0 + s, frames).total, rel=1e-9)
+
+
+def test_gap_rows_are_the_derivative_of_the_silhouette_distances(case):
+    p = _problem(case, 0.0, 1.0)
+    x0 = _x0(case)
+    u = p.displacements(x0)
+    frames = p.freeze(x0, u)
+    basis = p.response.basis_
+    f = 3
+    q_rows, dist = gap_rows(p, p.mesh.nodes + u[f], frames[f].sil, basis)
+    assert len(dist) > 10
+    rng = np.random.default_rng(1)
+    dc = rng.normal(0, 1.0, basis.shape[2])           # a spatial control direction
+    du = basis @ dc                                    # (N, 3) displacement per unit step
+    h = 1e-3
+    _, dp = gap_rows(p, p.mesh.nodes + u[f] + h * du, frames[f].sil, basis)
+    _, dm = gap_rows(p, p.mesh.nodes + u[f] - h * du, frames[f].sil, basis)
+    np.testing.assert_allclose(q_rows @ dc, (dp - dm) / (2 * h), rtol=1e-6, atol=1e-9)
+
+
+def test_gap_hessian_is_the_curvature_of_a_majoriser(case):
+    """Along any direction, the quadratic model bounds the frozen gap term from above (up to the
+    linearisation of the crossing point), and matches its value and slope at x."""
+    p = _problem(case, 0.0, 1.0)
+    x0 = _x0(case)
+    frames = p.freeze(x0)
+    model = gauss_newton_model(p, x0, frames)
+    h = model.hessian.dense()
+    assert np.all(np.linalg.eigvalsh(h) > -1e-12 * np.abs(h).max())
+    rng = np.random.default_rng(2)
+    for d in rng.normal(size=(5, p.n_params)):
+        d *= 30.0 / np.linalg.norm(d) * np.sqrt(p.n_params)   # steps of ~30 Pa per control value
+        for t in (0.1, 0.3, 1.0):
+            s = t * d
+            quad = model.terms.total + model.grad @ s + 0.5 * s @ (model.hessian @ s)
+            assert p.frozen_value(x0 + s, frames).total <= quad * (1 + 1e-3) + 1e-9
+
+
+def test_hessian_is_symmetric_and_data_part_excludes_the_ridge(case):
+    p = _problem(case, 1e-4, 1.0, ridge=1e-6)
+    model = gauss_newton_model(p, _x0(case))
+    h = model.hessian.dense()
+    np.testing.assert_allclose(h, h.T, rtol=0, atol=1e-12 * np.abs(h).max())
+    omega = case.field.penalty_operator().toarray()
+    np.testing.assert_allclose(h - model.data_hessian.dense(), omega * 2e-6 / p.n_params, atol=1e-18)
+    assert len(model.hessian.blocks) == 2          # independent folds: one block per fold
+
+
+def test_tied_folds_give_one_block_and_the_same_hessian_as_dense_assembly():
+    tied = forward_case(resolution=(2, 2, 3), sides=("inferior",), n_frames=6, tie_folds=True)
+    model = gauss_newton_model(tied.problem, tied.x_true * 0.5)
+    assert len(model.hessian.blocks) == 1
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=tied.problem.n_params)
+    np.testing.assert_allclose(model.hessian @ d, model.hessian.dense() @ d, rtol=1e-12)
+    assert model.n_motion > 0

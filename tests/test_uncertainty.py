@@ -1,0 +1,84 @@
+"""Posterior covariance of a fit: correlation of residuals, calibration on a linear-Gaussian problem,
+exact propagation to vertex displacements."""
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+
+from vfcli.linearization import BlockMatrix, QuadraticModel
+from vfcli.objective import Terms
+from vfcli.uncertainty import ResidualCorrelation, displacement_std, effective_sample_size, posterior
+
+
+def test_white_residuals_are_all_independent():
+    rng = np.random.default_rng(0)
+    r = rng.normal(size=(20, 64, 64, 3))
+    r[:, :5] = np.nan
+    c = effective_sample_size(r)
+    assert c.n_residuals == 20 * 59 * 64 * 3
+    assert c.area_px == pytest.approx(1.0, abs=0.15)
+    assert c.tau_frames == pytest.approx(1.0, abs=0.15)
+    assert c.n_eff == pytest.approx(c.n_residuals, rel=0.25)
+
+
+def test_blurred_residuals_have_the_theoretical_correlation_area_and_time():
+    """White noise blurred by a Gaussian of sigma s px has a Gaussian autocorrelation of sigma s sqrt(2):
+    integral area 4 pi s^2. An AR(1) sequence with coefficient phi has tau = (1 + phi) / (1 - phi)."""
+    rng = np.random.default_rng(1)
+    s, phi = 2.0, 0.6
+    f = 120
+    frames = np.empty((f, 96, 96, 2))
+    prev = gaussian_filter(rng.normal(size=(96, 96, 2)), (s, s, 0))
+    for k in range(f):
+        new = gaussian_filter(rng.normal(size=(96, 96, 2)), (s, s, 0))
+        prev = phi * prev + np.sqrt(1 - phi ** 2) * new
+        frames[k] = prev
+    c = effective_sample_size(frames)
+    assert c.area_px == pytest.approx(4 * np.pi * s ** 2, rel=0.25)
+    assert c.tau_frames == pytest.approx((1 + phi) / (1 - phi), rel=0.25)
+
+
+def test_posterior_intervals_cover_the_truth_at_their_rate_on_a_linear_gaussian_problem():
+    """y = A x + white noise, E = w |A x - y|^2 (any weight w): 90 % intervals cover ~90 % of the
+    parameters, and of derived quantities (rows of another matrix B), across 40 noise draws."""
+    rng = np.random.default_rng(2)
+    m, n, sigma, w = 400, 30, 0.3, 1e-3
+    a = rng.normal(size=(m, n)) * np.linspace(0.2, 2.0, n)
+    b = rng.normal(size=(50, n))
+    x_true = rng.normal(size=n)
+    hits_x, hits_b = [], []
+    for _ in range(40):
+        y = a @ x_true + sigma * rng.normal(size=m)
+        x_hat = np.linalg.lstsq(a, y, rcond=None)[0]
+        e = w * float(np.sum((a @ x_hat - y) ** 2))
+        h = BlockMatrix(n, (np.arange(n),), (2 * w * a.T @ a,))
+        model = QuadraticModel(Terms(e, e, 0.0), np.zeros(n), h, h, m)
+        post = posterior(model, ResidualCorrelation(m, 1.0, 1.0, float(m)))
+        assert post.dof == pytest.approx(n, rel=1e-9)
+        cov = post.covariance.dense()
+        hits_x.append(np.abs(x_hat - x_true) <= 1.645 * np.sqrt(np.diag(cov)))
+        sd_b = np.sqrt(np.einsum("ij,jk,ik->i", b, cov, b))
+        hits_b.append(np.abs(b @ (x_hat - x_true)) <= 1.645 * sd_b)
+    assert np.mean(hits_x) == pytest.approx(0.90, abs=0.03)
+    assert np.mean(hits_b) == pytest.approx(0.90, abs=0.03)
+
+
+def test_displacement_std_is_the_exact_propagation_of_the_covariance():
+    rng = np.random.default_rng(3)
+    n_v, n_s, n_t, n_f = 7, 4, 3, 5
+    basis = rng.normal(size=(n_v, 3, n_s))
+    tb = rng.uniform(size=(n_f, n_t))
+    n = n_s * n_t
+    # two blocks: spatial patterns {0, 2} and {1, 3}
+    idx = [np.array([0, 2])[:, None] * n_t + np.arange(n_t), np.array([1, 3])[:, None] * n_t + np.arange(n_t)]
+    idx = [i.ravel() for i in idx]
+    blocks = []
+    for i in idx:
+        g = rng.normal(size=(len(i), len(i)))
+        blocks.append(g @ g.T)
+    cov = BlockMatrix(n, tuple(idx), tuple(blocks))
+    std = displacement_std(cov, basis, tb)
+    dense = cov.dense()
+    for f in range(n_f):
+        jac = np.einsum("vcs,t->vcst", basis, tb[f]).reshape(n_v * 3, n)   # d U(t_f) / d x, x = C.ravel()
+        expected = np.sqrt(np.einsum("ij,jk,ik->i", jac, dense, jac)).reshape(n_v, 3)
+        np.testing.assert_allclose(std[f], expected, rtol=1e-10)
