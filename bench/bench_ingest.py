@@ -34,6 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _runner import best  # noqa: E402
 from vfcli.io.photron import write_mraw  # noqa: E402
 from vfcli.io.video import open_video  # noqa: E402
 
@@ -44,15 +45,6 @@ def _frames(n: int, h: int, w: int, block: int = 32):
     for k0 in range(0, n, block):
         ks = np.arange(k0, min(n, k0 + block), dtype=np.uint16)[:, None, None]
         yield (base[None] + ks * 13) % 4096
-
-
-def _best(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def main() -> None:
@@ -99,11 +91,11 @@ def main() -> None:
         import pyMRAW  # noqa: F401  (numba: ~150 MB RSS; imported by open_video too)
 
         rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        t_copy = _best(copy, args.repeat)
-        t_stream = _best(stream, args.repeat)
+        t_copy = best(copy, args.repeat)
+        t_stream = best(stream, args.repeat)
         rss_stream = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         pymraw()  # numba JIT / cache warm-up
-        t_pymraw = _best(pymraw, args.repeat)
+        t_pymraw = best(pymraw, args.repeat)
         rss_pymraw = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
     print(f"\n{n} frames of {w} x {h}, 12-bit packed: {mb:.0f} MB MRAW; best of {args.repeat}; "

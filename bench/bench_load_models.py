@@ -22,7 +22,6 @@ Reproduce::
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -32,6 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _runner import vfcli  # noqa: E402
 from vfcli.mesh import FoldMesh  # noqa: E402
 from vfcli.scoring import interval_coverage, relative_rms_error, side_truth  # noqa: E402
 from vfcli.stages.mesh import read_mesh  # noqa: E402
@@ -42,14 +42,6 @@ MODELS = {
     "free-regularised": ["--loads", "free-regularised"],
     "pressure": ["--loads", "pressure"],
 }
-
-
-def vfcli(*args) -> float:
-    t = time.perf_counter()
-    res = subprocess.run([sys.executable, "-m", "vfcli.cli.main", *map(str, args), "-q"], capture_output=True, text=True)
-    if res.returncode:
-        raise SystemExit(f"vfcli {args[0]} failed: {res.stderr}")
-    return time.perf_counter() - t
 
 
 def pipeline(work: Path, seed: int) -> tuple[Path, Path]:

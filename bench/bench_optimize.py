@@ -66,7 +66,7 @@ def surface_errors(store: Path, raw: Path, run: str) -> tuple[float, float]:
 
 def gradient_speed(store: Path) -> tuple[float, float, int]:
     """(exact gradient s, finite-difference gradient s (extrapolated from 20 evaluations), n_params)."""
-    ctx = RunContext.open(store, None, ["optimize.setup='3x3x10-one-sided'"])
+    ctx = RunContext.open(store, None, ["optimize.setup='3x3x10-one-sided'", "optimize.loads='free'"])
     with Store(store).read() as r:
         problem, _ = build_problem(r, ctx)
     x = np.zeros(problem.n_params)
@@ -89,10 +89,14 @@ def main() -> None:
     ap.add_argument("--plot", default="docs/optimize_convergence.png")
     ap.add_argument("--loads", choices=["free", "pressure", "both"], default="free",
                     help="free: the paper's three setups; pressure: the pressure load model; both: all four")
+    ap.add_argument("--no-lbfgs", dest="compare_lbfgs", action="store_false",
+                    help="skip the L-BFGS comparison row of the 5x5x15 two-sided setup")
     args = ap.parse_args()
     store, raw = Path(args.store), Path(args.raw)
     rows, hist = [], {}
     runs = [(s, s.replace("x", "_"), ["--setup", s]) for s in SETUPS] if args.loads != "pressure" else []
+    if args.loads != "pressure" and args.compare_lbfgs:
+        runs.append((f"{SETUPS[-1]} (lbfgs)", "lbfgs_5", ["--setup", SETUPS[-1], "--method", "lbfgs"]))
     if args.loads != "free":
         runs.append(("pressure", "pressure", ["--set", "optimize.loads='pressure'"]))
     for setup, run, opts in runs:
@@ -101,14 +105,18 @@ def main() -> None:
         wall = time.perf_counter() - t0
         with Store(store).read() as r:
             h = {k: r.read("optimize", f"history_{k}", run) for k in ("iteration", "total", "n_evals", "wall_time")}
+            attrs = r.attrs("optimize", run)
         hist[setup] = h
         inf, sup = surface_errors(store, raw, run)
-        rows.append((setup, h["total"][-1], int(h["iteration"][-1]), int(h["n_evals"][-1]), wall, inf, sup))
+        rows.append((setup, attrs["method"], h["total"][-1], int(h["iteration"][-1]), int(h["n_evals"][-1]),
+                     bool(attrs["converged"]), float(h["wall_time"][-1]), wall, inf, sup))
     exact, fd, n = gradient_speed(store) if args.loads != "pressure" else (None, None, None)
-    print("| setup | final E | iterations | evaluations | wall time (s) | inferior error | superior error |")
-    print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")
-    for setup, e, it, ne, wall, inf, sup in rows:
-        print(f"| {setup} | {e:.4g} | {it} | {ne} | {wall:.0f} | {100 * inf:.0f}% | {100 * sup:.0f}% |")
+    print("| setup | method | final E | iterations | evaluations | converged | fit time (s) | command time (s) "
+          "| inferior error | superior error |")
+    print("| --- | --- | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: |")
+    for setup, method, e, it, ne, conv, fit_s, wall, inf, sup in rows:
+        print(f"| {setup} | {method} | {e:.4g} | {it} | {ne} | {'yes' if conv else 'no'} | {fit_s:.0f} | {wall:.0f} "
+              f"| {100 * inf:.0f}% | {100 * sup:.0f}% |")
     if exact is not None:
         print(f"\nOne gradient, 3x3x10 one-sided ({n} control values): exact {exact:.2f} s, "
               f"finite differences {fd:.0f} s (from 20 timed evaluations): {fd / exact:.0f}x")
@@ -117,13 +125,16 @@ def main() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110, sharey=True)
     for setup, h in hist.items():
-        ax.semilogy(h["iteration"], h["total"], label=setup)
-    ax.set_xlabel("iteration")
-    ax.set_ylabel("error E")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+        axes[0].semilogy(h["iteration"], h["total"], label=setup)
+        axes[1].semilogy(h["wall_time"], h["total"], label=setup)
+    axes[0].set_xlabel("iteration")
+    axes[1].set_xlabel("wall time (s)")
+    axes[0].set_ylabel("error E")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+    axes[1].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(args.plot)
     print(f"\nConvergence plot: {args.plot}\nReproduce: `.venv/bin/python bench/bench_optimize.py --iters {args.iters} --loads {args.loads}`")

@@ -25,6 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _runner import best  # noqa: E402
 from vfcli.linearization import gauss_newton_model  # noqa: E402
 from vfcli.optimizer import _lm_solve  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
@@ -37,15 +38,6 @@ GROUPS = {
     "frames": ("n_frames", [21, 42, 84]),
     "mesh DOF": ("edge", [2.5, 2.0, 1.5]),
 }
-
-
-def best(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
 
 
 def measure(store: Path, setup: str, n_frames: int, edge: float, repeat: int) -> dict[str, float]:

@@ -33,6 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vfcli.objective import Problem, Terms
+from vfcli.silhouette import crossing_with_gradient
 
 
 @dataclass(frozen=True)
@@ -195,23 +196,16 @@ def gap_rows(problem: Problem, positions: np.ndarray, sil: list, basis: np.ndarr
     """
     scr = problem.camera.project(positions)
     p = problem.camera.matrix
-    rc, lc = problem.ray_comp, 1 - problem.ray_comp
     rows, dists = [], []
     for side, (rays, edge, tgt) in enumerate(sil):
         if rays.size == 0:
             continue
         ee = problem.fold_edges[problem.fold_order[side]][edge]
-        a, b = scr[ee[:, 0], rc], scr[ee[:, 1], rc]
-        la, lb = scr[ee[:, 0], lc], scr[ee[:, 1], lc]
-        lam = (rays - a) / (b - a)
-        dists.append(la + lam * (lb - la) - tgt)
-        g0 = np.zeros((len(rays), 2))
-        g1 = np.zeros((len(rays), 2))
-        g0[:, rc], g0[:, lc] = (lb - la) * (lam - 1.0) / (b - a), 1.0 - lam
-        g1[:, rc], g1[:, lc] = -(lb - la) * lam / (b - a), lam
+        s, d0, d1 = crossing_with_gradient(scr, ee, rays, problem.ray_comp)
+        dists.append(s - tgt)
         # screen px per mm of (x, y) displacement of each end vertex; z does not move the silhouette
-        rows.append(np.einsum("rc,rcs->rs", g0 @ p, basis[ee[:, 0], :2, :])
-                    + np.einsum("rc,rcs->rs", g1 @ p, basis[ee[:, 1], :2, :]))
+        rows.append(np.einsum("rc,rcs->rs", d0 @ p, basis[ee[:, 0], :2, :])
+                    + np.einsum("rc,rcs->rs", d1 @ p, basis[ee[:, 1], :2, :]))
     s = basis.shape[2]
     if not rows:
         return np.zeros((0, s)), np.zeros(0)
@@ -266,7 +260,9 @@ def gauss_newton_model(problem: Problem, x: np.ndarray, frames: list | None = No
                 curv = (st.gap_weight / (n_f * n_sil)) * 2.0 / ((1.0 + q * q) * scale_px ** 2)
                 for stack, g in zip(stacks, groups):
                     qg = q_rows[:, g]
-                    stack[2 * f + 1] = qg.T @ (curv[:, None] * qg)
+                    rows = np.flatnonzero(np.any(qg != 0.0, axis=1))   # the silhouettes of the group's folds
+                    qg = qg[rows]
+                    stack[2 * f + 1] = qg.T @ (curv[rows, None] * qg)
                 outers[2 * f + 1] = np.outer(b[f], b[f])
     indices = tuple((g[:, None] * n_t + np.arange(n_t)).ravel() for g in groups)
     data = BlockMatrix(problem.n_params, indices, tuple(_kron_sum(stack, outers) for stack in stacks))

@@ -33,13 +33,10 @@ a gain on the measured pressure (``C[k, 0]`` is the pressure the shape carries w
 
 Bounding the free correction
 ----------------------------
-Use :attr:`vfcli.objective.ObjectiveSettings.ridge_weight` (``ridge_weight *
-mean(x^2)``, on all control values).  It acts as a penalty on the free part: the
-gain columns are normalised by ``p_ref``, so a time course proportional to the
-measured pressure costs one control value of its size through the gain, against
-``time_degree + 1`` values of that size through the Bernstein correction; the
-fit therefore explains by the measured pressure what it can, and the ridge
-mostly bounds the correction.  :meth:`PressureLoad.free_mask` marks the free
+:attr:`vfcli.objective.ObjectiveSettings.ridge_weight` weighs ``x^T Omega x / n``
+with Omega = :meth:`PressureLoad.penalty_operator`: the size of the free Bernstein
+correction (the gains on the measured pressure carry a 1e-6 share only), so the fit
+explains by the measured pressure what it can and the bound does not shrink the gains.  :meth:`PressureLoad.free_mask` marks the free
 control values (for reporting their size).
 """
 from __future__ import annotations
@@ -155,6 +152,11 @@ class PressureLoad(LoadModel):
     def parameter_names(self) -> list[str]:
         """``"<shape>@ps"`` (gain on the measured pressure) then ``"<shape>@t<k>"`` (correction)."""
         return [f"{s}@{'ps' if k == 0 else f't{k - 1}'}" for s in self.spatial_names() for k in range(self.n_time)]
+
+    def penalty_operator(self) -> sp.csr_matrix:
+        """(n_params, n_params) ridge matrix Omega: the free correction's size (the gains on the measured
+        pressure carry a 1e-6 share only, which keeps the problem well posed without shrinking them)."""
+        return sp.diags(np.where(self.free_mask(), 1.0, 1e-6)).tocsr()
 
     def free_mask(self) -> np.ndarray:
         """(n_params,) bool: control values of the free Bernstein correction (not the gains)."""

@@ -70,7 +70,8 @@ import scipy.sparse as sp
 from vfcli.camera import Camera, rasterize
 from vfcli.errors import ConfigError
 from vfcli.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
-from vfcli.silhouette import edge_crossings, extreme_per_ray, measured_silhouettes, surface_edges
+from vfcli.silhouette import (crossing_with_gradient, edge_crossings, extreme_per_ray, measured_silhouettes,
+                              surface_edges)
 
 
 @dataclass(frozen=True)
@@ -266,7 +267,7 @@ class Problem:
         p = self.camera.matrix
         ell = st.gap_length_mm
         n_sil = 2.0 * max(len(self.rays), 1)
-        rc, lc = self.ray_comp, 1 - self.ray_comp
+        rc = self.ray_comp
         for f, fr in enumerate(frames):
             du = u[f + 1] - u[f]
             r = fr.m_both @ du / self.dt - fr.v_both
@@ -282,10 +283,7 @@ class Problem:
                 if rays.size == 0:
                     continue
                 ee = self.fold_edges[self.fold_order[side]][edge]
-                a, b = scr[ee[:, 0], rc], scr[ee[:, 1], rc]
-                la, lb = scr[ee[:, 0], lc], scr[ee[:, 1], lc]
-                lam = (rays - a) / (b - a)
-                s = la + lam * (lb - la)
+                s, d0, d1 = crossing_with_gradient(scr, ee, rays, rc)
                 q = ((s - tgt) / (self.camera.px_per_mm * ell)) ** 2
                 gap += np.sum(np.arctan(q)) / n_sil
                 if grad:
@@ -293,12 +291,8 @@ class Problem:
                     dphi = (2.0 * (s - tgt) / (self.camera.px_per_mm * ell) ** 2) / (1.0 + q * q)
                     dphi *= st.gap_weight / (n_f * n_sil)
                     gs = np.zeros((len(scr), 2))
-                    d_a = (lb - la) * (lam - 1.0) / (b - a)
-                    d_b = -(lb - la) * lam / (b - a)
-                    np.add.at(gs[:, rc], ee[:, 0], dphi * d_a)
-                    np.add.at(gs[:, rc], ee[:, 1], dphi * d_b)
-                    np.add.at(gs[:, lc], ee[:, 0], dphi * (1.0 - lam))
-                    np.add.at(gs[:, lc], ee[:, 1], dphi * lam)
+                    np.add.at(gs, ee[:, 0], dphi[:, None] * d0)
+                    np.add.at(gs, ee[:, 1], dphi[:, None] * d1)
                     g[f, :, :2] += gs @ p
         omega_x = self.penalty @ x
         ridge = st.ridge_weight * float(x @ omega_x) / len(x)

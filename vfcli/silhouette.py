@@ -91,3 +91,30 @@ def extreme_per_ray(e: np.ndarray, c: np.ndarray, s: np.ndarray, take_max: bool)
     cs = c[order]
     last = np.flatnonzero(np.r_[cs[1:] != cs[:-1], True])
     return cs[last], e[order[last]]
+
+
+def crossing_with_gradient(screen: np.ndarray, ends: np.ndarray, rays: np.ndarray,
+                           ray_comp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lateral positions where chosen edges cross their rays, and their screen-space derivatives.
+
+    Parameters
+    ----------
+    screen : (N, 2) vertex screen positions, px.
+    ends : (n, 2) the two end vertices of each chosen edge.
+    rays : (n,) ray coordinate of each crossing.
+    ray_comp : screen component constant along a ray.
+
+    Returns
+    -------
+    s : (n,) lateral px of the crossings.
+    d0, d1 : (n, 2) ds / d(screen position) of the first and second end vertex (px per px).
+    """
+    lc = 1 - ray_comp
+    a, b = screen[ends[:, 0], ray_comp], screen[ends[:, 1], ray_comp]
+    la, lb = screen[ends[:, 0], lc], screen[ends[:, 1], lc]
+    lam = (rays - a) / (b - a)
+    d0 = np.zeros((len(rays), 2))
+    d1 = np.zeros((len(rays), 2))
+    d0[:, ray_comp], d0[:, lc] = (lb - la) * (lam - 1.0) / (b - a), 1.0 - lam
+    d1[:, ray_comp], d1[:, lc] = -(lb - la) * lam / (b - a), lam
+    return la + lam * (lb - la), d0, d1
