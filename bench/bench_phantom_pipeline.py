@@ -13,6 +13,11 @@ Writes a phantom with `vfcli synth`, runs `ingest-hsc`, `ingest-ldv`, `sync` and
 Reproduce::
 
     .venv/bin/python bench/bench_phantom_pipeline.py [--seed 1] [--duration 0.05] [--set synth.X=Y ...]
+        [--flow-set flow.X=Y ...] [--raw DIR]
+
+``--raw DIR`` reuses (or, when DIR is empty, writes) the phantom there instead of a temporary
+directory; ``--flow-set`` passes overrides to ``vfcli flow`` (e.g. ``flow.subpixel_edges=false``
+for the paper's binary gap mask).
 """
 from __future__ import annotations
 
@@ -78,11 +83,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--duration", type=float, default=0.05)
     ap.add_argument("--set", dest="sets", action="append", default=[])
+    ap.add_argument("--flow-set", dest="flow_sets", action="append", default=[])
+    ap.add_argument("--raw", type=Path, default=None, help="phantom directory to reuse (written if missing)")
     args = ap.parse_args()
     work = Path(tempfile.mkdtemp())
-    raw = work / "raw"
+    raw = args.raw if args.raw is not None else work / "raw"
     sets = sum((["--set", s] for s in [f"synth.duration_s={args.duration}", *args.sets]), [])
-    times = {"synth": vfcli("synth", raw, "--seed", args.seed, *sets)}
+    times = {}
+    if not (raw / "truth.h5").exists():
+        times["synth"] = vfcli("synth", raw, "--seed", args.seed, *sets)
+    flow_sets = sum((["--set", s] for s in args.flow_sets), [])
     rows = []
     for method in ("sparse_to_dense", "dis"):
         store = work / f"{method}.h5"
@@ -90,10 +100,11 @@ def main() -> None:
                                     "--config", raw / "recording.toml")
         times["ingest-ldv"] = vfcli("ingest-ldv", store, raw / "scan.uff")
         times["sync"] = vfcli("sync", store)
-        times[f"flow ({method})"] = vfcli("flow", store, "--set", f"flow.method={method!r}")
+        times[f"flow ({method})"] = vfcli("flow", store, "--set", f"flow.method={method!r}", *flow_sets)
         rows.append((method, score(store, raw / "truth.h5")))
     n_frames = int(round(args.duration * 10000))
-    print(f"Phantom seed {args.seed}, effect none, {n_frames} frames of 256 x 256, 374 LDV points\n")
+    extra = f", flow overrides {', '.join(args.flow_sets)}" if args.flow_sets else ""
+    print(f"Phantom seed {args.seed}, effect none, {n_frames} frames of 256 x 256, 374 LDV points{extra}\n")
     print("| flow method | sync RMS (us) | EPE mean (px/frame) | EPE 95% (px/frame) | EPE mean (mm/s) | gap IoU | area error (median, open frames) | w error (rel. RMS) |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for m, s in rows:
@@ -102,7 +113,8 @@ def main() -> None:
     print("\n| command | wall time (s) |\n| --- | ---: |")
     for k, v in times.items():
         print(f"| vfcli {k} | {v:.1f} |")
-    print(f"\nReproduce: `.venv/bin/python bench/bench_phantom_pipeline.py --seed {args.seed} --duration {args.duration}`")
+    more = "".join(f" --flow-set {s}" for s in args.flow_sets)
+    print(f"\nReproduce: `.venv/bin/python bench/bench_phantom_pipeline.py --seed {args.seed} --duration {args.duration}{more}`")
 
 
 if __name__ == "__main__":

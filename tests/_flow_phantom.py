@@ -19,7 +19,8 @@ Motion (screen pixels, rows = lateral y, columns = longitudinal x), for material
 
 The medial edges' screen rows are analytic, so the true gap (per column, and its area),
 and the true forward flow of every fold pixel (inverse map by Newton, then forward map)
-are exact.
+are exact. Each pixel averages ``supersample`` x ``supersample`` point samples; with
+``psf_sigma_px > 0`` the image is then blurred by a Gaussian (the optics) before the noise.
 """
 from __future__ import annotations
 
@@ -47,6 +48,7 @@ class SlitPhantom:
     texture_contrast: float = 0.35
     gap_counts: float = 150.0
     noise_counts: float = 12.0
+    psf_sigma_px: float = 0.0
     supersample: int = 2
     n_waves: int = 32
     seed: int = 0
@@ -169,6 +171,10 @@ class SlitPhantom:
                     val[sel] = self.level_counts * (1 + self.texture_contrast * np.tanh(tex)) * self._shade(a_row)
                 acc += val
         acc /= s * s
+        if self.psf_sigma_px > 0:  # optics blur (Gaussian) before the sensor noise
+            from scipy.ndimage import gaussian_filter
+
+            acc = gaussian_filter(acc, self.psf_sigma_px, mode="nearest")
         if rng is None:
             rng = np.random.default_rng(self.seed + 1 + int(round(t * self.fps)))
         acc = acc + rng.normal(0.0, self.noise_counts, acc.shape)

@@ -91,6 +91,16 @@ class FlowConfig(_Section):
         description="Gap intensity threshold in counts; null: automatic (minimum-error + Otsu near the gap, vfcli.gap)",
     )
     median_px: int = Field(5, ge=1, le=31, description="Median filter size of the gap mask, px (odd)")
+    subpixel_edges: bool = Field(
+        True, description="Gap edges to a fraction of a pixel: a blurred-slit fit across the glottis on every ray, "
+        "smoothed along the glottis and in time (vfcli.gap); false: the paper's binary mask (threshold + median filter)"
+    )
+    edge_window_mm: float = Field(
+        1.0, ge=0, le=20, description="Half-window of the sub-pixel edge smoothing along the glottis, mm (0: none)"
+    )
+    edge_window_ms: float = Field(
+        0.2, ge=0, le=10, description="Half-window of the sub-pixel edge smoothing in time, ms (0: none)"
+    )
     rbf_smoothing: float = Field(0.0, ge=0, le=1e6, description="Thin-plate-spline smoothing of the LDV fit (1)")
     sample_frames: int = Field(
         64, ge=2, le=100000,

@@ -36,7 +36,7 @@ from typing import Iterable, Iterator, Literal
 import numpy as np
 
 from .errors import ConfigError
-from .gap import gap_mask, glottal_area
+from .gap import SubpixelGap, gap_mask, glottal_area, segment_stream
 from .opening import OpeningTracker
 
 log = logging.getLogger(__name__)
@@ -272,6 +272,7 @@ def flow_stream(
     t0_s: float = 0.0,
     estimator: FlowEstimator | None = None,
     split_folds: bool = False,
+    gap: SubpixelGap | None = None,
 ) -> Iterator[FlowFrame]:
     """The whole flow step, streamed: one :class:`FlowFrame` per input frame.
 
@@ -310,32 +311,47 @@ def flow_stream(
         Compute each fold's flow separately (:func:`split_fold_flow`), divided at the
         gap centre of the pair (last known location on closed rays): sharper flow next
         to the gap at twice the cost. Default False (the paper's single call).
+    gap : SubpixelGap, optional
+        Segment the gap with sub-pixel edges (:func:`vfcli.gap.segment_stream`; the
+        area then comes from the edges); ``threshold``, ``median_px``, ``midline`` and
+        ``lateral_axis`` are then taken from it. Default: the paper's binary mask
+        (:func:`vfcli.gap.gap_mask`) and its pixel count.
 
     Yields
     ------
     FlowFrame
     """
     est = estimator if estimator is not None else FlowEstimator(method)
-    it = _single_frames(frames)
+    if gap is not None:
+        lateral_axis = gap.lateral_axis
+        it = segment_stream(_single_frames(frames), gap)  # (frame, GapSegmentation), a few frames behind
+    else:
+        it = ((f, None) for f in _single_frames(frames))
     tracker: OpeningTracker | None = None
     sides: OpeningTracker | None = None  # gap centres seen so far, to split the folds
 
-    def prepare(frame: np.ndarray):
+    def prepare(item):
         nonlocal sides
-        m = gap_mask(frame, threshold, median_px, midline=midline, lateral_axis=lateral_axis)
+        frame, seg = item
+        if seg is None:
+            m = gap_mask(frame, threshold, median_px, midline=midline, lateral_axis=lateral_axis)
+            area = float(glottal_area(m, px_per_mm))
+        else:
+            m, area = seg.mask, seg.area_mm2(px_per_mm)
         if split_folds:
             if sides is None:
                 sides = OpeningTracker(m.shape, lateral_axis, initial_center)
             sides.observe(m)
-        return to_uint8(frame, counts_range), m
+        return to_uint8(frame, counts_range), (m, area)  # the 8-bit image and the frame's (mask, area)
 
     def pair_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         if not split_folds:
             return est(a, b)
         return split_fold_flow(est, a, b, sides.fallback_center(), lateral_axis)
 
-    def emit(k: int, mask: np.ndarray, flow: np.ndarray) -> FlowFrame:
+    def emit(k: int, gap_k: tuple[np.ndarray, float], flow: np.ndarray) -> FlowFrame:
         nonlocal tracker
+        mask, area = gap_k
         if tracker is None:
             tracker = OpeningTracker(mask.shape, lateral_axis, initial_center)
         flow = np.where(mask[..., None], np.float32(0.0), flow).astype(np.float32)
@@ -343,7 +359,7 @@ def flow_stream(
             index=k,
             time_s=t0_s + k / fps,
             mask=mask,
-            area_mm2=float(glottal_area(mask, px_per_mm)),
+            area_mm2=area,
             opening_px=tracker.update(mask),
             flow_px=flow,
             velocity_mm_s=pixel_to_model_velocity(flow, px_per_mm, fps, rotation_deg),
@@ -357,31 +373,31 @@ def flow_stream(
         f1 = next(it)
     except StopIteration:
         raise ConfigError("flow: the video needs at least 2 frames") from None
-    img0, m0 = prepare(f0)
-    img1, m1 = prepare(f1)
+    img0, g0 = prepare(f0)
+    img1, g1 = prepare(f1)
     fwd0 = pair_flow(img0, img1)  # pair (0, 1)
     try:
         f2 = next(it)
     except StopIteration:
-        yield emit(0, m0, fwd0)
-        yield emit(1, m1, fwd0)
+        yield emit(0, g0, fwd0)
+        yield emit(1, g1, fwd0)
         return
-    img2, m2 = prepare(f2)
+    img2, g2 = prepare(f2)
     fwd1 = pair_flow(img1, img2)  # pair (1, 2)
-    yield emit(0, m0, 1.5 * fwd0 - 0.5 * fwd1)
+    yield emit(0, g0, 1.5 * fwd0 - 0.5 * fwd1)
     # sliding state: frame k = 1 with previous pair flow fwd0 (k-1, k) and mask of k-1
-    k, prev_mask, cur_img, cur_mask, back, fwd = 1, m0, img2, m2, fwd0, fwd1
-    mask_k = m1
+    k, prev_gap, cur_img, cur_gap, back, fwd = 1, g0, img2, g2, fwd0, fwd1
+    gap_k = g1
     for f_next in it:
-        img_n, m_n = prepare(f_next)
+        img_n, g_n = prepare(f_next)
         fwd_next = pair_flow(cur_img, img_n)  # pair (k+1, k+2)
-        central = np.where(prev_mask[..., None], fwd, 0.5 * (back + fwd))
-        yield emit(k, mask_k, central)
+        central = np.where(prev_gap[0][..., None], fwd, 0.5 * (back + fwd))
+        yield emit(k, gap_k, central)
         k += 1
-        prev_mask, mask_k, back, fwd = mask_k, cur_mask, fwd, fwd_next
-        cur_img, cur_mask = img_n, m_n
+        prev_gap, gap_k, back, fwd = gap_k, cur_gap, fwd, fwd_next
+        cur_img, cur_gap = img_n, g_n
     # frame k (second to last): pairs (k-1, k) = back and (k, k+1) = fwd
-    central = np.where(prev_mask[..., None], fwd, 0.5 * (back + fwd))
-    yield emit(k, mask_k, central)
+    central = np.where(prev_gap[0][..., None], fwd, 0.5 * (back + fwd))
+    yield emit(k, gap_k, central)
     # last frame k+1: extrapolate the midpoint flows to its time
-    yield emit(k + 1, cur_mask, 1.5 * fwd - 0.5 * back)
+    yield emit(k + 1, cur_gap, 1.5 * fwd - 0.5 * back)

@@ -6,8 +6,10 @@ Two stages, each written by its own atomic transaction:
    (gap mask, glottal area, opening function, horizontal velocity at the frame times);
    every frame is written as soon as it is computed, so memory does not grow with the
    number of frames. The gap threshold (unless ``flow.threshold`` is set), the 8-bit
-   intensity range and the glottal midline come from ``flow.sample_frames`` frames
-   spread evenly over the video.
+   intensity range, the glottal midline and, for the sub-pixel gap edges
+   (``flow.subpixel_edges``, :func:`vfcli.gap.segment_stream`), the gap level and the
+   blur of the optics (:func:`vfcli.gap.estimate_edge_model`) come from
+   ``flow.sample_frames`` frames spread evenly over the video.
 2. /fields from /flow, /sync and /ldv: the synced LDV velocities (good points: aligned
    and free of dropouts) are spread over the pixel grid by the fixed thin-plate-spline
    operator of :class:`vfcli.fields.LdvTps` and stacked with the flow into (u, v, w),
@@ -30,7 +32,7 @@ from .. import layout
 from ..config import FlowConfig
 from ..errors import ConfigError, InputDataError, MissingStageError
 from ..fields import LdvTps, combine_fields, hull_mask
-from ..gap import gap_mask, gap_threshold, midline_from_masks
+from ..gap import SubpixelGap, estimate_edge_model, gap_mask, gap_threshold, midline_from_masks
 from ..opticalflow import FlowEstimator, flow_stream, intensity_range
 from ..store import StageWriter, StoreReader
 from .base import RunContext, StageResult, run_stage
@@ -44,7 +46,8 @@ CHUNK_FRAMES = 16
 MAX_GAP_FRACTION = 0.05
 
 #: FlowConfig fields that shape /flow (the others only shape /fields).
-_FLOW_FIELDS = ("method", "threshold", "median_px", "sample_frames", "split_folds", "grid_step", "dis_preset")
+_FLOW_FIELDS = ("method", "threshold", "median_px", "sample_frames", "split_folds", "grid_step", "dis_preset",
+                "subpixel_edges", "edge_window_mm", "edge_window_ms")
 _FIELDS_FIELDS = ("rbf_smoothing", "w_inside_hull")
 
 
@@ -125,6 +128,16 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     centre = midline_from_masks(masks, lateral)
     seen = np.isfinite(centre)
     midline = float(np.median(centre[seen])) if seen.any() else None
+    gap, model = None, None
+    if cfg.subpixel_edges:
+        model = estimate_edge_model(sample, masks, lateral)
+        if model is None:
+            log.warning("flow: the %d sampled frames show no gap wide enough to measure the gap level and blur "
+                        "on; using the binary gap mask (pixel edges)", len(sample))
+        else:
+            gap = SubpixelGap(threshold, model, cfg.median_px, midline, lateral,
+                              half_window_px=cfg.edge_window_mm * px_per_mm,
+                              half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)))
     del sample, masks
 
     estimator = FlowEstimator(cfg.method, grid_step=cfg.grid_step, dis_preset=cfg.dis_preset)
@@ -137,7 +150,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         _batches(frames, n), fps=fps, px_per_mm=px_per_mm, threshold=threshold, counts_range=counts_range,
         median_px=cfg.median_px, rotation_deg=rotation, lateral_axis=lateral,
         initial_center=centre if seen.any() else None, midline=midline, t0_s=float(frame_time[0]),
-        estimator=estimator, split_folds=cfg.split_folds,
+        estimator=estimator, split_folds=cfg.split_folds, gap=gap,
     )
     for fr in stream:
         k = fr.index
@@ -162,12 +175,18 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         rotation_deg=rotation,
         offset_px=offset,
         roi_origin_px=np.asarray(hsc.get("roi_px", (0, 0, 0, 0)), dtype=float)[:2],
+        subpixel_edges=gap is not None,
+        gap_level_counts=np.nan if model is None else model.gap_counts,
+        psf_sigma_px=np.nan if model is None else model.psf_sigma_px,
+        edge_window_px=np.nan if gap is None else float(gap.half_window_px),
+        edge_window_frames=-1 if gap is None else int(gap.half_window_frames),
     )
     return {
         "frames": n,
         "threshold_counts": round(threshold, 1),
         "threshold": "auto" if auto else "config",
         "method": cfg.method,
+        "psf_sigma_px": None if model is None else round(model.psf_sigma_px, 3),
         "open_frames": int((area > 0).sum()),
         "max_area_mm2": round(float(area.max()), 3),
     }
