@@ -9,18 +9,14 @@ from scipy.ndimage import gaussian_filter
 
 from _flow_phantom import SlitPhantom
 from vfcli.errors import ConfigError
-from vfcli.gap import (
+from vfcli.gap import binary_median_1d, gap_mask, gap_threshold, glottal_area, midline_from_masks
+from vfcli.gap_edges import (
     EdgeModel,
     SubpixelGap,
     area_from_edges,
-    binary_median_1d,
     estimate_edge_model,
     fit_slit_profiles,
-    gap_mask,
-    gap_threshold,
-    glottal_area,
     mask_from_edges,
-    midline_from_masks,
     raw_edges,
     robustness_weights,
     segment_gap,

@@ -36,7 +36,8 @@ from typing import Iterable, Iterator, Literal
 import numpy as np
 
 from .errors import ConfigError
-from .gap import SubpixelGap, gap_mask, glottal_area, segment_stream
+from .gap import gap_mask, glottal_area
+from .gap_edges import SubpixelGap, segment_stream
 from .opening import OpeningTracker
 
 log = logging.getLogger(__name__)
@@ -312,7 +313,7 @@ def flow_stream(
         gap centre of the pair (last known location on closed rays): sharper flow next
         to the gap at twice the cost. Default False (the paper's single call).
     gap : SubpixelGap, optional
-        Segment the gap with sub-pixel edges (:func:`vfcli.gap.segment_stream`; the
+        Segment the gap with sub-pixel edges (:func:`vfcli.gap_edges.segment_stream`; the
         area then comes from the edges); ``threshold``, ``median_px``, ``midline`` and
         ``lateral_axis`` are then taken from it. Default: the paper's binary mask
         (:func:`vfcli.gap.gap_mask`) and its pixel count.

@@ -7,8 +7,8 @@ Two stages, each written by its own atomic transaction:
    every frame is written as soon as it is computed, so memory does not grow with the
    number of frames. The gap threshold (unless ``flow.threshold`` is set), the 8-bit
    intensity range, the glottal midline and, for the sub-pixel gap edges
-   (``flow.subpixel_edges``, :func:`vfcli.gap.segment_stream`), the gap level and the
-   blur of the optics (:func:`vfcli.gap.estimate_edge_model`) come from
+   (``flow.subpixel_edges``, :func:`vfcli.gap_edges.segment_stream`), the gap level and the
+   blur of the optics (:func:`vfcli.gap_edges.estimate_edge_model`) come from
    ``flow.sample_frames`` frames spread evenly over the video.
 2. /fields from /flow, /sync and /ldv: the synced LDV velocities (good points: aligned
    and free of dropouts) are spread over the pixel grid by the fixed thin-plate-spline
@@ -32,7 +32,8 @@ from .. import layout
 from ..config import FlowConfig
 from ..errors import ConfigError, InputDataError, MissingStageError
 from ..fields import LdvTps, combine_fields, hull_mask
-from ..gap import SubpixelGap, estimate_edge_model, gap_mask, gap_threshold, midline_from_masks
+from ..gap import gap_mask, gap_threshold, midline_from_masks
+from ..gap_edges import SubpixelGap, estimate_edge_model
 from ..opticalflow import FlowEstimator, flow_stream, intensity_range
 from ..store import StageWriter, StoreReader
 from .base import RunContext, StageResult, run_stage
