@@ -137,3 +137,13 @@ def test_pressure_loads_state_an_uncertainty_that_covers_the_unseen_inferior_sur
     with Store(path).read() as r:
         attrs = r.attrs("optimize", "p")
     assert attrs["ridge_weight"] > 0 and attrs["residual_n_eff"] > 0
+
+
+def test_uncertainty_map_without_the_uncertainty_is_a_config_error(store, tmp_path):
+    path, _ = store
+    res = run_vfcli("optimize", path, "--loads", "pressure", "--set", "optimize.uncertainty=false",
+                    "--uncertainty-map", tmp_path / "u.png", "--run", "nomap")
+    assert res.returncode == 2 and "optimize.uncertainty" in res.stderr
+    assert not (tmp_path / "u.png").exists()
+    with Store(path).read() as r:
+        assert not r.has_stage("optimize", "nomap")

@@ -152,3 +152,4 @@ def test_gauss_newton_resumes_exactly(case):
     cont = resume(case.problem, FitState.from_arrays(part.state.to_arrays()), max_iter=6)
     np.testing.assert_allclose(cont.x, full.x, rtol=1e-10, atol=1e-10 * np.abs(full.x).max())
     np.testing.assert_allclose(cont.history["total"], full.history["total"], rtol=1e-10)
+    np.testing.assert_array_equal(cont.history["n_evals"], full.history["n_evals"])

@@ -193,11 +193,12 @@ class _Counter:
         return self.problem.frozen_value(x, frames), (frames, u)
 
     def quadratic(self, x: np.ndarray, frozen=None):
-        """The Gauss-Newton model at x (reusing ``frozen`` from :meth:`linearize` at the same x)."""
+        """The Gauss-Newton model at an already evaluated x (reusing ``frozen`` from :meth:`linearize`
+        at the same x; without it, as after a resume, x is rasterised again). Not counted as an
+        evaluation, so a resumed run's history equals an uninterrupted one's."""
         from vfcli.linearization import gauss_newton_model
 
         if frozen is None:
-            self.state.n_evals += 1
             return gauss_newton_model(self.problem, x)
         return gauss_newton_model(self.problem, x, frozen[0], frozen[1])
 
@@ -299,10 +300,10 @@ def _gn_step(obj: _Counter, st: FitState, opts: FitOptions) -> tuple[bool, float
     f0, g, hess = st.value[0], model.grad, model.hessian
     mu = st.gamma if st.gamma > 0 else opts.lm_damping
     nu = 2.0
-    for _ in range(opts.max_line_search):
+    for attempt in range(opts.max_line_search):
         s = _lm_solve(hess, g, mu)
         predicted = -(g @ s + 0.5 * s @ (hess @ s))
-        if predicted <= opts.ftol * abs(f0) and mu <= (st.gamma if st.gamma > 0 else opts.lm_damping):
+        if attempt == 0 and predicted <= opts.ftol * abs(f0):
             # even the model's own minimiser would not lower E by the stopping fraction: converged
             st.message = "predicted decrease below ftol"
             return False, 0.0

@@ -160,6 +160,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
     uncertainty (PNG; needs optimize.uncertainty).
     """
     cfg = ctx.config.optimize
+    if uncertainty_plot is not None and not cfg.uncertainty:
+        raise ConfigError("--uncertainty-map needs optimize.uncertainty = true (it maps the stated uncertainty)")
     if not run.replace("-", "").replace("_", "").isalnum():
         raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
     settings_json = json.dumps({"optimize": cfg.model_dump(mode="json"), "camera": ctx.config.camera.model_dump(mode="json"),
