@@ -6,8 +6,14 @@ sensor noise, ~400 MB) is
 * copied with ``shutil.copyfile`` and fsync'ed, after dropping the source from the page
   cache (``posix_fadvise(DONTNEED)``): the disk's plain copy speed;
 * ingested with the library call behind ``vfcli ingest-hsc`` (hash the raw files, stream,
-  decode 12-bit, encode one chunk per frame, atomic commit with fsync) into a new store,
-  for each frame filter, with the source dropped from the cache the same way.
+  encode one chunk per frame, atomic commit with fsync) into a new store, for each frame
+  filter, with the source dropped from the cache the same way. ``nbit`` (what the default,
+  ``auto``, picks for a 12-bit packed MRAW) copies each frame's packed bytes as they are;
+  the gzip filters decode the 12-bit pixels and deflate them.
+
+Then the frames of the last round's stores are read back (from the page cache) in batches
+of 16 frames, as ``vfcli flow`` reads them: by h5py (libhdf5's filters) and by vfcli's
+:class:`vfcli.store.FrameReader` (N-bit chunks unpacked by numpy; other filters by h5py).
 
 The machine is shared, so both are timed in ``--rounds`` interleaved rounds (copy, then
 each filter) and each ingest is compared with the copy of its own round: the table shows
@@ -20,6 +26,7 @@ MB/s are MB of MRAW per second (1 MB = 10**6 bytes); the ratio is against the co
 Reproduce::
 
     .venv/bin/python bench/bench_store_ingest.py [--mb 400] [--rounds 3] [--dir DIR]
+        [--compressions none,nbit,gzip,gzip4]
 """
 from __future__ import annotations
 
@@ -33,13 +40,19 @@ import tempfile
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from vfcli.io.photron import write_mraw  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
+from vfcli.stages.flow import CHUNK_FRAMES  # noqa: E402
 from vfcli.stages.ingest import run_ingest_hsc  # noqa: E402
+from vfcli.store import FrameReader  # noqa: E402
+
+#: Rows' labels of the filters, by ``ingest_hsc.compression`` value.
+LABELS = {"nbit": "nbit (default for 12-bit MRAW: auto)", "gzip": "gzip (deflate 1 + shuffle)"}
 
 
 def _drop_cache(path: Path) -> None:
@@ -88,6 +101,22 @@ def _copy(root: Path, mraw: Path) -> tuple[float, float]:
     return _timed(copy)
 
 
+def _read_ms_per_frame(store: Path, reader: str, repeats: int = 3) -> float:
+    """Median over ``repeats`` of the time to read every frame of /hsc/frames in batches of
+    :data:`CHUNK_FRAMES`, ms per frame, by h5py (``reader="h5py"``) or vfcli's FrameReader."""
+    times = []
+    with h5py.File(store, "r") as f:
+        ds = f["hsc/frames"]
+        frames = FrameReader(ds) if reader == "vfcli" else ds
+        n = len(ds)
+        for _ in range(repeats):
+            t = time.perf_counter()
+            for i in range(0, n, CHUNK_FRAMES):
+                frames[i:i + CHUNK_FRAMES]
+            times.append((time.perf_counter() - t) / n * 1e3)
+    return statistics.median(times)
+
+
 def _ratio_cell(ratios: list[float]) -> str:
     return f"{statistics.median(ratios):.2f} ({min(ratios):.2f}-{max(ratios):.2f})"
 
@@ -96,7 +125,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mb", type=float, default=400.0)
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--compressions", default="none,gzip,gzip4", help="comma-separated ingest_hsc.compression values")
+    ap.add_argument("--compressions", default="none,nbit,gzip,gzip4",
+                    help="comma-separated ingest_hsc.compression values")
     ap.add_argument("--dir", default=None)
     args = ap.parse_args()
     comps = args.compressions.split(",")
@@ -130,12 +160,23 @@ def main() -> None:
         print("| --- | ---: | ---: | ---: | ---: | ---: |")
         for name in names:
             secs = statistics.median(wall[name])
-            label = "copy (shutil.copyfile + fsync)" if name == "copy" else f"vfcli ingest-hsc, frames {name}"
+            label = "copy (shutil.copyfile + fsync)" if name == "copy" else \
+                f"vfcli ingest-hsc, frames {LABELS.get(name, name)}"
             vs = "1.00" if name == "copy" else _ratio_cell(ratios[name])
             print(f"| {label} | {secs:.2f} | {statistics.median(cpu[name]):.2f} | {size / 1e6 / secs:.0f} | {vs} | "
                   f"{stored[name] / 1e6:.0f} |")
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        print(f"\nMedians over rounds; CPU time is summed over all threads. Peak RSS of the whole run: {peak:.0f} MB.")
+        print(f"\nMedians over rounds; CPU time is summed over all threads. Peak RSS of the ingests: {peak:.0f} MB.")
+        read = [c for c in comps if c in ("nbit", "gzip")]
+        if read:
+            print(f"\nReading the stored frames back ({CHUNK_FRAMES} frames at a time, from the page cache, "
+                  "median of 3 reads), ms per 512 x 512 frame:\n")
+            print("| frames | h5py (libhdf5's filters) | vfcli FrameReader |")
+            print("| --- | ---: | ---: |")
+            for comp in read:
+                store = root / f"{comp}.h5"
+                print(f"| {LABELS.get(comp, comp)} | {_read_ms_per_frame(store, 'h5py'):.2f} | "
+                      f"{_read_ms_per_frame(store, 'vfcli'):.2f} |")
         print("Reproduce: `.venv/bin/python bench/bench_store_ingest.py --mb %g --rounds %d`" % (args.mb, args.rounds))
     finally:
         shutil.rmtree(root, ignore_errors=True)

@@ -1,11 +1,13 @@
 """Chunk encoding: the bytes vfcli writes are what HDF5's shuffle + deflate filters read
-back with plain zlib, incompressible byte planes are stored, and the parallel pipeline
-keeps frame order, bounded memory and errors."""
+back with plain zlib, incompressible byte planes are stored, N-bit chunks are byte for
+byte what HDF5's own N-bit filter writes (a 12-bit MRAW frame's bytes plus a zero byte),
+and the parallel pipeline keeps frame order, bounded memory and errors."""
 from __future__ import annotations
 
 import threading
 import zlib
 
+import h5py
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -15,16 +17,24 @@ from hypothesis.extra import numpy as hnp
 from vfcli.frame_chunks import (
     ZLIB_HEADER,
     ChunkCodec,
+    ValueRangeError,
     deflate_planes,
     encode_chunk,
+    encode_frame,
     encode_frames,
     looks_incompressible,
+    nbit12_chunk_of_packed,
+    pack_nbit12,
     shuffle_bytes,
+    unpack_nbit12,
     unshuffle_bytes,
 )
+from vfcli.io.photron import Packed12Frames, pack_12bit
 from vfcli.store import CHUNK_CODECS
 
-CODECS = {**CHUNK_CODECS, "isal whole": ChunkCodec(True, "isal", 1), "zlib whole": ChunkCodec(True, "zlib", 1)}
+#: Codecs whose chunks are zlib streams or raw bytes (N-bit chunks are tested on their own).
+CODECS = {**{k: c for k, c in CHUNK_CODECS.items() if c.nbit is None},
+          "isal whole": ChunkCodec(True, "isal", 1), "zlib whole": ChunkCodec(True, "zlib", 1)}
 
 
 def _sensor_frame(h=256, w=256, seed=0):
@@ -141,3 +151,99 @@ def test_a_frame_that_fails_to_decode_stops_the_stream_with_its_error():
             seen.append(index)
     assert seen == list(range(len(seen))) and len(seen) <= 25
     assert not [t for t in threading.enumerate() if t.name.startswith("vfcli-encode")]
+
+
+# --------------------------------------------------------------------------- N-bit chunks
+
+def _hdf5_nbit_chunk(frame: np.ndarray, tmp_path) -> bytes:
+    """Reference: the chunk libhdf5's own N-bit filter writes for ``frame`` (uint16 of 12 bits
+    of precision, one frame per chunk, written through h5py's ordinary filtered path)."""
+    tid = h5py.h5t.STD_U16LE.copy()
+    tid.set_precision(12)
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_filter(h5py.h5z.FILTER_NBIT, h5py.h5z.FLAG_OPTIONAL, ())
+    with h5py.File(tmp_path / "ref.h5", "w") as f:
+        ds = f.create_dataset("x", shape=(1, *frame.shape), dtype=tid, chunks=(1, *frame.shape), dcpl=dcpl)
+        ds[0] = frame
+        mask, chunk = ds.id.read_direct_chunk((0,) * (frame.ndim + 1))
+    assert mask == 0
+    return chunk
+
+
+NBIT_FRAMES = {
+    "sensor": _sensor_frame(512, 512),
+    "zeros": np.zeros((64, 80), np.uint16),
+    "saturated": np.full((4, 6), 4095, np.uint16),
+    "odd 3x5": np.random.default_rng(3).integers(0, 4096, (3, 5), dtype=np.uint16),
+    "one pixel": np.array([[2748]], np.uint16),
+    "ramp": (np.arange(512 * 512) % 4096).astype(np.uint16).reshape(512, 512),
+}
+
+
+@pytest.mark.parametrize("name", NBIT_FRAMES)
+def test_nbit_chunk_is_byte_for_byte_what_hdf5s_nbit_filter_writes(name, tmp_path):
+    frame = NBIT_FRAMES[name]
+    expected = _hdf5_nbit_chunk(frame, tmp_path)
+    assert len(expected) == frame.size * 12 // 8 + 1      # libhdf5 writes one byte more than the bits
+    assert bytes(encode_chunk(frame, CHUNK_CODECS["nbit"])) == expected
+    assert unpack_nbit12(expected, frame.size).tobytes() == frame.tobytes()
+    if frame.size % 2 == 0:                                # the MRAW frame's bytes plus a zero byte
+        assert nbit12_chunk_of_packed(pack_12bit(frame.reshape(-1))) == expected
+
+
+@settings(max_examples=200, deadline=None)
+@given(hnp.arrays(np.uint16, st.integers(1, 40), elements=st.integers(0, 4095)))
+def test_unpack_nbit12_inverts_pack_nbit12_for_any_pixel_count(values):
+    chunk = pack_nbit12(values)
+    assert chunk.size == values.size * 12 // 8 + 1
+    out = np.empty(values.size, np.uint16)
+    assert unpack_nbit12(chunk.tobytes(), values.size, out=out) is out
+    assert out.tobytes() == values.tobytes()
+
+
+def _packed_batch(frames: np.ndarray, rows=slice(None), cols=slice(None)) -> Packed12Frames:
+    k, h, w = frames.shape
+    return Packed12Frames(pack_12bit(frames.reshape(-1)), h, w, rows, cols)
+
+
+def test_a_whole_mraw_frame_becomes_its_nbit_chunk_without_being_decoded(monkeypatch):
+    frames = np.stack([_sensor_frame(32, 48, seed=s) for s in range(3)])
+    batch = _packed_batch(frames)
+
+    def no_decoding(self, i):
+        raise AssertionError("decoded a frame the N-bit chunk copies as stored")
+
+    monkeypatch.setattr(Packed12Frames, "__getitem__", no_decoding)
+    for i in range(3):
+        chunk = encode_frame(batch, i, np.dtype(np.uint16), CHUNK_CODECS["nbit"])
+        assert bytes(chunk) == pack_nbit12(frames[i]).tobytes()
+
+
+@pytest.mark.parametrize("rows,cols", [(slice(1, 30), slice(2, 47)), (slice(0, 32), slice(3, 4))],
+                         ids=["odd window", "one column"])
+def test_a_cropped_mraw_frame_is_decoded_cut_and_packed(rows, cols):
+    frames = np.stack([_sensor_frame(32, 48, seed=s) for s in range(2)])
+    batch = _packed_batch(frames, rows, cols)
+    for i in range(2):
+        chunk = bytes(encode_frame(batch, i, np.dtype(np.uint16), CHUNK_CODECS["nbit"]))
+        window = frames[i, rows, cols]
+        assert chunk == pack_nbit12(window).tobytes()
+        assert unpack_nbit12(chunk, window.size).reshape(window.shape).tobytes() == window.tobytes()
+
+
+def test_a_value_above_4095_stops_the_nbit_stream_naming_frame_and_value():
+    frames = np.stack([_sensor_frame(16, 16, seed=s) for s in range(40)])
+    frames[23, 5, 7] = 4096
+    frames[23, 1, 1] = 60000
+    with pytest.raises(ValueRangeError, match="frame 23: value 60000 does not fit in 12 bits") as err:
+        for _ in encode_frames((frames[a:a + 9] for a in range(0, 40, 9)), frames.dtype, CHUNK_CODECS["nbit"],
+                               workers=2):
+            pass
+    assert (err.value.frame, err.value.value, err.value.bits) == (23, 60000, 12)
+
+
+@pytest.mark.parametrize("codec", [dict(nbit=10), dict(nbit=12, shuffle=True), dict(nbit=12, deflate="isal")],
+                         ids=str)
+def test_nbit_chunks_are_12_bit_and_unfiltered_only(codec):
+    with pytest.raises(ValueError, match="12 bits"):
+        ChunkCodec(**codec)

@@ -1,14 +1,19 @@
 """`vfcli ingest-hsc` (the library call): the stored frames are the video's, bit for bit,
 in a standard one-frame-per-chunk dataset, whatever the compression, frame range or ROI;
-the raw files' hashes are recorded as before."""
+"auto" stores a 12-bit packed MRAW with HDF5's N-bit filter (its frames' bytes as they
+are) and anything else with gzip; the raw files' hashes are recorded as before."""
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 
 import h5py
 import numpy as np
 import pytest
 
+from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.photron import write_mraw
 from vfcli.provenance import sha256_file
 from vfcli.stages.base import RunContext
@@ -32,26 +37,90 @@ def _ingest(store, cihx, *sets):
     return run_ingest_hsc(RunContext.open(store, None, list(sets)), cihx)
 
 
-@pytest.mark.parametrize("compression", ["gzip", "gzip4", "none"])
+#: HDF5 filter pipeline of each stored filter.
+FILTERS = {"gzip": [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE],
+           "gzip4": [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE],
+           "nbit": [h5py.h5z.FILTER_NBIT], "none": []}
+
+
+def _filters(ds: h5py.Dataset) -> list[int]:
+    dcpl = ds.id.get_create_plist()
+    return [dcpl.get_filter(i)[0] for i in range(dcpl.get_nfilters())]
+
+
+@pytest.mark.parametrize("compression", ["auto", "nbit", "gzip", "gzip4", "none"])
 @pytest.mark.parametrize("bits", [12, 16, 8])
 def test_ingested_frames_are_the_videos_bit_for_bit_in_one_chunk_per_frame(tmp_path, compression, bits):
     frames, (mraw, cihx) = _video(tmp_path, bits=bits)
     store = tmp_path / "r.h5"
+    if compression == "nbit" and bits == 8:
+        with pytest.raises(ConfigError, match="'nbit' stores 12-bit pixels in uint16 only"):
+            _ingest(store, cihx, "ingest_hsc.compression='nbit'")
+        return
     res = _ingest(store, cihx, f"ingest_hsc.compression={compression!r}")
+    stored_as = ("nbit" if bits == 12 else "gzip") if compression == "auto" else compression
     assert res.status == "written" and res.summary["frames"] == len(frames)
+    assert res.summary["compression"] == stored_as
     with h5py.File(store, "r") as f:                      # plain h5py, standard filters
         ds = f["hsc/frames"]
         assert ds.chunks == (1, *frames.shape[1:]) and ds.dtype == frames.dtype
-        assert (ds.compression, ds.shuffle) == (("gzip", True) if compression != "none" else (None, False))
+        assert _filters(ds) == FILTERS[stored_as] and ds.attrs["compression"] == stored_as
+        assert ds.id.get_type().get_precision() == (12 if stored_as == "nbit" else 8 * frames.itemsize)
         assert ds[()].tobytes() == frames.tobytes()
+    with Store(store).read() as r:                        # vfcli's own reader: the same frames
+        assert r.frames("hsc", "frames")[::-1].tobytes() == frames[::-1].tobytes()
 
 
-def test_frame_range_and_roi_are_cut_from_the_video(tmp_path):
+def test_a_12bit_mraw_is_stored_as_its_own_bytes_and_read_without_vfcli(tmp_path):
+    """Each N-bit chunk is the MRAW frame's bytes plus one zero byte; libhdf5's built-in
+    N-bit filter (no vfcli, no plugin) decodes them to the video's frames."""
+    frames, (mraw, cihx) = _video(tmp_path, n=12, h=16, w=20)
+    store = tmp_path / "r.h5"
+    _ingest(store, cihx)
+    raw = mraw.read_bytes()
+    frame_bytes = 16 * 20 * 3 // 2
+    with h5py.File(store, "r") as f:
+        ds = f["hsc/frames"]
+        for i in range(len(frames)):
+            assert ds.id.read_direct_chunk((i, 0, 0)) == (0, raw[i * frame_bytes:(i + 1) * frame_bytes] + b"\0")
+    out = tmp_path / "read.npy"
+    code = ("import sys, h5py, numpy as np\n"
+            "np.save(sys.argv[2], h5py.File(sys.argv[1], 'r')['hsc/frames'][()])\n"
+            "assert 'vfcli' not in sys.modules\n")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    env["HDF5_PLUGIN_PATH"] = str(tmp_path / "no-plugins")
+    subprocess.run([sys.executable, "-c", code, str(store), str(out)], check=True, env=env, cwd=tmp_path)
+    read = np.load(out)
+    assert read.dtype == np.uint16 and read.tobytes() == frames.tobytes()
+
+
+def test_a_16bit_value_above_4095_with_nbit_is_an_input_error_and_the_store_is_unchanged(tmp_path):
+    frames, (mraw, cihx) = _video(tmp_path, bits=16)
+    h, w = frames.shape[1:]
+    with open(mraw, "r+b") as fh:                          # frame 21, pixel (3, 4): 5000 in 16 bits
+        fh.seek(2 * (21 * h * w + 3 * w + 4))
+        fh.write((5000).to_bytes(2, "little"))
+    store = tmp_path / "r.h5"
+    _ingest(store, cihx, "ingest_hsc.compression='gzip'")
+    before = store.read_bytes()
+    with pytest.raises(InputDataError, match=r"v\.mraw: frame 21 holds the value 5000, more than the 12 bits"):
+        run_ingest_hsc(RunContext.open(store, None, ["ingest_hsc.compression='nbit'"], force=True), cihx)
+    assert store.read_bytes() == before
+    assert Store(store).interrupted_writes() == []
+
+
+@pytest.mark.parametrize("compression", ["auto", "gzip"])
+def test_frame_range_and_roi_are_cut_from_the_video(tmp_path, compression):
+    """An ROI of 17 x 11 px (an odd pixel count) of the 12-bit MRAW: decoded, cut and packed."""
     frames, (_, cihx) = _video(tmp_path)
     store = tmp_path / "r.h5"
-    _ingest(store, cihx, "ingest_hsc.first_frame=5", "ingest_hsc.n_frames=20", "ingest_hsc.roi_px=[3, 2, 17, 11]")
+    _ingest(store, cihx, "ingest_hsc.first_frame=5", "ingest_hsc.n_frames=20", "ingest_hsc.roi_px=[3, 2, 17, 11]",
+            f"ingest_hsc.compression={compression!r}")
     with Store(store).read() as r:
         stored = r.read("hsc", "frames")
+    with h5py.File(store, "r") as f:
+        assert f["hsc/frames"].attrs["compression"] == ("nbit" if compression == "auto" else "gzip")
+        assert f["hsc/frames"][()].tobytes() == stored.tobytes()
     assert np.array_equal(stored, frames[5:25, 2:13, 3:20])
 
 

@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 
 from vfcli.errors import MissingStageError, StoreFormatError, StoreLockedError
+from vfcli.frame_chunks import ValueRangeError
+from vfcli.io.photron import pack_12bit
 from vfcli.store import Store
 
 HERE = Path(__file__).resolve().parent
@@ -243,12 +245,13 @@ def _write_streamed(path: Path, frames: np.ndarray, compression: str, batch: int
 @pytest.mark.parametrize("compression,filters,level", [
     ("gzip", [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE], 1),
     ("gzip4", [h5py.h5z.FILTER_SHUFFLE, h5py.h5z.FILTER_DEFLATE], 4),
+    ("nbit", [h5py.h5z.FILTER_NBIT], None),
     ("none", [], None),
 ])
 def test_streamed_frames_are_a_standard_dataset_plain_h5py_reads_bit_identically(tmp_path, compression, filters, level):
-    """The parallel writer leaves an ordinary dataset: standard filters (shuffle, then deflate),
-    one frame per chunk, every chunk written with all filters applied, and HDF5's own filters
-    decode it to the very frames written."""
+    """The parallel writer leaves an ordinary dataset: standard filters (shuffle, then deflate;
+    or N-bit on uint16 of 12 bits of precision), one frame per chunk, every chunk written
+    with all filters applied, and HDF5's own filters decode it to the very frames written."""
     frames = _sensor_frames(45)
     path = tmp_path / "r.h5"
     _write_streamed(path, frames, compression)
@@ -260,23 +263,28 @@ def test_streamed_frames_are_a_standard_dataset_plain_h5py_reads_bit_identically
         assert [p[0] for p in pipeline] == filters
         if level is not None:
             assert pipeline[1][2] == (level,)       # deflate's cd_values: the level
+        if compression == "nbit":                   # libhdf5 filled in N-bit's parameters
+            assert ds.id.get_type().get_precision() == 12 and pipeline[0][2] == (8, 0, 48 * 40, 1, 2, 0, 12, 0)
         assert ds.id.get_num_chunks() == len(frames)
         for i in (0, 17, 44):
             mask, raw = ds.id.read_direct_chunk((i, 0, 0))
             assert mask == 0                          # no filter skipped
-            if filters:                               # a zlib stream of the shuffled frame
+            if compression == "nbit":                 # 12 bits a pixel, most significant first
+                assert raw == pack_12bit(frames[i].reshape(-1)).tobytes() + b"\0"
+            elif filters:                             # a zlib stream of the shuffled frame
                 shuffled = frames[i].reshape(-1).view(np.uint8).reshape(-1, 2).T.tobytes()
                 assert zlib.decompress(raw) == shuffled
         stored = ds[()]
     assert stored.tobytes() == frames.tobytes()
 
 
-def test_streamed_frames_read_back_in_a_process_without_vfcli_or_plugins(tmp_path):
+@pytest.mark.parametrize("compression", ["gzip", "nbit"])
+def test_streamed_frames_read_back_in_a_process_without_vfcli_or_plugins(tmp_path, compression):
     """What HDFView or MATLAB see: libhdf5 with its built-in filters only (no plugin path,
     no vfcli, no isal imported)."""
     frames = _sensor_frames(20, seed=3)
     path = tmp_path / "r.h5"
-    _write_streamed(path, frames, "gzip")
+    _write_streamed(path, frames, compression)
     out = tmp_path / "read.npy"
     code = ("import sys, h5py, numpy as np\n"
             "f = h5py.File(sys.argv[1], 'r')\n"
@@ -286,6 +294,59 @@ def test_streamed_frames_read_back_in_a_process_without_vfcli_or_plugins(tmp_pat
     env["HDF5_PLUGIN_PATH"] = str(tmp_path / "no-plugins")
     subprocess.run([sys.executable, "-c", code, str(path), str(out)], check=True, env=env, cwd=tmp_path)
     assert np.load(out).tobytes() == frames.tobytes()
+
+
+@pytest.mark.parametrize("compression", ["nbit", "gzip"])
+@pytest.mark.parametrize("shape", [(45, 48, 40), (9, 7, 5), (4, 1, 1)], ids=["even", "odd 7x5", "one pixel"])
+def test_frame_reader_reads_what_h5py_reads_for_any_frame_selection(tmp_path, compression, shape):
+    """vfcli's own reader (N-bit chunks unpacked by numpy) gives h5py's values, dtype and
+    shape for a frame, a range, a strided or reversed range, an unsorted index array with a
+    negative index, and the whole dataset."""
+    frames = np.random.default_rng(4).integers(0, 4096, shape, dtype=np.uint16)
+    path = tmp_path / "r.h5"
+    _write_streamed(path, frames, compression, batch=4)
+    n = shape[0]
+    keys = [0, n - 1, -1, slice(1, 3), slice(None, None, 2), slice(None, None, -1), slice(n, n),
+            np.array([n - 1, 0, 2, -2]), [1, 1], (), Ellipsis]
+    with Store(path).read() as r:
+        reader = r.frames("hsc", "frames")
+        assert (len(reader), reader.shape, reader.dtype, reader.ndim) == (n, shape, np.uint16, 3)
+        for key in keys:
+            got = reader[key]
+            assert got.dtype == np.uint16, key
+            np.testing.assert_array_equal(got, frames[key], err_msg=str(key))
+        np.testing.assert_array_equal(r.read("hsc", "frames"), frames)
+        with pytest.raises(IndexError):
+            reader[n]
+
+
+def test_frame_reader_unpacks_nbit_chunks_itself(tmp_path, monkeypatch):
+    """The N-bit chunks are read as stored and unpacked by numpy: h5py's filtered read is not used."""
+    frames = _sensor_frames(6)
+    path = tmp_path / "r.h5"
+    _write_streamed(path, frames, "nbit")
+    monkeypatch.setattr(h5py.Dataset, "__getitem__", lambda self, key: pytest.fail("read through libhdf5's filter"))
+    with Store(path).read() as r:
+        assert r.frames("hsc", "frames")[1:4].tobytes() == frames[1:4].tobytes()
+
+
+def test_streamed_nbit_frames_refuse_values_above_4095_and_leave_the_store_unchanged(tmp_path):
+    path = tmp_path / "r.h5"
+    _write_mesh(Store(path))
+    before = path.read_bytes()
+    frames = _sensor_frames(30)
+    frames[17, 3, 4] = 4096
+    with pytest.raises(ValueRangeError, match="frame 17: value 4096 does not fit in 12 bits"):
+        _write_streamed(path, frames, "nbit")
+    assert path.read_bytes() == before
+    assert Store(path).interrupted_writes() == []
+
+
+def test_streamed_nbit_frames_are_uint16_only(tmp_path):
+    frames = np.zeros((3, 4, 4), np.uint8)
+    with pytest.raises(ValueError, match="12-bit values in uint16 only"):
+        _write_streamed(tmp_path / "r.h5", frames, "nbit")
+    assert not (tmp_path / "r.h5").exists()
 
 
 def test_streamed_frames_report_progress_once_per_batch(tmp_path):

@@ -51,8 +51,10 @@ class IngestHscConfig(_Section):
     )
     pressure_group: str | None = Field(None, description="TDMS group of the pressure; null: the only one")
     pressure_channel: str | None = Field(None, description="TDMS/CSV channel of the pressure; null: auto")
-    compression: Literal["gzip", "gzip4", "none"] = Field(
-        "gzip", description="Filter of the stored frames: gzip (deflate 1 + shuffle, portable), gzip4, none"
+    compression: Literal["auto", "nbit", "gzip", "gzip4", "none"] = Field(
+        "auto",
+        description="Filter of the stored frames, all standard HDF5: auto (nbit for a 12-bit packed MRAW, else "
+        "gzip), nbit (12 bits per pixel, uncompressed, 12-bit video only), gzip (deflate 1 + shuffle), gzip4, none",
     )
     wav_full_scale_pa: float = Field(1000.0, gt=0, le=1e7, description="WAV pressure: Pa at digital full scale")
 

@@ -1,5 +1,7 @@
 """HDF5 chunk bytes of video frames, encoded in parallel.
 
+Deflate
+-------
 HDF5's standard ``shuffle`` and ``deflate`` (gzip) filters store a chunk as the zlib
 stream of its byte-shuffled bytes: byte 0 of every element, then byte 1, ... This
 module produces that encoding itself, per frame (one frame = one chunk), in a thread
@@ -18,6 +20,18 @@ Two things make it fast:
   stored blocks instead of being compressed for nothing, and the compressible planes
   get Huffman tables of their own (files come out no larger, often smaller).
 
+N-bit
+-----
+HDF5's built-in N-bit filter (filter 5, in every libhdf5) on a uint16 type of precision 12
+stores a chunk as its values' 12 significant bits, one after the other, most significant
+bit first, then zero bits up to the next byte and one more zero byte:
+``n * 12 // 8 + 1`` bytes for ``n`` pixels (:func:`pack_nbit12`). For an even ``n`` that is
+exactly the packed big-endian 12-bit layout of a Photron MRAW
+(:func:`vfcli.io.photron.pack_12bit`) plus a zero byte, so a 12-bit MRAW frame becomes its
+chunk without being decoded at all (:func:`nbit12_chunk_of_packed`), and a chunk is read
+back with the same vectorised unpacking (:func:`unpack_nbit12`), several times faster than
+libhdf5's own N-bit decoder.
+
 No HDF5 here: :mod:`vfcli.store` owns the file.
 """
 from __future__ import annotations
@@ -33,6 +47,8 @@ from typing import TYPE_CHECKING, Iterable, Iterator, Literal
 
 import numpy as np
 from isal import isal_zlib
+
+from vfcli.io.photron import Packed12Frames, pack_12bit, unpack_12bit
 
 if TYPE_CHECKING:
     from vfcli.io.video import FrameBatch
@@ -61,12 +77,43 @@ class ChunkCodec:
     per_plane : bool
         Deflate each byte plane on its own, storing incompressible planes
         (:func:`deflate_planes`); otherwise one deflate call on the whole chunk.
+    nbit : int or None
+        Bits kept of each unsigned integer (HDF5's N-bit filter, :func:`pack_nbit12`; only
+        12 is supported, alone: no shuffle or deflate). None: every bit.
     """
 
     shuffle: bool = False
     deflate: Literal["isal", "zlib"] | None = None
     level: int = 1
     per_plane: bool = False
+    nbit: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.nbit is not None and (self.nbit != NBIT_BITS or self.shuffle or self.deflate):
+            raise ValueError(f"N-bit chunks keep {NBIT_BITS} bits, without shuffle or deflate; got {self}")
+
+
+#: The one precision the N-bit chunks support, bits per pixel (12-bit sensors).
+NBIT_BITS = 12
+
+
+class ValueRangeError(ValueError):
+    """A pixel value that the chunk's bits cannot hold.
+
+    Attributes
+    ----------
+    value : int
+        The largest value of the frame.
+    bits : int
+        Bits kept per value.
+    frame : int or None
+        Index of the frame in the stream (:func:`encode_frames`), when known.
+    """
+
+    def __init__(self, value: int, bits: int, frame: int | None = None) -> None:
+        self.value, self.bits, self.frame = value, bits, frame
+        where = "" if frame is None else f"frame {frame}: "
+        super().__init__(f"{where}value {value} does not fit in {bits} bits (0..{2**bits - 1})")
 
 
 def shuffle_bytes(chunk: np.ndarray) -> np.ndarray:
@@ -223,6 +270,101 @@ def deflate_planes(shuffled: np.ndarray, itemsize: int, codec: ChunkCodec) -> by
     return b"".join(parts)
 
 
+def nbit_chunk_nbytes(n_values: int, bits: int = NBIT_BITS) -> int:
+    """Bytes of HDF5's N-bit filter output for ``n_values`` values of ``bits`` bits:
+    ``n_values * bits // 8 + 1`` (libhdf5 always writes one byte more than the bits need)."""
+    return n_values * bits // 8 + 1
+
+
+def pack_nbit12(values: np.ndarray) -> np.ndarray:
+    """The N-bit chunk of 12-bit values: what HDF5's N-bit filter writes for them.
+
+    Parameters
+    ----------
+    values : (...) unsigned integer array
+        One whole chunk (here one (H, W) frame), each value 0..4095.
+
+    Returns
+    -------
+    (n * 12 // 8 + 1,) uint8, n = values.size
+        The values' 12 bits most significant first (:func:`vfcli.io.photron.pack_12bit`),
+        then zero bits to the end.
+
+    Raises
+    ------
+    ValueRangeError
+        A value above 4095 (the largest one is named).
+    ValueError
+        Values that are not unsigned integers.
+    """
+    flat = np.asarray(values).reshape(-1)
+    if flat.dtype.kind != "u":
+        raise ValueError(f"N-bit chunks hold unsigned integers, got {flat.dtype}")
+    if flat.size and (top := int(flat.max())) >= 1 << NBIT_BITS:
+        raise ValueRangeError(top, NBIT_BITS)
+    out = np.zeros(nbit_chunk_nbytes(flat.size), np.uint8)
+    if flat.size % 2:                        # a zero pixel completes the last pair
+        flat = np.append(flat, flat.dtype.type(0))
+    packed = pack_12bit(flat)
+    m = min(out.size, packed.size)           # odd n: the zero pixel's last byte is cut
+    out[:m] = packed[:m]
+    return out
+
+
+def nbit12_chunk_of_packed(packed: np.ndarray) -> bytes:
+    """The N-bit chunk of a frame already packed as 12-bit MRAW pixels, without decoding it.
+
+    Parameters
+    ----------
+    packed : (3 m,) uint8
+        Packed big-endian 12-bit pixels, two per three bytes (an even pixel count ``2 m``).
+
+    Returns
+    -------
+    bytes, 3 m + 1 of them
+        ``packed`` and a zero byte: equal to :func:`pack_nbit12` of the decoded pixels.
+    """
+    if packed.size % 3:
+        raise ValueError(f"packed 12-bit bytes come in threes (two pixels), got {packed.size}")
+    return b"".join((memoryview(np.ascontiguousarray(packed)).cast("B"), b"\0"))
+
+
+def unpack_nbit12(chunk: bytes | np.ndarray, n: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Values of an N-bit chunk of 12-bit values (inverse of :func:`pack_nbit12`).
+
+    Parameters
+    ----------
+    chunk : bytes or (n * 12 // 8 + 1,) uint8
+        The chunk as stored (``read_direct_chunk``).
+    n : int
+        Values in the chunk.
+    out : (n,) uint16, optional
+        Where to write them (C-contiguous).
+
+    Returns
+    -------
+    (n,) uint16
+        Values 0..4095.
+
+    Raises
+    ------
+    ValueError
+        A chunk of another size than ``n`` values need.
+    """
+    raw = np.frombuffer(chunk, np.uint8)
+    if raw.size != nbit_chunk_nbytes(n):
+        raise ValueError(f"an N-bit chunk of {n} 12-bit values has {nbit_chunk_nbytes(n)} bytes, got {raw.size}")
+    if n % 2 == 0:
+        return unpack_12bit(raw[: 3 * n // 2], out)
+    whole = np.zeros(3 * (n + 1) // 2, np.uint8)   # odd n: complete the last pair
+    whole[: raw.size] = raw
+    values = unpack_12bit(whole)[:n]
+    if out is None:
+        return values
+    out[...] = values
+    return out
+
+
 def encode_chunk(chunk: np.ndarray, codec: ChunkCodec) -> bytes | np.ndarray:
     """The bytes HDF5 stores for one chunk under ``codec``'s filters.
 
@@ -234,9 +376,17 @@ def encode_chunk(chunk: np.ndarray, codec: ChunkCodec) -> bytes | np.ndarray:
 
     Returns
     -------
-    bytes or (chunk.nbytes,) uint8 array
-        A zlib stream (deflate) or the raw, possibly shuffled, bytes.
+    bytes or uint8 array
+        A zlib stream (deflate), the N-bit packed values (:func:`pack_nbit12`), or the raw,
+        possibly shuffled, bytes.
+
+    Raises
+    ------
+    ValueRangeError
+        N-bit: a value the bits cannot hold.
     """
+    if codec.nbit is not None:
+        return pack_nbit12(chunk)
     data = shuffle_bytes(chunk) if codec.shuffle else np.ascontiguousarray(chunk).reshape(-1).view(np.uint8)
     if codec.deflate is None:
         return data
@@ -258,6 +408,9 @@ def default_workers() -> int:
 def encode_frame(batch: FrameBatch, i: int, dtype: np.dtype, codec: ChunkCodec) -> bytes | np.ndarray:
     """Frame ``i`` of ``batch`` (decoded here if the batch is lazy) as chunk bytes.
 
+    A whole frame of 12-bit packed MRAW (:class:`vfcli.io.photron.Packed12Frames`) becomes
+    its N-bit chunk as it is, not decoded (:func:`nbit12_chunk_of_packed`).
+
     Parameters
     ----------
     batch : FrameBatch
@@ -273,7 +426,19 @@ def encode_frame(batch: FrameBatch, i: int, dtype: np.dtype, codec: ChunkCodec) 
     bytes or uint8 array
         :func:`encode_chunk` of the frame.
     """
+    if codec.nbit == NBIT_BITS and isinstance(batch, Packed12Frames):
+        packed = batch.packed(i)
+        if packed is not None:
+            return nbit12_chunk_of_packed(packed)
     return encode_chunk(np.ascontiguousarray(batch[i], dtype=dtype), codec)
+
+
+def _chunk(future: Future, index: int) -> bytes | np.ndarray:
+    """The chunk a worker made of frame ``index``; a :class:`ValueRangeError` names the frame."""
+    try:
+        return future.result()
+    except ValueRangeError as exc:
+        raise ValueRangeError(exc.value, exc.bits, index) from None
 
 
 def encode_frames(
@@ -308,6 +473,11 @@ def encode_frames(
     ------
     (index, chunk) : (int, bytes or uint8 array)
         Frame index from 0 and its encoded chunk (:func:`encode_chunk`).
+
+    Raises
+    ------
+    ValueRangeError
+        A frame value the codec's bits cannot hold, with the frame's index.
     """
     dtype = np.dtype(dtype)
     pending_bytes = DEFAULT_PENDING_BYTES if pending_bytes is None else pending_bytes
@@ -327,10 +497,10 @@ def encode_frames(
             for i in range(k):
                 pending.append(pool.submit(encode_frame, batch, i, dtype, codec))
                 while len(pending) > max_pending:
-                    yield index, pending.popleft().result()
+                    yield index, _chunk(pending.popleft(), index)
                     index += 1
         while pending:
-            yield index, pending.popleft().result()
+            yield index, _chunk(pending.popleft(), index)
             index += 1
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

@@ -184,6 +184,7 @@ class MrawSource(VideoSource):
             trigger_index=(-sf if 0 <= -sf < n else None),
             description=(f"Photron MRAW {bits}-bit ({info['effective_bits']} effective), "
                          f"{info['camera']}, {cih_path.name}; {info['comment']}").strip("; "),
+            packed_bits=12 if bits == 12 else None,
         )
         self.stored_bits = bits
         self._raw = np.empty(0, np.uint8)
@@ -260,15 +261,33 @@ class Packed12Frames:
     def __len__(self) -> int:
         return self.shape[0]
 
-    def __getitem__(self, i: int) -> np.ndarray:
-        """Frame ``i``, (H', W') uint16 counts (a new array)."""
+    @property
+    def whole_frames(self) -> bool:
+        """True when the window keeps the whole stored frame (no crop)."""
+        return self.shape[1:] == self._hw
+
+    def _check_index(self, i: int) -> None:
         if not 0 <= i < len(self):
             raise IndexError(f"frame {i} of a batch of {len(self)}")
+
+    def packed(self, i: int) -> np.ndarray | None:
+        """Frame ``i`` as stored: ``(H * W * 3 / 2,)`` uint8 packed big-endian 12-bit pixels
+        (a view of the batch's bytes, not decoded), or None when the batch crops a window.
+        """
+        self._check_index(i)
+        if not self.whole_frames:
+            return None
+        fb = self._frame_bytes
+        return self._raw[i * fb:(i + 1) * fb]
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        """Frame ``i``, (H', W') uint16 counts (a new array)."""
+        self._check_index(i)
         fb = self._frame_bytes
         frame = unpack_12bit(self._raw[i * fb:(i + 1) * fb]).reshape(self._hw)
-        rows, cols = self._window
-        if rows == slice(None) and cols == slice(None):
+        if self.whole_frames:
             return frame
+        rows, cols = self._window
         return np.ascontiguousarray(frame[rows, cols])
 
 

@@ -66,6 +66,10 @@ class VideoMeta:
         inside the recording), None when unknown or outside.
     description : str
         One-line human description of the source (camera, format, comment).
+    packed_bits : int or None
+        Bits per pixel when the file stores its pixels bit-packed (12 for a 12-bit
+        Photron MRAW: two pixels in three bytes), None when it stores whole bytes or
+        compresses them. Said by the file's format, not guessed from the values.
     """
 
     path: str
@@ -79,6 +83,7 @@ class VideoMeta:
     start_frame: int = 0
     trigger_index: int | None = None
     description: str = ""
+    packed_bits: int | None = None
 
     @property
     def t0(self) -> float | None:

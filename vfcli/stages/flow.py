@@ -35,7 +35,7 @@ from ..fields import LdvTps, combine_fields, hull_mask
 from ..gap import gap_mask, gap_threshold, midline_from_masks
 from ..gap_edges import SubpixelGap, estimate_edge_model
 from ..opticalflow import FlowEstimator, flow_stream, intensity_range
-from ..store import StageWriter, StoreReader
+from ..store import FrameReader, StageWriter, StoreReader
 from .base import RunContext, StageResult, run_stage
 
 log = logging.getLogger(__name__)
@@ -75,7 +75,8 @@ def sample_indices(n_frames: int, n_sample: int) -> np.ndarray:
     return np.unique(np.rint(np.linspace(0, n_frames - 1, k)).astype(int))
 
 
-def _batches(frames_ds: Any, n_frames: int) -> Iterator[np.ndarray]:
+def _batches(frames_ds: FrameReader, n_frames: int) -> Iterator[np.ndarray]:
+    """Frames 0..n_frames-1 of the video, (<= CHUNK_FRAMES, H, W) at a time."""
     for i in range(0, n_frames, CHUNK_FRAMES):
         yield frames_ds[i : i + CHUNK_FRAMES]
 
@@ -107,7 +108,7 @@ def _check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool) -> None:
 def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
     """Body of /flow: stream /hsc frames through the flow step, one frame at a time."""
     hsc = reader.attrs("hsc")
-    frames = reader.dataset("hsc", "frames")
+    frames = reader.frames("hsc", "frames")   # N-bit frames unpacked by numpy, not libhdf5
     if frames.ndim != 3 or frames.shape[0] < 2:
         raise InputDataError(
             f"{layout.dataset_path('hsc', 'frames')} has shape {frames.shape}; the flow needs at least 2 frames",

@@ -9,9 +9,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError, InputDataError
+from ..frame_chunks import NBIT_BITS, ValueRangeError
 from ..io.ldv import LdvChannels, read_ldv
 from ..io.pressure import PA_PER_UNIT, read_pressure
-from ..io.video import open_video
+from ..io.video import VideoMeta, open_video
 from ..store import StageWriter, StoreReader
 from .base import RunContext, StageResult, run_stage
 
@@ -32,6 +33,36 @@ def _roi_rows_cols(roi_px: tuple[int, int, int, int] | None) -> tuple[int, int, 
         return None
     col0, row0, width, height = roi_px
     return row0, row0 + height, col0, col0 + width
+
+
+def frame_filter(compression: str, meta: VideoMeta) -> str:
+    """The frame filter (:data:`vfcli.store.COMPRESSIONS`) for ``ingest_hsc.compression``.
+
+    Parameters
+    ----------
+    compression : str
+        The config value: "auto" or a filter name.
+    meta : VideoMeta
+        The source video's metadata.
+
+    Returns
+    -------
+    str
+        "auto": "nbit" when the file stores its pixels packed in 12 bits (12-bit MRAW), its
+        own storage (frames copied as stored, not decoded, not compressed), else "gzip".
+        Any other value as it is.
+
+    Raises
+    ------
+    ConfigError
+        "nbit" for a video of 8-bit frames (N-bit stores 12-bit values in uint16 only).
+    """
+    if compression == "auto":
+        return "nbit" if meta.packed_bits == NBIT_BITS else "gzip"
+    if compression == "nbit" and np.dtype(meta.dtype) != np.uint16:
+        raise ConfigError(f"{meta.path}: ingest_hsc.compression = 'nbit' stores {NBIT_BITS}-bit pixels in uint16 "
+                          f"only, this video has {np.dtype(meta.dtype)} frames; use 'auto' or 'gzip'")
+    return compression
 
 
 def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | None = None) -> StageResult:
@@ -58,10 +89,18 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             roi = _roi_rows_cols(cfg.roi_px)
             h, w = (meta.height, meta.width) if roi is None else (roi[1] - roi[0], roi[3] - roi[2])
             n = stop - start
+            compression = frame_filter(cfg.compression, meta)
             bar = ctx.progress(total=n, desc="ingest-hsc", unit="frame")
-            s.write_frames("frames", (n, h, w), meta.dtype, src.iter_lazy_frames(start, stop, roi),
-                           attrs={"bit_depth": meta.bit_depth}, compression=cfg.compression, on_frames=bar.update)
-            bar.close()
+            try:
+                s.write_frames("frames", (n, h, w), meta.dtype, src.iter_lazy_frames(start, stop, roi),
+                               attrs={"bit_depth": meta.bit_depth, "compression": compression},
+                               compression=compression, on_frames=bar.update)
+            except ValueRangeError as exc:
+                raise InputDataError(
+                    f"frame {start + exc.frame} holds the value {exc.value}, more than the {exc.bits} bits "
+                    f"ingest_hsc.compression = 'nbit' keeps (0..{2**exc.bits - 1}); use 'gzip'", meta.path) from None
+            finally:
+                bar.close()
             s.put("frame_time", np.arange(n) / fps)
             s.set_attrs(
                 fps_hz=fps,
@@ -75,7 +114,8 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
                 roi_px=np.asarray(cfg.roi_px if cfg.roi_px else (0, 0, meta.width, meta.height)),
                 source=meta.description or meta.kind,
             )
-        summary: dict[str, Any] = {"frames": n, "height": h, "width": w, "fps_hz": fps, "bit_depth": meta.bit_depth}
+        summary: dict[str, Any] = {"frames": n, "height": h, "width": w, "fps_hz": fps, "bit_depth": meta.bit_depth,
+                                   "compression": compression}
         if pressure is not None:
             rec = read_pressure(pressure, cfg.pressure_group, cfg.pressure_channel,
                                 wav_pa_per_full_scale=cfg.wav_full_scale_pa)
