@@ -16,9 +16,10 @@ def case():
     return forward_case(resolution=(2, 2, 4), sides=("inferior", "superior"), n_frames=8)
 
 
-def _problem(case, motion, gap, ridge=0.0):
+def _problem(case, motion, gap, ridge=0.0, components=(1.0, 1.0, 1.0)):
     return Problem(case.model.mesh, CAMERA, case.response, case.measurement,
-                   ObjectiveSettings(motion_weight=motion, gap_weight=gap, ridge_weight=ridge))
+                   ObjectiveSettings(motion_weight=motion, gap_weight=gap, ridge_weight=ridge,
+                                     component_weights=components))
 
 
 def _x0(case):
@@ -26,9 +27,11 @@ def _x0(case):
     return 0.6 * case.x_true + rng.normal(0, 40.0, case.x_true.size)
 
 
-def test_motion_and_ridge_hessian_equal_the_derivative_of_the_exact_gradient(case):
-    """For a frozen raster the motion term is quadratic: H is its exact Hessian (central differences of g)."""
-    p = _problem(case, 1e-4, 0.0, ridge=1e-6)
+@pytest.mark.parametrize("components", [(1.0, 1.0, 1.0), (1.0, 1.0, 0.0), (0.0, 0.0, 1.0), (0.3, 2.0, 0.7)])
+def test_motion_and_ridge_hessian_equal_the_derivative_of_the_exact_gradient(case, components):
+    """For a frozen raster the motion term is quadratic: H is its exact Hessian (central differences of g),
+    with any weights of the velocity components (one instrument's data only)."""
+    p = _problem(case, 1e-4, 0.0, ridge=1e-6, components=components)
     x0 = _x0(case)
     frames = p.freeze(x0)
     model = gauss_newton_model(p, x0, frames)

@@ -188,8 +188,12 @@ STAGES: dict[str, Stage] = {
                 "history_wall_time": D("s", "Wall time since the start of the run", ("iteration",)),
                 "history_n_evals": D("1", "Objective evaluations so far", ("iteration",)),
                 "history_ridge": D("1", "Ridge (Tikhonov) term of E", ("iteration",)),
-                "displacement_std": D("mm", "Standard deviation of each reconstructed displacement component "
-                                      "(Laplace posterior, vfcli/uncertainty.py)", ("sim_time", "node", "xyz"), True),
+                "displacement_std": D("mm", "Standard deviation of each reconstructed displacement component: "
+                                      "Laplace posterior and instrument disagreement in quadrature (vfcli/uncertainty.py)",
+                                      ("sim_time", "node", "xyz"), True),
+                "displacement_std_instruments": D("mm", "Systematic part of displacement_std: RMS over time of the "
+                                                  "difference between the camera-only and the vibrometer-only "
+                                                  "reconstructions, / sqrt 2", ("node", "xyz")),
                 "lcurve_weight": D("1/Pa^2", "Tikhonov weights scanned by the L-curve (free-regularised)", ("lcurve",)),
                 "lcurve_misfit": D("1", "Predicted data misfit E_data at each weight", ("lcurve",)),
                 "lcurve_penalty": D("Pa^2", "Penalty x^T Omega x at each weight", ("lcurve",)),

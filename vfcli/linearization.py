@@ -155,14 +155,16 @@ def seen_vertex_gram(m_both: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
 
 
 def motion_block(seen: np.ndarray, gram: sp.csr_matrix, basis: np.ndarray,
-                 vertices: np.ndarray | None = None) -> np.ndarray:
-    """``sum_c R_c^T M^T M R_c`` for one frame.
+                 vertices: np.ndarray | None = None,
+                 weights: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> np.ndarray:
+    """``sum_c w_c R_c^T M^T M R_c`` for one frame.
 
     Parameters
     ----------
     seen, gram : from :func:`seen_vertex_gram`.
     basis : (N, 3, S) vertex displacement per unit spatial control value, mm.
     vertices : (N,) bool, the only vertices ``basis`` moves (saves work; default all).
+    weights : (3,) weight w_c of each velocity component (``ObjectiveSettings.component_weights``).
 
     Returns
     -------
@@ -174,8 +176,9 @@ def motion_block(seen: np.ndarray, gram: sp.csr_matrix, basis: np.ndarray,
         return out
     k = gram[keep][:, keep] if not keep.all() else gram
     for c in range(3):
-        r = basis[seen[keep], c, :]
-        out += r.T @ (k @ r)
+        if weights[c]:
+            r = basis[seen[keep], c, :]
+            out += weights[c] * (r.T @ (k @ r))
     return out
 
 
@@ -249,7 +252,7 @@ def gauss_newton_model(problem: Problem, x: np.ndarray, frames: list | None = No
             w = 2.0 * st.motion_weight / (n_f * fr.n_norm * problem.dt ** 2)
             seen, gram = seen_vertex_gram(fr.m_both)
             for stack, bg, mv in zip(stacks, group_basis, moved):
-                stack[2 * f] = motion_block(seen, gram, bg, mv)
+                stack[2 * f] = motion_block(seen, gram, bg, mv, st.component_weights)
                 stack[2 * f] *= w
             outers[2 * f] = np.outer(db, db)
             n_motion += 3 * fr.m_both.shape[0]

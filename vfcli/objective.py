@@ -62,7 +62,8 @@ under a small perturbation, i.e. almost everywhere.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -119,9 +120,14 @@ class ObjectiveSettings:
     lateral_axis: int = 0
     ray_margin: int = 1
     ridge_weight: float = 0.0
+    #: weight of each velocity component (model x, y, z) in the motion term (1, 1, 1: the
+    #: paper's |v - v_bar|^2); (1, 1, 0) keeps the camera's in-plane motion only, (0, 0, 1)
+    #: the vibrometer's vertical velocity only (:mod:`vfcli.uncertainty` compares the two)
+    component_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
-        if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0):
+        if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0
+                and len(self.component_weights) == 3 and min(self.component_weights) >= 0):
             raise ConfigError("objective weights must be >= 0")
         if not self.gap_length_mm > 0:
             raise ConfigError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
@@ -208,6 +214,19 @@ class Problem:
     def n_params(self) -> int:
         return int(self.response.n_params)
 
+    #: settings :meth:`with_weights` may change (nothing computed in ``__init__`` depends on them)
+    _WEIGHTS = frozenset({"motion_weight", "gap_weight", "ridge_weight", "component_weights"})
+
+    def with_weights(self, **weights) -> Problem:
+        """The same problem with other term weights (``motion_weight``, ``gap_weight``,
+        ``ridge_weight``, ``component_weights``); shares everything else with this one."""
+        unknown = set(weights) - self._WEIGHTS
+        if unknown:
+            raise ValueError(f"with_weights changes term weights only, not {sorted(unknown)}")
+        other = copy.copy(self)
+        other.settings = replace(self.settings, **weights)
+        return other
+
     def displacements(self, x: np.ndarray) -> np.ndarray:
         """(F + 1, N, 3) vertex displacements at :attr:`sim_times`, mm."""
         return self.response.displacements(np.asarray(x, dtype=float), self.sim_times)
@@ -235,6 +254,7 @@ class Problem:
     def freeze(self, x: np.ndarray, disp: np.ndarray | None = None) -> list[_Frame]:
         """Rasters and silhouette edges of every frame at ``x`` (the linearisation point)."""
         u = self.displacements(x) if disp is None else disp
+        cw = np.asarray(self.settings.component_weights, dtype=float)
         frames = []
         for f in range(self.n_frames):
             pos = self.mesh.nodes + u[f]
@@ -252,7 +272,7 @@ class Problem:
                 tgt = targets[side][rays]
                 ok = np.isfinite(tgt)
                 sil.append((rays[ok], edge[ok], tgt[ok]))
-            frames.append(_Frame(m_both, vel[vis[both]], float(np.sum(vel[only] ** 2)),
+            frames.append(_Frame(m_both, vel[vis[both]], float(np.sum(vel[only] ** 2 @ cw)),
                                  float(max(1, valid.sum())), sil, vis[both], np.flatnonzero(only)))
         return frames
 
@@ -268,12 +288,13 @@ class Problem:
         ell = st.gap_length_mm
         n_sil = 2.0 * max(len(self.rays), 1)
         rc = self.ray_comp
+        cw = np.asarray(st.component_weights, dtype=float)
         for f, fr in enumerate(frames):
             du = u[f + 1] - u[f]
             r = fr.m_both @ du / self.dt - fr.v_both
-            motion += (np.sum(r * r) + fr.const) / fr.n_norm
+            motion += (np.sum(r * r @ cw) + fr.const) / fr.n_norm
             if grad and st.motion_weight:
-                gd = (fr.m_both.T @ r) * (2.0 * st.motion_weight / (n_f * fr.n_norm * self.dt))
+                gd = (fr.m_both.T @ (r * cw)) * (2.0 * st.motion_weight / (n_f * fr.n_norm * self.dt))
                 g[f + 1] += gd
                 g[f] -= gd
             if not st.gap_weight:

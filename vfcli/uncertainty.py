@@ -28,6 +28,26 @@ From Cov(x) the standard deviation of every vertex displacement component at eve
 simulated time follows exactly (:func:`displacement_std`).  Where the data do not
 determine the loads (the paper's free fields without a bound, H singular), the stated
 uncertainty is correspondingly huge: that is the honest answer.
+
+Systematic error: what the two instruments say apart
+----------------------------------------------------
+The posterior above knows only the scatter of the residuals.  The largest errors on
+phantoms are systematic instead: errors of the measured velocity fields that are alike
+over the whole image and every frame (optical flow and the interpolated vibrometer
+field), which the fit absorbs and the residuals do not show.  The camera (in-plane
+velocity by optical flow) and the vibrometer (vertical velocity) measure the same
+surface independently, with errors of their own, so the reconstruction each implies
+alone is an independent estimate of the same motion (:func:`instrument_fits`: one
+Gauss-Newton step from the joint fit on E with the motion term of that instrument only,
+gap and ridge kept).  If each has a systematic error of standard deviation s, their
+difference has standard deviation ``sqrt(2) s``; the joint fit is not credited with
+averaging the two (the errors need not be independent of the fit's own), so
+
+    s_sys(node, component) = RMS over time of (d_camera - d_vibrometer) / sqrt(2)
+
+is added in quadrature to the posterior standard deviation (:func:`instrument_std`).
+With one pair of instruments this is a one-degree-of-freedom estimate: an order of
+magnitude, stated as such, not a calibrated interval.
 """
 from __future__ import annotations
 
@@ -35,7 +55,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vfcli.linearization import BlockMatrix, QuadraticModel
+from vfcli.linearization import BlockMatrix, QuadraticModel, gauss_newton_model
+
+#: Motion-term component weights (model x, y, z) of each instrument's own data: the
+#: camera's optical flow gives the in-plane velocity, the vibrometer the vertical one.
+INSTRUMENTS: dict[str, tuple[float, float, float]] = {"camera": (1.0, 1.0, 0.0), "vibrometer": (0.0, 0.0, 1.0)}
 
 
 @dataclass(frozen=True)
@@ -184,3 +208,44 @@ def relative_uncertainty(std: np.ndarray, displacements: np.ndarray, nodes: np.n
     d = np.asarray(displacements)[:, nodes]
     rms = float(np.sqrt(np.mean(d ** 2)))
     return float(np.sqrt(np.mean(np.asarray(std)[:, nodes] ** 2))) / max(rms, 1e-300)
+
+
+def instrument_fits(problem, x: np.ndarray, frames: list | None = None,
+                    disp: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Control values each instrument's data imply on their own, near the joint fit.
+
+    Parameters
+    ----------
+    problem : :class:`vfcli.objective.Problem` (with the ridge of the fit).
+    x : (n,) the joint fit.
+    frames, disp : frozen rasters and displacements at x (computed when omitted).
+
+    Returns
+    -------
+    {name: (n,) control values} for :data:`INSTRUMENTS`: one Gauss-Newton step from x on
+    E with the motion term of that instrument's velocity components only (gap and ridge
+    kept), ``x - H_k^-1 grad E_k(x)``.
+    """
+    x = np.asarray(x, dtype=float)
+    disp = problem.displacements(x) if disp is None else disp
+    frames = problem.freeze(x, disp) if frames is None else frames
+    out = {}
+    for name, weights in INSTRUMENTS.items():
+        model = gauss_newton_model(problem.with_weights(component_weights=weights), x, frames, disp)
+        out[name] = x - model.hessian.solve(model.grad)
+    return out
+
+
+def instrument_std(displacements: dict[str, np.ndarray]) -> np.ndarray:
+    """Systematic standard deviation from two instruments' reconstructions (module docstring).
+
+    displacements : {name: (T, N, 3)} the displacements of :func:`instrument_fits`'s two fits, mm.
+
+    Returns
+    -------
+    (N, 3) ``RMS_t |d_a - d_b| / sqrt(2)``, mm.
+    """
+    if len(displacements) != 2:
+        raise ValueError(f"two instruments' reconstructions are compared, got {len(displacements)}")
+    a, b = (np.asarray(d, dtype=float) for d in displacements.values())
+    return np.sqrt(np.mean((a - b) ** 2, axis=0) / 2.0)

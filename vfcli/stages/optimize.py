@@ -31,7 +31,8 @@ from ..regularization import lcurve
 from ..pose import camera_to_model, estimate_pose
 from ..response import QuasiStaticResponse
 from ..store import StageWriter, StoreReader
-from ..uncertainty import displacement_std, effective_sample_size, posterior, relative_uncertainty
+from ..uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_std, posterior,
+                           relative_uncertainty)
 from .base import RunContext, StageResult, run_stage
 from .mesh import read_mesh
 
@@ -132,24 +133,36 @@ def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[s
     return problem, info
 
 
-def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
-    """(F + 1, N, 3) standard deviation (mm) of the displacements of a fit at ``x``, and its summary.
+def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """Standard deviation of the displacements of a fit at ``x``, and its summary.
 
     Laplace posterior of the Gauss-Newton model at x, scaled by the motion residuals'
-    own size and correlation (vfcli/uncertainty.py).
+    own size and correlation, plus in quadrature the systematic part the camera-only and
+    vibrometer-only reconstructions disagree by (vfcli/uncertainty.py).
+
+    Returns
+    -------
+    std : (F + 1, N, 3) total standard deviation, mm.
+    systematic : (N, 3) its instrument-disagreement part, mm.
+    summary : figures relative to the RMS reconstructed displacement of each surface.
     """
     u = problem.displacements(x)
     frames = problem.freeze(x, u)
     model = gauss_newton_model(problem, x, frames, u)
     corr = effective_sample_size(problem.motion_residuals(x, frames))
     post = posterior(model, corr)
-    std = displacement_std(post.covariance, problem.response.basis_, problem.response.time_basis(problem.sim_times))
+    noise = displacement_std(post.covariance, problem.response.basis_, problem.response.time_basis(problem.sim_times))
+    systematic = instrument_std({k: problem.displacements(v) for k, v in instrument_fits(problem, x, frames, u).items()})
+    std = np.sqrt(noise ** 2 + systematic[None] ** 2)
     inferior = problem.mesh.node_side == SIDE_INFERIOR
+    superior = problem.mesh.node_side == SIDE_SUPERIOR
     summary = {"inferior_uncertainty_rel": relative_uncertainty(std, u, inferior),
-               "superior_uncertainty_rel": relative_uncertainty(std, u, problem.mesh.node_side == SIDE_SUPERIOR),
+               "superior_uncertainty_rel": relative_uncertainty(std, u, superior),
+               "inferior_posterior_rel": relative_uncertainty(noise, u, inferior),
+               "inferior_instruments_rel": relative_uncertainty(np.broadcast_to(systematic, u.shape), u, inferior),
                "residual_n_eff": corr.n_eff, "residual_area_px": corr.area_px, "residual_tau_frames": corr.tau_frames,
                "fitted_dof": post.dof}
-    return std, summary
+    return std, systematic, summary
 
 
 def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None,
@@ -193,8 +206,9 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         s.put("displacements", disp.astype(np.float32))
         unc: dict[str, float] = {}
         if cfg.uncertainty:
-            std, unc = reconstruction_uncertainty(problem, result.x)
+            std, systematic, unc = reconstruction_uncertainty(problem, result.x)
             s.put("displacement_std", std.astype(np.float32))
+            s.put("displacement_std_instruments", systematic.astype(np.float32))
             if uncertainty_plot is not None:
                 uncertainty_map(problem.mesh, std, disp, uncertainty_plot, f"run {run} ({label})")
         if info["lcurve"] is not None:
