@@ -16,10 +16,10 @@ def case():
     return forward_case(resolution=(2, 2, 4), sides=("inferior", "superior"), n_frames=8)
 
 
-def _problem(case, motion, gap, ridge=0.0, components=(1.0, 1.0, 1.0)):
+def _problem(case, motion, gap, ridge=0.0, components=(1.0, 1.0, 1.0), outside="paper"):
     return Problem(case.model.mesh, CAMERA, case.response, case.measurement,
                    ObjectiveSettings(motion_weight=motion, gap_weight=gap, ridge_weight=ridge,
-                                     component_weights=components))
+                                     component_weights=components, outside=outside))
 
 
 def _x0(case):
@@ -27,11 +27,14 @@ def _x0(case):
     return 0.6 * case.x_true + rng.normal(0, 40.0, case.x_true.size)
 
 
-@pytest.mark.parametrize("components", [(1.0, 1.0, 1.0), (1.0, 1.0, 0.0), (0.0, 0.0, 1.0), (0.3, 2.0, 0.7)])
-def test_motion_and_ridge_hessian_equal_the_derivative_of_the_exact_gradient(case, components):
+@pytest.mark.parametrize("components,outside", [((1.0, 1.0, 1.0), "paper"), ((1.0, 1.0, 0.0), "paper"),
+                                                ((0.0, 0.0, 1.0), "paper"), ((0.3, 2.0, 0.7), "paper"),
+                                                ((1.0, 1.0, 1.0), "symmetric")])
+def test_motion_and_ridge_hessian_equal_the_derivative_of_the_exact_gradient(case, components, outside):
     """For a frozen raster the motion term is quadratic: H is its exact Hessian (central differences of g),
-    with any weights of the velocity components (one instrument's data only)."""
-    p = _problem(case, 1e-4, 0.0, ridge=1e-6, components=components)
+    with any weights of the velocity components (one instrument's data only) and either charge of the
+    pixels only one side sees."""
+    p = _problem(case, 1e-4, 0.0, ridge=1e-6, components=components, outside=outside)
     x0 = _x0(case)
     frames = p.freeze(x0)
     model = gauss_newton_model(p, x0, frames)
@@ -100,3 +103,4 @@ def test_tied_folds_give_one_block_and_the_same_hessian_as_dense_assembly():
     d = rng.normal(size=tied.problem.n_params)
     np.testing.assert_allclose(model.hessian @ d, model.hessian.dense() @ d, rtol=1e-12)
     assert model.n_motion > 0
+

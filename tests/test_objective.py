@@ -3,9 +3,10 @@ import numpy as np
 import pytest
 
 from vfcli.camera import gap_mask, rasterize
+from vfcli.errors import ConfigError
 from vfcli.mesh import TAG_FIXTURE
 from vfcli.objective import Measurement, ObjectiveSettings, Problem
-from vfcli.silhouette import measured_silhouettes
+from vfcli.silhouette import edge_crossings, measured_silhouettes
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import CAMERA, forward_case
@@ -31,8 +32,8 @@ def test_true_controls_have_zero_error_and_others_do_not(case):
                                rtol=1e-14)
 
 
-def _frozen_fd_check(case, weights, directions, ridge=0.0):
-    settings = ObjectiveSettings(motion_weight=weights[0], gap_weight=weights[1], ridge_weight=ridge)
+def _frozen_fd_check(case, weights, directions, ridge=0.0, outside="paper"):
+    settings = ObjectiveSettings(motion_weight=weights[0], gap_weight=weights[1], ridge_weight=ridge, outside=outside)
     p = Problem(case.model.mesh, CAMERA, case.response, case.measurement, settings)
     rng = np.random.default_rng(5)
     x0 = 0.6 * case.x_true + rng.normal(0, 40.0, case.x_true.size)
@@ -56,10 +57,11 @@ def test_exact_gradient_matches_central_differences_for_a_frozen_raster(case):
     _frozen_fd_check(case, (1e-4, 1.0), lambda rng, n: np.eye(n), ridge=1e-6)
 
 
-@pytest.mark.parametrize("weights", [(1e-4, 0.0), (0.0, 1.0)])
-def test_each_term_has_an_exact_gradient(case, weights):
-    """Motion and gap terms alone, along 12 random directions."""
-    _frozen_fd_check(case, weights, lambda rng, n: rng.normal(size=(12, n)))
+@pytest.mark.parametrize("weights,outside", [((1e-4, 0.0), "paper"), ((1e-4, 0.0), "symmetric"), ((0.0, 1.0), "paper")])
+def test_each_term_has_an_exact_gradient(case, weights, outside):
+    """Motion and gap terms alone, along 12 random directions (the motion term with both charges of
+    pixels only one side sees)."""
+    _frozen_fd_check(case, weights, lambda rng, n: rng.normal(size=(12, n)), outside=outside)
 
 
 def test_motion_term_follows_the_three_cases(case):
@@ -84,6 +86,31 @@ def test_motion_term_follows_the_three_cases(case):
     assert p2.evaluate(case.x_true).motion < 1e-20
 
 
+def test_symmetric_outside_charges_simulated_tissue_in_the_measured_gap_only(case):
+    """outside="symmetric": a pixel the model sees where the recording sees the gap costs |v_bar|^2; one
+    the model sees where the recording merely has no data still costs nothing; the paper's E charges neither."""
+    m = case.measurement
+    sim_visible = m.valid                    # the synthetic measurement is valid where the model is seen
+    gap = np.zeros_like(m.valid)
+    gap[:, :, :40] = True                    # the recording sees the gap here ...
+    unknown = np.zeros_like(m.valid)
+    unknown[:, :, -40:] = True               # ... and has no data here
+    valid = sim_visible & ~gap & ~unknown
+    meas = Measurement(m.times, m.velocity, valid, m.gap_lo, m.gap_hi, gap)
+    charged = sim_visible & gap
+    assert charged.sum() > 100 and (sim_visible & unknown).sum() > 100
+    # v_bar at the truth is the synthetic measurement's velocity
+    expected = np.mean([np.sum(m.velocity[f][charged[f]] ** 2) / valid[f].sum() for f in range(len(m.times))])
+    terms = {o: Problem(case.model.mesh, CAMERA, case.response, meas,
+                        ObjectiveSettings(motion_weight=1.0, gap_weight=0.0, outside=o)).evaluate(case.x_true)
+             for o in ("paper", "symmetric")}
+    assert terms["paper"].motion < 1e-20
+    assert terms["symmetric"].motion == pytest.approx(expected, rel=1e-10)
+    with pytest.raises(ConfigError, match="gap masks"):
+        Problem(case.model.mesh, CAMERA, case.response, Measurement(m.times, m.velocity, valid, m.gap_lo, m.gap_hi),
+                ObjectiveSettings(outside="symmetric"))
+
+
 def test_simulated_silhouettes_agree_with_the_rasterised_gap(case):
     """Edge-crossing silhouettes vs camera.gap_mask + measured_silhouettes (independent path): within 1 px."""
     p = case.problem
@@ -103,6 +130,21 @@ def test_simulated_silhouettes_agree_with_the_rasterised_gap(case):
     assert ok.sum() > 100
     assert np.abs(lo[ok] - case.measurement.gap_lo[ok]).max() <= 1.0
     assert np.abs(hi[ok] - case.measurement.gap_hi[ok]).max() <= 1.0
+
+
+def test_edge_crossings_within_limits_are_the_unlimited_ones_on_those_rays():
+    rng = np.random.default_rng(2)
+    screen = rng.uniform(-5000, 5000, size=(60, 2))          # a wildly stretched trial mesh
+    edges = rng.integers(0, 60, size=(200, 2))
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    e, c, s = edge_crossings(screen, edges, 0)
+    el, cl, sl = edge_crossings(screen, edges, 0, (10, 250))
+    inside = (c >= 10) & (c < 250)
+    assert len(e) > 20 * len(el) and inside.sum() == len(el) > 100
+    key, key_l = np.lexsort((e[inside], c[inside])), np.lexsort((el, cl))
+    np.testing.assert_array_equal(e[inside][key], el[key_l])
+    np.testing.assert_array_equal(c[inside][key], cl[key_l])
+    np.testing.assert_allclose(s[inside][key], sl[key_l], rtol=1e-12)
 
 
 def test_measured_silhouettes_use_outermost_edges_and_the_last_known_centre():

@@ -153,3 +153,23 @@ def test_gauss_newton_resumes_exactly(case):
     np.testing.assert_allclose(cont.x, full.x, rtol=1e-10, atol=1e-10 * np.abs(full.x).max())
     np.testing.assert_allclose(cont.history["total"], full.history["total"], rtol=1e-10)
     np.testing.assert_array_equal(cont.history["n_evals"], full.history["n_evals"])
+
+
+def test_gauss_newton_stops_once_a_step_barely_changes_the_reconstruction(case):
+    """xtol: the fit ends after the first accepted step that changes the displacements by less than xtol of their
+    RMS; every earlier step changed them by more; without xtol the same iterates continue."""
+    xtol = 1e-2
+    res = fit(case.problem, method="gauss-newton", max_iter=30, options=FitOptions(ftol=1e-12, xtol=xtol))
+    assert res.converged and res.message == "reconstruction change below xtol"
+    kept = res.kept_x
+    assert len(kept) >= 3
+
+    def change(a, b):
+        ua, ub = case.problem.displacements(a), case.problem.displacements(b)
+        return np.sqrt(np.mean((ub - ua) ** 2)) / np.sqrt(np.mean(ub ** 2))
+
+    changes = [change(a, b) for a, b in zip(kept[:-1], kept[1:])]
+    assert changes[-1] < xtol and min(changes[:-1]) >= xtol
+    longer = fit(case.problem, method="gauss-newton", max_iter=len(kept) + 2, options=FitOptions(ftol=1e-12))
+    np.testing.assert_allclose(longer.kept_x[:len(kept)], kept, rtol=1e-10, atol=1e-10 * np.abs(kept).max())
+    assert longer.state.iteration > res.state.iteration

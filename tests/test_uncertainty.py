@@ -69,7 +69,9 @@ def test_posterior_intervals_cover_the_truth_at_their_rate_on_a_linear_gaussian_
     assert np.mean(hits_b) == pytest.approx(0.90, abs=0.03)
 
 
-def test_displacement_std_is_the_exact_propagation_of_the_covariance():
+@pytest.mark.parametrize("order", ["spatial-major", "time-major", "shuffled"])
+def test_displacement_std_is_the_exact_propagation_of_the_covariance(order):
+    """Whatever the order of the control values inside a block (the Gauss-Newton model's is time-major)."""
     rng = np.random.default_rng(3)
     n_v, n_s, n_t, n_f = 7, 4, 3, 5
     basis = rng.normal(size=(n_v, 3, n_s))
@@ -77,7 +79,9 @@ def test_displacement_std_is_the_exact_propagation_of_the_covariance():
     n = n_s * n_t
     # two blocks: spatial patterns {0, 2} and {1, 3}
     idx = [np.array([0, 2])[:, None] * n_t + np.arange(n_t), np.array([1, 3])[:, None] * n_t + np.arange(n_t)]
-    idx = [i.ravel() for i in idx]
+    idx = [i.T.ravel() if order == "time-major" else i.ravel() for i in idx]
+    if order == "shuffled":
+        idx = [rng.permutation(i) for i in idx]
     blocks = []
     for i in idx:
         g = rng.normal(size=(len(i), len(i)))

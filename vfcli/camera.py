@@ -20,8 +20,10 @@ held fixed within a step).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -184,10 +186,19 @@ class Raster:
 
     @cached_property
     def _matrix(self) -> sp.csr_matrix:
-        n = self.visible_index.size
-        cols = self.triangles[self.visible_triangle]          # (n, 3)
-        indptr = np.arange(0, 3 * n + 1, 3)
-        return sp.csr_matrix((self.visible_bary.ravel(), cols.ravel(), indptr), shape=(n, self.n_vertices))
+        return self._csr(self.visible_triangle, self.visible_bary)
+
+    def _csr(self, triangle: np.ndarray, bary: np.ndarray) -> sp.csr_matrix:
+        """(n, N) csr with row i = the weights ``bary[i]`` (n, 3) of the vertices of ``triangles[triangle[i]]``.
+
+        Index arrays are int32 whenever they fit, as scipy itself would choose (built in
+        that dtype directly, which spares the constructor a conversion pass).
+        """
+        n = triangle.size
+        idx = np.int32 if max(3 * n, self.n_vertices) <= np.iinfo(np.int32).max else np.int64
+        cols = np.take(self.triangles.astype(idx), triangle, axis=0)   # (n, 3); np.take: fast row gather
+        indptr = np.arange(0, 3 * n + 1, 3, dtype=idx)
+        return sp.csr_matrix((bary.ravel(), cols.ravel(), indptr), shape=(n, self.n_vertices))
 
     def interpolation_matrix(self) -> sp.csr_matrix:
         """Sparse (n_visible, N) matrix M: per-vertex values -> values at visible pixels.
@@ -198,6 +209,15 @@ class Raster:
         ``d(M @ f)/d f = M``).  Three nonzeros per row (the barycentric weights).
         """
         return self._matrix
+
+    def interpolation_rows(self, rows: np.ndarray) -> sp.csr_matrix:
+        """Sparse (m, N) matrix: the rows ``rows`` (m,) int of :meth:`interpolation_matrix`.
+
+        Equal to ``interpolation_matrix()[rows]`` (same data, indices and dtypes), built
+        directly from the selected pixels without the full matrix.
+        """
+        rows = np.asarray(rows, dtype=np.int64)
+        return self._csr(self.visible_triangle[rows], np.take(self.visible_bary, rows, axis=0))
 
     def interpolate_visible(self, vertex_values: np.ndarray) -> np.ndarray:
         """(n_visible,) or (n_visible, k): per-vertex values at the visible points (``M @ values``)."""
@@ -267,60 +287,96 @@ def rasterize(camera: Camera, vertices: np.ndarray, triangles: np.ndarray) -> Ra
           & (cmin <= cmax) & (rmin <= rmax) & np.all(np.isfinite(scr[tris]), axis=(1, 2)))
     t_ok = np.flatnonzero(ok)
 
-    # scanline: one (triangle, row) pair per pixel row of each triangle's bounding box
+    # scanline: one span (triangle, row) per pixel row of each triangle's bounding box
     n_rows = (rmax[t_ok] - rmin[t_ok] + 1).astype(np.int64)
     tr = np.repeat(t_ok, n_rows)
-    row = (rmin[tr] + _ragged_arange(n_rows)).astype(float)
-    # exact column span on this row: each barycentric w_i = gc_i col + gr_i row + g0_i >= -tol
-    col_lo = cmin[tr].copy()
-    col_hi = cmax[tr].copy()
-    for gc, gr, g0 in ((g0c, g0r, g00), (g1c, g1r, g10), (g2c, g2r, g20)):
-        gct = gc[tr]
-        rhs = -_INSIDE_TOL - (gr[tr] * row + g0[tr])       # need gc * col >= rhs
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bound = rhs / gct
-            col_lo = np.where(gct > 0, np.maximum(col_lo, np.ceil(bound)), col_lo)
-            col_hi = np.where(gct < 0, np.minimum(col_hi, np.floor(bound)), col_hi)
-        col_hi = np.where((gct == 0) & (rhs > 0), -1.0, col_hi)   # edge parallel to the row, row outside
-    n_cols = np.maximum(col_hi - col_lo + 1, 0).astype(np.int64)
-    keep = n_cols > 0
-    tr, row, col_lo, n_cols = tr[keep], row[keep], col_lo[keep], n_cols[keep]
-    tri = np.repeat(tr, n_cols)
-    fr = np.repeat(row, n_cols)
-    fc = np.repeat(col_lo, n_cols) + _ragged_arange(n_cols)
-    w1 = g1c[tri] * fc + g1r[tri] * fr + g10[tri]
-    w2 = g2c[tri] * fc + g2r[tri] * fr + g20[tri]
-    pix = fr.astype(np.int64) * width + fc.astype(np.int64)
 
-    return _resolve_depth((height, width), pix, tri, w1, w2, verts, tris)
+    def per_span(per_triangle: np.ndarray) -> np.ndarray:
+        return np.repeat(per_triangle[t_ok], n_rows)
+
+    first_row = np.cumsum(n_rows) - n_rows                 # first span of each triangle
+    row = np.repeat(rmin[t_ok] - first_row, n_rows) + np.arange(tr.size)    # exact integers
+    # exact column span on this row: each barycentric w_i = gc_i col + gr_i row + g0_i >= -tol
+    col_lo, col_hi = per_span(cmin), per_span(cmax)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for gc, gr, g0 in ((g0c, g0r, g00), (g1c, g1r, g10), (g2c, g2r, g20)):
+            gct = per_span(gc)
+            rhs = per_span(gr)
+            rhs *= row
+            rhs += per_span(g0)
+            np.subtract(-_INSIDE_TOL, rhs, out=rhs)         # need gc * col >= rhs
+            bound = rhs / gct
+            np.maximum(col_lo, np.ceil(bound), out=col_lo, where=gct > 0)
+            np.minimum(col_hi, np.floor(bound), out=col_hi, where=gct < 0)
+            col_hi[(gct == 0) & (rhs > 0)] = -1.0            # edge parallel to the row, row outside
+    n_cols = np.maximum(col_hi - col_lo + 1, 0).astype(np.int64)
+
+    # fragments: the n_cols[i] pixel centres of span i, span after span (triangle, row, column order);
+    # per-span values reach the fragments by np.repeat (cheaper than gathering by triangle)
+    first = np.cumsum(n_cols) - n_cols                    # first fragment of each span
+    k = np.arange(int(n_cols.sum()), dtype=np.int64)      # fragment index
+    tri = np.repeat(tr, n_cols)
+    fc = np.repeat(col_lo - first, n_cols) + k            # column (exact integers): col_lo + k - first
+    pix = np.repeat((row * width + col_lo).astype(np.int64) - first, n_cols) + k
+
+    def per_fragment(per_triangle: np.ndarray) -> np.ndarray:
+        return np.repeat(per_triangle[tr], n_cols)
+
+    def bary_weight(gc: np.ndarray, gr: np.ndarray, g0: np.ndarray) -> np.ndarray:
+        # gc * col + gr * row + g0, evaluated in this order (gr * row is constant along a span)
+        w = per_fragment(gc)
+        w *= fc
+        w += np.repeat(gr[tr] * row, n_cols)
+        w += per_fragment(g0)
+        return w
+
+    w1, w2 = bary_weight(g1c, g1r, g10), bary_weight(g2c, g2r, g20)
+    return _resolve_depth((height, width), pix, tri, w1, w2, verts, tris, per_fragment)
 
 
 def _resolve_depth(shape: tuple[int, ...], pix: np.ndarray, tri: np.ndarray, w1: np.ndarray, w2: np.ndarray,
-                   verts: np.ndarray, tris: np.ndarray) -> Raster:
-    """Depth test over fragments (sample index, triangle, barycentric w1, w2): largest z wins."""
-    n_pix = int(np.prod(shape))
+                   verts: np.ndarray, tris: np.ndarray,
+                   per_fragment: Callable[[np.ndarray], np.ndarray] | None = None) -> Raster:
+    """Depth test over fragments (sample index, triangle, barycentric w1, w2): largest z wins.
+
+    Among fragments of equal z on one sample the one with the largest fragment index wins.
+    ``per_fragment`` maps a (K,) per-triangle array to its (n,) values at the fragments
+    (default ``a[tri]``; :func:`rasterize` passes a cheaper equivalent).  w1 and w2 are
+    clipped to the triangle in place.
+    """
+    n_pix = math.prod(shape)
     if pix.size == 0:
         empty = np.zeros(0, dtype=np.int64)
         return Raster(shape, empty, empty, np.zeros((0, 3)), np.zeros(0), tris, int(len(verts)))
-    w1 = np.clip(w1, 0.0, 1.0)
-    w2 = np.clip(w2, 0.0, 1.0)
+    if per_fragment is None:
+        def per_fragment(per_triangle: np.ndarray) -> np.ndarray:
+            return per_triangle[tri]
+    np.clip(w1, 0.0, 1.0, out=w1)
+    np.clip(w2, 0.0, 1.0, out=w2)
     s12 = w1 + w2
-    over = s12 > 1.0
+    over = np.flatnonzero(s12 > 1.0)
     w1[over] /= s12[over]
     w2[over] /= s12[over]
     zt = verts[tris, 2]                                     # (K, 3)
     za, dz1, dz2 = zt[:, 0], zt[:, 1] - zt[:, 0], zt[:, 2] - zt[:, 0]
-    z = za[tri] + w1 * dz1[tri] + w2 * dz2[tri]
+    z = per_fragment(dz1)                                   # z = za + w1 dz1 + w2 dz2, in this order
+    z *= w1
+    z += per_fragment(za)
+    dz = per_fragment(dz2)
+    dz *= w2
+    z += dz
     zbuf = np.full(n_pix, -np.inf)
     np.maximum.at(zbuf, pix, z)
     win = np.flatnonzero(z >= zbuf[pix])
     winner = np.full(n_pix, -1, dtype=np.int64)
-    winner[pix[win]] = win                                 # ties (shared edges): any one winner
+    winner[pix[win]] = win                                 # ties (shared edges): the last one wins
     vis = np.flatnonzero(winner >= 0)
     f = winner[vis]
+    b1, b2 = w1[f], w2[f]
+    b0 = 1.0 - b1
+    b0 -= b2
     bary = np.empty((f.size, 3))
-    bary[:, 1], bary[:, 2] = w1[f], w2[f]
-    bary[:, 0] = 1.0 - bary[:, 1] - bary[:, 2]
+    bary[:, 0], bary[:, 1], bary[:, 2] = b0, b1, b2
     return Raster(shape, vis, tri[f], bary, z[f], tris, int(len(verts)))
 
 

@@ -158,11 +158,19 @@ class OptimizeConfig(_Section):
     motion_weight: float = Field(1e-4, ge=0, le=1e6, description="Weight of the motion term, 1/(mm/s)^2")
     gap_weight: float = Field(1.0, ge=0, le=1e6, description="Weight of the arctan gap term (1)")
     gap_length_mm: float = Field(0.25, gt=0, le=10, description="Length scale of the gap term's arctan((d/l)^2), mm")
+    motion_outside: Literal["paper", "symmetric"] = Field(
+        "paper", description="Motion term where only one of simulation and recording sees tissue: 'paper': only the "
+        "recording's side costs |v|^2 (the paper's one-sided E); 'symmetric': the simulation's side in the measured gap "
+        "costs |v_bar|^2 too (vfcli/objective.py)")
     keep_every: int = Field(1, ge=1, le=10000, description="Store the control values of every k-th iteration")
     uncertainty: bool = Field(True, description="Compute the posterior standard deviation of every reconstructed "
                               "displacement (vfcli/uncertainty.py)")
     stop_rel_decrease: float = Field(
         1e-5, ge=0, le=1, description="Stop when an iteration lowers E by less than this fraction of E (1)"
+    )
+    stop_rel_change: float = Field(
+        1e-3, ge=0, le=1, description="gauss-newton: stop when an accepted step changes the reconstructed displacements "
+        "by less than this fraction of their RMS (1; 0: off)"
     )
     loads: Literal["free", "free-regularised", "pressure"] = Field(
         "pressure", description="Load model: 'free': the paper's force field (optimize.setup); 'free-regularised': the "

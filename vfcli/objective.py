@@ -29,6 +29,20 @@ m_exp (``measurement.valid``)::
 summed over the pixels and divided by N_f = number of valid measured pixels of
 the frame (so E_motion is a mean squared velocity error, (mm/s)^2).
 
+This is one-sided: a pixel where only the recording sees tissue costs |v|^2, a
+pixel where only the simulation sees tissue costs nothing, so a step that moves
+the simulated medial edge into the measured gap is never charged for it (the
+raster is frozen in the gradient; the charge acts through which steps lower E).
+``ObjectiveSettings.outside = "symmetric"`` charges that case too, where the
+recording positively sees no tissue (the measured gap, ``Measurement.gap``)::
+
+    only m_sim, in the measured gap:  |v_bar|^2
+
+(pixels merely outside the measured region, e.g. beyond the vibrometer's hull,
+still cost nothing).  Near an edge v ~ v_bar, so an edge pixel costs about the
+same whichever side the mismatch is on.  ``"paper"`` (the default) is the
+paper's literal E.
+
 Gap term (our differentiable definition of the arctan term)
 ------------------------------------------------------------
 Rays are the lateral image lines (one per column when ``lateral_axis == 0``, as in
@@ -86,6 +100,8 @@ class Measurement:
     valid : (F, H, W) bool, m_exp.
     gap_lo, gap_hi : (F, n_rays) lateral px of the measured silhouettes facing
         the fold at smaller / larger lateral px; NaN: no target on that ray.
+    gap : (F, H, W) bool measured gap masks (where the recording sees no tissue), or
+        None; needed by ``ObjectiveSettings.outside = "symmetric"``.
     """
 
     times: np.ndarray
@@ -93,6 +109,7 @@ class Measurement:
     valid: np.ndarray
     gap_lo: np.ndarray
     gap_hi: np.ndarray
+    gap: np.ndarray | None = None
 
     @property
     def dt(self) -> float:
@@ -106,7 +123,12 @@ class Measurement:
         velocity, valid : as :func:`vfcli.fields.combine_fields` returns them for the frames at ``times``.
         """
         lo, hi = measured_silhouettes(gap_masks, lateral_axis, initial_center)
-        return cls(np.asarray(times, float), np.asarray(velocity), np.asarray(valid, bool), lo, hi)
+        return cls(np.asarray(times, float), np.asarray(velocity), np.asarray(valid, bool), lo, hi,
+                   np.asarray(gap_masks, bool))
+
+
+#: how the motion term charges pixels that only one of simulation and recording sees
+OUTSIDE = ("paper", "symmetric")
 
 
 @dataclass(frozen=True)
@@ -124,8 +146,13 @@ class ObjectiveSettings:
     #: paper's |v - v_bar|^2); (1, 1, 0) keeps the camera's in-plane motion only, (0, 0, 1)
     #: the vibrometer's vertical velocity only (:mod:`vfcli.uncertainty` compares the two)
     component_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    #: "paper": a pixel only the simulation sees costs nothing (the paper's one-sided E);
+    #: "symmetric": it costs |v_bar|^2 where the recording sees the gap (module docstring)
+    outside: str = "paper"
 
     def __post_init__(self) -> None:
+        if self.outside not in OUTSIDE:
+            raise ConfigError(f"outside must be one of {OUTSIDE}, got {self.outside!r}")
         if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0
                 and len(self.component_weights) == 3 and min(self.component_weights) >= 0):
             raise ConfigError("objective weights must be >= 0")
@@ -149,8 +176,9 @@ class Terms:
 class _Frame:
     """Frozen linearisation data of one frame."""
 
-    m_both: object          # csr (n_both, N): interpolation rows of pixels valid in both
-    v_both: np.ndarray      # (n_both, 3) measured velocity there, mm/s
+    m_both: object          # csr (n_both, N): interpolation rows of the compared pixels (valid in both,
+    #                         and with outside="symmetric" the simulated pixels in the measured gap)
+    v_both: np.ndarray      # (n_both, 3) measured velocity there (0 in the gap), mm/s
     const: float            # sum of |v|^2 over pixels valid only in the measurement
     n_norm: float           # N_f
     sil: list               # per fold side (lo, hi): (ray coordinate, edge, target px)
@@ -187,6 +215,8 @@ class Problem:
         if measurement.velocity.shape != (f, h, w, 3) or measurement.valid.shape != (f, h, w):
             raise ConfigError(f"measurement velocity/valid must be ({f}, {h}, {w}, 3)/({f}, {h}, {w}), got "
                               f"{measurement.velocity.shape}/{measurement.valid.shape}")
+        if st.outside == "symmetric" and (measurement.gap is None or np.shape(measurement.gap) != (f, h, w)):
+            raise ConfigError(f"outside='symmetric' needs the measurement's ({f}, {h}, {w}) gap masks")
         self.dt = float(times[1] - times[0])
         self.sim_times = np.append(times, times[-1] + self.dt)
         self.n_frames = f
@@ -240,11 +270,15 @@ class Problem:
         """
         scr = self.camera.project(positions)
         out = []
+        limits = (int(self.rays[0]), int(self.rays[-1]) + 1) if len(self.rays) else (0, 0)
+        # the limits lie within the image; when the ray set has no holes they are the ray set
+        contiguous = len(self.rays) == limits[1] - limits[0]
         for side, k in enumerate(self.fold_order):
-            e, c, s = edge_crossings(scr, self.fold_edges[k], self.ray_comp)
-            keep = (c >= 0) & (c < self.n_rays_img)
-            keep[keep] = self._in_rays[c[keep]]
-            rays, edge = extreme_per_ray(e[keep], c[keep], s[keep], take_max=(side == 0))
+            e, c, s = edge_crossings(scr, self.fold_edges[k], self.ray_comp, limits)
+            if not contiguous:
+                keep = self._in_rays[c]
+                e, c, s = e[keep], c[keep], s[keep]
+            rays, edge = extreme_per_ray(e, c, s, take_max=(side == 0))
             ee = self.fold_edges[k][edge]
             lam = (rays - scr[ee[:, 0], self.ray_comp]) / (scr[ee[:, 1], self.ray_comp] - scr[ee[:, 0], self.ray_comp])
             lc = 1 - self.ray_comp
@@ -255,25 +289,38 @@ class Problem:
         """Rasters and silhouette edges of every frame at ``x`` (the linearisation point)."""
         u = self.displacements(x) if disp is None else disp
         cw = np.asarray(self.settings.component_weights, dtype=float)
+        symmetric = self.settings.outside == "symmetric"
+        n_pix = int(np.prod(self.camera.shape))
         frames = []
         for f in range(self.n_frames):
             pos = self.mesh.nodes + u[f]
             raster = rasterize(self.camera, pos, self.tri)
-            valid = self.meas.valid[f].ravel()
-            vel = self.meas.velocity[f].reshape(-1, 3).astype(float)
+            valid = self.meas.valid[f].reshape(n_pix)                # (H W,) bool
+            vel = self.meas.velocity[f].reshape(n_pix, 3)            # (H W, 3) mm/s, any float dtype
             vis = raster.visible_index
             both = valid[vis]
             only = valid.copy()
             only[vis] = False
-            m_both = raster.interpolation_matrix()[np.flatnonzero(both)]
+            pix_only = np.flatnonzero(only)
+            if symmetric:
+                # the simulation sees tissue where the recording sees the gap: compare with v = 0
+                both |= self.meas.gap[f].reshape(n_pix)[vis]
+            rows = np.flatnonzero(both)
+            pix_both = vis[rows]
+            # gather the compared pixels first, then convert (not the whole frame); np.take is a
+            # much faster row gather than fancy indexing
+            v_both = np.take(vel, pix_both, axis=0).astype(float, copy=False)
+            if symmetric:
+                v_both[~valid[pix_both]] = 0.0
+            v_only = np.take(vel, pix_only, axis=0).astype(float, copy=False)
             sil = []
             targets = (self.meas.gap_lo[f], self.meas.gap_hi[f])
             for side, (rays, edge, _) in enumerate(self.silhouettes(pos)):
                 tgt = targets[side][rays]
                 ok = np.isfinite(tgt)
                 sil.append((rays[ok], edge[ok], tgt[ok]))
-            frames.append(_Frame(m_both, vel[vis[both]], float(np.sum(vel[only] ** 2 @ cw)),
-                                 float(max(1, valid.sum())), sil, vis[both], np.flatnonzero(only)))
+            frames.append(_Frame(raster.interpolation_rows(rows), v_both, float(np.sum(v_only ** 2 @ cw)),
+                                 float(max(1, np.count_nonzero(valid))), sil, pix_both, pix_only))
         return frames
 
     # ------------------------------------------------------------ value and gradient
@@ -327,7 +374,8 @@ class Problem:
         """(F, H, W, 3) simulated minus measured velocity, mm/s, for a frozen raster.
 
         Pixels valid in both: ``v_bar - v``; valid only in the measurement: ``-v``
-        (the paper's second case); elsewhere NaN.
+        (the paper's second case); with ``outside="symmetric"``, ``v_bar`` where only the
+        simulation sees tissue in the measured gap; elsewhere NaN.
         """
         u = self.displacements(np.asarray(x, float))
         h, w = self.camera.shape
@@ -363,9 +411,9 @@ def synthesize_measurement(mesh: FoldMesh, camera: Camera, response, times: np.n
     """Forward-simulate a measurement from control values (for tests and phantoms).
 
     The velocity is the model's forward-difference v_bar on the visible surface
-    (valid where a surface is visible), the gap targets are the model's own
-    silhouettes on every ray both folds cross (NaN elsewhere): a fit of the same
-    model can reach E = 0.
+    (valid where a surface is visible, the gap mask everywhere else), the gap targets
+    are the model's own silhouettes on every ray both folds cross (NaN elsewhere): a
+    fit of the same model can reach E = 0.
     """
     settings = settings or ObjectiveSettings()
     times = np.asarray(times, dtype=float)
@@ -387,4 +435,5 @@ def synthesize_measurement(mesh: FoldMesh, camera: Camera, response, times: np.n
         common = np.intersect1d(r0, r1)
         lo[k, common] = s0[np.searchsorted(r0, common)]
         hi[k, common] = s1[np.searchsorted(r1, common)]
-    return Measurement(times, vel.reshape(f, h, w, 3), valid.reshape(f, h, w), lo, hi)
+    valid = valid.reshape(f, h, w)
+    return Measurement(times, vel.reshape(f, h, w, 3), valid, lo, hi, ~valid)

@@ -76,6 +76,11 @@ class FitOptions:
     armijo : sufficient-decrease constant c1.
     max_line_search : trial points per line search before giving up.
     ftol : stop when the relative decrease of E in an iteration is below this.
+    xtol : gauss-newton also stops when an accepted step changes the problem's displacements
+        (``problem.displacements(x)``, or x itself) by less than this, RMS relative to their RMS
+        (0: off).  A Levenberg-Marquardt step is the damped minimiser of the whole model, so a
+        step that barely moves the reconstruction leaves the model nothing to gain; line-search
+        methods can take short steps far from the optimum, so they ignore it.
     gtol : stop when max |grad| is below this.
     fd_step : forward-difference step of the paper method, x units.
     lm_damping : initial Levenberg-Marquardt damping mu (gauss-newton), relative to diag(H).
@@ -87,6 +92,7 @@ class FitOptions:
     armijo: float = 1e-4
     max_line_search: int = 30
     ftol: float = 1e-12
+    xtol: float = 0.0
     gtol: float = 0.0
     fd_step: float = 1e-1
     lm_damping: float = 1e-3
@@ -211,6 +217,13 @@ class _Counter:
         return g
 
 
+def _relative_change(problem, x_old: np.ndarray, x_new: np.ndarray) -> float:
+    """RMS of the change of ``problem.displacements`` (or of x) from x_old to x_new over the RMS at x_new."""
+    disp = getattr(problem, "displacements", None)
+    a, b = (disp(x_old), disp(x_new)) if disp is not None else (x_old, x_new)
+    return float(np.sqrt(np.mean((b - a) ** 2)) / max(np.sqrt(np.mean(b ** 2)), 1e-300))
+
+
 def _terms_array(t: Terms) -> np.ndarray:
     return np.array([t.total, t.motion, t.gap, t.ridge], dtype=float)
 
@@ -300,11 +313,12 @@ def _gn_step(obj: _Counter, st: FitState, opts: FitOptions) -> tuple[bool, float
     f0, g, hess = st.value[0], model.grad, model.hessian
     mu = st.gamma if st.gamma > 0 else opts.lm_damping
     nu = 2.0
-    for attempt in range(opts.max_line_search):
+    for _ in range(opts.max_line_search):
         s = _lm_solve(hess, g, mu)
         predicted = -(g @ s + 0.5 * s @ (hess @ s))
-        if attempt == 0 and predicted <= opts.ftol * abs(f0):
-            # even the model's own minimiser would not lower E by the stopping fraction: converged
+        if predicted <= opts.ftol * abs(f0):
+            # even the model's own (damped) minimiser would not lower E by the stopping fraction, and more
+            # damping predicts less: converged
             st.message = "predicted decrease below ftol"
             return False, 0.0
         x_new = st.x + s
@@ -418,6 +432,11 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
         if method == "paper":
             t = obj.value(x)
             state.grad = obj.fd_grad(x, t.total, opts.fd_step)
+        elif method == "gauss-newton":
+            # the first step needs the model at x0: build it on the rasters of this evaluation
+            t, frozen = obj.linearize(x)
+            obj.model = obj.quadratic(x, frozen)
+            state.grad = obj.model.grad
         else:
             t, state.grad = obj.value_and_grad(x)
         state.value = _terms_array(t)
@@ -434,7 +453,7 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
         if np.max(np.abs(state.grad), initial=0.0) <= opts.gtol:
             state.converged, state.message = True, "gradient below gtol"
             break
-        f_before = state.value[0]
+        f_before, x_before = state.value[0], state.x
         moved, step = step_fn(obj, state, opts)
         if not moved:
             state.converged, state.message = True, state.message or "line search found no decrease"
@@ -445,6 +464,9 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
                  *state.value)
         if f_before - state.value[0] <= opts.ftol * max(abs(f_before), 1e-300):
             state.converged, state.message = True, "relative decrease below ftol"
+            break
+        if method == "gauss-newton" and opts.xtol > 0 and _relative_change(problem, x_before, state.x) < opts.xtol:
+            state.converged, state.message = True, "reconstruction change below xtol"
             break
         if callback is not None and callback(state):
             state.message = "stopped by callback"

@@ -190,9 +190,10 @@ def displacement_std(covariance: BlockMatrix, basis: np.ndarray, time_basis: np.
     n_v = basis.shape[0]
     var = np.zeros((len(time_basis), n_v, 3))
     for idx, cov in zip(covariance.indices, covariance.blocks):
-        spatial = idx.reshape(-1, n_t)[:, 0] // n_t                  # the block's spatial indices
+        order = np.argsort(idx)                                       # the block in x order: spatial-major
+        spatial = idx[order].reshape(-1, n_t)[:, 0] // n_t           # the block's spatial indices
         s = len(spatial)
-        c4 = cov.reshape(s, n_t, s, n_t)
+        c4 = cov[np.ix_(order, order)].reshape(s, n_t, s, n_t)
         rb = np.ascontiguousarray(basis[:, :, spatial]).reshape(n_v * 3, s)
         for f, b in enumerate(time_basis):
             w = np.einsum("itjb,t,b->ij", c4, b, b)                   # (s, s) covariance of C b

@@ -117,7 +117,7 @@ def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[s
     response = QuasiStaticResponse(model, field)
     ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
     settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
-                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0)
+                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside)
     measurement = Measurement.from_gap_masks(times, velocity, valid, gaps)
     info: dict[str, Any] = {"rotation_deg": rotation, "offset_px": list(offset), "pose_source": pose_source,
                             "field": field, "lcurve": None}
@@ -184,7 +184,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         problem, info = build_problem(reader, ctx)
         label = f"{'pressure loads' if cfg.loads == 'pressure' else f'{cfg.setup}, {cfg.loads}'} ({cfg.method})"
-        opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease)
+        opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease, xtol=cfg.stop_rel_change)
         bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")
 
         def checkpoint(state: FitState) -> None:
@@ -223,7 +223,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         for key in ("iteration", "total", "motion", "gap", "ridge", "step", "wall_time", "n_evals"):
             s.put(f"history_{key}", np.asarray(h[key]))
         s.set_attrs(setup=cfg.setup if cfg.loads != "pressure" else "pressure", loads=cfg.loads,
-                    ridge_weight=problem.settings.ridge_weight, method=cfg.method, converged=bool(result.converged),
+                    ridge_weight=problem.settings.ridge_weight, motion_outside=problem.settings.outside,
+                    method=cfg.method, converged=bool(result.converged),
                     message=str(result.message), camera_rotation_deg=info["rotation_deg"],
                     camera_offset_px=np.asarray(info["offset_px"]), pose_source=info["pose_source"],
                     px_per_mm=problem.camera.px_per_mm, **unc)
