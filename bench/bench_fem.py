@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vfcli.fem import ElasticModel
-from vfcli.m5 import M5Params
-from vfcli.mesh import DEFAULT_EDGE_MM, TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR, build_mesh
-from vfcli.solver import available_backends, factorize
+from vfcli.model.fem import ElasticModel
+from vfcli.model.m5 import M5Params
+from vfcli.model.mesh import DEFAULT_EDGE_MM, TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR, build_mesh
+from vfcli.model.solver import available_backends, factorize
 
 N_CASES = 250
 SIZES = {"coarse": 2.0, "default": DEFAULT_EDGE_MM, "fine": 1.25}
@@ -146,7 +146,7 @@ def markdown(size_rows: list[dict], struct_rows: list[dict], h_struct: float, n_
             "Findings:",
             f"- Default size (edge {default[0]['h']:g} mm, {default[0]['dofs']} DOFs): mesh + assemble + "
             f"factorise + {n_cases} solves took {totals} (target: under 20 s). Fastest: {best['backend']}. "
-            "`backend=\"auto\"` picks the first installed of `vfcli.solver.AUTO_ORDER`; splu (SuperLU, "
+            "`backend=\"auto\"` picks the first installed of `vfcli.model.solver.AUTO_ORDER`; splu (SuperLU, "
             "always installed) is the fallback.",
             "- Accuracy at the default size (tests/test_fem.py): the six lowest eigenfrequencies of one fold "
             "are within 1 % of the reference 49.0, 72.6, 84.1, 85.5, 95.5, 98.2 Hz; the lateral and vertical "

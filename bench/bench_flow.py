@@ -1,6 +1,6 @@
 """Frames per second of the whole flow step against OpenCV's raw optical-flow call.
 
-The whole step is :func:`vfcli.opticalflow.flow_stream`: 12-to-8-bit conversion, gap
+The whole step is :func:`vfcli.flow.optical_flow.flow_stream`: 12-to-8-bit conversion, gap
 mask (threshold, median, components), glottal area, opening function, optical flow
 (one call per pair; two with ``split_folds``), central velocity at frame times, gap
 zeroing and conversion to mm/s. The raw call is OpenCV's flow function alone on the
@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from _flow_phantom import SlitPhantom  # noqa: E402
-from vfcli.gap import gap_threshold  # noqa: E402
-from vfcli.opticalflow import FlowEstimator, flow_stream, intensity_range, to_uint8  # noqa: E402
+from vfcli.flow.gap.detect import gap_threshold  # noqa: E402
+from vfcli.flow.optical_flow import FlowEstimator, flow_stream, intensity_range, to_uint8  # noqa: E402
 
 METHODS = [("sparse_to_dense", None, False), ("sparse_to_dense", None, True), ("dis", "medium", False),
            ("dis", "fast", False), ("dis", "ultrafast", False)]

@@ -35,8 +35,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _runner import best  # noqa: E402
-from vfcli.io.photron import write_mraw  # noqa: E402
-from vfcli.io.video import open_video  # noqa: E402
+from vfcli.io.video.photron import write_mraw  # noqa: E402
+from vfcli.io.video.base import open_video  # noqa: E402
 
 
 def _frames(n: int, h: int, w: int, block: int = 32):
@@ -118,8 +118,8 @@ def _bench_ldv(rows: int = 17, cols: int = 22, n_s: int = 10_000) -> None:
     """Write and read a full PSV-style UFF scan (374 points x 2 channels x 10,000 samples)."""
     import pyuff
 
-    from vfcli.io.ldv import LdvScan, read_ldv
-    from vfcli.io.ldv_write import write_ldv_uff
+    from vfcli.io.ldv.read import LdvScan, read_ldv
+    from vfcli.io.ldv.write import write_ldv_uff
 
     rng = np.random.default_rng(0)
     rr, cc = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")

@@ -5,13 +5,13 @@ then `vfcli optimize` with three load models on the same window:
 
 * `free`: the paper's literal force field (``--setup``, no bound on the loads);
 * `free-regularised`: the same field with the Tikhonov term (size + smoothness) whose
-  weight the L-curve chooses (vfcli/regularization.py);
+  weight the L-curve chooses (vfcli/inverse/regularization.py);
 * `pressure`: shared normal pressure tied to the recorded subglottal pressure, ridge by
-  the L-curve (vfcli/loads.py).
+  the L-curve (vfcli/model/loads/pressure.py).
 
 Reported per run: inferior-surface RMS displacement error relative to the RMS true
 displacement (the inferior surface is never observed), the stated uncertainty (RMS posterior
-standard deviation relative to the RMS reconstructed displacement, vfcli/uncertainty.py),
+standard deviation relative to the RMS reconstructed displacement, vfcli/inverse/uncertainty.py),
 the coverage of the stated 90 % intervals over inferior nodes x components x frames, the
 chosen ridge weight and the wall time.
 
@@ -32,10 +32,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from _runner import vfcli  # noqa: E402
-from vfcli.mesh import FoldMesh  # noqa: E402
-from vfcli.scoring import interval_coverage, relative_rms_error, side_truth  # noqa: E402
+from vfcli.model.mesh import FoldMesh  # noqa: E402
+from vfcli.synth.scoring import interval_coverage, relative_rms_error, side_truth  # noqa: E402
 from vfcli.stages.mesh import read_mesh  # noqa: E402
-from vfcli.store import Store, read_truth  # noqa: E402
+from vfcli.store.transaction import Store, read_truth  # noqa: E402
 
 MODELS = {
     "free (paper)": ["--loads", "free"],

@@ -16,7 +16,7 @@ Reproduce::
 
 ``--loads pressure`` runs the pressure load model instead (``optimize.loads='pressure'``, run name
 ``pressure``: shared normal pressure on the inferior and medial surfaces tied to the recorded
-subglottal pressure, vfcli/loads.py); ``both`` adds it as a row after the three free setups.
+subglottal pressure, vfcli/model/loads/pressure.py); ``both`` adds it as a row after the three free setups.
 """
 from __future__ import annotations
 
@@ -31,12 +31,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from vfcli.mesh import FoldMesh  # noqa: E402
-from vfcli.scoring import relative_rms_error, side_truth  # noqa: E402
+from vfcli.model.mesh import FoldMesh  # noqa: E402
+from vfcli.synth.scoring import relative_rms_error, side_truth  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
 from vfcli.stages.mesh import read_mesh  # noqa: E402
 from vfcli.stages.optimize import build_problem  # noqa: E402
-from vfcli.store import Store, read_truth  # noqa: E402
+from vfcli.store.transaction import Store, read_truth  # noqa: E402
 
 SETUPS = ["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]
 

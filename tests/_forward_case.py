@@ -13,12 +13,12 @@ from functools import lru_cache
 
 import numpy as np
 
-from vfcli.camera import Camera
-from vfcli.fem import ElasticModel
-from vfcli.forces import ForceField, ForceFieldSpec
-from vfcli.mesh import build_mesh
-from vfcli.objective import Measurement, ObjectiveSettings, Problem, synthesize_measurement
-from vfcli.response import QuasiStaticResponse
+from vfcli.camera.camera import Camera
+from vfcli.model.fem import ElasticModel
+from vfcli.model.loads.force_field import ForceField, ForceFieldSpec
+from vfcli.model.mesh import build_mesh
+from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem, synthesize_measurement
+from vfcli.model.response.quasi_static import QuasiStaticResponse
 
 CAMERA = Camera(px_per_mm=8, rotation_deg=0, offset_px=(4.0, 48.3), width=128, height=96)
 F0_HZ = 170.0

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from math import comb
 
-from vfcli.bernstein import (bernstein, bernstein_derivative, degree_elevation_matrix, evaluate_tensor,
+from vfcli.model.loads.bernstein import (bernstein, bernstein_derivative, degree_elevation_matrix, evaluate_tensor,
                              piecewise_bernstein, tensor_basis)
 from vfcli.errors import ConfigError
 

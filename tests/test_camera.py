@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vfcli.camera import Camera, gap_mask, interpolate, rasterize, raycast_points, surface_velocity
+from vfcli.camera.camera import Camera, gap_mask, interpolate, rasterize, raycast_points, surface_velocity
 from vfcli.errors import ConfigError
 
 

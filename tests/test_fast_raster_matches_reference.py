@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vfcli.camera import _INSIDE_TOL, Camera, rasterize
-from vfcli.objective import Measurement, Problem
-from vfcli.silhouette import edge_crossings, extreme_per_ray
+from vfcli.camera.camera import _INSIDE_TOL, Camera, rasterize
+from vfcli.inverse.problem import Measurement, Problem
+from vfcli.camera.silhouette import edge_crossings, extreme_per_ray
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import CAMERA, forward_case

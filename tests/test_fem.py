@@ -6,10 +6,10 @@ from skfem import (Basis, ElementTetP1, ElementTetP2, ElementVector, FacetBasis,
 from skfem.models.elasticity import linear_elasticity
 
 from vfcli.errors import ConfigError
-from vfcli.fem import ElasticModel, facet_load_operator, lame_parameters, stiffness_matrix
-from vfcli.m5 import M5Params
-from vfcli.mesh import SIDE_NONE, TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL, build_mesh
-from vfcli.solver import available_backends
+from vfcli.model.fem import ElasticModel, facet_load_operator, lame_parameters, stiffness_matrix
+from vfcli.model.m5 import M5Params
+from vfcli.model.mesh import SIDE_NONE, TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL, build_mesh
+from vfcli.model.solver import available_backends
 
 PARAMS = M5Params()
 PRESSURE_PA = 800.0

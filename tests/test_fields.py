@@ -6,7 +6,7 @@ import pytest
 from scipy.interpolate import RBFInterpolator
 
 from vfcli.errors import ConfigError
-from vfcli.fields import (
+from vfcli.flow.velocity_field import (
     LdvTps,
     evaluate_field,
     hull_mask,

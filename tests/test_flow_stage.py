@@ -24,7 +24,7 @@ except ImportError:  # pragma: no cover
     from tests._flow_phantom import SlitPhantom
 from vfcli.stages.base import RunContext
 from vfcli.stages.flow import lateral_axis_for, run_flow, sample_indices
-from vfcli.store import Store
+from vfcli.store.transaction import Store
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRST, N_FRAMES = 20, 24  # phantom frames 20..43: the gap opens wide, closes, stays closed
@@ -291,8 +291,8 @@ def test_memory_does_not_grow_frame_by_frame(tmp_path):
 
 
 def test_subpixel_edges_off_gives_the_papers_binary_mask(tmp_path):
-    """flow.subpixel_edges = false: threshold + median filter (vfcli.gap.gap_mask) and its pixel count."""
-    from vfcli.gap import gap_mask, glottal_area
+    """flow.subpixel_edges = false: threshold + median filter (vfcli.flow.gap.detect.gap_mask) and its pixel count."""
+    from vfcli.flow.gap.detect import gap_mask, glottal_area
 
     ph = SlitPhantom(height=64, width=64, midline_row=31.3, glottis_cols=(4, 60), lam_px=11.0, delta_max_px=(5.0, 4.0))
     frames = np.stack([ph.render(ph.frame_time(k)) for k in range(0, 40, 4)])

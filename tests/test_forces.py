@@ -4,8 +4,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from vfcli.errors import ConfigError
-from vfcli.forces import ForceField, ForceFieldSpec
-from vfcli.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
+from vfcli.model.loads.force_field import ForceField, ForceFieldSpec
+from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import elastic_model
@@ -101,7 +101,7 @@ def test_time_basis_spans_the_time_range():
 
 
 def test_penalty_operator_is_size_plus_squared_neighbour_differences():
-    from vfcli.forces import ForceField, ForceFieldSpec
+    from vfcli.model.loads.force_field import ForceField, ForceFieldSpec
 
     field = ForceField(ForceFieldSpec((2, 3, 4), ("inferior",)), (0.0, 1.0))
     omega = field.penalty_operator().toarray()

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from vfcli.frame_chunks import (
+from vfcli.store.chunks import (
     ZLIB_HEADER,
     ChunkCodec,
     ValueRangeError,
@@ -29,8 +29,8 @@ from vfcli.frame_chunks import (
     unpack_nbit12,
     unshuffle_bytes,
 )
-from vfcli.io.photron import Packed12Frames, pack_12bit
-from vfcli.store import CHUNK_CODECS
+from vfcli.io.video.photron import Packed12Frames, pack_12bit
+from vfcli.store.transaction import CHUNK_CODECS
 
 #: Codecs whose chunks are zlib streams or raw bytes (N-bit chunks are tested on their own).
 CODECS = {**{k: c for k, c in CHUNK_CODECS.items() if c.nbit is None},

@@ -9,8 +9,8 @@ from scipy.ndimage import gaussian_filter
 
 from _flow_phantom import SlitPhantom
 from vfcli.errors import ConfigError
-from vfcli.gap import binary_median_1d, gap_mask, gap_threshold, glottal_area, midline_from_masks
-from vfcli.gap_edges import (
+from vfcli.flow.gap.detect import binary_median_1d, gap_mask, gap_threshold, glottal_area, midline_from_masks
+from vfcli.flow.gap.subpixel import (
     EdgeModel,
     SubpixelGap,
     area_from_edges,
@@ -46,7 +46,7 @@ def test_threshold_lies_between_gap_and_fold_surface(video):
 
 
 def test_plain_otsu_would_split_the_texture_but_ours_finds_the_gap(video):
-    from vfcli.gap import _otsu
+    from vfcli.flow.gap.detect import _otsu
 
     ph, frames, threshold = video
     x = frames.astype(float).ravel()
@@ -132,7 +132,7 @@ def test_columns_lateral_axis_is_the_transpose():
 def test_threshold_warns_when_the_gap_never_opens(video, caplog):
     ph, frames, _ = video
     closed = np.stack([f for f, k in zip(frames, CYCLE) if ph.gap_area_px2(ph.frame_time(k)) == 0])
-    with caplog.at_level(logging.WARNING, logger="vfcli.gap"):
+    with caplog.at_level(logging.WARNING, logger="vfcli.flow.gap.detect"):
         gap_threshold(closed)
     assert "no distinct edge" in caplog.text or "no gap core" in caplog.text
 

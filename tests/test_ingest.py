@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from vfcli.errors import ConfigError, InputDataError
-from vfcli.io.photron import write_mraw
-from vfcli.provenance import sha256_file
+from vfcli.io.video.photron import write_mraw
+from vfcli.store.provenance import sha256_file
 from vfcli.stages.base import RunContext
 from vfcli.stages.ingest import run_ingest_hsc
-from vfcli.store import Store
+from vfcli.store.transaction import Store
 
 FPS = 10000.0
 
@@ -141,7 +141,7 @@ def test_provenance_records_the_hashes_of_the_raw_files(tmp_path):
 
 def test_a_read_error_midway_leaves_the_store_untouched(tmp_path, monkeypatch):
     """The error raised in a decoding thread reaches the command; the transaction aborts."""
-    from vfcli.io import photron
+    from vfcli.io.video import photron
 
     _, (_, cihx) = _video(tmp_path)
     store = tmp_path / "r.h5"

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vfcli.errors import ConfigError
-from vfcli.instruments import (DROPOUT_FLAT, DROPOUT_NONE, DROPOUT_SPIKES, LdvSettings, PeriodicTable,
+from vfcli.synth.instruments import (DROPOUT_FLAT, DROPOUT_NONE, DROPOUT_SPIKES, LdvSettings, PeriodicTable,
                                PressureWaveform, cycle_phase, ldv_scan_grid, simulate_ldv_scan,
                                slow_f0_drift, subglottal_pressure, vertical_velocity_table,
                                video_pressure)

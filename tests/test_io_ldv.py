@@ -10,8 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from vfcli.errors import ConfigError, InputDataError
-from vfcli.io.ldv import LdvChannels, LdvScan, detect_dropouts, infer_grid, read_ldv
-from vfcli.io.ldv_write import write_ldv_csv, write_ldv_mat, write_ldv_uff
+from vfcli.io.ldv.read import LdvChannels, LdvScan, detect_dropouts, infer_grid, read_ldv
+from vfcli.io.ldv.write import write_ldv_csv, write_ldv_mat, write_ldv_uff
 
 FS = 50_000.0
 

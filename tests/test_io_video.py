@@ -11,9 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from vfcli.errors import ConfigError, InputDataError
-from vfcli.io.photron import pack_12bit, read_cih, unpack_12bit, write_mraw
-from vfcli.io.video import open_video, video_kinds
-from vfcli.io.video_formats import write_tiff
+from vfcli.io.video.photron import pack_12bit, read_cih, unpack_12bit, write_mraw
+from vfcli.io.video.base import open_video, video_kinds
+from vfcli.io.video.tiff_avi import write_tiff
 
 FPS = 20000.0
 
@@ -159,7 +159,7 @@ def test_reading_photron_metadata_does_not_import_pymraw_or_numba(tmp_path):
 
     mraw, _ = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
     code = ("import sys\n"
-            "from vfcli.io.video import open_video\n"
+            "from vfcli.io.video.base import open_video\n"
             "with open_video(sys.argv[1]) as v:\n"
             "    v.read()\n"
             "heavy = {'pyMRAW', 'numba'} & set(sys.modules)\n"

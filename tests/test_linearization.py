@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from vfcli.linearization import gap_rows, gauss_newton_model
-from vfcli.objective import ObjectiveSettings, Problem
+from vfcli.inverse.linearization import gap_rows, gauss_newton_model
+from vfcli.inverse.problem import ObjectiveSettings, Problem
 
 try:
     from _forward_case import CAMERA, forward_case

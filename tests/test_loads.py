@@ -4,11 +4,11 @@ import pytest
 from scipy.spatial import cKDTree
 
 from vfcli.errors import ConfigError
-from vfcli.loads import PressureLoad
-from vfcli.mesh import TAG_INFERIOR, TAG_MEDIAL
-from vfcli.objective import ObjectiveSettings, Problem, synthesize_measurement
-from vfcli.optimizer import FitOptions, fit
-from vfcli.response import QuasiStaticResponse
+from vfcli.model.loads.pressure import PressureLoad
+from vfcli.model.mesh import TAG_INFERIOR, TAG_MEDIAL
+from vfcli.inverse.problem import ObjectiveSettings, Problem, synthesize_measurement
+from vfcli.inverse.optimizers.base import FitOptions, fit
+from vfcli.model.response.quasi_static import QuasiStaticResponse
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import CAMERA, F0_HZ, SETTINGS, elastic_model

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vfcli.errors import ConfigError
-from vfcli.m5 import M5Params
+from vfcli.model.m5 import M5Params
 
 
 @pytest.mark.parametrize("depth, height", [(5.0, 7.895), (8.0, 10.41)])

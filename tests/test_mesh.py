@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from vfcli.errors import ConfigError
-from vfcli.m5 import M5Params
-from vfcli.mesh import (SIDE_INFERIOR, SIDE_NONE, SIDE_SUPERIOR, TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL,
+from vfcli.model.m5 import M5Params
+from vfcli.model.mesh import (SIDE_INFERIOR, SIDE_NONE, SIDE_SUPERIOR, TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL,
                         TAG_SUPERIOR, FoldMesh, boundary_faces, build_mesh)
 
 PARAMS = M5Params()
@@ -139,7 +139,7 @@ def test_preview_png_shows_every_tag_colour(mesh, tmp_path):
     import matplotlib.image as mpimg
     from matplotlib.colors import to_rgb
 
-    from vfcli.preview import TAG_STYLE, render_mesh_png
+    from vfcli.model.preview import TAG_STYLE, render_mesh_png
 
     out = tmp_path / "mesh.png"
     assert render_mesh_png(mesh, out, backend="matplotlib") == "matplotlib"

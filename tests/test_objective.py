@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from vfcli.camera import gap_mask, rasterize
+from vfcli.camera.camera import gap_mask, rasterize
 from vfcli.errors import ConfigError
-from vfcli.mesh import TAG_FIXTURE
-from vfcli.objective import Measurement, ObjectiveSettings, Problem
-from vfcli.silhouette import edge_crossings, measured_silhouettes
+from vfcli.model.mesh import TAG_FIXTURE
+from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
+from vfcli.camera.silhouette import edge_crossings, measured_silhouettes
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import CAMERA, forward_case
@@ -159,12 +159,12 @@ def test_measured_silhouettes_use_outermost_edges_and_the_last_known_centre():
 
 
 def test_rotated_camera_with_lateral_columns_has_zero_error_at_truth_and_exact_gradients():
-    from vfcli.camera import Camera
+    from vfcli.camera.camera import Camera
 
     cam = Camera(px_per_mm=8, rotation_deg=90.0, offset_px=(64.3, 4.0), width=128, height=128)
     settings = ObjectiveSettings(motion_weight=1e-4, gap_weight=1.0, lateral_axis=1)
     base = forward_case(resolution=(2, 2, 3), sides=("inferior",), n_frames=6)
-    from vfcli.objective import synthesize_measurement
+    from vfcli.inverse.problem import synthesize_measurement
 
     meas = synthesize_measurement(base.model.mesh, cam, base.response, base.measurement.times, base.x_true, settings)
     p = Problem(base.model.mesh, cam, base.response, meas, settings)
@@ -181,10 +181,10 @@ def test_rotated_camera_with_lateral_columns_has_zero_error_at_truth_and_exact_g
 
 def test_another_load_model_plugs_into_the_response_and_objective(case):
     """A uniform normal pressure on the inferior + medial surfaces with a Bernstein time course."""
-    from vfcli.bernstein import bernstein
-    from vfcli.forces import LoadModel
-    from vfcli.mesh import TAG_INFERIOR, TAG_MEDIAL
-    from vfcli.response import QuasiStaticResponse
+    from vfcli.model.loads.bernstein import bernstein
+    from vfcli.model.loads.force_field import LoadModel
+    from vfcli.model.mesh import TAG_INFERIOR, TAG_MEDIAL
+    from vfcli.model.response.quasi_static import QuasiStaticResponse
 
     class Pressure(LoadModel):
         n_spatial, n_time = 1, 4

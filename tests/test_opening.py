@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vfcli.errors import ConfigError
-from vfcli.opening import OpeningTracker, gap_centers, opening_distance
+from vfcli.flow.gap.opening import OpeningTracker, gap_centers, opening_distance
 
 
 def _slit(h=40, w=30, centre=19.0, half=None):

@@ -6,10 +6,10 @@ import pytest
 
 from _flow_phantom import SlitPhantom
 from vfcli.errors import ConfigError
-from vfcli.gap import gap_mask, gap_threshold, glottal_area
-from vfcli.opening import OpeningTracker
-from vfcli.opening import gap_centers
-from vfcli.opticalflow import (
+from vfcli.flow.gap.detect import gap_mask, gap_threshold, glottal_area
+from vfcli.flow.gap.opening import OpeningTracker
+from vfcli.flow.gap.opening import gap_centers
+from vfcli.flow.optical_flow import (
     FlowEstimator,
     flow_stream,
     intensity_range,

@@ -12,8 +12,8 @@ import pytest
 
 from conftest import ROOT, run_vfcli
 from vfcli.stages.optimize import checkpoint_path
-from vfcli.scoring import interval_coverage
-from vfcli.store import Store, read_truth
+from vfcli.synth.scoring import interval_coverage
+from vfcli.store.transaction import Store, read_truth
 
 PHANTOM = [
     "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
@@ -96,8 +96,8 @@ def test_resume_after_sigkill_ends_where_an_uninterrupted_run_ends(store):
 
 def _inferior_truth(path, raw, run):
     """(estimate, stated std, truth) of the inferior-surface displacements over the run's window."""
-    from vfcli.mesh import FoldMesh
-    from vfcli.scoring import side_truth
+    from vfcli.model.mesh import FoldMesh
+    from vfcli.synth.scoring import side_truth
     from vfcli.stages.mesh import read_mesh
 
     t, _ = read_truth(raw / "truth.h5")

@@ -5,10 +5,10 @@ import time
 import numpy as np
 import pytest
 
-import vfcli.optimizer
+import vfcli.inverse.optimizers.base
 from vfcli.errors import ConfigError
-from vfcli.mesh import TAG_SUPERIOR
-from vfcli.optimizer import FitOptions, FitState, fit, resume
+from vfcli.model.mesh import TAG_SUPERIOR
+from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import forward_case
@@ -37,7 +37,7 @@ def superior_velocity_error(case, x):
 
 
 def test_docstring_examples_run():
-    assert doctest.testmod(vfcli.optimizer).failed == 0
+    assert doctest.testmod(vfcli.inverse.optimizers.base).failed == 0
 
 
 def test_lbfgs_from_zero_recovers_the_superior_motion_and_decreases_e_monotonically(case):

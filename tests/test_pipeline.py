@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from conftest import run_vfcli
-from vfcli.io.ldv import read_ldv
-from vfcli.io.ldv_write import write_ldv_uff
+from vfcli.io.ldv.read import read_ldv
+from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.io.pressure import write_pressure_csv
-from vfcli.store import Store, read_truth
+from vfcli.store.transaction import Store, read_truth
 
 PHANTOM = [
     "synth.duration_s=0.03", "synth.ldv_epoch_s=0.06", "synth.target_edge_mm=2.0", "synth.n_phase=64",
@@ -88,9 +88,9 @@ def test_aligned_velocity_matches_the_true_surface_velocity(raw, synced):
         w, ok = r.read("sync", "aligned_w"), r.read("sync", "ok")
     # truth: the vertical velocity at each point at each frame's phase, from the truth's own cycle table
     from vfcli.synth.motion import PeriodicMotion
-    from vfcli.camera import raycast_points
+    from vfcli.camera.camera import raycast_points
     from vfcli.synth.phantom import view_surface
-    from vfcli.mesh import FoldMesh
+    from vfcli.model.mesh import FoldMesh
 
     t, attrs = read_truth(raw / "truth.h5")
     mesh = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
@@ -217,7 +217,7 @@ def test_pressure_without_periodicity_fails_sync_clearly(raw, tmp_path):
 
 
 def test_mismatched_sampling_rates_in_a_scan_are_one_clear_line(tmp_path):
-    from vfcli.io.ldv import LdvScan
+    from vfcli.io.ldv.read import LdvScan
 
     n = 4
     rng = np.random.default_rng(0)

@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vfcli.linearization import BlockMatrix, QuadraticModel
-from vfcli.objective import Terms
-from vfcli.regularization import lcurve
+from vfcli.inverse.linearization import BlockMatrix, QuadraticModel
+from vfcli.inverse.problem import Terms
+from vfcli.inverse.regularization import lcurve
 
 
 def _ill_posed(seed: int, noise: float):

@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vfcli.camera import Camera
-from vfcli.render import (RenderSettings, expose, make_scene_textures, render_frame, render_radiance,
+from vfcli.camera.camera import Camera
+from vfcli.synth.render import (RenderSettings, expose, make_scene_textures, render_frame, render_radiance,
                           render_truth)
 
 

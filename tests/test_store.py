@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from vfcli.errors import MissingStageError, StoreFormatError, StoreLockedError
-from vfcli.frame_chunks import ValueRangeError
-from vfcli.io.photron import pack_12bit
-from vfcli.store import Store
+from vfcli.store.chunks import ValueRangeError
+from vfcli.io.video.photron import pack_12bit
+from vfcli.store.transaction import Store
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -64,7 +64,7 @@ def test_provenance_records_config_inputs_and_upstream(tmp_path):
     raw = tmp_path / "raw.bin"
     raw.write_bytes(b"abc")
     store = Store(tmp_path / "r.h5")
-    from vfcli.provenance import describe_inputs
+    from vfcli.store.provenance import describe_inputs
 
     _write_mesh(store)
     with store.write("vfcli sync r.h5") as w:
@@ -85,7 +85,7 @@ def test_is_current_tracks_config_inputs_and_upstream(tmp_path):
     raw = tmp_path / "raw.bin"
     raw.write_bytes(b"one")
     store = Store(tmp_path / "r.h5")
-    from vfcli.provenance import describe_inputs
+    from vfcli.store.provenance import describe_inputs
 
     _write_mesh(store)
     with store.write("t") as w:
@@ -377,9 +377,9 @@ def test_streamed_frames_memory_does_not_grow_with_the_number_of_frames(tmp_path
     no more than a small one (frames in flight capped at 2 MB here to keep the test small)."""
     import tracemalloc
 
-    import vfcli.frame_chunks
+    import vfcli.store.chunks
 
-    monkeypatch.setattr(vfcli.frame_chunks, "DEFAULT_PENDING_BYTES", 2 * 2**20)
+    monkeypatch.setattr(vfcli.store.chunks, "DEFAULT_PENDING_BYTES", 2 * 2**20)
 
     h = w = 128
 

@@ -1,4 +1,4 @@
-"""Tests of vfcli.sync: f0 estimation, phase tracking and phase-locked LDV alignment.
+"""Tests of vfcli.sync.align: f0 estimation, phase tracking and phase-locked LDV alignment.
 
 The fixture ``SyncScene`` is a synthetic scan with known truth (not the project's phantom):
 a pressure waveform with harmonics, periodic in a cycle phase that drifts slowly (linear
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from vfcli.errors import InputDataError
-from vfcli.sync import (
+from vfcli.sync.align import (
     align_epoch,
     estimate_f0,
     matched_times,
@@ -233,7 +233,7 @@ def test_estimate_f0_rejects_a_record_shorter_than_two_cycles_of_its_f0():
 
 # --------------------------------------------------------------------------- phase tools
 def test_invert_monotonic_equals_numpy_interp():
-    from vfcli.sync import invert_monotonic
+    from vfcli.sync.align import invert_monotonic
 
     rng = np.random.default_rng(8)
     t = np.arange(10_000) / FS
@@ -512,7 +512,7 @@ def test_an_inverted_reference_channel_is_rejected():
 
 
 def test_phase_track_follows_the_true_phase_of_a_drifting_pressure():
-    from vfcli.sync import phase_track
+    from vfcli.sync.align import phase_track
 
     rng = np.random.default_rng(22)
     coeffs = pressure_coeffs(rng)
@@ -533,8 +533,8 @@ def test_phase_track_follows_the_true_phase_of_a_drifting_pressure():
 
 
 def test_banded_normal_equations_equal_the_dense_gemm_ones():
-    from vfcli.sync_gn import BandedBasis, normal_equations, normal_equations_banded
-    from vfcli.sync_phase import baseline_basis, phase_basis
+    from vfcli.sync.gauss_newton import BandedBasis, normal_equations, normal_equations_banded
+    from vfcli.sync.phase import baseline_basis, phase_basis
 
     rng = np.random.default_rng(23)
     basis, _ = phase_basis(np.sort(rng.uniform(0, 1, 900)), 7, 3)

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from vfcli.config import MeshConfig, SynthConfig
-from vfcli.fem import ElasticModel
-from vfcli.m5 import M5Params
-from vfcli.mesh import TAG_MEDIAL, build_mesh
-from vfcli.store import read_truth
+from vfcli.model.fem import ElasticModel
+from vfcli.model.m5 import M5Params
+from vfcli.model.mesh import TAG_MEDIAL, build_mesh
+from vfcli.store.transaction import read_truth
 from vfcli.synth import aero, effects
 from vfcli.synth.phantom import true_motion
-from vfcli.instruments import PressureWaveform
+from vfcli.synth.instruments import PressureWaveform
 
 #: a small phantom for the suite: coarse mesh, short video, short epochs
 SMALL = [

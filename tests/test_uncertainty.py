@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from vfcli.linearization import BlockMatrix, QuadraticModel
-from vfcli.objective import Measurement, Problem, Terms
-from vfcli.optimizer import fit
-from vfcli.uncertainty import (ResidualCorrelation, displacement_std, effective_sample_size, instrument_fits,
+from vfcli.inverse.linearization import BlockMatrix, QuadraticModel
+from vfcli.inverse.problem import Measurement, Problem, Terms
+from vfcli.inverse.optimizers.base import fit
+from vfcli.inverse.uncertainty import (ResidualCorrelation, displacement_std, effective_sample_size, instrument_fits,
                                instrument_std, posterior)
 
 try:

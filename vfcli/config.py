@@ -14,7 +14,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from .errors import ConfigError
+from vfcli.errors import ConfigError
 
 
 class _Section(BaseModel):
@@ -69,7 +69,7 @@ class IngestLdvConfig(_Section):
 
 
 class SyncConfig(_Section):
-    """`vfcli sync`: pressure-based alignment of the LDV epochs to the video (see vfcli/sync.py)."""
+    """`vfcli sync`: pressure-based alignment of the LDV epochs to the video (see vfcli/sync/align.py)."""
 
     f0_min_hz: float = Field(50.0, gt=0, le=5000, description="Lowest admissible fundamental frequency, Hz")
     f0_max_hz: float = Field(500.0, gt=0, le=5000, description="Highest admissible fundamental frequency, Hz")
@@ -90,12 +90,12 @@ class FlowConfig(_Section):
     method: Literal["sparse_to_dense", "dis"] = Field("sparse_to_dense", description="Optical flow method")
     threshold: float | None = Field(
         None, ge=0, le=65535,
-        description="Gap intensity threshold in counts; null: automatic (minimum-error + Otsu near the gap, vfcli.gap)",
+        description="Gap intensity threshold in counts; null: automatic (minimum-error + Otsu near the gap, vfcli.flow.gap.detect)",
     )
     median_px: int = Field(5, ge=1, le=31, description="Median filter size of the gap mask, px (odd)")
     subpixel_edges: bool = Field(
         True, description="Gap edges to a fraction of a pixel: a blurred-slit fit across the glottis on every ray, "
-        "smoothed along the glottis and in time (vfcli.gap); false: the paper's binary mask (threshold + median filter)"
+        "smoothed along the glottis and in time (vfcli.flow.gap.detect); false: the paper's binary mask (threshold + median filter)"
     )
     edge_window_mm: float = Field(
         1.0, ge=0, le=20, description="Half-window of the sub-pixel edge smoothing along the glottis, mm (0: none)"
@@ -161,10 +161,10 @@ class OptimizeConfig(_Section):
     motion_outside: Literal["paper", "symmetric"] = Field(
         "paper", description="Motion term where only one of simulation and recording sees tissue: 'paper': only the "
         "recording's side costs |v|^2 (the paper's one-sided E); 'symmetric': the simulation's side in the measured gap "
-        "costs |v_bar|^2 too (vfcli/objective.py)")
+        "costs |v_bar|^2 too (vfcli/inverse/problem.py)")
     keep_every: int = Field(1, ge=1, le=10000, description="Store the control values of every k-th iteration")
     uncertainty: bool = Field(True, description="Compute the posterior standard deviation of every reconstructed "
-                              "displacement (vfcli/uncertainty.py)")
+                              "displacement (vfcli/inverse/uncertainty.py)")
     stop_rel_decrease: float = Field(
         1e-5, ge=0, le=1, description="Stop when an iteration lowers E by less than this fraction of E (1)"
     )
@@ -176,7 +176,7 @@ class OptimizeConfig(_Section):
         "pressure", description="Load model: 'free': the paper's force field (optimize.setup); 'free-regularised': the "
         "same bounded by a Tikhonov term (size and smoothness) whose weight the L-curve chooses; 'pressure': normal pressure "
         "on the inferior and medial surfaces, alike on both folds, tied in time to the recorded subglottal pressure "
-        "(needs /hsc pressure; see vfcli/loads.py)"
+        "(needs /hsc pressure; see vfcli/model/loads/pressure.py)"
     )
     pressure_time_degree: int = Field(4, ge=0, le=30, description="Degree of the free Bernstein correction in time of "
                                       "the pressure load model (1)")
@@ -189,7 +189,7 @@ class OptimizeConfig(_Section):
         None, ge=0, le=1e6, description="Weight of ridge_weight * x^T Omega x / n on the control values, 1/Pa^2 (Omega: "
         "identity for the pressure model; size + squared neighbour differences for the force fields); null: the load "
         "model's default (free: 0, the paper's E; free-regularised and pressure: chosen from the data by the L-curve, "
-        "vfcli/regularization.py)"
+        "vfcli/inverse/regularization.py)"
     )
 
 

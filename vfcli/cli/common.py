@@ -10,8 +10,8 @@ from typing import Any, Callable
 
 import click
 
-from ..progress import make_progress
-from ..stages.base import RunContext, StageResult
+from vfcli.progress import make_progress
+from vfcli.stages.base import RunContext, StageResult
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:

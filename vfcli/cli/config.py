@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import click
 
-from ..stages.base import save_recording_config
-from .common import store_command
+from vfcli.stages.base import save_recording_config
+from vfcli.cli.common import store_command
 
 
 @click.command("config")
@@ -15,7 +15,7 @@ def config_cmd(ctx, show: bool):  # type: ignore[no-untyped-def]
 
     Reads and writes the root attribute with the recording config; no stage.
     """
-    from ..stages.base import StageResult
+    from vfcli.stages.base import StageResult
 
     if show:
         click.echo(ctx.config.model_dump_json(indent=2))

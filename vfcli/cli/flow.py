@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import click
 
-from ..stages.flow import run_flow
-from .common import store_command
+from vfcli.stages.flow import run_flow
+from vfcli.cli.common import store_command
 
 
 @click.command("flow")

@@ -5,7 +5,7 @@ import json
 
 import click
 
-from ..info import store_info
+from vfcli.store.info import store_info
 
 
 @click.command("info")

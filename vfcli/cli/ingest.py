@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import click
 
-from ..stages.ingest import run_ingest_hsc, run_ingest_ldv
-from .common import store_command
+from vfcli.stages.ingest import run_ingest_hsc, run_ingest_ldv
+from vfcli.cli.common import store_command
 
 
 @click.command("ingest-hsc")

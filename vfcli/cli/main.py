@@ -5,8 +5,8 @@ import sys
 
 import click
 
-from .. import __version__
-from ..errors import NotImplementedYet, VfcliError
+from vfcli import __version__
+from vfcli.errors import NotImplementedYet, VfcliError
 
 EPILOG = """\b
 Exit codes: 0 done or up to date, 1 internal error (a bug), 2 usage or config error,
@@ -49,19 +49,19 @@ def _not_built(name: str, reads: str, writes: str, summary: str) -> click.Comman
 
 
 def _register() -> None:
-    from .config import config_cmd
-    from .info import info_cmd
-    from .schemas import schemas_cmd
+    from vfcli.cli.config import config_cmd
+    from vfcli.cli.info import info_cmd
+    from vfcli.cli.schemas import schemas_cmd
 
     cli.add_command(config_cmd)
     cli.add_command(info_cmd)
     cli.add_command(schemas_cmd)
-    from .flow import flow_cmd
-    from .ingest import ingest_hsc_cmd, ingest_ldv_cmd
-    from .mesh import mesh_cmd
-    from .optimize import optimize_cmd
-    from .sync import sync_cmd
-    from .synth import synth_cmd
+    from vfcli.cli.flow import flow_cmd
+    from vfcli.cli.ingest import ingest_hsc_cmd, ingest_ldv_cmd
+    from vfcli.cli.mesh import mesh_cmd
+    from vfcli.cli.optimize import optimize_cmd
+    from vfcli.cli.sync import sync_cmd
+    from vfcli.cli.synth import synth_cmd
 
     built = {"ingest-hsc": ingest_hsc_cmd, "ingest-ldv": ingest_ldv_cmd, "mesh": mesh_cmd, "sync": sync_cmd, "synth": synth_cmd, "flow": flow_cmd, "optimize": optimize_cmd}
     todo = [
@@ -86,7 +86,7 @@ def _register() -> None:
 
 def stage_io(command: str) -> tuple[str, str]:
     """('/a, /b', '/c') : the groups a command reads and writes, from the store layout."""
-    from .. import layout
+    from vfcli.store import layout
 
     written = [st for st in layout.STAGES.values() if st.written_by == command]
     writes = ", ".join(st.group_path("<run>") if st.has_runs else st.group_path() for st in written)

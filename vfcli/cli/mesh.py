@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import click
 
-from ..stages.mesh import run_mesh
-from .common import store_command
+from vfcli.stages.mesh import run_mesh
+from vfcli.cli.common import store_command
 
 
 @click.command("mesh")

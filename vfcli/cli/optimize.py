@@ -3,9 +3,9 @@ from __future__ import annotations
 
 import click
 
-from ..config import RecordingConfig, apply_overrides
-from ..stages.optimize import run_optimize
-from .common import store_command
+from vfcli.config import RecordingConfig, apply_overrides
+from vfcli.stages.optimize import run_optimize
+from vfcli.cli.common import store_command
 
 
 @click.command("optimize")

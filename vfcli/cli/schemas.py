@@ -5,8 +5,8 @@ from pathlib import Path
 
 import click
 
-from .. import layout
-from ..config import example_toml, export_schemas
+from vfcli.store import layout
+from vfcli.config import example_toml, export_schemas
 
 
 @click.command("schemas")

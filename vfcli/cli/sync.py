@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import click
 
-from ..stages.sync import run_sync
-from .common import store_command
+from vfcli.stages.sync import run_sync
+from vfcli.cli.common import store_command
 
 
 @click.command("sync")

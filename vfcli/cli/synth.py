@@ -3,10 +3,10 @@ from __future__ import annotations
 
 import click
 
-from ..config import load_config
-from ..progress import make_progress
-from ..stages.synth import run_synth
-from .common import report, run_options, setup_logging
+from vfcli.config import load_config
+from vfcli.progress import make_progress
+from vfcli.stages.synth import run_synth
+from vfcli.cli.common import report, run_options, setup_logging
 
 EFFECTS = ["none", "inertia", "damping", "contact", "asymmetry", "random"]
 

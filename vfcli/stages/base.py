@@ -7,11 +7,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Literal
 
-from ..config import RecordingConfig, load_config
-from ..errors import MissingStageError
-from ..progress import Progress, no_progress
-from ..provenance import describe_inputs
-from ..store import StageWriter, Store, StoreReader
+from vfcli.config import RecordingConfig, load_config
+from vfcli.errors import MissingStageError
+from vfcli.progress import Progress, no_progress
+from vfcli.store.provenance import describe_inputs
+from vfcli.store.transaction import StageWriter, Store, StoreReader
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +75,7 @@ def run_stage(
     ``body(reader, stage_writer)`` reads what it needs through ``reader`` (the store as it
     is inside the transaction), writes through ``stage_writer`` and returns a summary.
     """
-    from .. import layout
+    from vfcli.store import layout
 
     path = layout.stage(name).group_path(run)
     upstream = upstream or []

@@ -2,17 +2,17 @@
 
 Two stages, each written by its own atomic transaction:
 
-1. /flow from /hsc: the video is streamed through :func:`vfcli.opticalflow.flow_stream`
+1. /flow from /hsc: the video is streamed through :func:`vfcli.flow.optical_flow.flow_stream`
    (gap mask, glottal area, opening function, horizontal velocity at the frame times);
    every frame is written as soon as it is computed, so memory does not grow with the
    number of frames. The gap threshold (unless ``flow.threshold`` is set), the 8-bit
    intensity range, the glottal midline and, for the sub-pixel gap edges
-   (``flow.subpixel_edges``, :func:`vfcli.gap_edges.segment_stream`), the gap level and the
-   blur of the optics (:func:`vfcli.gap_edges.estimate_edge_model`) come from
+   (``flow.subpixel_edges``, :func:`vfcli.flow.gap.subpixel.segment_stream`), the gap level and the
+   blur of the optics (:func:`vfcli.flow.gap.subpixel.estimate_edge_model`) come from
    ``flow.sample_frames`` frames spread evenly over the video.
 2. /fields from /flow, /sync and /ldv: the synced LDV velocities (good points: aligned
    and free of dropouts) are spread over the pixel grid by the fixed thin-plate-spline
-   operator of :class:`vfcli.fields.LdvTps` and stacked with the flow into (u, v, w),
+   operator of :class:`vfcli.flow.velocity_field.LdvTps` and stacked with the flow into (u, v, w),
    a chunk of frames at a time.
 
 The lateral image axis (the rays of the opening function, the gap's midline search) is
@@ -28,15 +28,15 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .. import layout
-from ..config import FlowConfig
-from ..errors import ConfigError, InputDataError, MissingStageError
-from ..fields import LdvTps, combine_fields, hull_mask
-from ..gap import gap_mask, gap_threshold, midline_from_masks
-from ..gap_edges import SubpixelGap, estimate_edge_model
-from ..opticalflow import FlowEstimator, flow_stream, intensity_range
-from ..store import FrameReader, StageWriter, StoreReader
-from .base import RunContext, StageResult, run_stage
+from vfcli.store import layout
+from vfcli.config import FlowConfig
+from vfcli.errors import ConfigError, InputDataError, MissingStageError
+from vfcli.flow.velocity_field import LdvTps, combine_fields, hull_mask
+from vfcli.flow.gap.detect import gap_mask, gap_threshold, midline_from_masks
+from vfcli.flow.gap.subpixel import SubpixelGap, estimate_edge_model
+from vfcli.flow.optical_flow import FlowEstimator, flow_stream, intensity_range
+from vfcli.store.transaction import FrameReader, StageWriter, StoreReader
+from vfcli.stages.base import RunContext, StageResult, run_stage
 
 log = logging.getLogger(__name__)
 

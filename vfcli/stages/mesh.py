@@ -6,11 +6,11 @@ from typing import Any
 
 import numpy as np
 
-from .. import layout
-from ..m5 import m5_params_from
-from ..mesh import FoldMesh, build_mesh
-from ..store import StageWriter, StoreReader
-from .base import RunContext, StageResult, run_stage
+from vfcli.store import layout
+from vfcli.model.m5 import m5_params_from
+from vfcli.model.mesh import FoldMesh, build_mesh
+from vfcli.store.transaction import StageWriter, StoreReader
+from vfcli.stages.base import RunContext, StageResult, run_stage
 
 def read_mesh(reader: StoreReader) -> FoldMesh:
     """The FoldMesh stored in /mesh."""
@@ -42,7 +42,7 @@ def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:
 
     result = run_stage(ctx, "mesh", config_json=cfg.model_dump_json(), body=body)
     if preview is not None:
-        from ..preview import render_mesh_png
+        from vfcli.model.preview import render_mesh_png
 
         with ctx.store.read() as r:
             mesh = read_mesh(r)

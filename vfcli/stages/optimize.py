@@ -1,7 +1,7 @@
 """`vfcli optimize FILE`: fit the force field so the FEM model matches the recording.
 
 Reads /mesh, /fields and /flow (and the subglottal pressure in /hsc when optimize.loads is
-"pressure", vfcli/loads.py); writes /optimize/<run>. A long fit checkpoints after every
+"pressure", vfcli/model/loads/pressure.py); writes /optimize/<run>. A long fit checkpoints after every
 iteration to ``<store>.optimize-<run>.ckpt.npz`` (written atomically next to the store), so
 ``--resume`` after a killed job continues from the last iteration and ends where an
 uninterrupted run ends; the checkpoint is removed once the run is in the store.
@@ -17,24 +17,24 @@ from typing import Any
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import ConfigError, InputDataError
-from ..fem import ElasticModel
-from ..forces import ForceField, ForceFieldSpec, LoadModel
-from ..loads import PressureLoad
-from ..linearization import gauss_newton_model
-from ..mesh import SIDE_INFERIOR, SIDE_SUPERIOR
-from ..objective import Measurement, ObjectiveSettings, Problem
-from ..optimizer import FitOptions, FitState, fit, resume
-from ..plots import convergence_plot, uncertainty_map
-from ..regularization import lcurve
-from ..pose import camera_to_model, estimate_pose
-from ..response import QuasiStaticResponse
-from ..store import StageWriter, StoreReader
-from ..uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_std, posterior,
+from vfcli.camera.camera import Camera
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.model.fem import ElasticModel
+from vfcli.model.loads.force_field import ForceField, ForceFieldSpec, LoadModel
+from vfcli.model.loads.pressure import PressureLoad
+from vfcli.inverse.linearization import gauss_newton_model
+from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
+from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
+from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
+from vfcli.report.plots import convergence_plot, uncertainty_map
+from vfcli.inverse.regularization import lcurve
+from vfcli.camera.pose import camera_to_model, estimate_pose
+from vfcli.model.response.quasi_static import QuasiStaticResponse
+from vfcli.store.transaction import StageWriter, StoreReader
+from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_std, posterior,
                            relative_uncertainty)
-from .base import RunContext, StageResult, run_stage
-from .mesh import read_mesh
+from vfcli.stages.base import RunContext, StageResult, run_stage
+from vfcli.stages.mesh import read_mesh
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ def load_model(reader: StoreReader, ctx: RunContext, t_range: tuple[float, float
     """The load model optimize.loads selects, over the time window ``t_range`` (s).
 
     'free' and 'free-regularised': the paper's force field (optimize.setup, optimize.tie_folds);
-    'pressure': :class:`vfcli.loads.PressureLoad` on the subglottal pressure recorded with the
+    'pressure': :class:`vfcli.model.loads.pressure.PressureLoad` on the subglottal pressure recorded with the
     video (/hsc).
     """
     cfg = ctx.config.optimize
@@ -124,7 +124,7 @@ def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[s
     problem = Problem(mesh, camera, response, measurement, settings)
     if ridge is None:
         # the weight of the bounded free fields, from the data: the L-curve's corner on the
-        # Gauss-Newton model at the start (vfcli/regularization.py)
+        # Gauss-Newton model at the start (vfcli/inverse/regularization.py)
         curve = lcurve(gauss_newton_model(problem, np.zeros(problem.n_params)), np.zeros(problem.n_params),
                        problem.penalty)
         log.info("L-curve: ridge weight %.3g 1/Pa^2", curve.chosen)
@@ -138,7 +138,7 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndar
 
     Laplace posterior of the Gauss-Newton model at x, scaled by the motion residuals'
     own size and correlation, plus in quadrature the systematic part the camera-only and
-    vibrometer-only reconstructions disagree by (vfcli/uncertainty.py).
+    vibrometer-only reconstructions disagree by (vfcli/inverse/uncertainty.py).
 
     Returns
     -------

@@ -8,10 +8,10 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputDataError
-from ..store import StageWriter, StoreReader
-from ..sync import sync_scan
-from .base import RunContext, StageResult, run_stage
+from vfcli.errors import InputDataError
+from vfcli.store.transaction import StageWriter, StoreReader
+from vfcli.sync.align import sync_scan
+from vfcli.stages.base import RunContext, StageResult, run_stage
 
 log = logging.getLogger(__name__)
 

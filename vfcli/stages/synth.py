@@ -27,19 +27,19 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from .. import __version__
-from ..config import RecordingConfig
-from ..errors import ConfigError
-from ..io.ldv import LdvScan
-from ..io.ldv_write import write_ldv_csv, write_ldv_uff
-from ..io.photron import write_mraw
-from ..io.pressure import write_pressure_csv, write_pressure_tdms
-from ..io.video import open_video
-from ..io.video_formats import write_tiff
-from ..progress import Progress, no_progress
-from ..store import write_truth
-from ..synth.phantom import Recording, make_recording
-from .base import StageResult
+from vfcli import __version__
+from vfcli.config import RecordingConfig
+from vfcli.errors import ConfigError
+from vfcli.io.ldv.read import LdvScan
+from vfcli.io.ldv.write import write_ldv_csv, write_ldv_uff
+from vfcli.io.video.photron import write_mraw
+from vfcli.io.pressure import write_pressure_csv, write_pressure_tdms
+from vfcli.io.video.base import open_video
+from vfcli.io.video.tiff_avi import write_tiff
+from vfcli.progress import Progress, no_progress
+from vfcli.store.transaction import write_truth
+from vfcli.synth.phantom import Recording, make_recording
+from vfcli.stages.base import StageResult
 
 log = logging.getLogger(__name__)
 

@@ -38,9 +38,9 @@ import scipy.sparse as sp
 from scipy.linalg import cho_factor, solve_triangular
 from scipy.optimize import nnls
 
-from ..fem import ElasticModel
-from ..mesh import TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR
-from . import aero
+from vfcli.model.fem import ElasticModel
+from vfcli.model.mesh import TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR
+from vfcli.synth import aero
 
 EFFECTS = ("none", "inertia", "damping", "contact", "asymmetry")
 
@@ -172,7 +172,7 @@ def _mirror_fold1(model: ElasticModel, u1: np.ndarray) -> np.ndarray:
     out = np.zeros(u1.shape[:-2] + (model.mesh.n_nodes, 3), dtype=u1.dtype)
     out[..., f1.nodes, :] = u1
     mirrored = u1 * np.array([1.0, -1.0, 1.0])
-    # node i of fold 0 mirrors node i + N/2 of fold 1 (vfcli.mesh construction)
+    # node i of fold 0 mirrors node i + N/2 of fold 1 (vfcli.model.mesh construction)
     half = model.mesh.n_nodes // 2
     out[..., f1.nodes - half, :] = mirrored
     return out

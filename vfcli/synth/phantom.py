@@ -21,19 +21,19 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from ..camera import Camera
-from ..config import MeshConfig, SynthConfig
-from ..fem import ElasticModel
-from ..instruments import (
+from vfcli.camera.camera import Camera
+from vfcli.config import MeshConfig, SynthConfig
+from vfcli.model.fem import ElasticModel
+from vfcli.synth.instruments import (
     LdvSettings, PeriodicTable, PressureRecord, PressureWaveform, ldv_scan_grid, simulate_ldv_scan,
     slow_f0_drift, video_pressure, vertical_velocity_table,
 )
-from ..instruments import LdvScan as SimulatedScan
-from ..m5 import m5_params_from
-from ..mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh, build_mesh
-from ..render import FrameTruth, RenderSettings, make_scene_textures, render_frame
-from . import aero, effects
-from .motion import PeriodicMotion
+from vfcli.synth.instruments import LdvScan as SimulatedScan
+from vfcli.model.m5 import m5_params_from
+from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh, build_mesh
+from vfcli.synth.render import FrameTruth, RenderSettings, make_scene_textures, render_frame
+from vfcli.synth import aero, effects
+from vfcli.synth.motion import PeriodicMotion
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,1 @@
+"""The glottal gap: detection, opening function and sub-pixel edges."""

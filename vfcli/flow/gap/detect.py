@@ -1,0 +1,343 @@
+"""The glottal gap: automatic threshold, segmentation mask and glottal area.
+
+The gap between the folds is the darkest structure of a superior view (no light comes
+back through the glottis), so it is segmented by intensity, then cleaned with a median
+filter (the paper, section 3.2) and by keeping only the dark connected components that
+lie on the glottal midline (the texture of the silicone has dark specks too):
+:func:`gap_threshold`, :func:`gap_mask`, :func:`glottal_area`.
+
+The glottis is a slit a few pixels wide, so a mask cut at whole pixels misplaces each edge
+by up to a pixel, a large share of the gap: :mod:`vfcli.flow.gap.subpixel` places the edges of what
+this module detects to a fraction of a pixel.
+
+The opening function o(y, t) built on this mask lives in :mod:`vfcli.flow.gap.opening`.
+
+Conventions: frames are ``(H, W)`` arrays of counts (uint16 12-bit, or any real type);
+rows are the lateral axis y and columns the longitudinal axis x when the rotation is 0
+(``docs/conventions.md``); ``lateral_axis`` names the image axis that is lateral.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from vfcli.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+#: Below this Otsu separation (distance of the class means over the pooled within-class
+#: standard deviation) the sample shows no distinct dark gap: a warning is logged.
+MIN_SEPARATION = 4.0
+
+
+def _class_stats(hist: np.ndarray):
+    """Cumulative two-class statistics of a histogram, split after each bin."""
+    p = hist.astype(float) / max(hist.sum(), 1)
+    idx = np.arange(len(p), dtype=float)
+    w0 = np.cumsum(p)
+    m0 = np.cumsum(p * idx)
+    s0 = np.cumsum(p * idx * idx)
+    w1 = 1.0 - w0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu0 = m0 / w0
+        mu1 = (m0[-1] - m0) / w1
+        var0 = s0 / w0 - mu0**2
+        var1 = (s0[-1] - s0) / w1 - mu1**2
+    return w0, w1, mu0, mu1, var0, var1
+
+
+def _otsu(hist: np.ndarray) -> tuple[int, float]:
+    """Otsu's split of a histogram: (first bin of the bright class, separation).
+
+    The separation is the distance of the two class means over the pooled within-class
+    standard deviation (in bins).
+    """
+    w0, w1, mu0, mu1, var0, var1 = _class_stats(hist)
+    between = w0 * w1 * (mu1 - mu0) ** 2
+    between[~np.isfinite(between)] = -1.0
+    k = int(np.argmax(between))
+    within = max(float(w0[k] * var0[k] + w1[k] * var1[k]), 1e-12)
+    return k + 1, float((mu1[k] - mu0[k]) / np.sqrt(within))
+
+
+def _min_error(hist: np.ndarray, min_fraction: float = 1e-3) -> int:
+    """Kittler-Illingworth minimum-error split (two Gaussians of unequal size and
+    spread): first bin of the bright class. Classes below ``min_fraction`` are refused."""
+    w0, w1, mu0, mu1, var0, var1 = _class_stats(hist)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        crit = w0 * np.log(var0) + w1 * np.log(var1) - 2 * (w0 * np.log(w0) + w1 * np.log(w1))
+    ok = (w0 >= min_fraction) & (w1 >= min_fraction) & (var0 > 0) & (var1 > 0)
+    crit[~(ok & np.isfinite(crit))] = np.inf
+    return int(np.argmin(crit)) + 1
+
+
+#: level of the gap core between the darkest pixels and the surface median (see gap_threshold)
+CORE_LEVEL = 0.15
+
+
+def gap_threshold(
+    frames_sample: np.ndarray,
+    *,
+    open_fraction: float = 0.25,
+    dark_percentile: float = 1.0,
+    band_px: int = 4,
+    n_bins: int = 1024,
+) -> float:
+    """Automatic gap threshold of one recording, counts.
+
+    Otsu on the whole histogram fails here: the gap is a few percent of the pixels, so
+    Otsu splits the silicone's texture instead, and a closed frame has no gap at all.
+    The threshold is therefore found where the gap is, in three steps:
+
+    1. *Open frames.* The frames of the sample are ranked by their
+       ``dark_percentile``-th intensity percentile (low when a dark gap is visible);
+       the darkest ``open_fraction`` of them (at least one) are pooled.
+    2. *Gap core.* The gap is the darkest object of an open frame: pixels darker than
+       ``darkest + CORE_LEVEL (median - darkest)`` (darkest = 0.05th percentile of the
+       pooled frames, median = the fold surface), median-filtered 5 x 5, are the gap
+       core of each open frame. (A minimum-error threshold of the whole histogram
+       was tried first and picked up the dark fixture border instead of a narrow gap.)
+    3. *Edge threshold.* Otsu's threshold of the pixels within ``band_px`` of the core
+       (the gap and the fold surface right next to it, in comparable proportions):
+       the intensity half-way between gap and adjacent surface, where an edge pixel is
+       about half covered.
+
+    If the band has no distinct edge (Otsu separation in step 3 below
+    :data:`MIN_SEPARATION`: a gap whose walls look dark edge-on, or one that never opens),
+    the gap-core level of step 2 is returned and a warning logged (set the threshold by
+    hand with ``flow.threshold`` if the mask looks wrong).
+
+    Parameters
+    ----------
+    frames_sample : (k, H, W) or (H, W) array of counts
+        Frames spread over at least one cycle (e.g. 64 evenly over the recording).
+    open_fraction : float
+        Fraction of the sample (darkest first) pooled, in (0, 1].
+    dark_percentile : float
+        Percentile (in %) that ranks the frames by how dark their darkest pixels are.
+    band_px : int
+        Width of the band around the gap core used in step 3, px.
+    n_bins : int
+        Histogram bins over the pooled intensity range.
+
+    Returns
+    -------
+    float
+        Threshold in counts: pixels strictly below it are gap candidates.
+    """
+    import cv2
+
+    frames = np.asarray(frames_sample)
+    if frames.ndim == 2:
+        frames = frames[None]
+    if frames.ndim != 3 or frames.shape[0] == 0:
+        raise ConfigError(f"gap threshold: expected (k, H, W) frames, got shape {frames.shape}")
+    if not 0 < open_fraction <= 1:
+        raise ConfigError(f"gap threshold: open_fraction must lie in (0, 1], got {open_fraction}")
+    flat = frames.reshape(len(frames), -1)
+    score = np.percentile(flat, dark_percentile, axis=1)
+    n_open = max(1, int(round(open_fraction * len(frames))))
+    chosen = frames[np.argsort(score, kind="stable")[:n_open]].astype(np.float32)
+    lo, hi = float(chosen.min()), float(chosen.max())
+    if hi <= lo:
+        return hi + 0.5
+    # the gap is the darkest object in an open frame: its core lies well below the surface
+    darkest = float(np.percentile(chosen, 0.05))
+    core_threshold = darkest + CORE_LEVEL * (float(np.median(chosen)) - darkest)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
+    band = []
+    for f in chosen:
+        core = cv2.medianBlur((f < core_threshold).astype(np.uint8) * 255, 5)
+        near = cv2.dilate(core, kernel) > 0
+        band.append(f[near])
+    pooled = np.concatenate(band) if band else np.empty(0)
+    if pooled.size < 16:
+        log.warning("gap threshold: no gap core found in the sampled frames; using the "
+                    "minimum-error threshold %.1f counts", core_threshold)
+        return core_threshold
+    hist, edges = np.histogram(pooled, bins=n_bins, range=(float(pooled.min()), float(pooled.max()) + 1e-3))
+    k, separation = _otsu(hist)
+    threshold = float(edges[k])
+    if separation < MIN_SEPARATION:
+        log.warning(
+            "gap threshold: no distinct edge between gap and surface (Otsu separation %.2f < %.1f, "
+            "e.g. dark medial walls seen edge-on); using the gap-core level %.1f counts instead of %.1f. "
+            "Set flow.threshold by hand if the gap mask looks wrong",
+            separation, MIN_SEPARATION, core_threshold, threshold,
+        )
+        return core_threshold
+    return threshold
+
+
+def gap_mask(
+    frame: np.ndarray,
+    threshold: float,
+    median_px: int = 5,
+    *,
+    core_fraction: float = 0.5,
+    midline: float | None = None,
+    band_px: float | None = None,
+    min_area_px: int | None = None,
+    lateral_axis: int = 0,
+    median_along_slit: bool = False,
+) -> np.ndarray:
+    """Segment the glottal gap of one frame.
+
+    1. Threshold: pixels strictly darker than ``threshold`` (counts).
+    2. Median filter of the binary image, ``median_px`` x ``median_px`` (the paper's
+       robustness to noise; it also erases a closed glottis's thin dark contact line,
+       of width below about ``median_px / 2``). With ``median_along_slit`` the window is
+       ``median_px`` pixels along the longitudinal axis only (1 x ``median_px`` when rows
+       are lateral): it removes noise pixels and specks shorter than ``median_px / 2``
+       along the glottis but keeps a slit of any width, down to one pixel (a square
+       window erases the glottis just after it opens and just before it closes).
+    3. Keep the gap component(s), rejecting components that touch the image border (the
+       fixture; the glottis lies inside the field of view), the dark specks of the texture and of a
+       closed glottis's contact line: an 8-connected dark component is kept when
+
+       * it holds at least ``median_px`` *core* pixels, darker than
+         ``core_fraction * threshold`` (hysteresis: the open gap is black, much darker
+         than any texture; the threshold itself sits half-way between gap and
+         surface, where the darkest texture may reach),
+       * it has at least ``min_area_px`` pixels (default ``median_px**2``),
+       * its centroid lies within ``band_px`` (default 15% of the lateral image size)
+         of the glottal midline along the lateral axis; the midline is ``midline``
+         when given, else the lateral centroid of the largest qualifying component.
+
+       Several components may be kept (a glottis can open in two places).
+
+    Parameters
+    ----------
+    frame : (H, W) array of counts
+    threshold : float
+        Counts; see :func:`gap_threshold`.
+    median_px : int
+        Odd median filter size, px; 1 disables the filter.
+    core_fraction : float
+        Core pixels are darker than ``core_fraction * threshold``; 0 < core_fraction <= 1
+        (1 disables the hysteresis).
+    midline : float, optional
+        Lateral pixel coordinate of the glottal midline (row when ``lateral_axis=0``).
+    band_px : float, optional
+        Largest lateral distance of a kept component's centroid from the midline, px.
+    min_area_px : int, optional
+        Smallest kept component, px.
+    lateral_axis : {0, 1}
+        Image axis that is lateral: 0 = rows (rotation 0), 1 = columns.
+    median_along_slit : bool
+        Median window along the longitudinal axis only (see step 2).
+
+    Returns
+    -------
+    (H, W) bool
+        True in the gap.
+    """
+    import cv2
+
+    if median_px < 1 or median_px % 2 == 0:
+        raise ConfigError(f"gap mask: median_px must be odd and >= 1, got {median_px}")
+    if not 0 < core_fraction <= 1:
+        raise ConfigError(f"gap mask: core_fraction must lie in (0, 1], got {core_fraction}")
+    if lateral_axis not in (0, 1):
+        raise ConfigError(f"gap mask: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
+    dark = (np.asarray(frame) < threshold).astype(np.uint8) * 255
+    if median_px > 1 and median_along_slit:
+        dark = binary_median_1d(dark > 0, median_px, axis=1 - lateral_axis).astype(np.uint8) * 255
+    elif median_px > 1:
+        dark = cv2.medianBlur(dark, median_px)
+    n, labels, stats, centroids = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    if n <= 1:
+        return np.zeros(dark.shape, dtype=bool)
+    area = stats[1:, cv2.CC_STAT_AREA]
+    lateral = centroids[1:, 1 - lateral_axis]  # centroids are (x=col, y=row)
+    core = np.asarray(frame) < core_fraction * threshold
+    n_core = np.bincount(labels[core], minlength=n)[1:]
+    if min_area_px is None:
+        min_area_px = median_px * median_px
+    if band_px is None:
+        band_px = 0.15 * dark.shape[lateral_axis]
+    keep = (area >= min_area_px) & (n_core >= median_px)
+    # the glottis lies inside the field of view (the folds are clamped at both ends): a dark
+    # component touching the image border is the fixture or the channel wall, not the gap
+    left, top = stats[1:, cv2.CC_STAT_LEFT], stats[1:, cv2.CC_STAT_TOP]
+    right, bottom = left + stats[1:, cv2.CC_STAT_WIDTH], top + stats[1:, cv2.CC_STAT_HEIGHT]
+    keep &= (left > 0) & (top > 0) & (right < dark.shape[1]) & (bottom < dark.shape[0])
+    if not keep.any():
+        return np.zeros(dark.shape, dtype=bool)
+    if midline is None:
+        midline = float(lateral[int(np.argmax(np.where(keep, area, -1)))])
+    keep &= np.abs(lateral - midline) <= band_px
+    lut = np.concatenate([[False], keep])
+    return lut[labels]
+
+
+def binary_median_1d(mask: np.ndarray, size: int, axis: int) -> np.ndarray:
+    """Median filter of a binary image along one axis (majority of ``size`` pixels).
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    size : int
+        Odd window length, px.
+    axis : {0, 1}
+        Image axis along which the window runs.
+
+    Returns
+    -------
+    (H, W) bool
+        True where more than half of the window is True (the border pixel is repeated).
+    """
+    from scipy.ndimage import correlate1d
+
+    counts = correlate1d(np.asarray(mask, dtype=np.int32), np.ones(int(size), np.int32), axis=axis, mode="nearest")
+    return counts > int(size) // 2
+
+
+def glottal_area(mask: np.ndarray, px_per_mm: float) -> np.ndarray | float:
+    """Glottal area, mm^2: gap pixels over px_per_mm^2.
+
+    Parameters
+    ----------
+    mask : (H, W) or (T, H, W) bool
+    px_per_mm : float
+        Image scale, px/mm.
+
+    Returns
+    -------
+    float, or (T,) float array for a stack of masks.
+    """
+    if px_per_mm <= 0:
+        raise ConfigError(f"glottal area: px_per_mm must be positive, got {px_per_mm}")
+    m = np.asarray(mask, dtype=bool)
+    count = m.sum(axis=(-2, -1))
+    area = count / float(px_per_mm) ** 2
+    return float(area) if m.ndim == 2 else area.astype(float)
+
+
+def midline_from_masks(masks: np.ndarray, lateral_axis: int = 0) -> np.ndarray:
+    """Per-ray centre of the gap pooled over several masks, lateral px.
+
+    A ray is one column (``lateral_axis=0``) or one row (``lateral_axis=1``). The
+    result is the mean lateral coordinate of the gap pixels of that ray over all masks,
+    NaN where the ray never meets the gap. Feed it to
+    :class:`vfcli.flow.gap.opening.OpeningTracker` as ``initial_center``.
+
+    Parameters
+    ----------
+    masks : (k, H, W) or (H, W) bool
+
+    Returns
+    -------
+    (n_rays,) float
+    """
+    m = np.asarray(masks, dtype=bool)
+    if m.ndim == 2:
+        m = m[None]
+    if lateral_axis == 1:
+        m = np.swapaxes(m, 1, 2)
+    pos = np.arange(m.shape[1], dtype=float)[None, :, None]
+    count = m.sum(axis=(0, 1))
+    total = (m * pos).sum(axis=(0, 1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / np.maximum(count, 1), np.nan)

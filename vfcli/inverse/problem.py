@@ -1,0 +1,439 @@
+"""The paper's error E (section 3.4) with exact gradients for a frozen raster.
+
+Frames and times
+----------------
+The measurement has F frames at uniformly spaced ``times`` (dt apart).  The model
+is evaluated at the F + 1 times ``times`` and ``times[-1] + dt``
+(:attr:`Problem.sim_times`); a force field's time range should be
+``(sim_times[0], sim_times[-1])``.  Frame f compares the measured v(y, t_f) with
+the forward difference ``(x(u, v, t_f + dt) - x(u, v, t_f)) / dt`` of the
+material point seen in pixel y at t_f (paper, eq. for v-bar).
+
+E = motion_weight * E_motion + gap_weight * E_gap (both means over the F frames)
++ ridge_weight * x^T Omega x / n_params, the last an optional bound on the loads
+(default 0, the paper's E; Omega is the load model's ``penalty_operator()``, the
+identity unless the model says otherwise).  The superior-surface velocity fixes the displacement only up to
+a time-constant field (the gap silhouette pins the medial edge), and the
+inferior surface not at all (/work/shared/reference/identifiability.md): a
+reconstruction that reports them should bound its loads.
+
+Motion term (paper's three cases)
+---------------------------------
+Per frame: rasterise the deformed visible surface (faces with ``visible_tags``,
+default superior + medial) with the camera; per pixel, the visible triangle and
+barycentrics fix the material point.  With m_sim (a surface is visible) and
+m_exp (``measurement.valid``)::
+
+    both:       |v - v_bar|^2        only m_exp:  |v|^2        otherwise: 0
+
+summed over the pixels and divided by N_f = number of valid measured pixels of
+the frame (so E_motion is a mean squared velocity error, (mm/s)^2).
+
+This is one-sided: a pixel where only the recording sees tissue costs |v|^2, a
+pixel where only the simulation sees tissue costs nothing, so a step that moves
+the simulated medial edge into the measured gap is never charged for it (the
+raster is frozen in the gradient; the charge acts through which steps lower E).
+``ObjectiveSettings.outside = "symmetric"`` charges that case too, where the
+recording positively sees no tissue (the measured gap, ``Measurement.gap``)::
+
+    only m_sim, in the measured gap:  |v_bar|^2
+
+(pixels merely outside the measured region, e.g. beyond the vibrometer's hull,
+still cost nothing).  Near an edge v ~ v_bar, so an edge pixel costs about the
+same whichever side the mismatch is on.  ``"paper"`` (the default) is the
+paper's literal E.
+
+Gap term (our differentiable definition of the arctan term)
+------------------------------------------------------------
+Rays are the lateral image lines (one per column when ``lateral_axis == 0``, as in
+:mod:`vfcli.flow.gap.opening`).  On a ray at integer ray coordinate c, each fold's
+simulated silhouette is the lateral screen position (px) of its medial-most
+point: the extreme (max for the fold at smaller lateral px, min for the other)
+over the crossings of the fold's surface-mesh edges with the ray, where an edge
+(a, b) crosses at ``s = lat_a + (c - ray_a) / (ray_b - ray_a) (lat_b - lat_a)``.
+The measured silhouettes are the outermost gap-mask transitions of the ray
+(:func:`measured_silhouettes`); on a closed ray both are the last known opening
+location (the paper's fallback), so a closed measured gap asks the folds to meet
+there.  With ``d = (s_sim - s_meas) / px_per_mm`` (mm) and the length scale l::
+
+    E_gap = mean over frames of  (1 / (2 n_rays)) sum_rays sum_folds arctan((d / l)^2)
+
+It is bounded (each term < pi/2), smooth in d (d^2 inside the arctan), and
+penalises small differences most, as the paper's arctan intends.  The ray set
+is fixed at construction (rays crossed by both folds at rest, minus
+``ray_margin`` rays at each end).
+
+Exact gradient "almost everywhere"
+----------------------------------
+Freezing (per frame) the raster (visible triangle and barycentrics of every
+pixel) and the silhouette edge chosen on each ray makes E a smooth function of
+the vertex positions, hence of the control values.  :meth:`Problem.value_and_grad`
+returns E with the raster of the current iterate and the exact gradient of that
+frozen function (chain rule through the interpolation matrices, the edge
+crossings and the linear response, accumulated in one pass over the frames).
+It is the true gradient wherever the raster and the chosen edges do not change
+under a small perturbation, i.e. almost everywhere.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from vfcli.camera.camera import Camera, rasterize
+from vfcli.errors import ConfigError
+from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
+from vfcli.camera.silhouette import (crossing_with_gradient, edge_crossings, extreme_per_ray, measured_silhouettes,
+                              surface_edges)
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the optimisation fits (all on the camera's pixel grid).
+
+    Attributes
+    ----------
+    times : (F,) uniformly spaced frame times, s.
+    velocity : (F, H, W, 3) measured v = (u, v, w), mm/s.
+    valid : (F, H, W) bool, m_exp.
+    gap_lo, gap_hi : (F, n_rays) lateral px of the measured silhouettes facing
+        the fold at smaller / larger lateral px; NaN: no target on that ray.
+    gap : (F, H, W) bool measured gap masks (where the recording sees no tissue), or
+        None; needed by ``ObjectiveSettings.outside = "symmetric"``.
+    """
+
+    times: np.ndarray
+    velocity: np.ndarray
+    valid: np.ndarray
+    gap_lo: np.ndarray
+    gap_hi: np.ndarray
+    gap: np.ndarray | None = None
+
+    @property
+    def dt(self) -> float:
+        return float(self.times[1] - self.times[0])
+
+    @classmethod
+    def from_gap_masks(cls, times: np.ndarray, velocity: np.ndarray, valid: np.ndarray, gap_masks: np.ndarray,
+                       lateral_axis: int = 0, initial_center: np.ndarray | float | None = None) -> Measurement:
+        """Measurement with silhouettes from (F, H, W) bool gap masks (:func:`measured_silhouettes`).
+
+        velocity, valid : as :func:`vfcli.flow.velocity_field.combine_fields` returns them for the frames at ``times``.
+        """
+        lo, hi = measured_silhouettes(gap_masks, lateral_axis, initial_center)
+        return cls(np.asarray(times, float), np.asarray(velocity), np.asarray(valid, bool), lo, hi,
+                   np.asarray(gap_masks, bool))
+
+
+#: how the motion term charges pixels that only one of simulation and recording sees
+OUTSIDE = ("paper", "symmetric")
+
+
+@dataclass(frozen=True)
+class ObjectiveSettings:
+    """Weights and definitions of E (see module docstring)."""
+
+    motion_weight: float = 1.0
+    gap_weight: float = 1.0
+    gap_length_mm: float = 0.25
+    visible_tags: tuple[int, ...] = (TAG_SUPERIOR, TAG_MEDIAL)
+    lateral_axis: int = 0
+    ray_margin: int = 1
+    ridge_weight: float = 0.0
+    #: weight of each velocity component (model x, y, z) in the motion term (1, 1, 1: the
+    #: paper's |v - v_bar|^2); (1, 1, 0) keeps the camera's in-plane motion only, (0, 0, 1)
+    #: the vibrometer's vertical velocity only (:mod:`vfcli.inverse.uncertainty` compares the two)
+    component_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    #: "paper": a pixel only the simulation sees costs nothing (the paper's one-sided E);
+    #: "symmetric": it costs |v_bar|^2 where the recording sees the gap (module docstring)
+    outside: str = "paper"
+
+    def __post_init__(self) -> None:
+        if self.outside not in OUTSIDE:
+            raise ConfigError(f"outside must be one of {OUTSIDE}, got {self.outside!r}")
+        if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0
+                and len(self.component_weights) == 3 and min(self.component_weights) >= 0):
+            raise ConfigError("objective weights must be >= 0")
+        if not self.gap_length_mm > 0:
+            raise ConfigError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
+        if self.lateral_axis not in (0, 1):
+            raise ConfigError(f"lateral_axis must be 0 or 1, got {self.lateral_axis!r}")
+
+
+@dataclass(frozen=True)
+class Terms:
+    """Value of E and its weighted terms (``total = motion + gap + ridge``)."""
+
+    total: float
+    motion: float
+    gap: float
+    ridge: float = 0.0
+
+
+@dataclass
+class _Frame:
+    """Frozen linearisation data of one frame."""
+
+    m_both: object          # csr (n_both, N): interpolation rows of the compared pixels (valid in both,
+    #                         and with outside="symmetric" the simulated pixels in the measured gap)
+    v_both: np.ndarray      # (n_both, 3) measured velocity there (0 in the gap), mm/s
+    const: float            # sum of |v|^2 over pixels valid only in the measurement
+    n_norm: float           # N_f
+    sil: list               # per fold side (lo, hi): (ray coordinate, edge, target px)
+    pix_both: np.ndarray    # (n_both,) flat pixel indices of the rows of m_both
+    pix_only: np.ndarray    # flat pixel indices valid only in the measurement
+
+
+class Problem:
+    """E(x) for a linear response, a camera and a measurement.
+
+    Parameters
+    ----------
+    mesh : FoldMesh.
+    camera : Camera.
+    response : linear map x -> vertex displacements (e.g. :class:`vfcli.model.response.quasi_static.QuasiStaticResponse`).
+    measurement : Measurement (its velocity/valid images must match ``camera.shape``).
+    settings : ObjectiveSettings.
+    """
+
+    def __init__(self, mesh: FoldMesh, camera: Camera, response, measurement: Measurement,
+                 settings: ObjectiveSettings | None = None) -> None:
+        self.mesh, self.camera, self.response = mesh, camera, response
+        lm = getattr(response, "load_model", None)
+        #: (n, n) sparse PSD matrix Omega of the ridge term (identity by default)
+        self.penalty = lm.penalty_operator() if hasattr(lm, "penalty_operator") else sp.identity(response.n_params)
+        self.meas, self.settings = measurement, settings or ObjectiveSettings()
+        st = self.settings
+        times = np.asarray(measurement.times, dtype=float)
+        if times.ndim != 1 or len(times) < 2 or not np.allclose(np.diff(times), times[1] - times[0], rtol=1e-6):
+            raise ConfigError("measurement times must be (F,) uniformly spaced, F >= 2")
+        if not times[1] > times[0]:
+            raise ConfigError("measurement times must increase")
+        f, (h, w) = len(times), camera.shape
+        if measurement.velocity.shape != (f, h, w, 3) or measurement.valid.shape != (f, h, w):
+            raise ConfigError(f"measurement velocity/valid must be ({f}, {h}, {w}, 3)/({f}, {h}, {w}), got "
+                              f"{measurement.velocity.shape}/{measurement.valid.shape}")
+        if st.outside == "symmetric" and (measurement.gap is None or np.shape(measurement.gap) != (f, h, w)):
+            raise ConfigError(f"outside='symmetric' needs the measurement's ({f}, {h}, {w}) gap masks")
+        self.dt = float(times[1] - times[0])
+        self.sim_times = np.append(times, times[-1] + self.dt)
+        self.n_frames = f
+        self.ray_comp = 0 if st.lateral_axis == 0 else 1
+        self.n_rays_img = w if st.lateral_axis == 0 else h
+        if measurement.gap_lo.shape != (f, self.n_rays_img) or measurement.gap_hi.shape != (f, self.n_rays_img):
+            raise ConfigError(f"measurement gap_lo/gap_hi must be ({f}, {self.n_rays_img})")
+        self.tri = mesh.faces[np.isin(mesh.face_tag, st.visible_tags)]
+        self.fold_edges = [surface_edges(mesh.faces[mesh.face_fold == k]) for k in (0, 1)]
+        rest = camera.project(mesh.nodes)
+        lat = rest[:, 1 - self.ray_comp]
+        means = [lat[mesh.fold_nodes(k)].mean() for k in (0, 1)]
+        self.fold_order = (0, 1) if means[0] < means[1] else (1, 0)   # (fold at low lateral px, high)
+        rays = None
+        for k in (0, 1):
+            _, c, _ = edge_crossings(rest, self.fold_edges[k], self.ray_comp)
+            c = np.unique(c[(c >= 0) & (c < self.n_rays_img)])
+            rays = c if rays is None else np.intersect1d(rays, c)
+        m = int(st.ray_margin)
+        self.rays = rays[m:len(rays) - m] if len(rays) > 2 * m else rays[:0]
+        self._in_rays = np.zeros(self.n_rays_img, bool)
+        self._in_rays[self.rays] = True
+
+    @property
+    def n_params(self) -> int:
+        return int(self.response.n_params)
+
+    #: settings :meth:`with_weights` may change (nothing computed in ``__init__`` depends on them)
+    _WEIGHTS = frozenset({"motion_weight", "gap_weight", "ridge_weight", "component_weights"})
+
+    def with_weights(self, **weights) -> Problem:
+        """The same problem with other term weights (``motion_weight``, ``gap_weight``,
+        ``ridge_weight``, ``component_weights``); shares everything else with this one."""
+        unknown = set(weights) - self._WEIGHTS
+        if unknown:
+            raise ValueError(f"with_weights changes term weights only, not {sorted(unknown)}")
+        other = copy.copy(self)
+        other.settings = replace(self.settings, **weights)
+        return other
+
+    def displacements(self, x: np.ndarray) -> np.ndarray:
+        """(F + 1, N, 3) vertex displacements at :attr:`sim_times`, mm."""
+        return self.response.displacements(np.asarray(x, dtype=float), self.sim_times)
+
+    # ------------------------------------------------------------ freezing
+    def silhouettes(self, positions: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Simulated silhouettes of one frame on the ray set.
+
+        positions : (N, 3) deformed vertices, mm.  Returns, for the (low, high)
+        folds, (rays c, chosen edge, lateral px).
+        """
+        scr = self.camera.project(positions)
+        out = []
+        limits = (int(self.rays[0]), int(self.rays[-1]) + 1) if len(self.rays) else (0, 0)
+        # the limits lie within the image; when the ray set has no holes they are the ray set
+        contiguous = len(self.rays) == limits[1] - limits[0]
+        for side, k in enumerate(self.fold_order):
+            e, c, s = edge_crossings(scr, self.fold_edges[k], self.ray_comp, limits)
+            if not contiguous:
+                keep = self._in_rays[c]
+                e, c, s = e[keep], c[keep], s[keep]
+            rays, edge = extreme_per_ray(e, c, s, take_max=(side == 0))
+            ee = self.fold_edges[k][edge]
+            lam = (rays - scr[ee[:, 0], self.ray_comp]) / (scr[ee[:, 1], self.ray_comp] - scr[ee[:, 0], self.ray_comp])
+            lc = 1 - self.ray_comp
+            out.append((rays, edge, scr[ee[:, 0], lc] + lam * (scr[ee[:, 1], lc] - scr[ee[:, 0], lc])))
+        return out
+
+    def freeze(self, x: np.ndarray, disp: np.ndarray | None = None) -> list[_Frame]:
+        """Rasters and silhouette edges of every frame at ``x`` (the linearisation point)."""
+        u = self.displacements(x) if disp is None else disp
+        cw = np.asarray(self.settings.component_weights, dtype=float)
+        symmetric = self.settings.outside == "symmetric"
+        n_pix = int(np.prod(self.camera.shape))
+        frames = []
+        for f in range(self.n_frames):
+            pos = self.mesh.nodes + u[f]
+            raster = rasterize(self.camera, pos, self.tri)
+            valid = self.meas.valid[f].reshape(n_pix)                # (H W,) bool
+            vel = self.meas.velocity[f].reshape(n_pix, 3)            # (H W, 3) mm/s, any float dtype
+            vis = raster.visible_index
+            both = valid[vis]
+            only = valid.copy()
+            only[vis] = False
+            pix_only = np.flatnonzero(only)
+            if symmetric:
+                # the simulation sees tissue where the recording sees the gap: compare with v = 0
+                both |= self.meas.gap[f].reshape(n_pix)[vis]
+            rows = np.flatnonzero(both)
+            pix_both = vis[rows]
+            # gather the compared pixels first, then convert (not the whole frame); np.take is a
+            # much faster row gather than fancy indexing
+            v_both = np.take(vel, pix_both, axis=0).astype(float, copy=False)
+            if symmetric:
+                v_both[~valid[pix_both]] = 0.0
+            v_only = np.take(vel, pix_only, axis=0).astype(float, copy=False)
+            sil = []
+            targets = (self.meas.gap_lo[f], self.meas.gap_hi[f])
+            for side, (rays, edge, _) in enumerate(self.silhouettes(pos)):
+                tgt = targets[side][rays]
+                ok = np.isfinite(tgt)
+                sil.append((rays[ok], edge[ok], tgt[ok]))
+            frames.append(_Frame(raster.interpolation_rows(rows), v_both, float(np.sum(v_only ** 2 @ cw)),
+                                 float(max(1, np.count_nonzero(valid))), sil, pix_both, pix_only))
+        return frames
+
+    # ------------------------------------------------------------ value and gradient
+    def _frozen(self, x: np.ndarray, frames: list[_Frame], disp: np.ndarray | None,
+                grad: bool) -> tuple[Terms, np.ndarray | None]:
+        st = self.settings
+        u = self.displacements(x) if disp is None else disp
+        g = np.zeros_like(u) if grad else None
+        n_f = self.n_frames
+        motion = gap = 0.0
+        p = self.camera.matrix
+        ell = st.gap_length_mm
+        n_sil = 2.0 * max(len(self.rays), 1)
+        rc = self.ray_comp
+        cw = np.asarray(st.component_weights, dtype=float)
+        for f, fr in enumerate(frames):
+            du = u[f + 1] - u[f]
+            r = fr.m_both @ du / self.dt - fr.v_both
+            motion += (np.sum(r * r @ cw) + fr.const) / fr.n_norm
+            if grad and st.motion_weight:
+                gd = (fr.m_both.T @ (r * cw)) * (2.0 * st.motion_weight / (n_f * fr.n_norm * self.dt))
+                g[f + 1] += gd
+                g[f] -= gd
+            if not st.gap_weight:
+                continue
+            scr = self.camera.project(self.mesh.nodes + u[f])
+            for side, (rays, edge, tgt) in enumerate(fr.sil):
+                if rays.size == 0:
+                    continue
+                ee = self.fold_edges[self.fold_order[side]][edge]
+                s, d0, d1 = crossing_with_gradient(scr, ee, rays, rc)
+                q = ((s - tgt) / (self.camera.px_per_mm * ell)) ** 2
+                gap += np.sum(np.arctan(q)) / n_sil
+                if grad:
+                    # d arctan(q)/ds, q = ((s - m) / (k l))^2
+                    dphi = (2.0 * (s - tgt) / (self.camera.px_per_mm * ell) ** 2) / (1.0 + q * q)
+                    dphi *= st.gap_weight / (n_f * n_sil)
+                    gs = np.zeros((len(scr), 2))
+                    np.add.at(gs, ee[:, 0], dphi[:, None] * d0)
+                    np.add.at(gs, ee[:, 1], dphi[:, None] * d1)
+                    g[f, :, :2] += gs @ p
+        omega_x = self.penalty @ x
+        ridge = st.ridge_weight * float(x @ omega_x) / len(x)
+        terms = Terms(st.motion_weight * motion / n_f + st.gap_weight * gap / n_f + ridge,
+                      st.motion_weight * motion / n_f, st.gap_weight * gap / n_f, ridge)
+        if not grad:
+            return terms, None
+        return terms, self.response.adjoint(g, self.sim_times) + (2.0 * st.ridge_weight / len(x)) * omega_x
+
+    def motion_residuals(self, x: np.ndarray, frames: list[_Frame]) -> np.ndarray:
+        """(F, H, W, 3) simulated minus measured velocity, mm/s, for a frozen raster.
+
+        Pixels valid in both: ``v_bar - v``; valid only in the measurement: ``-v``
+        (the paper's second case); with ``outside="symmetric"``, ``v_bar`` where only the
+        simulation sees tissue in the measured gap; elsewhere NaN.
+        """
+        u = self.displacements(np.asarray(x, float))
+        h, w = self.camera.shape
+        out = np.full((self.n_frames, h * w, 3), np.nan)
+        for f, fr in enumerate(frames):
+            out[f, fr.pix_both] = fr.m_both @ (u[f + 1] - u[f]) / self.dt - fr.v_both
+            out[f, fr.pix_only] = -self.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
+        return out.reshape(self.n_frames, h, w, 3)
+
+    def frozen_value(self, x: np.ndarray, frames: list[_Frame]) -> Terms:
+        """E at ``x`` with rasters and silhouette edges frozen at an earlier :meth:`freeze`."""
+        return self._frozen(np.asarray(x, float), frames, None, grad=False)[0]
+
+    def frozen_value_and_grad(self, x: np.ndarray, frames: list[_Frame]) -> tuple[Terms, np.ndarray]:
+        """E and its exact gradient with a frozen linearisation."""
+        return self._frozen(np.asarray(x, float), frames, None, grad=True)
+
+    def evaluate(self, x: np.ndarray) -> Terms:
+        """E at ``x`` (rasterised at ``x``)."""
+        x = np.asarray(x, float)
+        u = self.displacements(x)
+        return self._frozen(x, self.freeze(x, u), u, grad=False)[0]
+
+    def value_and_grad(self, x: np.ndarray) -> tuple[Terms, np.ndarray]:
+        """E at ``x`` and its exact gradient for the raster of ``x`` ((n_params,) per unit x)."""
+        x = np.asarray(x, float)
+        u = self.displacements(x)
+        return self._frozen(x, self.freeze(x, u), u, grad=True)
+
+
+def synthesize_measurement(mesh: FoldMesh, camera: Camera, response, times: np.ndarray, x: np.ndarray,
+                           settings: ObjectiveSettings | None = None) -> Measurement:
+    """Forward-simulate a measurement from control values (for tests and phantoms).
+
+    The velocity is the model's forward-difference v_bar on the visible surface
+    (valid where a surface is visible, the gap mask everywhere else), the gap targets
+    are the model's own silhouettes on every ray both folds cross (NaN elsewhere): a
+    fit of the same model can reach E = 0.
+    """
+    settings = settings or ObjectiveSettings()
+    times = np.asarray(times, dtype=float)
+    f, (h, w) = len(times), camera.shape
+    n_rays = w if settings.lateral_axis == 0 else h
+    dummy = Measurement(times, np.zeros((f, h, w, 3)), np.zeros((f, h, w), bool),
+                        np.full((f, n_rays), np.nan), np.full((f, n_rays), np.nan))
+    prob = Problem(mesh, camera, response, dummy, ObjectiveSettings(**{**settings.__dict__, "ray_margin": 0}))
+    u = prob.displacements(x)
+    vel = np.zeros((f, h * w, 3))
+    valid = np.zeros((f, h * w), bool)
+    lo, hi = np.full((f, n_rays), np.nan), np.full((f, n_rays), np.nan)
+    for k in range(f):
+        pos = mesh.nodes + u[k]
+        raster = rasterize(camera, pos, prob.tri)
+        vel[k, raster.visible_index] = raster.interpolate_visible((u[k + 1] - u[k]) / prob.dt)
+        valid[k, raster.visible_index] = True
+        (r0, _, s0), (r1, _, s1) = prob.silhouettes(pos)
+        common = np.intersect1d(r0, r1)
+        lo[k, common] = s0[np.searchsorted(r0, common)]
+        hi[k, common] = s1[np.searchsorted(r1, common)]
+    valid = valid.reshape(f, h, w)
+    return Measurement(times, vel.reshape(f, h, w, 3), valid, lo, hi, ~valid)

@@ -1,0 +1,252 @@
+"""How well the recording determines the reconstruction: posterior covariance of a fit.
+
+The fitted model is linear in its control values x (vertex displacements
+``U(t) = R C b(t)``), and around the optimum E is well described by its
+Gauss-Newton model (:mod:`vfcli.inverse.linearization`).  Reading E as a scaled negative
+log-posterior, ``-log p(x | data) = kappa * E(x) + const`` (the ridge term then acts
+as a Gaussian prior on x), the Laplace approximation gives
+
+    Cov(x) = (kappa * H)^-1,        H the Gauss-Newton Hessian of E (ridge included).
+
+The scale kappa is set from the motion residuals themselves, the way a
+least-squares fit estimates its noise variance: at the optimum the data misfit
+should be chi-square with ``n_eff - dof`` degrees of freedom, so
+
+    kappa = (n_eff - dof) / (2 E_motion),      dof = trace(H^-1 H_data).
+
+``n_eff`` is the number of *independent* motion residuals.  Optical flow and the
+interpolated vibrometer field give residuals that are correlated over many pixels and
+frames; counting every pixel as independent would make the stated uncertainty far too
+small.  We measure the correlation in the residual images (:func:`effective_sample_size`):
+``n_eff = n_residuals / (A * tau)``, with A the integral correlation area (px) of the
+residual field in the image plane and tau the integral correlation time (frames), each
+the sum of the normalised autocorrelation up to its first zero crossing.  Model error
+(what the load model cannot represent) shows up as a larger and more correlated
+residual, so it widens the stated uncertainty instead of being ignored.
+
+From Cov(x) the standard deviation of every vertex displacement component at every
+simulated time follows exactly (:func:`displacement_std`).  Where the data do not
+determine the loads (the paper's free fields without a bound, H singular), the stated
+uncertainty is correspondingly huge: that is the honest answer.
+
+Systematic error: what the two instruments say apart
+----------------------------------------------------
+The posterior above knows only the scatter of the residuals.  The largest errors on
+phantoms are systematic instead: errors of the measured velocity fields that are alike
+over the whole image and every frame (optical flow and the interpolated vibrometer
+field), which the fit absorbs and the residuals do not show.  The camera (in-plane
+velocity by optical flow) and the vibrometer (vertical velocity) measure the same
+surface independently, with errors of their own, so the reconstruction each implies
+alone is an independent estimate of the same motion (:func:`instrument_fits`: one
+Gauss-Newton step from the joint fit on E with the motion term of that instrument only,
+gap and ridge kept).  If each has a systematic error of standard deviation s, their
+difference has standard deviation ``sqrt(2) s``; the joint fit is not credited with
+averaging the two (the errors need not be independent of the fit's own), so
+
+    s_sys(node, component) = RMS over time of (d_camera - d_vibrometer) / sqrt(2)
+
+is added in quadrature to the posterior standard deviation (:func:`instrument_std`).
+With one pair of instruments this is a one-degree-of-freedom estimate: an order of
+magnitude, stated as such, not a calibrated interval.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vfcli.inverse.linearization import BlockMatrix, QuadraticModel, gauss_newton_model
+
+#: Motion-term component weights (model x, y, z) of each instrument's own data: the
+#: camera's optical flow gives the in-plane velocity, the vibrometer the vertical one.
+INSTRUMENTS: dict[str, tuple[float, float, float]] = {"camera": (1.0, 1.0, 0.0), "vibrometer": (0.0, 0.0, 1.0)}
+
+
+@dataclass(frozen=True)
+class ResidualCorrelation:
+    """n_residuals : scalar motion residuals.  area_px : correlation area A.  tau_frames : correlation time.
+    n_eff : ``n_residuals / (area_px * tau_frames)``."""
+
+    n_residuals: int
+    area_px: float
+    tau_frames: float
+    n_eff: float
+
+
+def _radial_integral(rho: np.ndarray, max_lag: int) -> float:
+    """Sum of a centred 2-D autocorrelation over the disc inside its first zero of the radial mean."""
+    cy, cx = (np.array(rho.shape) - 1) // 2
+    yy, xx = np.indices(rho.shape)
+    r = np.rint(np.hypot(yy - cy, xx - cx)).astype(int)
+    radial = np.bincount(r.ravel(), rho.ravel()) / np.maximum(np.bincount(r.ravel()), 1)
+    stop = np.flatnonzero(radial[: max_lag + 1] <= 0.0)
+    r_max = int(stop[0]) - 1 if stop.size else max_lag
+    return float(max(rho[r <= r_max].sum(), 1.0))
+
+
+def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64) -> ResidualCorrelation:
+    """Independent-residual count of motion residual images.
+
+    Parameters
+    ----------
+    residuals : (F, H, W, C) residuals (NaN where none), e.g.
+        :meth:`vfcli.inverse.problem.Problem.motion_residuals`.
+    max_lag_px : largest spatial lag considered, px.
+
+    Returns
+    -------
+    ResidualCorrelation (A >= 1 px, tau >= 1 frame).
+    """
+    r = np.asarray(residuals, dtype=float)
+    valid = np.isfinite(r)
+    n_res = int(valid.sum())
+    if n_res == 0:
+        return ResidualCorrelation(0, 1.0, 1.0, 0.0)
+    z = np.where(valid, r, 0.0)
+    var = float(np.sum(z * z)) / n_res
+    if var <= 0:
+        return ResidualCorrelation(n_res, 1.0, 1.0, float(n_res))
+    f, h, w, _ = r.shape
+    shape = (2 * h, 2 * w)
+    num = np.zeros(shape)
+    cnt = np.zeros(shape)
+    for k in range(f):
+        m = valid[k].astype(float)
+        fz = np.fft.rfft2(z[k], shape, axes=(0, 1))
+        fm = np.fft.rfft2(m, shape, axes=(0, 1))
+        num += np.fft.irfft2(np.sum(fz * np.conj(fz), axis=-1), shape)
+        cnt += np.fft.irfft2(np.sum(fm * np.conj(fm), axis=-1), shape)
+    lag = min(max_lag_px, h - 1, w - 1)
+    num = np.fft.fftshift(num)[h - lag:h + lag + 1, w - lag:w + lag + 1]
+    cnt = np.fft.fftshift(cnt)[h - lag:h + lag + 1, w - lag:w + lag + 1]
+    enough = cnt > 0.1 * cnt.max()
+    rho = np.where(enough, num / np.maximum(cnt, 1e-12) / var, 0.0)
+    area = _radial_integral(rho, lag)
+    tau = 1.0
+    for k in range(1, f // 2 + 1):
+        both = valid[k:] & valid[:-k]
+        if not both.any():
+            break
+        c = float(np.sum(z[k:] * z[:-k] * both)) / (int(both.sum()) * var)
+        if c <= 0:
+            break
+        tau += 2.0 * c
+    return ResidualCorrelation(n_res, area, tau, n_res / (area * tau))
+
+
+@dataclass(frozen=True)
+class Posterior:
+    """Laplace posterior of the control values.
+
+    covariance : (n, n) :class:`BlockMatrix` Cov(x), (x units)^2.
+    kappa : scale of E as a negative log-likelihood.  dof : effective number of fitted parameters.
+    correlation : the residual correlation behind kappa.
+    """
+
+    covariance: BlockMatrix
+    kappa: float
+    dof: float
+    correlation: ResidualCorrelation
+
+
+def _inverse(a: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric PSD block; a singular block gets the pseudo-inverse of its range plus
+    a huge variance (1e12 x its largest) along its null space, i.e. 'not determined'."""
+    w, v = np.linalg.eigh(0.5 * (a + a.T))
+    top = max(float(w.max()), 1e-300)
+    inv_w = np.where(w > 1e-12 * top, 1.0 / np.maximum(w, 1e-300), 1e12 / top)
+    return (v * inv_w) @ v.T
+
+
+def posterior(model: QuadraticModel, correlation: ResidualCorrelation) -> Posterior:
+    """Cov(x) = (kappa H)^-1 with kappa = (n_eff - dof) / (2 E_motion) (module docstring).
+
+    model : Gauss-Newton model at the optimum (ridge included in ``hessian``).
+    correlation : from :func:`effective_sample_size` of the motion residuals at the optimum.
+    """
+    h, hd = model.hessian, model.data_hessian
+    inverses = tuple(_inverse(b) for b in h.blocks)
+    dof = float(sum(np.sum(inv * bd.T) for inv, bd in zip(inverses, hd.blocks)))
+    e_motion = max(float(model.terms.motion), 1e-300)
+    kappa = max(correlation.n_eff - dof, 1.0) / (2.0 * e_motion)
+    cov = BlockMatrix(h.n, h.indices, tuple(inv / kappa for inv in inverses))
+    return Posterior(cov, kappa, dof, correlation)
+
+
+def displacement_std(covariance: BlockMatrix, basis: np.ndarray, time_basis: np.ndarray) -> np.ndarray:
+    """Standard deviation of every vertex displacement component at every time.
+
+    Parameters
+    ----------
+    covariance : (n, n) Cov(x) with ``x = C.ravel()``, C (S, T).
+    basis : (N, 3, S) vertex displacement per unit spatial control value, mm.
+    time_basis : (F, T) time basis at the simulated times.
+
+    Returns
+    -------
+    (F, N, 3) float64, mm.
+    """
+    n_t = time_basis.shape[1]
+    n_v = basis.shape[0]
+    var = np.zeros((len(time_basis), n_v, 3))
+    for idx, cov in zip(covariance.indices, covariance.blocks):
+        order = np.argsort(idx)                                       # the block in x order: spatial-major
+        spatial = idx[order].reshape(-1, n_t)[:, 0] // n_t           # the block's spatial indices
+        s = len(spatial)
+        c4 = cov[np.ix_(order, order)].reshape(s, n_t, s, n_t)
+        rb = np.ascontiguousarray(basis[:, :, spatial]).reshape(n_v * 3, s)
+        for f, b in enumerate(time_basis):
+            w = np.einsum("itjb,t,b->ij", c4, b, b)                   # (s, s) covariance of C b
+            var[f] += np.sum((rb @ w) * rb, axis=1).reshape(n_v, 3)
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def relative_uncertainty(std: np.ndarray, displacements: np.ndarray, nodes: np.ndarray) -> float:
+    """RMS stated standard deviation over ``nodes`` (all times, components) / RMS displacement there.
+
+    std, displacements : (T, N, 3) mm.  nodes : (N,) bool or index array.
+    """
+    d = np.asarray(displacements)[:, nodes]
+    rms = float(np.sqrt(np.mean(d ** 2)))
+    return float(np.sqrt(np.mean(np.asarray(std)[:, nodes] ** 2))) / max(rms, 1e-300)
+
+
+def instrument_fits(problem, x: np.ndarray, frames: list | None = None,
+                    disp: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Control values each instrument's data imply on their own, near the joint fit.
+
+    Parameters
+    ----------
+    problem : :class:`vfcli.inverse.problem.Problem` (with the ridge of the fit).
+    x : (n,) the joint fit.
+    frames, disp : frozen rasters and displacements at x (computed when omitted).
+
+    Returns
+    -------
+    {name: (n,) control values} for :data:`INSTRUMENTS`: one Gauss-Newton step from x on
+    E with the motion term of that instrument's velocity components only (gap and ridge
+    kept), ``x - H_k^-1 grad E_k(x)``.
+    """
+    x = np.asarray(x, dtype=float)
+    disp = problem.displacements(x) if disp is None else disp
+    frames = problem.freeze(x, disp) if frames is None else frames
+    out = {}
+    for name, weights in INSTRUMENTS.items():
+        model = gauss_newton_model(problem.with_weights(component_weights=weights), x, frames, disp)
+        out[name] = x - model.hessian.solve(model.grad)
+    return out
+
+
+def instrument_std(displacements: dict[str, np.ndarray]) -> np.ndarray:
+    """Systematic standard deviation from two instruments' reconstructions (module docstring).
+
+    displacements : {name: (T, N, 3)} the displacements of :func:`instrument_fits`'s two fits, mm.
+
+    Returns
+    -------
+    (N, 3) ``RMS_t |d_a - d_b| / sqrt(2)``, mm.
+    """
+    if len(displacements) != 2:
+        raise ValueError(f"two instruments' reconstructions are compared, got {len(displacements)}")
+    a, b = (np.asarray(d, dtype=float) for d in displacements.values())
+    return np.sqrt(np.mean((a - b) ** 2, axis=0) / 2.0)

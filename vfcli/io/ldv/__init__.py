@@ -1,0 +1,1 @@
+"""Scanning laser-Doppler vibrometer files: readers, writers, grid layout and dropout flags."""

@@ -1,0 +1,1 @@
+"""High-speed video files: a streaming interface and a reader per format."""

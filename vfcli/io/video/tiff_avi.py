@@ -1,0 +1,301 @@
+"""Streaming readers for multi-page TIFF, image folders and AVI; a TIFF writer.
+
+* Multi-page TIFF (tifffile): one greyscale page per frame, uint8 or uint16.
+  The frame rate is read from a JSON ImageDescription of the first page
+  (``{"fps": ...}``, written by :func:`write_tiff`), tifffile's "shaped"
+  metadata or an ImageJ ``finterval``; else None.
+* Folder: every ``.png``, ``.tif``, ``.tiff``, ``.bmp`` file directly in the
+  folder, sorted naturally (``img2`` before ``img10``); all frames must have the
+  same size and dtype. No frame rate (None).
+* AVI: decoded by OpenCV/FFmpeg; fps from the container.
+
+Colour frames (folder images, AVI) are converted to grey with OpenCV's
+BGR->grey weights; colour TIFF pages are rejected (ambiguous for a mono camera).
+"""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.io._common import natural_key, require_file
+from vfcli.io.video.base import VideoMeta, VideoSource, register_reader
+
+logger = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = (".png", ".tif", ".tiff", ".bmp")
+_TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+
+
+def _bits_of(dtype: np.dtype) -> int:
+    return 8 * np.dtype(dtype).itemsize
+
+
+def _check_dtype(dtype: np.dtype, path: Path) -> np.dtype:
+    dtype = np.dtype(dtype)
+    if dtype not in (np.dtype(np.uint8), np.dtype(np.uint16)):
+        raise InputDataError(f"unsupported pixel type {dtype} (need 8- or 16-bit unsigned)", path)
+    return dtype
+
+
+# --------------------------------------------------------------------------- TIFF
+
+class TiffSource(VideoSource):
+    """Multi-page greyscale TIFF, read page by page."""
+
+    def __init__(self, path: str | Path) -> None:
+        import tifffile
+
+        p = require_file(path, "TIFF file")
+        with open(p, "rb") as fh:
+            if fh.read(4) not in _TIFF_MAGIC:
+                raise InputDataError("not a TIFF file (bad magic bytes)", p)
+        try:
+            self._tif = tifffile.TiffFile(p)
+            pages = self._tif.pages
+            first = pages.first
+            n = len(pages)
+            shape, dtype = tuple(int(s) for s in first.shape), first.dtype
+            fps = self._fps_from_metadata()
+        except InputDataError:
+            raise
+        except Exception as exc:  # tifffile raises many types on corrupt files
+            raise InputDataError(f"unreadable TIFF: {type(exc).__name__}: {exc}", p) from None
+        if len(shape) != 2:
+            self.close()
+            raise InputDataError(
+                f"TIFF pages have shape {shape}; need greyscale (H, W) pages", p)
+        dtype = _check_dtype(dtype, p)
+        if min(shape) < 1 or shape[0] * shape[1] * dtype.itemsize > 1000 * p.stat().st_size:
+            self.close()
+            raise InputDataError(f"TIFF page size {shape} is implausible for a "
+                                 f"{p.stat().st_size}-byte file (corrupt header)", p)
+        self.path = p
+        self.meta = VideoMeta(
+            path=str(p), kind="tiff", n_frames=n, height=shape[0], width=shape[1], dtype=dtype,
+            bit_depth=_bits_of(dtype), fps=fps, description=f"multi-page TIFF, {n} pages")
+
+    def _fps_from_metadata(self) -> float | None:
+        tif = self._tif
+        try:
+            desc = tif.pages.first.description
+            if desc.startswith("{"):
+                fps = json.loads(desc).get("fps")
+                if fps is not None:
+                    return float(fps) if float(fps) > 0 else None
+            meta = tif.shaped_metadata
+            if meta and "fps" in meta[0]:
+                return float(meta[0]["fps"])
+            ij = tif.imagej_metadata
+            if ij and ij.get("finterval"):
+                return 1.0 / float(ij["finterval"])
+        except (TypeError, ValueError, KeyError, ZeroDivisionError, AttributeError):
+            return None
+        return None
+
+    def close(self) -> None:
+        if getattr(self, "_tif", None) is not None:
+            self._tif.close()
+
+    def _read_range(self, start: int, stop: int) -> np.ndarray:
+        m = self.meta
+        out = np.empty((stop - start, m.height, m.width), m.dtype)
+        for j, i in enumerate(range(start, stop)):
+            try:
+                page = self._tif.pages[i]
+                img = page.asarray()
+            except Exception as exc:
+                raise InputDataError(f"page {i} unreadable: {type(exc).__name__}: {exc}",
+                                     self.path) from None
+            if img.shape != out.shape[1:] or img.dtype != m.dtype:
+                raise InputDataError(
+                    f"page {i} is {img.shape} {img.dtype}, page 0 is "
+                    f"{out.shape[1:]} {m.dtype}", self.path)
+            out[j] = img
+        return out
+
+
+register_reader("tiff", TiffSource, (".tif", ".tiff"))
+
+
+def write_tiff(path: str | Path, frames: Iterable[np.ndarray], fps: float | None = None,
+               compression: str | None = None) -> Path:
+    """Write frames as a multi-page greyscale TIFF (one page per frame), streaming.
+
+    Parameters
+    ----------
+    path : str or Path
+        Output ``.tif`` file.
+    frames : iterable of (H, W) or (k, H, W) uint8/uint16 arrays
+    fps : float or None
+        Stored in tifffile's JSON description and read back by :class:`TiffSource`.
+    compression : str or None
+        tifffile compression name (e.g. ``'zlib'``); default none.
+
+    Returns
+    -------
+    Path
+    """
+    import tifffile
+
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    n = 0
+    shape = dtype = None
+    desc = json.dumps({"fps": None if fps is None else float(fps), "generator": "vfcli"})
+    with tifffile.TiffWriter(p) as tw:
+        for block in frames:
+            block = np.asarray(block)
+            if block.ndim == 2:
+                block = block[None]
+            if block.ndim != 3:
+                raise ConfigError(f"frames must be (H, W) or (k, H, W), got {block.shape}")
+            if block.dtype not in (np.uint8, np.uint16):
+                raise ConfigError(f"frames must be uint8 or uint16, got {block.dtype}")
+            if shape is None:
+                shape, dtype = block.shape[1:], block.dtype
+            elif block.shape[1:] != shape or block.dtype != dtype:
+                raise ConfigError("all frames must have the same shape and dtype")
+            for img in block:
+                # the first page's description carries {"fps": ...} as JSON
+                tw.write(img, photometric="minisblack", compression=compression,
+                         metadata=None, description=desc if n == 0 else None)
+                n += 1
+    if n == 0:
+        p.unlink(missing_ok=True)
+        raise ConfigError("no frames to write")
+    return p
+
+
+# --------------------------------------------------------------------------- folder
+
+def _imread(path: Path) -> np.ndarray:
+    import cv2
+
+    if path.suffix.lower() in (".tif", ".tiff"):
+        import tifffile
+
+        try:
+            img = tifffile.imread(path, key=0)
+        except Exception as exc:
+            raise InputDataError(f"unreadable image: {type(exc).__name__}: {exc}", path) from None
+    else:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputDataError("unreadable image (not a PNG/BMP or corrupt)", path)
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+        elif img.shape[2] == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        else:
+            img = img[..., 0]
+    return img
+
+
+class FolderSource(VideoSource):
+    """A folder of numbered image files, one frame each, in natural order."""
+
+    def __init__(self, path: str | Path) -> None:
+        p = Path(path)
+        if not p.is_dir():
+            raise InputDataError("not a folder", p)
+        files = sorted((f for f in p.iterdir()
+                        if f.is_file() and f.suffix.lower() in IMAGE_EXTENSIONS),
+                       key=lambda f: natural_key(f.name))
+        if not files:
+            raise InputDataError(
+                f"no image files ({', '.join(IMAGE_EXTENSIONS)}) in the folder", p)
+        exts = {f.suffix.lower().replace(".tiff", ".tif") for f in files}
+        if len(exts) > 1:
+            raise InputDataError(f"mixed image types in the folder: {sorted(exts)}", p)
+        first = _imread(require_file(files[0], "image"))
+        dtype = _check_dtype(first.dtype, files[0])
+        self.files = files
+        self.meta = VideoMeta(
+            path=str(p), kind="folder", n_frames=len(files), height=first.shape[0],
+            width=first.shape[1], dtype=dtype, bit_depth=_bits_of(dtype), fps=None,
+            description=f"{len(files)} {files[0].suffix} images ({files[0].name} .. "
+                        f"{files[-1].name})")
+
+    def _read_range(self, start: int, stop: int) -> np.ndarray:
+        m = self.meta
+        out = np.empty((stop - start, m.height, m.width), m.dtype)
+        for j, f in enumerate(self.files[start:stop]):
+            img = _imread(f)
+            if img.shape != out.shape[1:] or img.dtype != m.dtype:
+                raise InputDataError(
+                    f"image is {img.shape} {img.dtype}, the first image is "
+                    f"{out.shape[1:]} {m.dtype}", f)
+            out[j] = img
+        return out
+
+
+register_reader("folder", FolderSource, ())
+
+
+# --------------------------------------------------------------------------- AVI
+
+class AviSource(VideoSource):
+    """AVI decoded by OpenCV (FFmpeg backend); frames converted to grey uint8/uint16."""
+
+    def __init__(self, path: str | Path) -> None:
+        import cv2
+
+        p = require_file(path, "AVI file")
+        with open(p, "rb") as fh:
+            head = fh.read(12)
+        if head[:4] != b"RIFF" or head[8:12] != b"AVI ":
+            raise InputDataError("not an AVI file (no RIFF/AVI header)", p)
+        cap = cv2.VideoCapture(str(p), cv2.CAP_FFMPEG)
+        if not cap.isOpened():
+            raise InputDataError("OpenCV cannot open this AVI (codec unsupported or corrupt)", p)
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
+        ok, frame = cap.read()
+        if not ok or n < 1:
+            cap.release()
+            raise InputDataError("AVI holds no decodable frames", p)
+        img = self._grey(frame)
+        self.path, self._cap, self._next = p, cap, 1
+        self.meta = VideoMeta(
+            path=str(p), kind="avi", n_frames=n, height=img.shape[0], width=img.shape[1],
+            dtype=_check_dtype(img.dtype, p), bit_depth=_bits_of(img.dtype),
+            fps=fps if fps and np.isfinite(fps) and fps > 0 else None,
+            description=f"AVI ({n} frames, fourcc "
+                        f"{int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, 'little')!r})")
+
+    @staticmethod
+    def _grey(frame: np.ndarray) -> np.ndarray:
+        import cv2
+
+        if frame.ndim == 3:
+            return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
+        return frame
+
+    def close(self) -> None:
+        if getattr(self, "_cap", None) is not None:
+            self._cap.release()
+
+    def _read_range(self, start: int, stop: int) -> np.ndarray:
+        import cv2
+
+        m = self.meta
+        if start != self._next:
+            self._cap.set(cv2.CAP_PROP_POS_FRAMES, start)
+        out = np.empty((stop - start, m.height, m.width), m.dtype)
+        for j in range(stop - start):
+            ok, frame = self._cap.read()
+            if not ok:
+                raise InputDataError(f"frame {start + j} of {m.n_frames} cannot be decoded",
+                                     self.path)
+            out[j] = self._grey(frame)
+        self._next = stop
+        return out
+
+
+register_reader("avi", AviSource, (".avi",))

@@ -1,0 +1,1 @@
+"""Load models: surface force fields parameterised by control values."""

@@ -1,0 +1,1 @@
+"""Responses: maps from control values to vertex displacements over time."""

@@ -1,0 +1,105 @@
+"""Linear (quasi-static) response of the folds to a load model (paper, section 3.3).
+
+The displacement is linear in the control values: with one factorisation of K,
+
+    R = V K^-1 L S            (3 N, n_spatial)  vertex displacement per spatial pattern
+    U(t) = R @ C @ b(t)       (3 N,)            at any time, for C (n_spatial, n_time)
+
+(V picks the vertex DOFs, row ``3 i + c`` = vertex i, component c, mm).  R is
+computed once (all right-hand sides at once, in chunks); afterwards a whole
+trajectory is a small dense product, and its adjoint (needed for exact
+gradients) is the transposed product.
+
+Anything that maps ``x`` linearly to vertex displacements at the frame times
+can replace :class:`QuasiStaticResponse` in :class:`vfcli.inverse.problem.Problem`:
+it needs ``n_params``, ``n_vertices``, ``displacements(x, times)`` and
+``adjoint(g, times)`` (e.g. a modal response with inertia and damping, which is
+still linear in the loads).
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.sparse as sp
+
+from vfcli.errors import ConfigError
+from vfcli.model.loads.force_field import LoadModel
+
+log = logging.getLogger(__name__)
+
+
+class QuasiStaticResponse:
+    """Vertex displacements of a static linear-elastic model under a load model.
+
+    Parameters
+    ----------
+    model : :class:`vfcli.model.fem.ElasticModel` (factorised on first use).
+    load_model : :class:`vfcli.model.loads.force_field.LoadModel`.
+    chunk : right-hand sides solved per batch (bounds the (n_dofs, chunk) work array).
+
+    Attributes
+    ----------
+    basis_ : (N, 3, n_spatial) float64, vertex displacement (mm) per unit spatial
+        control value (the matrix R, reshaped).
+    """
+
+    def __init__(self, model, load_model: LoadModel, chunk: int = 64) -> None:
+        self.load_model = load_model
+        self.n_vertices = int(model.mesh.n_nodes)
+        loads = load_model.spatial_loads(model)
+        loads = loads.tocsc() if sp.issparse(loads) else np.asarray(loads, dtype=float)
+        if loads.shape != (model.n_dofs, load_model.n_spatial):
+            raise ConfigError(f"load model gave loads of shape {loads.shape}, expected "
+                              f"({model.n_dofs}, {load_model.n_spatial})")
+        vop = model.vertex_operator()
+        out = np.empty((3 * self.n_vertices, load_model.n_spatial))
+        for a in range(0, load_model.n_spatial, chunk):
+            b = min(a + chunk, load_model.n_spatial)
+            rhs = loads[:, a:b]
+            rhs = rhs.toarray() if sp.issparse(rhs) else rhs
+            out[:, a:b] = vop @ model.solve(rhs)
+        self.basis_ = out.reshape(self.n_vertices, 3, load_model.n_spatial)
+        self._flat = out
+        log.debug("response basis: %d vertices x %d spatial patterns", self.n_vertices, load_model.n_spatial)
+
+    @property
+    def n_params(self) -> int:
+        return self.load_model.n_params
+
+    def time_basis(self, times: np.ndarray) -> np.ndarray:
+        """(T, n_time) time basis of the load model at ``times`` (s): ``U(t) = R C time_basis(t)``."""
+        return np.atleast_2d(self.load_model.time_basis(times))
+
+    def displacements(self, x: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """Vertex displacements at ``times``.
+
+        Parameters
+        ----------
+        x : (n_params,) control values (``C.ravel()``).
+        times : (T,) s.
+
+        Returns
+        -------
+        (T, N, 3) float64, mm.
+        """
+        c = self.load_model.control_matrix(x)
+        b = self.load_model.time_basis(times)  # (T, n_time)
+        u = self._flat @ (c @ b.T)  # (3N, T)
+        return u.T.reshape(len(b), self.n_vertices, 3)
+
+    def adjoint(self, g: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """Gradient with respect to x of ``sum(g * displacements(x, times))``.
+
+        Parameters
+        ----------
+        g : (T, N, 3) sensitivities dE/dU, per mm.
+        times : (T,) s.
+
+        Returns
+        -------
+        (n_params,) float64.
+        """
+        b = self.load_model.time_basis(times)  # (T, n_time)
+        g2 = np.asarray(g, dtype=float).reshape(len(b), -1)  # (T, 3N)
+        return (self._flat.T @ (g2.T @ b)).ravel()

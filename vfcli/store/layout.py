@@ -1,0 +1,295 @@
+"""The store layout: every group and dataset of a vfcli store, with units and axes.
+
+This module is the one place that names HDF5 paths. Stage modules refer to datasets
+by the keys declared here; :mod:`vfcli.store.transaction` turns them into paths, attaches the
+units and attaches the time axes as HDF5 dimension scales. ``docs/store-layout.md``
+is generated from this table (``vfcli schemas`` writes it), so the documentation
+cannot drift from the code.
+
+A store has one group per stage (``/hsc``, ``/ldv``, ``/sync`` ...). Stages that can
+run several times with different settings (``optimize``, ``diagnose``) keep one
+subgroup per run: ``/optimize/<run>``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+FORMAT_NAME = "vfcli-store"
+FORMAT_VERSION = 1
+
+#: Root attribute holding the recording's config (JSON of :class:`vfcli.config.RecordingConfig`).
+ROOT_CONFIG_ATTR = "recording_config_json"
+
+#: Attributes every stage group carries (its provenance).
+PROVENANCE_ATTRS = (
+    "stage",
+    "vfcli_version",
+    "command",
+    "created_utc",
+    "config_json",
+    "inputs_json",
+    "upstream_json",
+    "digest",
+)
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """One dataset of a stage.
+
+    Parameters
+    ----------
+    units
+        Physical unit of the values (``"1"`` for dimensionless, ``"bool"``, ``"index"``).
+    description
+        One line, shown in ``docs/store-layout.md`` and as the dataset's ``description``.
+    dims
+        Name of each axis; an axis named after another dataset of the same stage
+        (``"frame_time"``) is attached to it as an HDF5 dimension scale.
+    frame_chunked
+        Large per-frame arrays: chunked one frame (first axis) per chunk and compressed.
+    """
+
+    units: str
+    description: str
+    dims: tuple[str, ...] = ()
+    frame_chunked: bool = False
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A stage group: which command writes it, what it reads, what it holds."""
+
+    name: str
+    written_by: str
+    description: str
+    reads: tuple[str, ...] = ()
+    datasets: dict[str, Dataset] = field(default_factory=dict)
+    has_runs: bool = False
+
+    def group_path(self, run: str | None = None) -> str:
+        """HDF5 path of the stage group (``/optimize/<run>`` for stages with runs)."""
+        if self.has_runs:
+            if not run:
+                raise ValueError(f"stage {self.name!r} needs a run name")
+            return f"/{self.name}/{run}"
+        return f"/{self.name}"
+
+
+D = Dataset
+
+STAGES: dict[str, Stage] = {
+    s.name: s
+    for s in [
+        Stage(
+            "hsc",
+            "ingest-hsc",
+            "High-speed video of the superior surface and the subglottal pressure recorded with it.",
+            datasets={
+                "frames": D("counts", "Video frames, unchanged bit depth", ("frame_time", "row", "col"), True),
+                "frame_time": D("s", "Time of each frame from the first frame", ("frame_time",)),
+                "pressure": D("Pa", "Subglottal pressure recorded with the video", ("pressure_time",)),
+                "pressure_time": D("s", "Time of each pressure sample, video time base", ("pressure_time",)),
+            },
+        ),
+        Stage(
+            "ldv",
+            "ingest-ldv",
+            "Scanning-vibrometer grid: one epoch per point, with the pressure reference channel.",
+            datasets={
+                "node_id": D("index", "Scan point number in the source file", ("point",)),
+                "grid_index": D("index", "(row, col) of each point in the scan grid", ("point", "rc")),
+                "coords_mm": D("mm", "Point coordinates in the camera frame (x, y, z)", ("point", "xyz")),
+                "velocity": D("mm/s", "Vertical surface velocity per point", ("point", "sample")),
+                "reference": D("Pa", "Pressure reference channel recorded with each point (V when uncalibrated)", ("point", "sample")),
+                "epoch_t0": D("s", "Start time of each point's record as written by the vibrometer", ("point",)),
+                "dropout": D("bool", "Point whose signal drops out (flagged, kept)", ("point",)),
+                "dropout_reason": D("text", "Why a point was flagged", ("point",)),
+            },
+        ),
+        Stage(
+            "sync",
+            "sync",
+            "LDV epochs mapped onto the video's time base through the subglottal pressure.",
+            reads=("hsc", "ldv"),
+            datasets={
+                "offset_s": D("s", "Start of each LDV epoch relative to the video's phase reference", ("point",)),
+                "f0_hz": D("Hz", "Fundamental frequency of each LDV epoch", ("point",)),
+                "drift": D("1", "Relative f0 difference of each epoch against the video", ("point",)),
+                "drift_rate_per_s": D("1/s", "Linear trend of each epoch's f0 relative to its mean", ("point",)),
+                "n_cycles": D("1", "Cycles averaged per point", ("point",)),
+                "video_phase": D("cycles", "Cycle phase of the video at each frame", ("frame_time",)),
+                "quality": D("1", "Alignment quality in [0, 1]", ("point",)),
+                "ok": D("bool", "Point aligned", ("point",)),
+                "reason": D("text", "Why a point could not be aligned", ("point",)),
+                "aligned_w": D("mm/s", "Vertical velocity on the video frame times", ("point", "frame_time")),
+                "frame_time": D("s", "Video frame times", ("frame_time",)),
+            },
+        ),
+        Stage(
+            "flow",
+            "flow",
+            "Gap mask, glottal area, opening function and horizontal optical flow per frame.",
+            reads=("hsc",),
+            datasets={
+                "gap_mask": D("bool", "Glottal gap per frame", ("frame_time", "row", "col"), True),
+                "glottal_area": D("mm^2", "Glottal area waveform", ("frame_time",)),
+                "opening": D("mm", "Gap opening function o(y, t)", ("frame_time", "row", "col"), True),
+                "flow": D("mm/s", "Horizontal surface velocity (u, v)", ("frame_time", "row", "col", "uv"), True),
+                "frame_time": D("s", "Time at which each flow frame applies", ("frame_time",)),
+            },
+        ),
+        Stage(
+            "fields",
+            "flow",
+            "Tri-variate surface velocity field v(y, t) = (u, v, w) on the pixel grid.",
+            reads=("flow", "sync", "ldv"),
+            datasets={
+                "velocity": D("mm/s", "Surface velocity (u, v, w)", ("frame_time", "row", "col", "uvw"), True),
+                "valid": D("bool", "Fold surface visible (velocity valid)", ("frame_time", "row", "col"), True),
+                "frame_time": D("s", "Frame times", ("frame_time",)),
+                "ldv_px": D("px", "Screen position (col, row) of each LDV point", ("point", "colrow")),
+                "ldv_used": D("bool", "LDV point used by the thin-plate spline (aligned, no dropout)", ("point",)),
+            },
+        ),
+        Stage(
+            "mesh",
+            "mesh",
+            "Tetrahedral M5 model of both folds with tagged boundary and (u, v) surface maps.",
+            datasets={
+                "nodes": D("mm", "Node coordinates (x, y, z)", ("node", "xyz")),
+                "tets": D("index", "Tetrahedra (node indices)", ("tet", "corner")),
+                "tet_fold": D("index", "Fold of each tetrahedron (0 left, 1 right)", ("tet",)),
+                "faces": D("index", "Boundary triangles (node indices, outward)", ("face", "corner")),
+                "face_tag": D("index", "1 inferior, 2 superior, 3 medial, 4 fixture", ("face",)),
+                "face_fold": D("index", "Fold of each boundary triangle", ("face",)),
+                "uv": D("1", "(u, v) surface coordinates, NaN off the parameterised sides", ("node", "uv")),
+                "node_side": D("index", "0 none, 1 inferior side, 2 superior side", ("node",)),
+            },
+        ),
+        Stage(
+            "optimize",
+            "optimize",
+            "One optimisation run: force-field control values, history and the reconstructed motion.",
+            reads=("mesh", "fields", "flow", "hsc"),
+            has_runs=True,
+            datasets={
+                "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),
+                "displacements": D("mm", "Reconstructed vertex displacements", ("sim_time", "node", "xyz"), True),
+                "controls": D("Pa", "Final control values of the force field", ("param",)),
+                "parameter_names": D("text", "Name of each control value", ("param",)),
+                "kept_iterations": D("index", "Iterations whose control values are kept", ("kept",)),
+                "kept_controls": D("Pa", "Control values at the kept iterations", ("kept", "param")),
+                "history_iteration": D("index", "Iteration number", ("iteration",)),
+                "history_total": D("1", "Error E at each iteration", ("iteration",)),
+                "history_motion": D("1", "Motion term of E", ("iteration",)),
+                "history_gap": D("1", "Gap term of E", ("iteration",)),
+                "history_step": D("1", "Step length of each iteration", ("iteration",)),
+                "history_wall_time": D("s", "Wall time since the start of the run", ("iteration",)),
+                "history_n_evals": D("1", "Objective evaluations so far", ("iteration",)),
+                "history_ridge": D("1", "Ridge (Tikhonov) term of E", ("iteration",)),
+                "displacement_std": D("mm", "Standard deviation of each reconstructed displacement component: "
+                                      "Laplace posterior and instrument disagreement in quadrature (vfcli/inverse/uncertainty.py)",
+                                      ("sim_time", "node", "xyz"), True),
+                "displacement_std_instruments": D("mm", "Systematic part of displacement_std: RMS over time of the "
+                                                  "difference between the camera-only and the vibrometer-only "
+                                                  "reconstructions, / sqrt 2", ("node", "xyz")),
+                "lcurve_weight": D("1/Pa^2", "Tikhonov weights scanned by the L-curve (free-regularised)", ("lcurve",)),
+                "lcurve_misfit": D("1", "Predicted data misfit E_data at each weight", ("lcurve",)),
+                "lcurve_penalty": D("Pa^2", "Penalty x^T Omega x at each weight", ("lcurve",)),
+            },
+        ),
+        Stage(
+            "diagnose",
+            "diagnose",
+            "Missing-physics diagnosis of one optimisation run.",
+            reads=("optimize",),
+            has_runs=True,
+        ),
+    ]
+}
+
+
+#: The phantom's ``truth.h5`` (written by `vfcli synth`, read only by tests and benchmarks):
+#: key -> dataset. Root attributes: effect, strength, seed, config_json, camera_*, adduction_mm.
+TRUTH: dict[str, Dataset] = {
+    "mesh/nodes": D("mm", "Rest positions of the phantom's own mesh (with the adduction)", ("node", "xyz")),
+    "mesh/tets": D("index", "Tetrahedra", ("tet", "corner")),
+    "mesh/tet_fold": D("index", "Fold of each tetrahedron", ("tet",)),
+    "mesh/faces": D("index", "Boundary triangles", ("face", "corner")),
+    "mesh/face_tag": D("index", "1 inferior, 2 superior, 3 medial, 4 fixture", ("face",)),
+    "mesh/face_fold": D("index", "Fold of each boundary triangle", ("face",)),
+    "mesh/uv": D("1", "(u, v) surface coordinates", ("node", "uv")),
+    "mesh/node_side": D("index", "0 none, 1 inferior side, 2 superior side", ("node",)),
+    "motion/coeffs_real": D("mm", "Fourier coefficients of the vertex displacement over one cycle (real)", ("harmonic", "node", "xyz")),
+    "motion/coeffs_imag": D("mm", "Fourier coefficients (imaginary part)", ("harmonic", "node", "xyz")),
+    "motion/load_coefficients": D("Pa", "Aerodynamic load pattern coefficients over one cycle", ("phase", "pattern")),
+    "frames/time": D("s", "Frame times", ("frame",)),
+    "frames/phase": D("cycles", "Cycle phase at each frame", ("frame",)),
+    "frames/displacement": D("mm", "Vertex displacements at the frame times", ("frame", "node", "xyz"), True),
+    "frames/velocity": D("mm/s", "Vertex velocities at the frame times", ("frame", "node", "xyz"), True),
+    "screen/velocity": D("mm/s", "True screen-space surface velocity (x, y, z), NaN off the folds", ("frame", "row", "col", "xyz"), True),
+    "screen/gap": D("bool", "True glottal gap at the pixel centres", ("frame", "row", "col"), True),
+    "screen/visible": D("bool", "Fold surface visible", ("frame", "row", "col"), True),
+    "screen/glottal_area": D("mm^2", "True glottal area", ("frame",)),
+    "ldv/points_model_mm": D("mm", "Scan points in the model frame (x, y)", ("point", "xy")),
+    "ldv/points_camera_mm": D("mm", "Scan points in the camera frame as written to the scan file", ("point", "xy")),
+    "ldv/start_phase": D("cycles", "Cycle phase at each epoch's first sample", ("point",)),
+    "ldv/f0_hz": D("Hz", "Fundamental during each epoch", ("point",)),
+    "ldv/sync_offset_s": D("s", "Epoch time whose phase equals the first frame's (what sync estimates)", ("point",)),
+    "ldv/dropout_kind": D("index", "0 none, 1 spikes, 2 flat", ("point",)),
+    "ldv/clean_velocity": D("mm/s", "True vertical velocity at each point, NaN where no surface", ("point", "sample")),
+    "pressure/true_pa": D("Pa", "True subglottal pressure beside the video", ("sample",)),
+    "pressure/phase": D("cycles", "Cycle phase at each pressure sample", ("sample",)),
+}
+
+
+def stage(name: str) -> Stage:
+    """The :class:`Stage` called ``name``; ``KeyError`` lists the known ones."""
+    try:
+        return STAGES[name]
+    except KeyError:
+        raise KeyError(f"unknown stage {name!r}; known: {', '.join(STAGES)}") from None
+
+
+def dataset_path(stage_name: str, key: str, run: str | None = None) -> str:
+    """HDF5 path of dataset ``key`` of a stage; ``KeyError`` if the layout does not declare it."""
+    st = stage(stage_name)
+    if st.datasets and key not in st.datasets:
+        raise KeyError(f"stage {stage_name!r} declares no dataset {key!r}")
+    return f"{st.group_path(run)}/{key}"
+
+
+def layout_markdown() -> str:
+    """The layout as a Markdown page (written to ``docs/store-layout.md``)."""
+    lines = [
+        "# Store layout",
+        "",
+        "One HDF5 file per recording. Generated from `vfcli/store/layout.py` by `vfcli schemas`; do not edit.",
+        "",
+        f"Root attributes: `format` = `{FORMAT_NAME}`, `format_version` = {FORMAT_VERSION}, "
+        f"`{ROOT_CONFIG_ATTR}` (the recording's config as JSON).",
+        "",
+        "Every stage group carries its provenance as attributes: "
+        + ", ".join(f"`{a}`" for a in PROVENANCE_ATTRS)
+        + ". Every dataset carries `units` and `description`; time axes are HDF5 dimension scales.",
+        "",
+    ]
+    for st in STAGES.values():
+        path = st.group_path("<run>") if st.has_runs else st.group_path()
+        lines += [f"## `{path}`", "", f"{st.description} Written by `vfcli {st.written_by}`."]
+        if st.reads:
+            lines.append(f"Reads: {', '.join('`/' + r + '`' for r in st.reads)}.")
+        lines.append("")
+        if st.datasets:
+            lines += ["| dataset | units | axes | description |", "| --- | --- | --- | --- |"]
+            for key, ds in st.datasets.items():
+                axes = ", ".join(ds.dims)
+                lines.append(f"| `{key}` | {ds.units} | {axes} | {ds.description} |")
+            lines.append("")
+    lines += ["## Phantom `truth.h5` (`vfcli synth`; read by tests and benchmarks only)", "",
+              "| dataset | units | axes | description |", "| --- | --- | --- | --- |"]
+    for key, ds in TRUTH.items():
+        lines.append(f"| `/{key}` | {ds.units} | {', '.join(ds.dims)} | {ds.description} |")
+    lines.append("")
+    return "\n".join(lines)
