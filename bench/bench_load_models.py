@@ -34,8 +34,8 @@ sys.path.insert(0, str(ROOT))
 from _runner import vfcli  # noqa: E402
 from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.synth.scoring import interval_coverage, relative_rms_error, side_truth  # noqa: E402
-from vfcli.stages.mesh import read_mesh  # noqa: E402
-from vfcli.store.transaction import Store, read_truth  # noqa: E402
+from vfcli.store.mesh import read_mesh  # noqa: E402
+from vfcli.store import Store, read_truth  # noqa: E402
 
 MODELS = {
     "free (paper)": ["--loads", "free"],

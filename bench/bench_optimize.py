@@ -34,9 +34,9 @@ sys.path.insert(0, str(ROOT))
 from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.synth.scoring import relative_rms_error, side_truth  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
-from vfcli.stages.mesh import read_mesh  # noqa: E402
+from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.stages.optimize import build_problem  # noqa: E402
-from vfcli.store.transaction import Store, read_truth  # noqa: E402
+from vfcli.store import Store, read_truth  # noqa: E402
 
 SETUPS = ["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]
 

@@ -30,7 +30,7 @@ from vfcli.inverse.linearization import gauss_newton_model  # noqa: E402
 from vfcli.inverse.optimizers.base import _lm_solve  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
 from vfcli.stages.optimize import build_problem  # noqa: E402
-from vfcli.store.transaction import Store  # noqa: E402
+from vfcli.store import Store  # noqa: E402
 
 MIDDLE = {"setup": "3x3x10-two-sided", "n_frames": 42, "edge": 1.5}
 GROUPS = {

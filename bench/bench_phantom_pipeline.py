@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 from vfcli.camera.camera import Camera  # noqa: E402
 from vfcli.synth.scoring import end_point_error, iou, relative_rms_error  # noqa: E402
-from vfcli.store.transaction import Store, read_truth  # noqa: E402
+from vfcli.store import Store, read_truth  # noqa: E402
 
 
 def vfcli(*args) -> float:

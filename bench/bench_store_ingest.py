@@ -13,7 +13,7 @@ sensor noise, ~400 MB) is
 
 Then the frames of the last round's stores are read back (from the page cache) in batches
 of 16 frames, as ``vfcli flow`` reads them: by h5py (libhdf5's filters) and by vfcli's
-:class:`vfcli.store.transaction.FrameReader` (N-bit chunks unpacked by numpy; other filters by h5py).
+:class:`vfcli.store.frames.FrameReader` (N-bit chunks unpacked by numpy; other filters by h5py).
 
 The machine is shared, so both are timed in ``--rounds`` interleaved rounds (copy, then
 each filter) and each ingest is compared with the copy of its own round: the table shows
@@ -49,7 +49,7 @@ from vfcli.io.video.photron import write_mraw  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
 from vfcli.stages.flow import CHUNK_FRAMES  # noqa: E402
 from vfcli.stages.ingest import run_ingest_hsc  # noqa: E402
-from vfcli.store.transaction import FrameReader  # noqa: E402
+from vfcli.store import FrameReader  # noqa: E402
 
 #: Rows' labels of the filters, by ``ingest_hsc.compression`` value.
 LABELS = {"nbit": "nbit (default for 12-bit MRAW: auto)", "gzip": "gzip (deflate 1 + shuffle)"}

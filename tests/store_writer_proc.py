@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from vfcli.store.transaction import Store
+from vfcli.store import Store
 
 
 def frames_for(seed: int, n: int) -> np.ndarray:

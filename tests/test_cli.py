@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from vfcli.store.transaction import Store
+from vfcli.store import Store
 
 SUBCOMMANDS = ["ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize", "export",
                "synth", "diagnose", "report", "batch", "info"]

@@ -116,7 +116,7 @@ def test_the_example_config_is_valid_and_spells_out_the_defaults():
 
 def test_the_store_keeps_only_the_settings_the_file_gave(tmp_path, vfcli):
     """Defaults are not frozen into a store: a newer vfcli's defaults apply to what the file left out."""
-    from vfcli.store.transaction import Store
+    from vfcli.store import Store
 
     store, cfg = tmp_path / "r.h5", tmp_path / "rec.toml"
     cfg.write_text("[camera]\npx_per_mm = 25\n")

@@ -24,7 +24,7 @@ except ImportError:  # pragma: no cover
     from tests._flow_phantom import SlitPhantom
 from vfcli.stages.base import RunContext
 from vfcli.stages.flow import lateral_axis_for, run_flow, sample_indices
-from vfcli.store.transaction import Store
+from vfcli.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRST, N_FRAMES = 20, 24  # phantom frames 20..43: the gap opens wide, closes, stays closed

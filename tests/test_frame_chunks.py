@@ -30,7 +30,7 @@ from vfcli.store.chunks import (
     unshuffle_bytes,
 )
 from vfcli.io.video.photron import Packed12Frames, pack_12bit
-from vfcli.store.transaction import CHUNK_CODECS
+from vfcli.store import CHUNK_CODECS
 
 #: Codecs whose chunks are zlib streams or raw bytes (N-bit chunks are tested on their own).
 CODECS = {**{k: c for k, c in CHUNK_CODECS.items() if c.nbit is None},

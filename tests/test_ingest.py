@@ -18,7 +18,7 @@ from vfcli.io.video.photron import write_mraw
 from vfcli.store.provenance import sha256_file
 from vfcli.stages.base import RunContext
 from vfcli.stages.ingest import run_ingest_hsc
-from vfcli.store.transaction import Store
+from vfcli.store import Store
 
 FPS = 10000.0
 

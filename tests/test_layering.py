@@ -35,7 +35,7 @@ def test_only_the_store_opens_hdf5_and_only_the_cli_uses_click(path):
     imported = _imports(tree)
     rel = _rel(path)
     if not rel.startswith("store/"):
-        assert "h5py" not in imported, f"{rel} imports h5py: go through vfcli.store.transaction"
+        assert "h5py" not in imported, f"{rel} imports h5py: go through vfcli.store"
     if not rel.startswith("cli/"):
         assert "click" not in imported, f"{rel} imports click: keep the CLI in vfcli/cli/"
 

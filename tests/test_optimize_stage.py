@@ -13,7 +13,7 @@ import pytest
 from conftest import ROOT, run_vfcli
 from vfcli.stages.optimize import checkpoint_path
 from vfcli.synth.scoring import interval_coverage
-from vfcli.store.transaction import Store, read_truth
+from vfcli.store import Store, read_truth
 
 PHANTOM = [
     "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
@@ -98,7 +98,7 @@ def _inferior_truth(path, raw, run):
     """(estimate, stated std, truth) of the inferior-surface displacements over the run's window."""
     from vfcli.model.mesh import FoldMesh
     from vfcli.synth.scoring import side_truth
-    from vfcli.stages.mesh import read_mesh
+    from vfcli.store.mesh import read_mesh
 
     t, _ = read_truth(raw / "truth.h5")
     tm = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})

@@ -12,7 +12,7 @@ from conftest import run_vfcli
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.io.pressure import write_pressure_csv
-from vfcli.store.transaction import Store, read_truth
+from vfcli.store import Store, read_truth
 
 PHANTOM = [
     "synth.duration_s=0.03", "synth.ldv_epoch_s=0.06", "synth.target_edge_mm=2.0", "synth.n_phase=64",

@@ -17,7 +17,7 @@ import pytest
 from vfcli.errors import MissingStageError, StoreFormatError, StoreLockedError
 from vfcli.store.chunks import ValueRangeError
 from vfcli.io.video.photron import pack_12bit
-from vfcli.store.transaction import Store
+from vfcli.store import Store
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))

@@ -12,7 +12,7 @@ from vfcli.config import MeshConfig, SynthConfig
 from vfcli.model.fem import ElasticModel
 from vfcli.model.m5 import M5Params
 from vfcli.model.mesh import TAG_MEDIAL, build_mesh
-from vfcli.store.transaction import read_truth
+from vfcli.store import read_truth
 from vfcli.synth import aero, effects
 from vfcli.synth.phantom import true_motion
 from vfcli.synth.instruments import PressureWaveform

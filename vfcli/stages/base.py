@@ -11,7 +11,7 @@ from vfcli.config import RecordingConfig, load_config
 from vfcli.errors import MissingStageError
 from vfcli.progress import Progress, no_progress
 from vfcli.store.provenance import describe_inputs
-from vfcli.store.transaction import StageWriter, Store, StoreReader
+from vfcli.store import StageWriter, Store, StoreReader
 
 log = logging.getLogger(__name__)
 

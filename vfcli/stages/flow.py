@@ -35,7 +35,7 @@ from vfcli.flow.velocity_field import LdvTps, combine_fields, hull_mask
 from vfcli.flow.gap.detect import gap_mask, gap_threshold, midline_from_masks
 from vfcli.flow.gap.subpixel import SubpixelGap, estimate_edge_model
 from vfcli.flow.optical_flow import FlowEstimator, flow_stream, intensity_range
-from vfcli.store.transaction import FrameReader, StageWriter, StoreReader
+from vfcli.store import FrameReader, StageWriter, StoreReader
 from vfcli.stages.base import RunContext, StageResult, run_stage
 
 log = logging.getLogger(__name__)

@@ -13,7 +13,7 @@ from vfcli.store.chunks import NBIT_BITS, ValueRangeError
 from vfcli.io.ldv.read import LdvChannels, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
 from vfcli.io.video.base import VideoMeta, open_video
-from vfcli.store.transaction import StageWriter, StoreReader
+from vfcli.store import StageWriter, StoreReader
 from vfcli.stages.base import RunContext, StageResult, run_stage
 
 log = logging.getLogger(__name__)
@@ -36,7 +36,7 @@ def _roi_rows_cols(roi_px: tuple[int, int, int, int] | None) -> tuple[int, int, 
 
 
 def frame_filter(compression: str, meta: VideoMeta) -> str:
-    """The frame filter (:data:`vfcli.store.transaction.COMPRESSIONS`) for ``ingest_hsc.compression``.
+    """The frame filter (:data:`vfcli.store.frames.COMPRESSIONS`) for ``ingest_hsc.compression``.
 
     Parameters
     ----------

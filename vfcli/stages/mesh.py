@@ -6,15 +6,11 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.store import layout
 from vfcli.model.m5 import m5_params_from
-from vfcli.model.mesh import FoldMesh, build_mesh
-from vfcli.store.transaction import StageWriter, StoreReader
+from vfcli.model.mesh import build_mesh
+from vfcli.store import StageWriter, StoreReader
+from vfcli.store.mesh import read_mesh
 from vfcli.stages.base import RunContext, StageResult, run_stage
-
-def read_mesh(reader: StoreReader) -> FoldMesh:
-    """The FoldMesh stored in /mesh."""
-    return FoldMesh(**{k: reader.read("mesh", k) for k in layout.stage("mesh").datasets})
 
 
 def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:

@@ -30,7 +30,7 @@ from vfcli.report.plots import convergence_plot, uncertainty_map
 from vfcli.inverse.regularization import lcurve
 from vfcli.camera.pose import camera_to_model, estimate_pose
 from vfcli.model.response.quasi_static import QuasiStaticResponse
-from vfcli.store.transaction import StageWriter, StoreReader
+from vfcli.store import StageWriter, StoreReader
 from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_std, posterior,
                            relative_uncertainty)
 from vfcli.stages.base import RunContext, StageResult, run_stage

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from vfcli.errors import InputDataError
-from vfcli.store.transaction import StageWriter, StoreReader
+from vfcli.store import StageWriter, StoreReader
 from vfcli.sync.align import sync_scan
 from vfcli.stages.base import RunContext, StageResult, run_stage
 

@@ -37,7 +37,7 @@ from vfcli.io.pressure import write_pressure_csv, write_pressure_tdms
 from vfcli.io.video.base import open_video
 from vfcli.io.video.tiff_avi import write_tiff
 from vfcli.progress import Progress, no_progress
-from vfcli.store.transaction import write_truth
+from vfcli.store import write_truth
 from vfcli.synth.phantom import Recording, make_recording
 from vfcli.stages.base import StageResult
 

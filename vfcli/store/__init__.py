@@ -1,1 +1,35 @@
-"""The experiment store: one HDF5 file per recording; the only package that imports h5py."""
+"""The experiment store: one HDF5 file per recording; the only package that imports h5py.
+
+Modules: :mod:`~vfcli.store.layout` (every group and dataset, the only place HDF5 paths are
+spelt), :mod:`~vfcli.store.transaction` (lock, atomic commit, :class:`StageWriter`),
+:mod:`~vfcli.store.reader` (:class:`StoreReader`), :mod:`~vfcli.store.frames` (per-frame
+datasets, :class:`FrameReader`, N-bit), :mod:`~vfcli.store.chunks` (chunk encoding),
+:mod:`~vfcli.store.provenance`, :mod:`~vfcli.store.info`, :mod:`~vfcli.store.truth` (a
+phantom's truth file), and the typed readers :mod:`~vfcli.store.mesh` (/mesh) and
+:mod:`~vfcli.store.optimize_run` (/optimize/<run>).
+
+The public names below are imported on first use (``from vfcli.store import Store``), so
+importing :mod:`vfcli.store.layout` alone does not load h5py.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_PUBLIC = {
+    "Store": "transaction", "StoreWriter": "transaction", "StageWriter": "transaction",
+    "StoreReader": "reader", "StageStatus": "reader",
+    "FrameReader": "frames", "COMPRESSIONS": "frames", "CHUNK_CODECS": "frames",
+    "read_truth": "truth", "write_truth": "truth", "TruthWriter": "truth",
+    "StoredMesh": "mesh", "read_mesh": "mesh", "read_stored_mesh": "mesh",
+    "OptimizeRun": "optimize_run", "read_optimize_run": "optimize_run", "run_names": "optimize_run",
+    "store_info": "info",
+}
+
+__all__ = sorted(_PUBLIC)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _PUBLIC:
+        return getattr(importlib.import_module(f"vfcli.store.{_PUBLIC[name]}"), name)
+    raise AttributeError(f"module 'vfcli.store' has no attribute {name!r}")

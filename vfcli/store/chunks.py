@@ -32,7 +32,7 @@ chunk without being decoded at all (:func:`nbit12_chunk_of_packed`), and a chunk
 back with the same vectorised unpacking (:func:`unpack_nbit12`), several times faster than
 libhdf5's own N-bit decoder.
 
-No HDF5 here: :mod:`vfcli.store.transaction` owns the file.
+No HDF5 here: :mod:`vfcli.store.transaction` and :mod:`vfcli.store.frames` own the file.
 """
 from __future__ import annotations
 

@@ -1,0 +1,198 @@
+"""Read-only view of a store: stages, datasets, provenance and staleness.
+
+Every stage group records its validated config (JSON), the vfcli version, the command
+line, the time, the SHA-256 of each raw input file, and the digest of each upstream
+stage it used. :meth:`StoreReader.is_current` tells a command that its inputs, config
+and upstream stages are unchanged, so it can skip the work; a stage whose upstream was
+rewritten since is reported as stale.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import h5py
+import numpy as np
+
+from vfcli.errors import MissingStageError, StoreFormatError
+from vfcli.store import layout
+from vfcli.store.frames import FrameReader
+from vfcli.store.provenance import same_inputs
+
+
+def open_h5(path: Path, mode: str) -> h5py.File:
+    """The HDF5 file at ``path``; :class:`StoreFormatError` when it is not one."""
+    try:
+        return h5py.File(path, mode)
+    except OSError as exc:
+        raise StoreFormatError(f"cannot open as an HDF5 store ({exc})", path) from None
+
+
+def check_format(f: h5py.File, path: Path) -> None:
+    """:class:`StoreFormatError` unless ``f`` is a vfcli store this vfcli can read."""
+    if f.attrs.get("format") != layout.FORMAT_NAME:
+        raise StoreFormatError("not a vfcli store (no 'format' attribute)", path)
+    version = int(f.attrs.get("format_version", -1))
+    if version > layout.FORMAT_VERSION:
+        raise StoreFormatError(
+            f"written by a newer vfcli (store format {version}, this vfcli reads up to "
+            f"{layout.FORMAT_VERSION}); upgrade vfcli",
+            path,
+        )
+
+
+@dataclass
+class StageStatus:
+    """What ``vfcli info`` shows of one stage."""
+
+    path: str
+    complete: bool
+    provenance: dict[str, Any]
+    size_bytes: int
+    stale_because: list[str] = field(default_factory=list)
+
+    @property
+    def stale(self) -> bool:
+        return bool(self.stale_because)
+
+    def to_json(self) -> dict[str, Any]:
+        prov = dict(self.provenance)
+        for k in ("config_json", "inputs_json", "upstream_json"):
+            if k in prov:
+                prov[k.removesuffix("_json")] = json.loads(prov.pop(k))
+        return {
+            "path": self.path,
+            "complete": self.complete,
+            "stale": self.stale,
+            "stale_because": self.stale_because,
+            "size_bytes": self.size_bytes,
+            "provenance": prov,
+        }
+
+
+def _group_size(g: h5py.Group) -> int:
+    total = 0
+
+    def visit(_name: str, obj: Any) -> None:
+        nonlocal total
+        if isinstance(obj, h5py.Dataset):
+            total += obj.id.get_storage_size()
+
+    g.visititems(visit)
+    return total
+
+
+class StoreReader:
+    """Read-only view of a store (an open HDF5 file)."""
+
+    def __init__(self, f: h5py.File, path: Path) -> None:
+        self._f = f
+        self.path = path
+
+    # -- stages -----------------------------------------------------------
+    def stage_paths(self) -> list[str]:
+        """Paths of every stage group present (``/hsc``, ``/optimize/run1`` ...)."""
+        out = []
+        for name, st in layout.STAGES.items():
+            if name not in self._f:
+                continue
+            if st.has_runs:
+                out.extend(f"/{name}/{run}" for run in self._f[name])
+            else:
+                out.append(f"/{name}")
+        return out
+
+    def has_stage(self, name: str, run: str | None = None, complete: bool = True) -> bool:
+        path = layout.stage(name).group_path(run)
+        if path not in self._f:
+            return False
+        return bool(self._f[path].attrs.get("complete", False)) or not complete
+
+    def group(self, name: str, run: str | None = None) -> h5py.Group:
+        """The stage group; :class:`MissingStageError` when it is absent or incomplete."""
+        st = layout.stage(name)
+        if not self.has_stage(name, run):
+            raise MissingStageError(
+                f"stage {st.group_path(run) if (run or not st.has_runs) else '/' + name} is missing; "
+                f"run `vfcli {st.written_by}` first",
+                self.path,
+            )
+        return self._f[st.group_path(run)]
+
+    def read(self, name: str, key: str, run: str | None = None) -> np.ndarray:
+        """A whole dataset as a numpy array (text datasets as ``str``)."""
+        ds = self.dataset(name, key, run)
+        if h5py.check_string_dtype(ds.dtype):
+            return ds.asstr()[()]
+        return FrameReader(ds)[()]
+
+    def frames(self, name: str, key: str, run: str | None = None) -> FrameReader:
+        """A per-frame dataset, lazily, for reading frames by index (:class:`FrameReader`)."""
+        return FrameReader(self.dataset(name, key, run))
+
+    def dataset(self, name: str, key: str, run: str | None = None) -> h5py.Dataset:
+        """A dataset, lazily (for streaming frame by frame)."""
+        g = self.group(name, run)
+        path = layout.dataset_path(name, key, run)
+        if path not in self._f:
+            raise MissingStageError(f"{path} is missing from the stage", self.path)
+        return g[key]
+
+    def attrs(self, name: str, run: str | None = None) -> dict[str, Any]:
+        return dict(self.group(name, run).attrs)
+
+    def digest(self, name: str, run: str | None = None) -> str:
+        return str(self.group(name, run).attrs["digest"])
+
+    def root_attrs(self) -> dict[str, Any]:
+        """The store's own attributes (format, version, creation time ...)."""
+        return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in self._f.attrs.items()}
+
+    def recording_config_json(self) -> str | None:
+        v = self._f.attrs.get(layout.ROOT_CONFIG_ATTR)
+        return None if v is None else str(v)
+
+    # -- provenance checks ---------------------------------------------------
+    def status(self, path: str) -> StageStatus:
+        g = self._f[path]
+        prov = {k: g.attrs[k] for k in layout.PROVENANCE_ATTRS if k in g.attrs}
+        prov = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in prov.items()}
+        stale = []
+        for up_path, up_digest in json.loads(prov.get("upstream_json", "{}")).items():
+            if up_path not in self._f:
+                stale.append(f"{up_path} is gone")
+            elif str(self._f[up_path].attrs.get("digest")) != up_digest:
+                stale.append(f"{up_path} was rewritten")
+        return StageStatus(path, bool(g.attrs.get("complete", False)), prov, _group_size(g), stale)
+
+    def is_current(
+        self,
+        name: str,
+        config_json: str,
+        inputs: Mapping[str, Mapping[str, Any]] | None = None,
+        upstream: list[tuple[str, str | None]] | None = None,
+        run: str | None = None,
+    ) -> bool:
+        """True when the stage exists, is complete, and its config, inputs and upstream are unchanged."""
+        if not self.has_stage(name, run):
+            return False
+        st = self.status(layout.stage(name).group_path(run))
+        if st.stale or st.provenance.get("config_json") != config_json:
+            return False
+        if inputs is not None and not same_inputs(json.loads(st.provenance["inputs_json"]), inputs):
+            return False
+        recorded = json.loads(st.provenance.get("upstream_json", "{}"))
+        wanted = self.upstream_digests(upstream or [])
+        return recorded == wanted
+
+    def previous_inputs(self, name: str, run: str | None = None) -> dict[str, Any]:
+        if not self.has_stage(name, run):
+            return {}
+        return json.loads(self.group(name, run).attrs.get("inputs_json", "{}"))
+
+    def upstream_digests(self, upstream: list[tuple[str, str | None]]) -> dict[str, str]:
+        """``{group path: digest}`` of the upstream stages ``[(name, run), ...]`` (must be present)."""
+        return {layout.stage(n).group_path(r): self.digest(n, r) for n, r in upstream}
+
