@@ -82,3 +82,41 @@ def test_info_on_a_missing_or_foreign_file_is_one_clear_line(vfcli, tmp_path, co
     res = vfcli("info", path)
     assert res.returncode == code
     assert res.stderr.count("\n") == 1 and str(path) in res.stderr and "Traceback" not in res.stderr
+
+
+def test_a_stage_stores_its_figures_and_warnings_and_info_shows_them(vfcli, tmp_path):
+    """The summary a command prints is in the store (info, info --json) with the warnings it
+    logged, even when --quiet kept them off the terminal."""
+    path = tmp_path / "r.h5"
+    res = vfcli("mesh", path, "--json", "--quiet", "--set", "mesh.target_edge_mm=2.5")
+    assert res.returncode == 0, res.stderr
+    printed = json.loads(res.stdout)
+    info = json.loads(vfcli("info", path, "--json").stdout)
+    summary = {s["path"]: s for s in info["stages"]}["/mesh"]["summary"]
+    assert summary["figures"] == {k: v for k, v in printed.items() if k not in ("stage", "status")}
+    text = vfcli("info", path).stdout
+    assert f"nodes={printed['nodes']}" in text and f"tets={printed['tets']}" in text
+
+
+def test_warnings_logged_by_a_stage_are_stored_whatever_the_verbosity(tmp_path):
+    import logging
+
+    from vfcli.stages.base import RunContext, run_stage
+
+    logging.getLogger("vfcli").setLevel(logging.ERROR)      # as --quiet leaves it
+    try:
+        ctx = RunContext.open(tmp_path / "r.h5")
+
+        def body(_reader, s):
+            s.put("nodes", np.zeros((2, 3)))
+            logging.getLogger("vfcli.stages.test").warning("the gap never opens in %d frames", 12)
+            logging.getLogger("vfcli.stages.test").info("not a warning")
+            return {"nodes": 2}
+
+        run_stage(ctx, "mesh", config_json="{}", body=body)
+    finally:
+        logging.getLogger("vfcli").setLevel(logging.NOTSET)
+    assert logging.getLogger("vfcli").level == logging.NOTSET and logging.getLogger("vfcli").propagate
+    with Store(tmp_path / "r.h5").read() as r:
+        assert r.summary("mesh") == {"figures": {"nodes": 2},
+                                     "warnings": ["WARNING vfcli.stages.test: the gap never opens in 12 frames"]}

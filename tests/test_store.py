@@ -399,3 +399,67 @@ def test_streamed_frames_memory_does_not_grow_with_the_number_of_frames(tmp_path
     print("peaks (MiB):", [round(p / 2**20, 1) for p in peaks])
     assert peaks[1] < 1.3 * peaks[0] + 2**20, f"peaks {peaks}"
     assert peaks[1] < total / 8, f"peak {peaks[1] / 2**20:.0f} MiB for {total / 2**20:.0f} MiB of frames"
+
+
+def test_the_package_exports_the_public_names_of_its_modules():
+    import vfcli.store as store_pkg
+    from vfcli.store.frames import FrameReader
+    from vfcli.store.reader import StoreReader
+    from vfcli.store.transaction import StageWriter
+    from vfcli.store.truth import read_truth
+
+    assert (store_pkg.Store, store_pkg.StoreReader, store_pkg.StageWriter, store_pkg.FrameReader,
+            store_pkg.read_truth) == (Store, StoreReader, StageWriter, FrameReader, read_truth)
+    with pytest.raises(AttributeError):
+        store_pkg.NoSuchThing  # noqa: B018
+
+
+def test_typed_readers_return_what_the_stages_wrote(tmp_path):
+    from vfcli.model.mesh import build_mesh
+    from vfcli.store import read_optimize_run, read_stored_mesh, run_names
+
+    mesh = build_mesh(target_edge_mm=3.0)
+    store = Store(tmp_path / "r.h5")
+    rng = np.random.default_rng(0)
+    disp = rng.normal(size=(4, mesh.n_nodes, 3)).astype(np.float32)
+    with store.write("test") as w:
+        with w.stage("mesh", config_json=json.dumps({"length_mm": 14.5})) as s:
+            for key, arr in mesh.to_arrays().items():
+                s.put(key, arr)
+            s.set_attrs(youngs_modulus_pa=5000.0, poisson_ratio=0.45, density_kg_m3=1000.0)
+        with w.stage("optimize", config_json="{}", run="a") as s:
+            s.put("sim_time", np.arange(4) * 1e-4)
+            s.put("displacements", disp)
+            s.put("controls", np.arange(3.0))
+            s.put("parameter_names", np.array(["p0", "p1", "p2"], dtype=object))
+            s.put("history_total", np.array([3.0, 2.0]))
+            s.set_attrs(converged=True, camera_rotation_deg=1.5)
+        with w.stage("optimize", config_json="{}", run="b") as s:
+            s.put("sim_time", np.arange(2) * 1e-4)
+    with store.read() as r:
+        stored = read_stored_mesh(r)
+        run = read_optimize_run(r, "a")
+        with pytest.raises(MissingStageError):
+            read_optimize_run(r, "c")
+        names = run_names(r)
+    assert (stored.youngs_modulus_pa, stored.poisson_ratio, stored.density_kg_m3, stored.length_mm) == (5000.0, 0.45, 1000.0, 14.5)
+    np.testing.assert_array_equal(stored.mesh.nodes, mesh.nodes)
+    np.testing.assert_array_equal(stored.mesh.faces, mesh.faces)
+    np.testing.assert_array_equal(run.displacements, disp)
+    np.testing.assert_array_equal(run.history["total"], [3.0, 2.0])
+    assert run.std is None and list(run.parameter_names) == ["p0", "p1", "p2"]
+    assert run.attrs["camera_rotation_deg"] == 1.5 and run.attrs["converged"]
+    assert sorted(names) == ["a", "b"]
+
+
+def test_a_stage_summary_round_trips_with_numpy_figures(tmp_path):
+    store = Store(tmp_path / "r.h5")
+    with store.write("test") as w:
+        with w.stage("mesh", config_json="{}") as s:
+            s.put("nodes", np.zeros((2, 3)))
+            s.set_summary({"nodes": np.int64(2), "volume_mm3": np.float32(1.5), "range": np.array([1, 2])},
+                          ["WARNING vfcli.x: thin"])
+    with store.read() as r:
+        assert r.summary("mesh") == {"figures": {"nodes": 2, "volume_mm3": 1.5, "range": [1, 2]},
+                                     "warnings": ["WARNING vfcli.x: thin"]}
+        assert r.status("/mesh").to_json()["summary"]["figures"]["nodes"] == 2

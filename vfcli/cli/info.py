@@ -12,7 +12,7 @@ from vfcli.store.info import store_info
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the same as JSON.")
 def info_cmd(file: str, as_json: bool) -> None:
-    """Show the stages in FILE with their provenance, sizes and staleness.
+    """Show the stages in FILE with their provenance, sizes, staleness, figures and warnings.
 
     Reads every group; writes nothing.
     """
@@ -34,6 +34,12 @@ def info_cmd(file: str, as_json: bool) -> None:
             click.echo(f"      input {path}  sha256 {meta['sha256'][:16]}...")
         for path, digest in prov.get("upstream", {}).items():
             click.echo(f"      uses {path} @ {digest}")
+        summary = st.get("summary") or {}
+        figures = ", ".join(f"{k}={v}" for k, v in summary.get("figures", {}).items() if not isinstance(v, (dict, list)))
+        if figures:
+            click.echo(f"      figures: {figures}")
+        for warning in summary.get("warnings", []):
+            click.echo(f"      warning: {warning}")
     missing = info["missing_stages"]
     if missing:
         click.echo("  not yet written: " + ", ".join(missing))

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import logging
 import threading
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Iterator, Literal
 
 from vfcli.config import RecordingConfig, load_config
 from vfcli.errors import MissingStageError
@@ -108,8 +109,57 @@ def run_stage(
         w.set_recording_config(stored_json)
         with w.stage(name, config_json=config_json, inputs=inputs if hashed is None else hashed.result,
                      upstream=upstream, run=run) as s:
-            summary = body(w.reader, s)
+            with captured_warnings() as warnings:
+                summary = body(w.reader, s)
+            s.set_summary(summary, warnings)
     return StageResult(path, "written", summary)
+
+
+class _Capture(logging.Handler):
+    """Collects the messages of WARNING and above; passes on every record the logger would
+    have handled without the capture (see :func:`captured_warnings`)."""
+
+    def __init__(self, logger: logging.Logger, old_level: int) -> None:
+        super().__init__(logging.DEBUG)
+        self.messages: list[str] = []
+        self._logger, self._old_level = logger, old_level
+
+    def _would_log(self, record: logging.LogRecord) -> bool:
+        """Whether the record's own logger would have created it at the level before the capture."""
+        lg: logging.Logger | None = logging.getLogger(record.name)
+        while lg is not None:
+            level = self._old_level if lg is self._logger else lg.level
+            if level:
+                return record.levelno >= level
+            lg = lg.parent
+        return record.levelno >= logging.WARNING
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno >= logging.WARNING:
+            self.messages.append(f"{record.levelname} {record.name}: {record.getMessage()}")
+        if self._would_log(record) and self._logger.parent is not None:
+            self._logger.parent.handle(record)
+
+
+@contextmanager
+def captured_warnings(name: str = "vfcli") -> Iterator[list[str]]:
+    """The warnings logged under logger ``name`` while the block runs, whatever the verbosity.
+
+    The records still reach the usual handlers exactly as without the capture (``--quiet``
+    hides warnings from the terminal, not from the stored summary).
+    """
+    logger = logging.getLogger(name)
+    old_level, old_propagate = logger.level, logger.propagate
+    handler = _Capture(logger, old_level)
+    logger.addHandler(handler)
+    logger.setLevel(min(logger.getEffectiveLevel(), logging.WARNING))
+    logger.propagate = False
+    try:
+        yield handler.messages
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+        logger.propagate = old_propagate
 
 
 class _Background:

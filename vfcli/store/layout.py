@@ -20,6 +20,10 @@ FORMAT_VERSION = 1
 #: Root attribute holding the recording's config (JSON of :class:`vfcli.config.RecordingConfig`).
 ROOT_CONFIG_ATTR = "recording_config_json"
 
+#: Stage-group attribute holding what the stage run reported: its figures (the summary the
+#: command prints) and the warnings it logged, as JSON ``{"figures": {...}, "warnings": [...]}``.
+SUMMARY_ATTR = "summary_json"
+
 #: Attributes every stage group carries (its provenance).
 PROVENANCE_ATTRS = (
     "stage",
@@ -272,7 +276,9 @@ def layout_markdown() -> str:
         "",
         "Every stage group carries its provenance as attributes: "
         + ", ".join(f"`{a}`" for a in PROVENANCE_ATTRS)
-        + ". Every dataset carries `units` and `description`; time axes are HDF5 dimension scales.",
+        + f". A complete stage also carries `{SUMMARY_ATTR}`: the figures its command printed and the warnings "
+        "it logged (JSON `{\"figures\": {...}, \"warnings\": [...]}`, shown by `vfcli info`). "
+        "Every dataset carries `units` and `description`; time axes are HDF5 dimension scales.",
         "",
     ]
     for st in STAGES.values():

@@ -52,6 +52,7 @@ class StageStatus:
     provenance: dict[str, Any]
     size_bytes: int
     stale_because: list[str] = field(default_factory=list)
+    summary: dict[str, Any] | None = None
 
     @property
     def stale(self) -> bool:
@@ -69,6 +70,7 @@ class StageStatus:
             "stale_because": self.stale_because,
             "size_bytes": self.size_bytes,
             "provenance": prov,
+            "summary": self.summary,
         }
 
 
@@ -165,7 +167,14 @@ class StoreReader:
                 stale.append(f"{up_path} is gone")
             elif str(self._f[up_path].attrs.get("digest")) != up_digest:
                 stale.append(f"{up_path} was rewritten")
-        return StageStatus(path, bool(g.attrs.get("complete", False)), prov, _group_size(g), stale)
+        summary = json.loads(str(g.attrs[layout.SUMMARY_ATTR])) if layout.SUMMARY_ATTR in g.attrs else None
+        return StageStatus(path, bool(g.attrs.get("complete", False)), prov, _group_size(g), stale, summary)
+
+    def summary(self, name: str, run: str | None = None) -> dict[str, Any] | None:
+        """What the stage's run reported, ``{"figures": {...}, "warnings": [...]}``; None for a
+        stage written before vfcli stored it."""
+        attrs = self.group(name, run).attrs
+        return json.loads(str(attrs[layout.SUMMARY_ATTR])) if layout.SUMMARY_ATTR in attrs else None
 
     def is_current(
         self,

@@ -48,6 +48,13 @@ _TMP_MARK = ".tmp-"
 _COMPRESSION = COMPRESSIONS["gzip"]
 
 
+def _jsonable(value: Any) -> Any:
+    """``value`` (not a JSON type) as JSON can hold it: numpy scalars and arrays as numbers and lists."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    return str(value)
+
+
 def _lock_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.lock")
 
@@ -226,6 +233,13 @@ class StageWriter:
         """Stage-level attributes (sampling rates, calibration ...)."""
         for k, v in attrs.items():
             self._g.attrs[k] = v
+
+    def set_summary(self, figures: Mapping[str, Any], warnings: Iterable[str] = ()) -> None:
+        """Store what the run reports (:data:`vfcli.store.layout.SUMMARY_ATTR`): the figures the
+        command prints and the warnings it logged. Numpy scalars and arrays become JSON numbers
+        and lists; anything else JSON cannot hold, its text."""
+        self._g.attrs[layout.SUMMARY_ATTR] = json.dumps(
+            {"figures": dict(figures), "warnings": list(warnings)}, sort_keys=True, default=_jsonable)
 
     def attach_scales(self) -> None:
         """Attach every axis named after a dataset of this stage as an HDF5 dimension scale."""
