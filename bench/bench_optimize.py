@@ -35,7 +35,7 @@ from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.synth.scoring import relative_rms_error, side_truth  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
-from vfcli.stages.optimize import build_problem  # noqa: E402
+from vfcli.stages.optimize import problem_of_store  # noqa: E402
 from vfcli.store import Store, read_truth  # noqa: E402
 
 SETUPS = ["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]
@@ -68,7 +68,7 @@ def gradient_speed(store: Path) -> tuple[float, float, int]:
     """(exact gradient s, finite-difference gradient s (extrapolated from 20 evaluations), n_params)."""
     ctx = RunContext.open(store, None, ["optimize.setup='3x3x10-one-sided'", "optimize.loads='free'"])
     with Store(store).read() as r:
-        problem, _ = build_problem(r, ctx)
+        problem, _ = problem_of_store(r, ctx.config)
     x = np.zeros(problem.n_params)
     problem.value_and_grad(x)
     t = time.perf_counter()

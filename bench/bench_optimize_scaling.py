@@ -29,7 +29,7 @@ from _runner import best  # noqa: E402
 from vfcli.inverse.linearization import gauss_newton_model  # noqa: E402
 from vfcli.inverse.optimizers.base import _lm_solve  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
-from vfcli.stages.optimize import build_problem  # noqa: E402
+from vfcli.stages.optimize import problem_of_store  # noqa: E402
 from vfcli.store import Store  # noqa: E402
 
 MIDDLE = {"setup": "3x3x10-two-sided", "n_frames": 42, "edge": 1.5}
@@ -46,7 +46,7 @@ def measure(store: Path, setup: str, n_frames: int, edge: float, repeat: int) ->
     ctx = RunContext.open(store, None, sets)
     t = time.perf_counter()
     with Store(store).read() as r:
-        problem, _ = build_problem(r, ctx)
+        problem, _ = problem_of_store(r, ctx.config)
     build = time.perf_counter() - t
     rng = np.random.default_rng(0)
     x = rng.normal(0.0, 50.0, problem.n_params)

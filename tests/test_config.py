@@ -123,3 +123,25 @@ def test_the_store_keeps_only_the_settings_the_file_gave(tmp_path, vfcli):
     assert vfcli("config", store, "--config", cfg).returncode == 0
     with Store(store).read() as r:
         assert json.loads(r.recording_config_json()) == {"camera": {"px_per_mm": 25.0}}
+
+
+def test_a_calibrated_zero_pose_can_be_stated_and_a_pose_without_camera_pose_is_refused(tmp_path):
+    import numpy as np
+
+    from vfcli.inverse.setup import OptimizeInputs, camera_pose
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[camera]\nrotation_deg = 2.0\noffset_px = [10.0, 20.0]\n")
+    with pytest.raises(ConfigError, match="camera.pose"):
+        load_config(bad)
+    zero = tmp_path / "zero.toml"
+    zero.write_text("[camera]\npose = 'config'\n")
+    cfg = load_config(zero)[0].camera
+    assert (cfg.pose, cfg.rotation_deg, cfg.offset_px) == ("config", 0.0, (0.0, 0.0))
+    inputs = OptimizeInputs(mesh=None, youngs_modulus_pa=1.0, poisson_ratio=0.3, density_kg_m3=1.0, length_mm=15.0,
+                            times=np.zeros(2), velocity=np.zeros((2, 4, 5, 3)), valid=np.zeros((2, 4, 5), bool),
+                            gap_masks=np.zeros((2, 4, 5), bool), px_per_mm=10.0, roi_origin_px=np.array([3.0, 7.0]))
+    # the zero pose is used as given (no gap counts: estimating would need them), moved onto the ROI's grid
+    assert camera_pose(inputs, (cfg.rotation_deg, cfg.offset_px)) == (0.0, (-3.0, -7.0), "config")
+    with pytest.raises(ValueError, match="gap_counts"):
+        camera_pose(inputs, None)

@@ -147,3 +147,75 @@ def test_uncertainty_map_without_the_uncertainty_is_a_config_error(store, tmp_pa
     assert not (tmp_path / "u.png").exists()
     with Store(path).read() as r:
         assert not r.has_stage("optimize", "nomap")
+
+
+def _forward_store(path, case, masks, pad_rows: int, pad_cols: int, roi: bool) -> None:
+    """A store of the forward case's window: the frames as recorded (``roi``: the case's
+    128 x 96 grid, an ingest ROI whose corner is (pad_cols, pad_rows) in the full frame) or the
+    full frame (the case's grid padded by nothing-seen pixels)."""
+    from vfcli.config import MeshConfig
+
+    m = case.measurement
+    f, h, w = m.valid.shape
+    vel, valid, gap = m.velocity.astype(np.float32), m.valid, masks
+    if not roi:
+        big = (f, h + 2 * pad_rows, w + 2 * pad_cols)
+        sl = (slice(None), slice(pad_rows, pad_rows + h), slice(pad_cols, pad_cols + w))
+        vel_b, valid_b, gap_b = np.zeros((*big, 3), np.float32), np.zeros(big, bool), np.zeros(big, bool)
+        vel_b[sl], valid_b[sl], gap_b[sl] = vel, valid, gap
+        vel, valid, gap = vel_b, valid_b, gap_b
+    mesh = case.model.mesh
+    store = Store(path)
+    with store.write("test") as wr:
+        with wr.stage("mesh", config_json=MeshConfig().model_dump_json()) as s:
+            for key, arr in mesh.to_arrays().items():
+                s.put(key, arr)
+            s.set_attrs(youngs_modulus_pa=4400.0, poisson_ratio=0.499, density_kg_m3=1070.0)
+        with wr.stage("flow", config_json="{}") as s:
+            s.put("gap_mask", gap)
+            s.put("frame_time", m.times)
+            s.set_attrs(px_per_mm=8.0, roi_origin_px=np.array([pad_cols, pad_rows] if roi else [0, 0], float))
+        with wr.stage("fields", config_json="{}") as s:
+            s.put("velocity", vel)
+            s.put("valid", valid)
+            s.put("frame_time", m.times)
+
+
+def test_a_configured_pose_with_an_roi_gives_the_fit_of_the_full_frame(tmp_path):
+    """camera.offset_px is in full-frame pixels; the stored frames of an ROI start at its corner.
+    The fit of the ROI must be the fit of the full frame (before the fix it was off by the ROI
+    origin: another camera, another fit)."""
+    from _forward_case import CAMERA, forward_case
+
+    from vfcli.camera.camera import gap_mask, rasterize
+    from vfcli.model.mesh import TAG_FIXTURE
+    from vfcli.stages.base import RunContext
+    from vfcli.stages.optimize import run_optimize
+
+    case = forward_case()
+    mesh = case.model.mesh
+    free = mesh.face_tag != TAG_FIXTURE
+    u = case.problem.displacements(case.x_true)
+    masks = np.array([gap_mask(CAMERA, rasterize(CAMERA, mesh.nodes + u[k], mesh.faces[free]), mesh.face_fold[free])
+                      for k in range(len(case.measurement.times))])
+    assert masks.any(axis=(1, 2)).sum() >= 4               # the gap opens: the gap term is active
+    pad_rows, pad_cols = 20, 30
+    offset_full = (CAMERA.offset_px[0] + pad_cols, CAMERA.offset_px[1] + pad_rows)
+    sets = ["camera.pose='config'", f"camera.offset_px=[{offset_full[0]}, {offset_full[1]}]", "camera.rotation_deg=0.0",
+            "optimize.loads='free'", "optimize.setup='3x3x10-one-sided'", "optimize.first_frame=0",
+            f"optimize.n_frames={len(case.measurement.times)}", "optimize.max_iterations=2", "optimize.uncertainty=false"]
+    fits = {}
+    for name, roi in (("full", False), ("roi", True)):
+        path = tmp_path / f"{name}.h5"
+        _forward_store(path, case, masks, pad_rows, pad_cols, roi)
+        run_optimize(RunContext.open(path, overrides=sets), "r")
+        with Store(path).read() as r:
+            fits[name] = (r.read("optimize", "controls", "r"), r.read("optimize", "history_total", "r"),
+                          r.attrs("optimize", "r"))
+    (x_full, e_full, a_full), (x_roi, e_roi, a_roi) = fits["full"], fits["roi"]
+    assert e_full[-1] < 0.9 * e_full[0]                     # the fit moved
+    np.testing.assert_allclose(e_roi, e_full, rtol=1e-6)
+    np.testing.assert_allclose(x_roi, x_full, rtol=1e-5, atol=1e-6 * np.abs(x_full).max())
+    np.testing.assert_allclose(a_roi["camera_offset_px"], CAMERA.offset_px, atol=1e-12)
+    np.testing.assert_allclose(a_full["camera_offset_px"], offset_full, atol=1e-12)
+    assert a_roi["pose_source"] == "config"

@@ -12,7 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from vfcli.errors import ConfigError
 
@@ -28,8 +28,19 @@ class CameraConfig(_Section):
     px_per_mm: float = Field(20.0, gt=0, le=1000, description="Image scale from a calibration target, px/mm")
     rotation_deg: float = Field(0.0, ge=-180, le=180, description="In-plane rotation of the model frame in the image, degrees")
     offset_px: tuple[float, float] = Field(
-        (0.0, 0.0), description="Pixel (col, row) of the model origin (x = 0, y = 0), px"
+        (0.0, 0.0), description="Pixel (col, row) of the model origin (x = 0, y = 0) in the full frame, px"
     )
+    pose: Literal["estimate", "config"] = Field(
+        "estimate", description="Pose of the model in the image: 'estimate' from the glottal gap (optimize), or "
+        "'config': camera.rotation_deg and camera.offset_px as calibrated (zero included)"
+    )
+
+    @model_validator(mode="after")
+    def _pose_is_said(self) -> "CameraConfig":
+        if "pose" not in self.model_fields_set and (self.rotation_deg != 0 or any(self.offset_px)):
+            raise ValueError("camera.rotation_deg/offset_px are set but camera.pose is not: set camera.pose = "
+                             "'config' to use them, or 'estimate' to estimate the pose from the glottal gap")
+        return self
 
 
 class LdvFrameConfig(_Section):

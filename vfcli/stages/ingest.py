@@ -70,7 +70,8 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
     cfg, cam = ctx.config.ingest_hsc, ctx.config.camera
     video = Path(video)
     inputs = _video_files(video) + ([Path(pressure)] if pressure else [])
-    config_json = json.dumps({"ingest_hsc": cfg.model_dump(mode="json"), "camera": cam.model_dump(mode="json")}, sort_keys=True)
+    config_json = json.dumps({"ingest_hsc": cfg.model_dump(mode="json"), "camera": cam.model_dump(mode="json", exclude={"pose"})},
+                             sort_keys=True)  # the pose is optimize's, not /hsc's
 
     def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         with open_video(video) as src:

@@ -5,36 +5,33 @@ Reads /mesh, /fields and /flow (and the subglottal pressure in /hsc when optimiz
 iteration to ``<store>.optimize-<run>.ckpt.npz`` (written atomically next to the store), so
 ``--resume`` after a killed job continues from the last iteration and ends where an
 uninterrupted run ends; the checkpoint is removed once the run is in the store.
+
+One descent: :func:`read_inputs` (everything from the store, once) ->
+:func:`vfcli.inverse.setup.build_problem` -> fit -> :func:`reconstruction_uncertainty` -> write.
 """
 from __future__ import annotations
 
 import json
 import logging
 import os
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from vfcli.camera.camera import Camera
+from vfcli.config import RecordingConfig
 from vfcli.errors import ConfigError, InputDataError
-from vfcli.model.fem import ElasticModel
-from vfcli.model.loads.force_field import ForceField, ForceFieldSpec, LoadModel
-from vfcli.model.loads.pressure import PressureLoad
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
-from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
+from vfcli.inverse.problem import Problem
 from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
+from vfcli.inverse.setup import OptimizeInputs, Setup, build_problem, setup_summary
 from vfcli.report.plots import convergence_plot, uncertainty_map
-from vfcli.inverse.regularization import lcurve
-from vfcli.camera.pose import camera_to_model, estimate_pose
-from vfcli.model.response.quasi_static import QuasiStaticResponse
 from vfcli.store import StageWriter, StoreReader
+from vfcli.store.mesh import read_stored_mesh
 from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_std, posterior,
                            relative_uncertainty)
 from vfcli.stages.base import RunContext, StageResult, run_stage
-from vfcli.stages.mesh import read_mesh
 
 log = logging.getLogger(__name__)
 
@@ -59,78 +56,57 @@ def _load_checkpoint(path: Path, settings_json: str) -> FitState | None:
         return FitState.from_arrays({k: z[k] for k in z.files if k != "settings_json"})
 
 
-#: ridge weight (1/Pa^2) of each load model when optimize.ridge_weight is null (None: chosen by the L-curve)
-DEFAULT_RIDGE = {"free": 0.0, "free-regularised": None, "pressure": None}
+def read_inputs(reader: StoreReader, config: RecordingConfig) -> OptimizeInputs:
+    """Everything the run uses, read from the store: /mesh (mesh, material, length), the window
+    of /fields and /flow, the camera scale and ROI origin (/flow), the gap counts over the whole
+    recording when the pose is estimated, and /hsc's pressure for the pressure load model.
 
-
-def load_model(reader: StoreReader, ctx: RunContext, t_range: tuple[float, float]) -> LoadModel:
-    """The load model optimize.loads selects, over the time window ``t_range`` (s).
-
-    'free' and 'free-regularised': the paper's force field (optimize.setup, optimize.tie_folds);
-    'pressure': :class:`vfcli.model.loads.pressure.PressureLoad` on the subglottal pressure recorded with the
-    video (/hsc).
+    Raises
+    ------
+    ConfigError
+        The window (optimize.first_frame, optimize.n_frames) runs past the recording.
+    InputDataError
+        optimize.loads = 'pressure' and /hsc holds no pressure.
     """
-    cfg = ctx.config.optimize
-    if cfg.loads in ("free", "free-regularised"):
-        return ForceField(ForceFieldSpec.from_name(cfg.setup, tie_folds=cfg.tie_folds), t_range)
-    if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
-        raise InputDataError("optimize.loads='pressure' needs the subglottal pressure recorded with the video; "
-                             "ingest it with `vfcli ingest-hsc ... --pressure FILE`", ctx.store.path)
-    n_z, n_x = cfg.pressure_medial_shapes
-    return PressureLoad(reader.read("hsc", "pressure_time"), reader.read("hsc", "pressure"), t_range,
-                        time_degree=cfg.pressure_time_degree, medial_z=n_z, medial_x=n_x,
-                        inferior_linear_x=cfg.pressure_inferior_linear)
-
-
-def build_problem(reader: StoreReader, ctx: RunContext) -> tuple[Problem, dict[str, Any]]:
-    """The optimisation problem of a store: mesh, model, force field, camera pose, measurement."""
-    cfg, cam_cfg, mesh_cfg = ctx.config.optimize, ctx.config.camera, ctx.config.mesh
-    mesh = read_mesh(reader)
+    cfg = config.optimize
+    stored = read_stored_mesh(reader)
     times_all = reader.read("fields", "frame_time")
     f0, n = cfg.first_frame, cfg.n_frames
     if f0 + n > len(times_all):
         raise ConfigError(f"optimize window: frames {f0}..{f0 + n} but the recording has {len(times_all)}; "
                           "set optimize.first_frame / optimize.n_frames")
     sl = slice(f0, f0 + n)
-    gaps = reader.dataset("flow", "gap_mask")[sl]
-    velocity = reader.dataset("fields", "velocity")[sl].astype(np.float64)
-    valid = reader.dataset("fields", "valid")[sl]
     flow_attrs = reader.attrs("flow")
-    px_per_mm = float(flow_attrs["px_per_mm"])
-    if cam_cfg.rotation_deg or any(cam_cfg.offset_px):
-        rotation, offset = cam_cfg.rotation_deg, tuple(cam_cfg.offset_px)
-        pose_source = "config"
-    else:
+    gap_counts = None
+    if config.camera.pose == "estimate":
         masks = reader.dataset("flow", "gap_mask")
-        counts = np.zeros(masks.shape[1:])
+        gap_counts = np.zeros(masks.shape[1:])
         for i in range(0, masks.shape[0], 64):  # streamed: memory does not grow with the frames
-            counts += masks[i:i + 64].sum(axis=0)
-        rotation, offset = estimate_pose(counts, px_per_mm, mesh_cfg.length_mm)
-        pose_source = "estimated from the glottal gap"
-    velocity[..., :2] = camera_to_model(velocity[..., :2], rotation)
-    h, w = gaps.shape[1:]
-    camera = Camera(px_per_mm, rotation, offset, w, h)
-    times = times_all[sl]
-    dt = float(times[1] - times[0])
-    field = load_model(reader, ctx, (float(times[0]), float(times[-1] + dt)))
-    model = ElasticModel(mesh, mesh_cfg.youngs_modulus_pa, mesh_cfg.poisson_ratio, mesh_cfg.density_kg_m3)
-    response = QuasiStaticResponse(model, field)
-    ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
-    settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
-                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside)
-    measurement = Measurement.from_gap_masks(times, velocity, valid, gaps)
-    info: dict[str, Any] = {"rotation_deg": rotation, "offset_px": list(offset), "pose_source": pose_source,
-                            "field": field, "lcurve": None}
-    problem = Problem(mesh, camera, response, measurement, settings)
-    if ridge is None:
-        # the weight of the bounded free fields, from the data: the L-curve's corner on the
-        # Gauss-Newton model at the start (vfcli/inverse/regularization.py)
-        curve = lcurve(gauss_newton_model(problem, np.zeros(problem.n_params)), np.zeros(problem.n_params),
-                       problem.penalty)
-        log.info("L-curve: ridge weight %.3g 1/Pa^2", curve.chosen)
-        info["lcurve"] = curve
-        problem = Problem(mesh, camera, response, measurement, replace(settings, ridge_weight=curve.chosen))
-    return problem, info
+            gap_counts += masks[i:i + 64].sum(axis=0)
+    pressure_time = pressure = None
+    if cfg.loads == "pressure":
+        if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
+            raise InputDataError("optimize.loads='pressure' needs the subglottal pressure recorded with the video; "
+                                 "ingest it with `vfcli ingest-hsc ... --pressure FILE`", reader.path)
+        pressure_time, pressure = reader.read("hsc", "pressure_time"), reader.read("hsc", "pressure")
+    return OptimizeInputs(
+        mesh=stored.mesh, youngs_modulus_pa=stored.youngs_modulus_pa, poisson_ratio=stored.poisson_ratio,
+        density_kg_m3=stored.density_kg_m3, length_mm=stored.length_mm, times=times_all[sl],
+        velocity=reader.dataset("fields", "velocity")[sl], valid=reader.dataset("fields", "valid")[sl],
+        gap_masks=reader.dataset("flow", "gap_mask")[sl], px_per_mm=float(flow_attrs["px_per_mm"]),
+        roi_origin_px=np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float),
+        gap_counts=gap_counts, pressure_time=pressure_time, pressure=pressure)
+
+
+def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:
+    """The calibrated camera pose (rotation, full-frame offset) when camera.pose = 'config', else None."""
+    cam = config.camera
+    return (cam.rotation_deg, tuple(cam.offset_px)) if cam.pose == "config" else None
+
+
+def problem_of_store(reader: StoreReader, config: RecordingConfig) -> tuple[Problem, Setup]:
+    """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it)."""
+    return build_problem(read_inputs(reader, config), config.optimize, configured_pose(config))
 
 
 def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
@@ -177,12 +153,13 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         raise ConfigError("--uncertainty-map needs optimize.uncertainty = true (it maps the stated uncertainty)")
     if not run.replace("-", "").replace("_", "").isalnum():
         raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
-    settings_json = json.dumps({"optimize": cfg.model_dump(mode="json"), "camera": ctx.config.camera.model_dump(mode="json"),
-                                "mesh": ctx.config.mesh.model_dump(mode="json")}, sort_keys=True)
+    # the mesh and its material are /mesh's (an upstream stage), not the live [mesh] section's
+    settings_json = json.dumps({"optimize": cfg.model_dump(mode="json"), "camera": ctx.config.camera.model_dump(mode="json")},
+                               sort_keys=True)
     ckpt = checkpoint_path(ctx.store.path, run)
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
-        problem, info = build_problem(reader, ctx)
+        problem, setup = problem_of_store(reader, ctx.config)
         label = f"{'pressure loads' if cfg.loads == 'pressure' else f'{cfg.setup}, {cfg.loads}'} ({cfg.method})"
         opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease, xtol=cfg.stop_rel_change)
         bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")
@@ -211,13 +188,13 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             s.put("displacement_std_instruments", systematic.astype(np.float32))
             if uncertainty_plot is not None:
                 uncertainty_map(problem.mesh, std, disp, uncertainty_plot, f"run {run} ({label})")
-        if info["lcurve"] is not None:
-            curve = info["lcurve"]
+        if setup.lcurve is not None:
+            curve = setup.lcurve
             s.put("lcurve_weight", curve.weights)
             s.put("lcurve_misfit", curve.misfit)
             s.put("lcurve_penalty", curve.penalty)
         s.put("controls", result.x)
-        s.put("parameter_names", np.array(info["field"].parameter_names(), dtype=object))
+        s.put("parameter_names", np.array(setup.field.parameter_names(), dtype=object))
         s.put("kept_iterations", np.asarray(result.kept_iterations))
         s.put("kept_controls", np.asarray(result.kept_x))
         for key in ("iteration", "total", "motion", "gap", "ridge", "step", "wall_time", "n_evals"):
@@ -225,9 +202,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         s.set_attrs(setup=cfg.setup if cfg.loads != "pressure" else "pressure", loads=cfg.loads,
                     ridge_weight=problem.settings.ridge_weight, motion_outside=problem.settings.outside,
                     method=cfg.method, converged=bool(result.converged),
-                    message=str(result.message), camera_rotation_deg=info["rotation_deg"],
-                    camera_offset_px=np.asarray(info["offset_px"]), pose_source=info["pose_source"],
-                    px_per_mm=problem.camera.px_per_mm, **unc)
+                    message=str(result.message), px_per_mm=problem.camera.px_per_mm, **setup_summary(setup), **unc)
         if plot is not None:
             convergence_plot(h, plot, label)
         return {
@@ -237,7 +212,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             "evaluations": int(h["n_evals"][-1]),
             "wall_time_s": round(float(h["wall_time"][-1]), 1),
             "converged": bool(result.converged),
-            "pose": info["pose_source"],
+            "pose": setup.pose_source,
             "ridge_weight": problem.settings.ridge_weight,
             **{k: round(v, 4) for k, v in unc.items() if k.endswith("_rel")},
         }

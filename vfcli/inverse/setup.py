@@ -1,0 +1,189 @@
+"""The optimisation problem of a recording, from arrays and settings (reads nothing).
+
+:func:`build_problem` turns what the optimize stage read from the store
+(:class:`OptimizeInputs`: the mesh and its material, the window of measured velocities and
+gap masks, the camera scale, the pressure) and the ``[optimize]`` settings into a
+:class:`vfcli.inverse.problem.Problem`: the load model, the elastic model and its
+response, the camera pose (configured, or estimated from the gap), the measurement, and
+the ridge weight (the L-curve's when the load model asks for it).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from vfcli.camera.camera import Camera
+from vfcli.camera.pose import camera_to_model, estimate_pose
+from vfcli.config import OptimizeConfig
+from vfcli.inverse.linearization import gauss_newton_model
+from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
+from vfcli.inverse.regularization import LCurve, lcurve
+from vfcli.model.fem import ElasticModel
+from vfcli.model.loads.force_field import ForceField, ForceFieldSpec, LoadModel
+from vfcli.model.loads.pressure import PressureLoad
+from vfcli.model.mesh import FoldMesh
+from vfcli.model.response.quasi_static import QuasiStaticResponse
+
+log = logging.getLogger(__name__)
+
+#: ridge weight (1/Pa^2) of each load model when optimize.ridge_weight is null (None: chosen by the L-curve)
+DEFAULT_RIDGE = {"free": 0.0, "free-regularised": None, "pressure": None}
+
+
+@dataclass(frozen=True)
+class OptimizeInputs:
+    """Everything an optimisation run uses from a recording.
+
+    Attributes
+    ----------
+    mesh : FoldMesh
+        The fold mesh, mm.
+    youngs_modulus_pa, poisson_ratio, density_kg_m3 : float
+        The material the mesh was built for (Pa, 1, kg/m^3).
+    length_mm : float
+        Anterior-posterior length L of the folds, mm (places the estimated pose).
+    times : (F,) float64
+        Uniformly spaced frame times of the window, s.
+    velocity : (F, H, W, 3) float32 or float64
+        Measured surface velocity (u, v, w) in the image's axes, mm/s (used as float64).
+    valid : (F, H, W) bool
+        Where the velocity is valid.
+    gap_masks : (F, H, W) bool
+        Measured glottal gap of the window's frames.
+    px_per_mm : float
+        Image scale, px/mm.
+    roi_origin_px : (2,) float64
+        Full-frame pixel (col, row) of the stored frames' first pixel (the ingest ROI's corner).
+    gap_counts : (H, W) float64 or None
+        Frames in which each pixel is gap, over the whole recording (for the pose estimate).
+    pressure_time, pressure : (S,) float64 or None
+        Subglottal pressure recorded with the video (s, Pa), for the pressure load model.
+    """
+
+    mesh: FoldMesh
+    youngs_modulus_pa: float
+    poisson_ratio: float
+    density_kg_m3: float
+    length_mm: float
+    times: np.ndarray
+    velocity: np.ndarray
+    valid: np.ndarray
+    gap_masks: np.ndarray
+    px_per_mm: float
+    roi_origin_px: np.ndarray
+    gap_counts: np.ndarray | None = None
+    pressure_time: np.ndarray | None = None
+    pressure: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Setup:
+    """How the problem was set up (stored with the run).
+
+    Attributes
+    ----------
+    rotation_deg : float
+        Camera rotation, degrees.
+    offset_px : (float, float)
+        Pixel (col, row) of the model origin on the stored (ROI) pixel grid, px.
+    pose_source : str
+        "config" or "estimated from the glottal gap".
+    field : LoadModel
+        The load model.
+    lcurve : LCurve or None
+        The L-curve that chose the ridge weight (None: the weight was given).
+    """
+
+    rotation_deg: float
+    offset_px: tuple[float, float]
+    pose_source: str
+    field: LoadModel
+    lcurve: LCurve | None
+
+
+def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] | None
+                ) -> tuple[float, tuple[float, float], str]:
+    """(rotation_deg, offset_px on the stored pixel grid, source) of the model in the image.
+
+    Parameters
+    ----------
+    inputs : OptimizeInputs
+    pose : (rotation_deg, (col, row) offset in full-frame px) or None
+        A calibrated pose (``camera.pose = "config"``); its offset is moved onto the stored
+        frames' grid by the ROI origin. None: estimated from ``inputs.gap_counts``.
+    """
+    if pose is not None:
+        rotation, offset = pose
+        origin = np.asarray(inputs.roi_origin_px, float)
+        return float(rotation), (float(offset[0] - origin[0]), float(offset[1] - origin[1])), "config"
+    if inputs.gap_counts is None:
+        raise ValueError("estimating the camera pose needs inputs.gap_counts")
+    rotation, offset = estimate_pose(inputs.gap_counts, inputs.px_per_mm, inputs.length_mm)
+    return rotation, offset, "estimated from the glottal gap"
+
+
+def load_model(inputs: OptimizeInputs, cfg: OptimizeConfig, t_range: tuple[float, float]) -> LoadModel:
+    """The load model ``cfg.loads`` selects, over the time window ``t_range`` (s).
+
+    'free' and 'free-regularised': the paper's force field (optimize.setup, optimize.tie_folds);
+    'pressure': :class:`vfcli.model.loads.pressure.PressureLoad` on ``inputs.pressure``.
+    """
+    if cfg.loads in ("free", "free-regularised"):
+        return ForceField(ForceFieldSpec.from_name(cfg.setup, tie_folds=cfg.tie_folds), t_range)
+    if inputs.pressure is None or inputs.pressure_time is None:
+        raise ValueError("the pressure load model needs inputs.pressure and inputs.pressure_time")
+    n_z, n_x = cfg.pressure_medial_shapes
+    return PressureLoad(inputs.pressure_time, inputs.pressure, t_range, time_degree=cfg.pressure_time_degree,
+                        medial_z=n_z, medial_x=n_x, inferior_linear_x=cfg.pressure_inferior_linear)
+
+
+def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
+                  pose: tuple[float, tuple[float, float]] | None) -> tuple[Problem, Setup]:
+    """The optimisation problem: mesh, elastic model, load model, camera, measurement, weights.
+
+    Parameters
+    ----------
+    inputs : OptimizeInputs
+        The recording's arrays (:class:`OptimizeInputs`).
+    cfg : OptimizeConfig
+        The ``[optimize]`` settings.
+    pose : (rotation_deg, (col, row) full-frame px) or None
+        The configured camera pose, or None to estimate it (:func:`camera_pose`).
+
+    Returns
+    -------
+    (Problem, Setup)
+    """
+    rotation, offset, pose_source = camera_pose(inputs, pose)
+    velocity = np.array(inputs.velocity, dtype=np.float64)
+    velocity[..., :2] = camera_to_model(velocity[..., :2], rotation)
+    h, w = inputs.gap_masks.shape[1:]
+    camera = Camera(inputs.px_per_mm, rotation, offset, w, h)
+    times = inputs.times
+    dt = float(times[1] - times[0])
+    field = load_model(inputs, cfg, (float(times[0]), float(times[-1] + dt)))
+    model = ElasticModel(inputs.mesh, inputs.youngs_modulus_pa, inputs.poisson_ratio, inputs.density_kg_m3)
+    response = QuasiStaticResponse(model, field)
+    ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
+    settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
+                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside)
+    measurement = Measurement.from_gap_masks(times, velocity, inputs.valid, inputs.gap_masks)
+    problem = Problem(inputs.mesh, camera, response, measurement, settings)
+    curve = None
+    if ridge is None:
+        # the weight of the bounded free fields, from the data: the L-curve's corner on the
+        # Gauss-Newton model at the start (vfcli/inverse/regularization.py)
+        curve = lcurve(gauss_newton_model(problem, np.zeros(problem.n_params)), np.zeros(problem.n_params),
+                       problem.penalty)
+        log.info("L-curve: ridge weight %.3g 1/Pa^2", curve.chosen)
+        problem = Problem(inputs.mesh, camera, response, measurement, replace(settings, ridge_weight=curve.chosen))
+    return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve)
+
+
+def setup_summary(setup: Setup) -> dict[str, Any]:
+    """The stage attributes of a :class:`Setup` (camera pose and its source)."""
+    return {"camera_rotation_deg": setup.rotation_deg, "camera_offset_px": np.asarray(setup.offset_px),
+            "pose_source": setup.pose_source}
