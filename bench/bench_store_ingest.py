@@ -47,7 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from vfcli.io.video.photron import write_mraw  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
-from vfcli.stages.flow import CHUNK_FRAMES  # noqa: E402
+from vfcli.flow.pipeline import CHUNK_FRAMES  # noqa: E402
 from vfcli.stages.ingest import run_ingest_hsc  # noqa: E402
 from vfcli.store import FrameReader  # noqa: E402
 

@@ -23,7 +23,8 @@ try:  # tests/ on sys.path (rootdir conftest) or tests as a package
 except ImportError:  # pragma: no cover
     from tests._flow_phantom import SlitPhantom
 from vfcli.stages.base import RunContext
-from vfcli.stages.flow import lateral_axis_for, run_flow, sample_indices
+from vfcli.flow.pipeline import lateral_axis_for, sample_indices
+from vfcli.stages.flow import run_flow
 from vfcli.store import Store
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -205,6 +206,29 @@ def test_second_run_is_up_to_date_and_a_fields_setting_reruns_only_fields(record
         assert r.digest("flow") == out["digests"][0] and r.digest("fields") != out["digests"][1]
 
 
+def test_every_flow_setting_shapes_exactly_one_of_the_two_stages():
+    """Which settings decide that /flow or /fields is up to date comes from the config model:
+    a new [flow] setting without its tag fails here instead of being silently ignored."""
+    from vfcli.config import FlowConfig, fields_shaping
+
+    flow, fields = set(fields_shaping(FlowConfig, "flow")), set(fields_shaping(FlowConfig, "fields"))
+    assert flow | fields == set(FlowConfig.model_fields) and not flow & fields
+    assert {"rbf_smoothing", "w_inside_hull"} <= fields and {"method", "threshold", "subpixel_edges"} <= flow
+
+
+def test_a_warning_of_the_flow_step_is_stored_with_the_stage(tmp_path):
+    """No sampled frame shows a gap (a threshold below every count): the warning the command
+    logs is in the stored summary, with the figures it printed."""
+    ph = SlitPhantom(height=64, width=64, midline_row=31.3, glottis_cols=(4, 60), lam_px=11.0)
+    path = tmp_path / "r.h5"
+    write_store(path, np.stack([ph.render(ph.frame_time(k)) for k in range(10)]), ph.fps, ph.px_per_mm)
+    run_flow(RunContext.open(path, overrides=["flow.threshold=0", "flow.subpixel_edges=false"]))
+    with Store(path).read() as r:
+        summary = r.summary("flow")
+    assert summary["figures"]["threshold_counts"] == 0.0 and summary["figures"]["open_frames"] == 0
+    assert len(summary["warnings"]) == 1 and "no glottal gap in the 10 sampled frames" in summary["warnings"][0]
+
+
 def test_missing_sync_fails_before_the_flow_step(tmp_path):
     ph = SlitPhantom(height=32, width=32, midline_row=15.5, glottis_cols=(2, 30), lam_px=6.0)
     path = tmp_path / "r.h5"
@@ -319,12 +343,13 @@ def test_a_dark_fixture_border_is_not_taken_for_the_gap(tmp_path, caplog, border
         frames[:, :4], frames[:, -4:], frames[:, :, :4], frames[:, :, -4:] = 300, 300, 300, 300
     path = tmp_path / "r.h5"
     write_store(path, frames, ph.fps, ph.px_per_mm)
-    with caplog.at_level("WARNING", logger="vfcli.stages.flow"):
+    with caplog.at_level("WARNING", logger="vfcli.flow.pipeline"):
         run_flow(RunContext.open(path, overrides=["flow.threshold=1000"]))
     warned = [r for r in caplog.records if "sampled frames" in r.getMessage()]
     assert not warned
     with Store(path).read() as r:
         masks = r.read("flow", "gap_mask")
+        assert not [w for w in r.summary("flow")["warnings"] if "sampled frames" in w]
     assert not masks.any(axis=(1, 2)).all()  # closed frames have no gap
     assert masks.any()  # open frames do
     if border:

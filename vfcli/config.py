@@ -95,37 +95,53 @@ class SyncConfig(_Section):
     )
 
 
-class FlowConfig(_Section):
-    """`vfcli flow`: gap segmentation and optical flow (/flow), then the surface velocity field (/fields)."""
+#: Field tags: the stage a setting shapes (read by :func:`fields_shaping`).
+_SHAPES_FLOW: dict[str, Any] = {"shapes": "flow"}
+_SHAPES_FIELDS: dict[str, Any] = {"shapes": "fields"}
 
-    method: Literal["sparse_to_dense", "dis"] = Field("sparse_to_dense", description="Optical flow method")
+
+def fields_shaping(model: type[BaseModel], stage: str) -> tuple[str, ...]:
+    """Names of the fields of ``model`` tagged as shaping store stage ``stage`` (what decides
+    whether that stage is up to date)."""
+    return tuple(name for name, f in model.model_fields.items()
+                 if isinstance(f.json_schema_extra, dict) and f.json_schema_extra.get("shapes") == stage)
+
+
+class FlowConfig(_Section):
+    """`vfcli flow`: gap segmentation and optical flow (/flow), then the surface velocity field (/fields).
+
+    Each field is tagged with the stage it shapes (``json_schema_extra={"shapes": ...}``,
+    :func:`fields_shaping`): a change reruns that stage only.
+    """
+
+    method: Literal["sparse_to_dense", "dis"] = Field("sparse_to_dense", json_schema_extra=_SHAPES_FLOW, description="Optical flow method")
     threshold: float | None = Field(
         None, ge=0, le=65535,
-        description="Gap intensity threshold in counts; null: automatic (minimum-error + Otsu near the gap, vfcli.flow.gap.detect)",
+        json_schema_extra=_SHAPES_FLOW, description="Gap intensity threshold in counts; null: automatic (minimum-error + Otsu near the gap, vfcli.flow.gap.detect)",
     )
-    median_px: int = Field(5, ge=1, le=31, description="Median filter size of the gap mask, px (odd)")
+    median_px: int = Field(5, ge=1, le=31, json_schema_extra=_SHAPES_FLOW, description="Median filter size of the gap mask, px (odd)")
     subpixel_edges: bool = Field(
-        True, description="Gap edges to a fraction of a pixel: a blurred-slit fit across the glottis on every ray, "
+        True, json_schema_extra=_SHAPES_FLOW, description="Gap edges to a fraction of a pixel: a blurred-slit fit across the glottis on every ray, "
         "smoothed along the glottis and in time (vfcli.flow.gap.detect); false: the paper's binary mask (threshold + median filter)"
     )
     edge_window_mm: float = Field(
-        1.0, ge=0, le=20, description="Half-window of the sub-pixel edge smoothing along the glottis, mm (0: none)"
+        1.0, ge=0, le=20, json_schema_extra=_SHAPES_FLOW, description="Half-window of the sub-pixel edge smoothing along the glottis, mm (0: none)"
     )
     edge_window_ms: float = Field(
-        0.2, ge=0, le=10, description="Half-window of the sub-pixel edge smoothing in time, ms (0: none)"
+        0.2, ge=0, le=10, json_schema_extra=_SHAPES_FLOW, description="Half-window of the sub-pixel edge smoothing in time, ms (0: none)"
     )
-    rbf_smoothing: float = Field(0.0, ge=0, le=1e6, description="Thin-plate-spline smoothing of the LDV fit (1)")
+    rbf_smoothing: float = Field(0.0, ge=0, le=1e6, json_schema_extra=_SHAPES_FIELDS, description="Thin-plate-spline smoothing of the LDV fit (1)")
     sample_frames: int = Field(
         64, ge=2, le=100000,
-        description="Frames sampled evenly over the video for the automatic threshold and the 8-bit intensity range",
+        json_schema_extra=_SHAPES_FLOW, description="Frames sampled evenly over the video for the automatic threshold and the 8-bit intensity range",
     )
     split_folds: bool = Field(
-        False, description="Optical flow of each fold separately (sharper next to the gap, twice the cost)"
+        False, json_schema_extra=_SHAPES_FLOW, description="Optical flow of each fold separately (sharper next to the gap, twice the cost)"
     )
-    grid_step: int = Field(8, ge=2, le=64, description="sparse_to_dense: spacing of the Lucas-Kanade match grid, px")
-    dis_preset: Literal["ultrafast", "fast", "medium"] = Field("medium", description="dis: OpenCV DIS preset")
+    grid_step: int = Field(8, ge=2, le=64, json_schema_extra=_SHAPES_FLOW, description="sparse_to_dense: spacing of the Lucas-Kanade match grid, px")
+    dis_preset: Literal["ultrafast", "fast", "medium"] = Field("medium", json_schema_extra=_SHAPES_FLOW, description="dis: OpenCV DIS preset")
     w_inside_hull: bool = Field(
-        True, description="Velocity valid only inside the convex hull of the good LDV points (no TPS extrapolation)"
+        True, json_schema_extra=_SHAPES_FIELDS, description="Velocity valid only inside the convex hull of the good LDV points (no TPS extrapolation)"
     )
 
 

@@ -1,24 +1,14 @@
 """`vfcli flow`: gap, opening, optical flow (/flow) and the tri-variate field (/fields).
 
-Two stages, each written by its own atomic transaction:
+Two stages, each written by its own atomic transaction, each reading its inputs from the
+store, calling one function of :mod:`vfcli.flow.pipeline` (the science) and writing what
+it streams back, frame by frame (memory does not grow with the number of frames):
 
-1. /flow from /hsc: the video is streamed through :func:`vfcli.flow.optical_flow.flow_stream`
-   (gap mask, glottal area, opening function, horizontal velocity at the frame times);
-   every frame is written as soon as it is computed, so memory does not grow with the
-   number of frames. The gap threshold (unless ``flow.threshold`` is set), the 8-bit
-   intensity range, the glottal midline and, for the sub-pixel gap edges
-   (``flow.subpixel_edges``, :func:`vfcli.flow.gap.subpixel.segment_stream`), the gap level and the
-   blur of the optics (:func:`vfcli.flow.gap.subpixel.estimate_edge_model`) come from
-   ``flow.sample_frames`` frames spread evenly over the video.
-2. /fields from /flow, /sync and /ldv: the synced LDV velocities (good points: aligned
-   and free of dropouts) are spread over the pixel grid by the fixed thin-plate-spline
-   operator of :class:`vfcli.flow.velocity_field.LdvTps` and stacked with the flow into (u, v, w),
-   a chunk of frames at a time.
+1. /flow from /hsc: :func:`vfcli.flow.pipeline.flow_pipeline`.
+2. /fields from /flow, /sync and /ldv: :func:`vfcli.flow.pipeline.velocity_fields`.
 
-The lateral image axis (the rays of the opening function, the gap's midline search) is
-the one the model's y axis is closest to: rows when ``|cos(rotation)| >= |sin(rotation)|``
-(``[col, row] = px_per_mm * R(rotation) @ [x, y] + offset``, so y maps to
-``(-sin, cos)`` in (col, row)), else columns.
+Which ``[flow]`` settings decide that each stage is up to date comes from the config model
+(:func:`vfcli.config.fields_shaping`), not from a list kept here.
 """
 from __future__ import annotations
 
@@ -28,81 +18,19 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from vfcli.store import layout
-from vfcli.config import FlowConfig
+from vfcli.config import FlowConfig, fields_shaping
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.velocity_field import LdvTps, combine_fields, hull_mask
-from vfcli.flow.gap.detect import gap_mask, gap_threshold, midline_from_masks
-from vfcli.flow.gap.subpixel import SubpixelGap, estimate_edge_model
-from vfcli.flow.optical_flow import FlowEstimator, flow_stream, intensity_range
-from vfcli.store import FrameReader, StageWriter, StoreReader
+from vfcli.flow.pipeline import CHUNK_FRAMES, flow_pipeline, good_ldv_points, velocity_fields
+from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.stages.base import RunContext, StageResult, run_stage
 
 log = logging.getLogger(__name__)
 
-#: Frames read from the store at once (video batches, field chunks).
-CHUNK_FRAMES = 16
 
-#: A sampled gap covering more than this fraction of the image is implausible (a slit).
-MAX_GAP_FRACTION = 0.05
-
-#: FlowConfig fields that shape /flow (the others only shape /fields).
-_FLOW_FIELDS = ("method", "threshold", "median_px", "sample_frames", "split_folds", "grid_step", "dis_preset",
-                "subpixel_edges", "edge_window_mm", "edge_window_ms")
-_FIELDS_FIELDS = ("rbf_smoothing", "w_inside_hull")
-
-
-def lateral_axis_for(rotation_deg: float) -> int:
-    """Image axis that is lateral for a camera rotation: 0 (rows) or 1 (columns).
-
-    Parameters
-    ----------
-    rotation_deg : float
-        Camera model rotation, degrees (``docs/conventions.md``).
-
-    Returns
-    -------
-    int
-        0 when the model's y axis is closer to the row axis (``|cos| >= |sin|``), else 1.
-    """
-    th = np.deg2rad(rotation_deg)
-    return 0 if abs(np.cos(th)) >= abs(np.sin(th)) - 1e-12 else 1
-
-
-def sample_indices(n_frames: int, n_sample: int) -> np.ndarray:
-    """Up to ``n_sample`` frame indices spread evenly over ``n_frames``, increasing, unique."""
-    k = max(1, min(int(n_sample), int(n_frames)))
-    return np.unique(np.rint(np.linspace(0, n_frames - 1, k)).astype(int))
-
-
-def _batches(frames_ds: FrameReader, n_frames: int) -> Iterator[np.ndarray]:
-    """Frames 0..n_frames-1 of the video, (<= CHUNK_FRAMES, H, W) at a time."""
-    for i in range(0, n_frames, CHUNK_FRAMES):
-        yield frames_ds[i : i + CHUNK_FRAMES]
-
-
-def _config_json(cfg: FlowConfig, keys: tuple[str, ...]) -> str:
-    return json.dumps({"flow": cfg.model_dump(mode="json", include=set(keys))}, sort_keys=True)
-
-
-def _check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool) -> None:
-    """Warn when the gap masks of the sampled frames (k, H, W) bool do not look like a glottis.
-
-    The folds close in every cycle and the gap is a slit: a "gap" in every sampled frame
-    or one covering more than :data:`MAX_GAP_FRACTION` of the image is more likely a dark
-    fixture, shadow or texture below the threshold.
-    """
-    how = "automatic" if auto else "configured"
-    open_share = float(masks.any(axis=(1, 2)).mean())
-    area_share = float(masks.mean())
-    if open_share == 0:
-        log.warning("flow: no glottal gap in the %d sampled frames (%s threshold %.1f counts); "
-                    "set flow.threshold if the glottis opens", len(masks), how, threshold)
-    elif len(masks) >= 8 and (open_share == 1 or area_share > MAX_GAP_FRACTION):
-        log.warning("flow: the %s threshold %.1f counts finds a gap in %.0f%% of the %d sampled frames, covering "
-                    "%.1f%% of the image on average; the folds close every cycle and the gap is a slit, so it "
-                    "probably segments a dark fixture, shadow or texture: set flow.threshold (counts) by hand",
-                    how, threshold, 100 * open_share, len(masks), 100 * area_share)
+def _config_json(cfg: FlowConfig, stage: str) -> str:
+    """The ``[flow]`` settings that shape ``stage`` (/flow or /fields), as the stage records them."""
+    return json.dumps({"flow": cfg.model_dump(mode="json", include=set(fields_shaping(FlowConfig, stage)))},
+                      sort_keys=True)
 
 
 def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
@@ -117,43 +45,14 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     n, h, w = (int(v) for v in frames.shape)
     fps, px_per_mm = float(hsc["fps_hz"]), float(hsc["px_per_mm"])
     rotation = float(hsc.get("rotation_deg", 0.0))
-    offset = np.asarray(hsc.get("offset_px", (0.0, 0.0)), dtype=float)
     frame_time = reader.read("hsc", "frame_time")
-    lateral = lateral_axis_for(rotation)
-
-    sample = frames[sample_indices(n, cfg.sample_frames)]
-    auto = cfg.threshold is None
-    threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
-    counts_range = intensity_range(sample)
-    masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample])
-    _check_sampled_gap(masks, threshold, auto)
-    centre = midline_from_masks(masks, lateral)
-    seen = np.isfinite(centre)
-    midline = float(np.median(centre[seen])) if seen.any() else None
-    gap, model = None, None
-    if cfg.subpixel_edges:
-        model = estimate_edge_model(sample, masks, lateral)
-        if model is None:
-            log.warning("flow: the %d sampled frames show no gap wide enough to measure the gap level and blur "
-                        "on; using the binary gap mask (pixel edges)", len(sample))
-        else:
-            gap = SubpixelGap(threshold, model, cfg.median_px, midline, lateral,
-                              half_window_px=cfg.edge_window_mm * px_per_mm,
-                              half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)))
-    del sample, masks
-
-    estimator = FlowEstimator(cfg.method, grid_step=cfg.grid_step, dis_preset=cfg.dis_preset)
+    calib, stream = flow_pipeline(frames, cfg, fps=fps, px_per_mm=px_per_mm, rotation_deg=rotation,
+                                  t0_s=float(frame_time[0]))
     ds_mask = s.create("gap_mask", (n, h, w), bool)
     ds_open = s.create("opening", (n, h, w), np.float32)
     ds_flow = s.create("flow", (n, h, w, 2), np.float32)
     area = np.zeros(n)
     bar = ctx.progress(total=n, desc="flow", unit="frame")
-    stream = flow_stream(
-        _batches(frames, n), fps=fps, px_per_mm=px_per_mm, threshold=threshold, counts_range=counts_range,
-        median_px=cfg.median_px, rotation_deg=rotation, lateral_axis=lateral,
-        initial_center=centre if seen.any() else None, midline=midline, t0_s=float(frame_time[0]),
-        estimator=estimator, split_folds=cfg.split_folds, gap=gap,
-    )
     for fr in stream:
         k = fr.index
         ds_mask[k] = fr.mask
@@ -164,18 +63,19 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     bar.close()
     s.put("glottal_area", area)
     s.put("frame_time", frame_time)
+    model, gap = calib.edge_model, calib.gap
     s.set_attrs(
-        threshold_counts=threshold,
-        threshold_auto=auto,
+        threshold_counts=calib.threshold,
+        threshold_auto=calib.auto,
         method=cfg.method,
         split_folds=cfg.split_folds,
-        counts_range=np.asarray(counts_range),
-        lateral_axis=lateral,
-        midline_px=np.nan if midline is None else midline,
+        counts_range=np.asarray(calib.counts_range),
+        lateral_axis=calib.lateral_axis,
+        midline_px=np.nan if calib.midline is None else calib.midline,
         fps_hz=fps,
         px_per_mm=px_per_mm,
         rotation_deg=rotation,
-        offset_px=offset,
+        offset_px=np.asarray(hsc.get("offset_px", (0.0, 0.0)), dtype=float),
         roi_origin_px=np.asarray(hsc.get("roi_px", (0, 0, 0, 0)), dtype=float)[:2],
         subpixel_edges=gap is not None,
         gap_level_counts=np.nan if model is None else model.gap_counts,
@@ -185,8 +85,8 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     )
     return {
         "frames": n,
-        "threshold_counts": round(threshold, 1),
-        "threshold": "auto" if auto else "config",
+        "threshold_counts": round(calib.threshold, 1),
+        "threshold": "auto" if calib.auto else "config",
         "method": cfg.method,
         "psf_sigma_px": None if model is None else round(model.psf_sigma_px, 3),
         "open_frames": int((area > 0).sum()),
@@ -194,7 +94,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     }
 
 
-def _good_points(reader: StoreReader, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+def _ldv_points(reader: StoreReader, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
     """LDV coordinates (P, 3) mm and the points the TPS uses (P,) bool."""
     coords = reader.read("ldv", "coords_mm")
     dropout = reader.read("ldv", "dropout").astype(bool)
@@ -212,17 +112,10 @@ def _good_points(reader: StoreReader, n_frames: int) -> tuple[np.ndarray, np.nda
     finite = np.ones(p, bool)
     for i in range(0, n_frames, 4096):
         finite &= np.isfinite(aligned[:, i : i + 4096]).all(axis=1)
-    good = ok & ~dropout
-    if (good & ~finite).any():
-        log.warning("fields: %d aligned LDV points have non-finite velocities; left out", int((good & ~finite).sum()))
-    good &= finite
-    if good.sum() < 3:
-        raise InputDataError(
-            f"only {int(good.sum())} of {p} LDV points are aligned, finite and free of dropouts; "
-            "the thin-plate spline needs at least 3",
-            reader.path,
-        )
-    return coords, good
+    try:
+        return coords, good_ldv_points(ok, dropout, finite)
+    except InputDataError as exc:
+        raise InputDataError(str(exc), reader.path) from None
 
 
 def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
@@ -238,25 +131,27 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
             f"{len(frame_time)} frames); rerun `vfcli sync`",
             reader.path,
         )
-    coords, good = _good_points(reader, n)
+    coords, good = _ldv_points(reader, n)
     # LDV coordinates are camera-frame mm: full-frame pixel / px_per_mm (docs/conventions.md)
     points_px = coords[:, :2] * float(fl["px_per_mm"]) - np.asarray(fl.get("roi_origin_px", (0.0, 0.0)), float)
-    tps = LdvTps(points_px, good, smoothing=cfg.rbf_smoothing).fit_grid((h, w))
-    inside = hull_mask(points_px[good], (h, w)) if cfg.w_inside_hull else None
     aligned = reader.dataset("sync", "aligned_w")
+
+    def chunks() -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        for i in range(0, n, CHUNK_FRAMES):
+            j = min(i + CHUNK_FRAMES, n)
+            yield ds_flow[i:j], ds_gap[i:j], aligned[:, i:j]
 
     ds_vel = s.create("velocity", (n, h, w, 3), np.float32)
     ds_valid = s.create("valid", (n, h, w), bool)
-    n_valid = 0
+    n_valid = i = 0
     bar = ctx.progress(total=n, desc="fields", unit="frame")
-    for i in range(0, n, CHUNK_FRAMES):
-        j = min(i + CHUNK_FRAMES, n)
-        w_grid = tps.frames(aligned[:, i:j])
-        field, valid = combine_fields(ds_flow[i:j], w_grid, ds_gap[i:j], inside)
+    for field, valid in velocity_fields(chunks(), points_px, good, (h, w), cfg):
+        j = i + len(field)
         ds_vel[i:j] = field
         ds_valid[i:j] = valid
         n_valid += int(valid.sum())
         bar.update(j - i)
+        i = j
     bar.close()
     s.put("frame_time", frame_time)
     s.put("ldv_px", points_px)
@@ -283,9 +178,9 @@ def run_flow(ctx: RunContext) -> list[StageResult]:
     if ctx.store.exists():  # fail before the long flow step when /fields could not be written
         with ctx.store.read() as r:
             r.upstream_digests([("hsc", None), ("sync", None), ("ldv", None)])
-    flow = run_stage(ctx, "flow", config_json=_config_json(cfg, _FLOW_FIELDS),
+    flow = run_stage(ctx, "flow", config_json=_config_json(cfg, "flow"),
                      body=lambda r, s: _write_flow(ctx, cfg, r, s), upstream=[("hsc", None)])
-    fields = run_stage(ctx, "fields", config_json=_config_json(cfg, _FIELDS_FIELDS),
+    fields = run_stage(ctx, "fields", config_json=_config_json(cfg, "fields"),
                        body=lambda r, s: _write_fields(ctx, cfg, r, s),
                        upstream=[("flow", None), ("sync", None), ("ldv", None)])
     return [flow, fields]

@@ -1,0 +1,249 @@
+"""The flow step and the tri-variate field of a recording, from arrays (reads nothing).
+
+1. :func:`flow_pipeline`: gap mask, glottal area, opening function and horizontal
+   velocity per frame. The gap threshold (unless ``flow.threshold`` is set), the 8-bit
+   intensity range, the glottal midline and, for the sub-pixel gap edges
+   (``flow.subpixel_edges``, :func:`vfcli.flow.gap.subpixel.segment_stream`), the gap level
+   and the blur of the optics (:func:`vfcli.flow.gap.subpixel.estimate_edge_model`) come
+   from ``flow.sample_frames`` frames spread evenly over the video
+   (:func:`calibrate`); then the video is streamed through
+   :func:`vfcli.flow.optical_flow.flow_stream`, one frame at a time, so memory does not grow
+   with the number of frames.
+2. :func:`velocity_fields`: the synced LDV velocities of the good points (aligned, free of
+   dropouts, finite) spread over the pixel grid by the fixed thin-plate-spline operator of
+   :class:`vfcli.flow.velocity_field.LdvTps` and stacked with the flow into (u, v, w), a
+   chunk of frames at a time.
+
+The lateral image axis (the rays of the opening function, the gap's midline search) is
+the one the model's y axis is closest to: rows when ``|cos(rotation)| >= |sin(rotation)|``
+(``[col, row] = px_per_mm * R(rotation) @ [x, y] + offset``, so y maps to
+``(-sin, cos)`` in (col, row)), else columns.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any, Iterable, Iterator, Protocol
+
+import numpy as np
+
+from vfcli.config import FlowConfig
+from vfcli.errors import InputDataError
+from vfcli.flow.gap.detect import gap_mask, gap_threshold, midline_from_masks
+from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
+from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
+from vfcli.flow.velocity_field import LdvTps, combine_fields, hull_mask
+
+log = logging.getLogger(__name__)
+
+#: Frames handled at once (video batches, field chunks).
+CHUNK_FRAMES = 16
+
+#: A sampled gap covering more than this fraction of the image is implausible (a slit).
+MAX_GAP_FRACTION = 0.05
+
+
+class Frames(Protocol):
+    """A video indexable like a (n, H, W) array: ``len``, ``shape``, ``[slice]`` and ``[int array]``
+    (a numpy array, or :class:`vfcli.store.frames.FrameReader` reading the store lazily)."""
+
+    shape: tuple[int, ...]
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, key: Any) -> np.ndarray: ...
+
+
+def lateral_axis_for(rotation_deg: float) -> int:
+    """Image axis that is lateral for a camera rotation: 0 (rows) or 1 (columns).
+
+    Parameters
+    ----------
+    rotation_deg : float
+        Camera model rotation, degrees (``docs/conventions.md``).
+
+    Returns
+    -------
+    int
+        0 when the model's y axis is closer to the row axis (``|cos| >= |sin|``), else 1.
+    """
+    th = np.deg2rad(rotation_deg)
+    return 0 if abs(np.cos(th)) >= abs(np.sin(th)) - 1e-12 else 1
+
+
+def sample_indices(n_frames: int, n_sample: int) -> np.ndarray:
+    """Up to ``n_sample`` frame indices spread evenly over ``n_frames``, increasing, unique."""
+    k = max(1, min(int(n_sample), int(n_frames)))
+    return np.unique(np.rint(np.linspace(0, n_frames - 1, k)).astype(int))
+
+
+def batches(frames: Frames, n_frames: int, size: int = CHUNK_FRAMES) -> Iterator[np.ndarray]:
+    """Frames 0..n_frames-1 of the video, (<= size, H, W) at a time."""
+    for i in range(0, n_frames, size):
+        yield frames[i : i + size]
+
+
+def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool) -> None:
+    """Warn when the gap masks of the sampled frames (k, H, W) bool do not look like a glottis.
+
+    The folds close in every cycle and the gap is a slit: a "gap" in every sampled frame
+    or one covering more than :data:`MAX_GAP_FRACTION` of the image is more likely a dark
+    fixture, shadow or texture below the threshold.
+    """
+    how = "automatic" if auto else "configured"
+    open_share = float(masks.any(axis=(1, 2)).mean())
+    area_share = float(masks.mean())
+    if open_share == 0:
+        log.warning("flow: no glottal gap in the %d sampled frames (%s threshold %.1f counts); "
+                    "set flow.threshold if the glottis opens", len(masks), how, threshold)
+    elif len(masks) >= 8 and (open_share == 1 or area_share > MAX_GAP_FRACTION):
+        log.warning("flow: the %s threshold %.1f counts finds a gap in %.0f%% of the %d sampled frames, covering "
+                    "%.1f%% of the image on average; the folds close every cycle and the gap is a slit, so it "
+                    "probably segments a dark fixture, shadow or texture: set flow.threshold (counts) by hand",
+                    how, threshold, 100 * open_share, len(masks), 100 * area_share)
+
+
+@dataclass(frozen=True)
+class FlowCalibration:
+    """What the sampled frames fix for the whole video.
+
+    Attributes
+    ----------
+    threshold : float
+        Gap threshold, counts.
+    auto : bool
+        The threshold was found automatically (flow.threshold null).
+    counts_range : (float, float)
+        8-bit intensity mapping, counts.
+    lateral_axis : int
+        0 (rows) or 1 (columns), :func:`lateral_axis_for`.
+    centre : (n_rays,) float or None
+        Gap centre on each ray over the sample, lateral px (None: the gap never opens).
+    midline : float or None
+        Median gap centre, lateral px.
+    edge_model : EdgeModel or None
+        Gap level and blur of the optics (sub-pixel edges; None: off or not measurable).
+    gap : SubpixelGap or None
+        The sub-pixel gap segmentation (None: the binary mask, pixel edges).
+    """
+
+    threshold: float
+    auto: bool
+    counts_range: tuple[float, float]
+    lateral_axis: int
+    centre: np.ndarray | None
+    midline: float | None
+    edge_model: EdgeModel | None
+    gap: SubpixelGap | None
+
+
+def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float, rotation_deg: float) -> FlowCalibration:
+    """Threshold, intensity range, midline and edge model from sampled frames (k, H, W) counts.
+
+    Logs a warning when the sampled gap does not look like a glottis (:func:`check_sampled_gap`)
+    or when sub-pixel edges are asked for but no gap is wide enough to measure them on.
+    """
+    lateral = lateral_axis_for(rotation_deg)
+    auto = cfg.threshold is None
+    threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
+    counts_range = intensity_range(sample)
+    masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample])
+    check_sampled_gap(masks, threshold, auto)
+    centre = midline_from_masks(masks, lateral)
+    seen = np.isfinite(centre)
+    midline = float(np.median(centre[seen])) if seen.any() else None
+    gap, model = None, None
+    if cfg.subpixel_edges:
+        model = estimate_edge_model(sample, masks, lateral)
+        if model is None:
+            log.warning("flow: the %d sampled frames show no gap wide enough to measure the gap level and blur "
+                        "on; using the binary gap mask (pixel edges)", len(sample))
+        else:
+            gap = SubpixelGap(threshold, model, cfg.median_px, midline, lateral,
+                              half_window_px=cfg.edge_window_mm * px_per_mm,
+                              half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)))
+    return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap)
+
+
+def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: float, rotation_deg: float,
+                  t0_s: float) -> tuple[FlowCalibration, Iterator[FlowFrame]]:
+    """The flow step of a video: its calibration and the stream of its frames' results.
+
+    Parameters
+    ----------
+    frames : (n, H, W) counts, indexable (:class:`Frames`)
+        The video; read ``flow.sample_frames`` frames at once, then :data:`CHUNK_FRAMES` at a time.
+    cfg : FlowConfig
+        The ``[flow]`` settings.
+    fps : float
+        Frame rate, frames/s.
+    px_per_mm : float
+        Image scale, px/mm.
+    rotation_deg : float
+        Camera rotation, degrees.
+    t0_s : float
+        Time of frame 0, s.
+
+    Returns
+    -------
+    (FlowCalibration, iterator of FlowFrame)
+        One :class:`vfcli.flow.optical_flow.FlowFrame` per frame, in order (mask, opening in px,
+        velocity in mm/s, area in mm^2); memory does not grow with the number of frames.
+    """
+    n = len(frames)
+    calib = calibrate(frames[sample_indices(n, cfg.sample_frames)], cfg, fps, px_per_mm, rotation_deg)
+    estimator = FlowEstimator(cfg.method, grid_step=cfg.grid_step, dis_preset=cfg.dis_preset)
+    stream = flow_stream(
+        batches(frames, n), fps=fps, px_per_mm=px_per_mm, threshold=calib.threshold, counts_range=calib.counts_range,
+        median_px=cfg.median_px, rotation_deg=rotation_deg, lateral_axis=calib.lateral_axis,
+        initial_center=calib.centre, midline=calib.midline, t0_s=t0_s,
+        estimator=estimator, split_folds=cfg.split_folds, gap=calib.gap,
+    )
+    return calib, stream
+
+
+def good_ldv_points(ok: np.ndarray, dropout: np.ndarray, finite: np.ndarray) -> np.ndarray:
+    """The LDV points the thin-plate spline uses (P,) bool: aligned, free of dropouts, finite.
+
+    Raises
+    ------
+    InputDataError
+        Fewer than 3 such points.
+    """
+    good = ok & ~dropout
+    if (good & ~finite).any():
+        log.warning("fields: %d aligned LDV points have non-finite velocities; left out", int((good & ~finite).sum()))
+    good = good & finite
+    if good.sum() < 3:
+        raise InputDataError(f"only {int(good.sum())} of {len(good)} LDV points are aligned, finite and free of "
+                             "dropouts; the thin-plate spline needs at least 3")
+    return good
+
+
+def velocity_fields(chunks: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], points_px: np.ndarray,
+                    good: np.ndarray, shape: tuple[int, int], cfg: FlowConfig
+                    ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """The tri-variate surface velocity field, a chunk of frames at a time.
+
+    Parameters
+    ----------
+    chunks : iterable of (flow (k, H, W, 2) mm/s, gap (k, H, W) bool, aligned_w (P, k) mm/s)
+        The flow, the gap masks and the synced LDV velocities of consecutive frames.
+    points_px : (P, 2) float
+        Screen position (col, row) of each LDV point on the frames' grid, px.
+    good : (P,) bool
+        Points the thin-plate spline uses (:func:`good_ldv_points`).
+    shape : (H, W)
+        Frame shape.
+    cfg : FlowConfig
+        ``flow.rbf_smoothing`` and ``flow.w_inside_hull``.
+
+    Yields
+    ------
+    field : (k, H, W, 3) float32, (u, v, w) mm/s
+    valid : (k, H, W) bool
+    """
+    tps = LdvTps(points_px, good, smoothing=cfg.rbf_smoothing).fit_grid(shape)
+    inside = hull_mask(points_px[good], shape) if cfg.w_inside_hull else None
+    for flow, gap, aligned in chunks:
+        yield combine_fields(flow, tps.frames(aligned), gap, inside)
