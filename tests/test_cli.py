@@ -120,3 +120,27 @@ def test_warnings_logged_by_a_stage_are_stored_whatever_the_verbosity(tmp_path):
     with Store(tmp_path / "r.h5").read() as r:
         assert r.summary("mesh") == {"figures": {"nodes": 2},
                                      "warnings": ["WARNING vfcli.stages.test: the gap never opens in 12 frames"]}
+
+
+def test_click_choices_and_the_core_names_come_from_the_config_literals():
+    """One source for the names a user can choose: the config's Literal fields. Every name
+    the CLI offers is one the core knows (and vice versa)."""
+    from vfcli.cli.optimize import optimize_cmd
+    from vfcli.cli.synth import synth_cmd
+    from vfcli.config import OptimizeConfig, SynthConfig, literal_choices
+    from vfcli.inverse.setup import DEFAULT_RIDGE
+    from vfcli.model.loads.force_field import ForceFieldSpec
+    from vfcli.synth import effects
+
+    offered = {p.name: list(p.type.choices) for cmd in (optimize_cmd, synth_cmd) for p in cmd.params
+               if hasattr(p.type, "choices")}
+    assert offered["setup"] == list(literal_choices(OptimizeConfig, "setup"))
+    assert offered["loads"] == list(literal_choices(OptimizeConfig, "loads"))
+    assert offered["method"] == list(literal_choices(OptimizeConfig, "method"))
+    assert offered["effect"] == list(literal_choices(SynthConfig, "effect"))
+    assert set(DEFAULT_RIDGE) == set(offered["loads"])
+    assert set(effects.EFFECTS) == set(offered["effect"]) - {"random"} == set(effects.DEFAULT_STRENGTH)
+    for name in offered["setup"]:
+        ForceFieldSpec.from_name(name)
+    with pytest.raises(TypeError):
+        literal_choices(OptimizeConfig, "max_iterations")

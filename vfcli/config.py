@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import tomllib
+import typing
 from pathlib import Path
 from typing import Any, Literal
 
@@ -93,6 +94,15 @@ class SyncConfig(_Section):
     phase_reference: Literal["fundamental", "template"] = Field(
         "fundamental", description="Phase zero: peak of each record's pressure fundamental, or the video's whole waveform"
     )
+
+
+def literal_choices(model: type[BaseModel], name: str) -> tuple[str, ...]:
+    """The values a ``Literal`` field of ``model`` admits, in their declared order (the one
+    source of the CLI's choices and of the names the core iterates over)."""
+    annotation = model.model_fields[name].annotation
+    if typing.get_origin(annotation) is not Literal:
+        raise TypeError(f"{model.__name__}.{name} is not a Literal field")
+    return typing.get_args(annotation)
 
 
 #: Field tags: the stage a setting shapes (read by :func:`fields_shaping`).

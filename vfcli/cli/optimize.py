@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from vfcli.config import RecordingConfig, apply_overrides
+from vfcli.config import OptimizeConfig, RecordingConfig, apply_overrides, literal_choices
 from vfcli.stages.optimize import run_optimize
 from vfcli.cli.common import store_command
 
@@ -11,12 +11,12 @@ from vfcli.cli.common import store_command
 @click.command("optimize")
 @store_command
 @click.option("--run", "run_name", default="default", show_default=True, help="Name of the run (/optimize/<run>).")
-@click.option("--setup", type=click.Choice(["3x3x10-one-sided", "3x3x10-two-sided", "5x5x15-two-sided"]),
+@click.option("--setup", type=click.Choice(literal_choices(OptimizeConfig, "setup")),
               help="Fit the paper's free force field with this setup (sets optimize.loads='free'); "
                    "default: the pressure load model tied to the measured subglottal pressure.")
-@click.option("--loads", type=click.Choice(["pressure", "free-regularised", "free"]),
+@click.option("--loads", type=click.Choice(literal_choices(OptimizeConfig, "loads")),
               help="Load model (overrides optimize.loads; with --setup, 'free-regularised' bounds the paper's field).")
-@click.option("--method", type=click.Choice(["gauss-newton", "lbfgs", "paper"]), help="Optimiser (overrides optimize.method).")
+@click.option("--method", type=click.Choice(literal_choices(OptimizeConfig, "method")), help="Optimiser (overrides optimize.method).")
 @click.option("--resume", "resume_run", is_flag=True, help="Continue an interrupted run from its checkpoint.")
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write the convergence plot to this PNG.")
 @click.option("--uncertainty-map", "uncertainty_plot", type=click.Path(dir_okay=False),

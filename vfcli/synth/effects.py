@@ -38,11 +38,13 @@ import scipy.sparse as sp
 from scipy.linalg import cho_factor, solve_triangular
 from scipy.optimize import nnls
 
+from vfcli.config import SynthConfig, literal_choices
 from vfcli.model.fem import ElasticModel
 from vfcli.model.mesh import TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL, TAG_SUPERIOR
 from vfcli.synth import aero
 
-EFFECTS = ("none", "inertia", "damping", "contact", "asymmetry")
+#: The hidden effects a phantom can carry: synth.effect's values but 'random' (which draws one of these)
+EFFECTS = tuple(e for e in literal_choices(SynthConfig, "effect") if e != "random")
 
 #: default strength of each effect and its documented range
 DEFAULT_STRENGTH = {"none": 0.0, "inertia": 1.0, "damping": 0.2, "contact": 1.0, "asymmetry": 0.2}
