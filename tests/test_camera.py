@@ -7,7 +7,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vfcli.camera.camera import Camera, gap_mask, interpolate, rasterize, raycast_points, surface_velocity
-from vfcli.errors import ConfigError
 
 
 def grid_surface(nx, ny, x0, x1, y0, y1, height=lambda x, y: 0.0 * x):
@@ -54,7 +53,7 @@ def test_project_unproject_round_trip_and_convention():
 
 
 def test_camera_rejects_bad_scale():
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         Camera(0.0, 0.0, (0.0, 0.0), 8, 8)
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.interpolate import RBFInterpolator
 
-from vfcli.errors import ConfigError
+from vfcli.errors import InputDataError
 from vfcli.flow.velocity_field import (
     LdvTps,
     evaluate_field,
@@ -90,7 +90,7 @@ def test_smoothing_trades_interpolation_for_a_least_squares_fit():
 
 
 def test_too_few_good_points_is_a_config_error():
-    with pytest.raises(ConfigError):
+    with pytest.raises(InputDataError):
         LdvTps(np.zeros((3, 2)), good=np.array([True, True, False]))
 
 
@@ -202,7 +202,7 @@ def test_invalid_and_out_of_range_queries_are_nan():
 
 def test_non_uniform_times_are_refused():
     times, field, _ = _analytic_field(T=4)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         evaluate_field(field, np.array([0.0, 1.0, 3.0, 4.0]), None, np.zeros((1, 2)), [0.5])
 
 

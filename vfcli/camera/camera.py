@@ -28,7 +28,6 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.errors import ConfigError
 
 #: barycentric tolerance of the inside test: pixel centres on an edge are covered
 _INSIDE_TOL = 1e-9
@@ -56,14 +55,14 @@ class Camera:
     def __post_init__(self) -> None:
         off = tuple(float(v) for v in np.asarray(self.offset_px, dtype=float).ravel())
         if len(off) != 2 or not all(np.isfinite(off)):
-            raise ConfigError(f"camera offset_px must be two finite numbers, got {self.offset_px!r}")
+            raise ValueError(f"camera offset_px must be two finite numbers, got {self.offset_px!r}")
         object.__setattr__(self, "offset_px", off)
         if not (np.isfinite(self.px_per_mm) and self.px_per_mm > 0):
-            raise ConfigError(f"camera px_per_mm must be > 0, got {self.px_per_mm!r}")
+            raise ValueError(f"camera px_per_mm must be > 0, got {self.px_per_mm!r}")
         if not np.isfinite(self.rotation_deg):
-            raise ConfigError(f"camera rotation_deg must be finite, got {self.rotation_deg!r}")
+            raise ValueError(f"camera rotation_deg must be finite, got {self.rotation_deg!r}")
         if int(self.width) < 1 or int(self.height) < 1:
-            raise ConfigError(f"camera size must be at least 1 x 1 px, got {self.width} x {self.height}")
+            raise ValueError(f"camera size must be at least 1 x 1 px, got {self.width} x {self.height}")
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
 
@@ -124,7 +123,7 @@ class Camera:
         """
         f = int(factor)
         if f < 1:
-            raise ConfigError(f"supersampling factor must be >= 1, got {factor!r}")
+            raise ValueError(f"supersampling factor must be >= 1, got {factor!r}")
         shift = (f - 1) / 2.0
         off = (f * self.offset_px[0] + shift, f * self.offset_px[1] + shift)
         return Camera(self.px_per_mm * f, self.rotation_deg, off, self.width * f, self.height * f)

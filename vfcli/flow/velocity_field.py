@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vfcli.errors import ConfigError
+from vfcli.errors import InputDataError
 
 #: Rows of query points evaluated at once when building a TPS operator.
 _CHUNK = 16384
@@ -65,15 +65,15 @@ class LdvTps:
     def __init__(self, points_px: np.ndarray, good: np.ndarray | None = None, smoothing: float = 0.0) -> None:
         pts = np.asarray(points_px, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 2:
-            raise ConfigError(f"TPS: points_px must be (n, 2), got shape {pts.shape}")
+            raise ValueError(f"TPS: points_px must be (n, 2), got shape {pts.shape}")
         self.points_px = pts
         self.good = np.ones(len(pts), bool) if good is None else np.asarray(good, dtype=bool)
         if self.good.shape != (len(pts),):
-            raise ConfigError(f"TPS: good must be ({len(pts)},), got shape {self.good.shape}")
+            raise ValueError(f"TPS: good must be ({len(pts)},), got shape {self.good.shape}")
         if self.good.sum() < 3:
-            raise ConfigError(f"TPS: needs at least 3 good LDV points, got {int(self.good.sum())}")
+            raise InputDataError(f"TPS: needs at least 3 good LDV points, got {int(self.good.sum())}")
         if smoothing < 0:
-            raise ConfigError(f"TPS: smoothing must be >= 0, got {smoothing}")
+            raise ValueError(f"TPS: smoothing must be >= 0, got {smoothing}")
         self.smoothing = float(smoothing)
         self.grid_operator_: np.ndarray | None = None
         self.shape_: tuple[int, int] | None = None
@@ -113,7 +113,7 @@ class LdvTps:
     def _good_values(self, w_points: np.ndarray) -> np.ndarray:
         w = np.asarray(w_points)
         if w.shape[0] != len(self.points_px):
-            raise ConfigError(f"TPS: expected values for {len(self.points_px)} points, got shape {w.shape}")
+            raise ValueError(f"TPS: expected values for {len(self.points_px)} points, got shape {w.shape}")
         return w[self.good]
 
     def frames(self, w_points: np.ndarray) -> np.ndarray:
@@ -129,7 +129,7 @@ class LdvTps:
         (H, W) or (T, H, W) float32, mm/s
         """
         if self.grid_operator_ is None or self.shape_ is None:
-            raise ConfigError("TPS: call fit_grid(shape) before frames()")
+            raise ValueError("TPS: call fit_grid(shape) before frames()")
         w = self._good_values(w_points).astype(np.float32)
         out = self.grid_operator_ @ w
         if w.ndim == 1:
@@ -168,7 +168,7 @@ def quadratic_spline_coefficients(samples: np.ndarray) -> np.ndarray:
     f = np.asarray(samples, dtype=float)
     n = f.shape[0]
     if n == 0:
-        raise ConfigError("time spline: needs at least one sample")
+        raise ValueError("time spline: needs at least one sample")
     flat = f.reshape(n, -1)
     if n <= 2:
         c = flat.copy()
@@ -252,13 +252,13 @@ def combine_fields(
 def _frame_coordinate(times: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     times = np.asarray(times, dtype=float)
     if times.ndim != 1 or len(times) == 0:
-        raise ConfigError("field: times must be a non-empty (T,) array")
+        raise ValueError("field: times must be a non-empty (T,) array")
     if len(times) == 1:
         tau = np.zeros(np.shape(t))
         return tau, np.isclose(np.asarray(t, float), times[0])
     dt = np.diff(times)
     if not (np.all(dt > 0) and np.allclose(dt, dt[0], rtol=1e-6, atol=0)):
-        raise ConfigError("field: frame times must be uniformly spaced and increasing")
+        raise ValueError("field: frame times must be uniformly spaced and increasing")
     tau = (np.asarray(t, dtype=float) - times[0]) / dt[0]
     inside = (tau >= -1e-9) & (tau <= len(times) - 1 + 1e-9)
     return np.clip(tau, 0, len(times) - 1), inside
@@ -310,7 +310,7 @@ def evaluate_field(
     y = np.asarray(y_px, dtype=float).reshape(-1, 2)
     tq = np.broadcast_to(np.asarray(t, dtype=float), (len(y),))
     if len(times) != n_t:
-        raise ConfigError(f"field: {len(times)} times for {n_t} frames")
+        raise ValueError(f"field: {len(times)} times for {n_t} frames")
     tau, in_time = _frame_coordinate(times, tq)
     col, row = y[:, 0], y[:, 1]
     in_space = (col >= 0) & (col <= w_ - 1) & (row >= 0) & (row <= h - 1)

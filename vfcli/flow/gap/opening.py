@@ -28,15 +28,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from vfcli.errors import ConfigError
 
 
 def _as_rays(mask: np.ndarray, lateral_axis: int) -> np.ndarray:
     if lateral_axis not in (0, 1):
-        raise ConfigError(f"opening: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
+        raise ValueError(f"opening: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
     m = np.asarray(mask, dtype=bool)
     if m.ndim != 2:
-        raise ConfigError(f"opening: expected a (H, W) mask, got shape {m.shape}")
+        raise ValueError(f"opening: expected a (H, W) mask, got shape {m.shape}")
     return m if lateral_axis == 0 else m.T
 
 
@@ -87,7 +86,7 @@ def opening_distance(mask: np.ndarray, fallback_center: np.ndarray | float, late
     n, n_rays = m.shape
     fallback = np.broadcast_to(np.asarray(fallback_center, dtype=float), (n_rays,))
     if not np.all(np.isfinite(fallback)):
-        raise ConfigError("opening: fallback_center must be finite on every ray")
+        raise ValueError("opening: fallback_center must be finite on every ray")
     trans = m[1:] != m[:-1]  # edge at i + 0.5 between pixels i and i + 1
     pos = np.arange(n - 1, dtype=np.float32)[:, None] + np.float32(0.5)
     inf = np.float32(np.inf)
@@ -138,7 +137,7 @@ class OpeningTracker:
 
     def __init__(self, shape: tuple[int, int], lateral_axis: int = 0, initial_center: np.ndarray | float | None = None) -> None:
         if lateral_axis not in (0, 1):
-            raise ConfigError(f"opening: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
+            raise ValueError(f"opening: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
         self.shape = tuple(int(s) for s in shape)
         self.lateral_axis = lateral_axis
         self.n_lateral = self.shape[lateral_axis]
@@ -159,7 +158,7 @@ class OpeningTracker:
     def observe(self, mask: np.ndarray) -> None:
         """Record the frame's opening locations (rays open in it), without distances."""
         if tuple(np.shape(mask)) != self.shape:
-            raise ConfigError(f"opening: mask shape {np.shape(mask)} differs from the tracker's {self.shape}")
+            raise ValueError(f"opening: mask shape {np.shape(mask)} differs from the tracker's {self.shape}")
         centres = gap_centers(mask, self.lateral_axis)
         seen = np.isfinite(centres)
         self.center_[seen] = centres[seen]

@@ -18,7 +18,6 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from vfcli.errors import ConfigError
 from vfcli.flow.gap.detect import gap_mask
 
 log = logging.getLogger(__name__)
@@ -282,7 +281,7 @@ def fit_slit_profiles(
 def _rays(frame: np.ndarray, lateral_axis: int) -> np.ndarray:
     """(n_lateral, n_rays) view of a frame: one column per ray."""
     if lateral_axis not in (0, 1):
-        raise ConfigError(f"gap: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
+        raise ValueError(f"gap: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
     a = np.asarray(frame)
     return a if lateral_axis == 0 else a.T
 
@@ -548,7 +547,7 @@ def area_from_edges(e0: np.ndarray, e1: np.ndarray, px_per_mm: float) -> float:
     float
     """
     if px_per_mm <= 0:
-        raise ConfigError(f"glottal area: px_per_mm must be positive, got {px_per_mm}")
+        raise ValueError(f"glottal area: px_per_mm must be positive, got {px_per_mm}")
     width = np.nan_to_num(np.asarray(e1, float) - np.asarray(e0, float), nan=0.0)
     return float(np.maximum(width, 0.0).sum() / float(px_per_mm) ** 2)
 
@@ -587,7 +586,7 @@ def estimate_edge_model(
     if frames.ndim == 2:
         frames, m = frames[None], m[None]
     if frames.shape != m.shape:
-        raise ConfigError(f"edge model: frames {frames.shape} and masks {m.shape} differ")
+        raise ValueError(f"edge model: frames {frames.shape} and masks {m.shape} differ")
     if not m.any():
         return None
     lat = 1 + lateral_axis  # lateral axis of the (k, H, W) stack
