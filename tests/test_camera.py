@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vfcli.camera.camera import Camera, gap_mask, interpolate, rasterize, raycast_points, surface_velocity
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import gap_mask, interpolate, rasterize, raycast_points, surface_velocity
 
 
 def grid_surface(nx, ny, x0, x1, y0, y1, height=lambda x, y: 0.0 * x):

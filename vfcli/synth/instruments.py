@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from vfcli.camera.camera import raycast_points
+from vfcli.camera.raster import raycast_points
 
 #: a function giving the true vertical surface velocity (mm/s, NaN where no
 #: surface) at scan points ``(P, 2)`` mm for cycle phases ``(P, S)``: returns (P, S)

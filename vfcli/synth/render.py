@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from vfcli.camera.camera import Camera, Raster, gap_mask, interpolate, rasterize
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import Raster, gap_mask, interpolate, rasterize
 
 
 @dataclass(frozen=True)
