@@ -5,7 +5,7 @@ The coronal (y-z) profile of one fold is built in a *profile frame*
 (``s = 0`` on the medial surface, ``s = depth_mm`` on the lateral wall) and ``z``
 is the vertical coordinate of docs/conventions.md (flat superior surface at
 ``z = 0``, body below).  Going round the free contour from the superior-lateral
-corner (see /work/shared/reference/physical-setup.md):
+corner (see the project reference note "The physical set-up: numbers to build with"):
 
 1. superior surface, flat, ``z = 0``, from ``s = D`` to ``s = R_O``;
 2. exit arc, radius ``R_O``, centre ``(R_O, -R_O)``, turning 90 degrees;

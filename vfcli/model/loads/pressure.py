@@ -3,7 +3,8 @@
 :class:`PressureLoad` is a :class:`vfcli.model.loads.force_field.LoadModel` (plug it into
 :class:`vfcli.model.response.quasi_static.QuasiStaticResponse`).  Unlike the paper's free force field
 (:class:`vfcli.model.loads.force_field.ForceField`, independent per fold, per time and per
-component), it encodes what the rig fixes (/work/shared/reference/identifiability.md):
+component), it encodes what the rig fixes (the project reference note "What superior-surface data
+can and cannot reveal (a numerical study)"):
 
 Space (``n_spatial`` shapes, Pa per unit control value, normal, pushing into the body)
 -------------------------------------------------------------------------------------
