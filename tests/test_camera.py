@@ -56,6 +56,17 @@ def test_project_unproject_round_trip_and_convention():
 def test_camera_rejects_bad_scale():
     with pytest.raises(ValueError):
         Camera(0.0, 0.0, (0.0, 0.0), 8, 8)
+    with pytest.raises(ValueError):
+        Camera(10.0, 0.0, (np.nan, 0.0), 8, 8)
+
+
+@pytest.mark.parametrize("override", ["camera.px_per_mm=nan", "camera.offset_px=[0, inf]", "camera.rotation_deg=nan"])
+def test_the_config_refuses_non_finite_camera_values_before_the_camera_sees_them(override):
+    from vfcli.config import load_config
+    from vfcli.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=override.split("=")[0]):
+        load_config(overrides=[override])
 
 
 def test_rasterize_matches_brute_force_on_random_overlapping_triangles():

@@ -136,7 +136,10 @@ def test_threshold_warns_when_the_gap_never_opens(video, caplog):
     assert "no distinct edge" in caplog.text or "no gap core" in caplog.text
 
 
-def test_bad_settings_raise_config_errors():
+def test_bad_settings_are_value_errors_in_the_core_and_config_errors_in_the_config():
+    from vfcli.config import load_config
+    from vfcli.errors import ConfigError
+
     f = np.zeros((10, 10), np.uint16)
     with pytest.raises(ValueError):
         gap_mask(f, 10.0, median_px=4)
@@ -144,6 +147,9 @@ def test_bad_settings_raise_config_errors():
         gap_mask(f, 10.0, lateral_axis=2)
     with pytest.raises(ValueError):
         gap_threshold(f, open_fraction=0.0)
+    with pytest.raises(ConfigError, match="median_px"):  # the user's value never reaches gap_mask
+        load_config(overrides=["flow.median_px=4"])
+    load_config(overrides=["flow.median_px=7"])
 
 
 def test_midline_from_masks_is_the_mean_gap_row_per_column():
