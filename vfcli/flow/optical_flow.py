@@ -373,7 +373,7 @@ def flow_stream(
     try:
         f1 = next(it)
     except StopIteration:
-        raise ConfigError("flow: the video needs at least 2 frames") from None
+        raise ConfigError("flow: the video needs at least 2 frames (ingest_hsc.n_frames)") from None
     img0, g0 = prepare(f0)
     img1, g1 = prepare(f1)
     fwd0 = pair_flow(img0, img1)  # pair (0, 1)

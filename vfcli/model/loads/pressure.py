@@ -87,7 +87,7 @@ class PressureLoad(LoadModel):
         tol = 0.5 * float(np.median(np.diff(t)))
         if t1 < t[0] - tol or t2 > t[-1] + tol:
             raise ConfigError(f"pressure load: the pressure record covers {t[0]:.5f}..{t[-1]:.5f} s, "
-                              f"the fitted window {t1:.5f}..{t2:.5f} s")
+                              f"the fitted window {t1:.5f}..{t2:.5f} s (optimize.first_frame, optimize.n_frames)")
         for name, v, lo in (("time_degree", time_degree, 0), ("medial_z", medial_z, 1), ("medial_x", medial_x, 1)):
             if int(v) != v or v < lo:
                 raise ValueError(f"pressure load: {name} must be an integer >= {lo}, got {v!r}")
