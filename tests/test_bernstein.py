@@ -88,7 +88,7 @@ def test_tensor_product_is_the_product_of_1d_bases():
     np.testing.assert_allclose(tensor_basis([bernstein(2, u), bernstein(3, v)]).sum(axis=1), 1.0, atol=1e-12)
 
 
-def test_bad_degree_is_a_config_error():
+def test_bad_degree_is_a_value_error():
     with pytest.raises(ValueError):
         bernstein(-1, T)
     with pytest.raises(ValueError):

@@ -31,7 +31,7 @@ def test_paper_setups_have_the_expected_number_of_control_values(name, n_spatial
 
 
 @pytest.mark.parametrize("bad", ["3x3-two-sided", "3x3x10", "0x3x10-one-sided"])
-def test_bad_setup_names_are_config_errors(bad):
+def test_bad_setup_names_are_value_errors(bad):
     with pytest.raises(ValueError):
         ForceField(ForceFieldSpec.from_name(bad), (0.0, 1.0))
 

@@ -144,7 +144,7 @@ def test_periodic_table_interpolates_a_sampled_cycle():
     assert np.allclose(f(pts, np.broadcast_to(grid, (3, m)))[:2], table[:2])
 
 
-def test_same_seed_same_bytes_and_bad_settings_are_config_errors():
+def test_same_seed_same_bytes_and_bad_settings_are_value_errors():
     a, _ = scan(9, epoch_s=0.02)
     b, _ = scan(9, epoch_s=0.02)
     assert a.velocity.tobytes() == b.velocity.tobytes() and a.pressure.tobytes() == b.pressure.tobytes()

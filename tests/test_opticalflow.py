@@ -188,7 +188,7 @@ def test_stream_accepts_batches_and_short_videos():
         list(flow_stream([batch[:1]], fps=1e4, px_per_mm=15.0, threshold=10.0, counts_range=(0, 4095), method="dis"))
 
 
-def test_unknown_method_or_preset_is_a_config_error():
+def test_unknown_method_or_preset_is_a_value_error():
     with pytest.raises(ValueError):
         FlowEstimator("farneback")
     with pytest.raises(ValueError):
