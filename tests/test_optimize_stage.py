@@ -184,10 +184,11 @@ def _forward_store(path, case, masks, pad_rows: int, pad_cols: int, roi: bool) -
 def test_a_configured_pose_with_an_roi_gives_the_fit_of_the_full_frame(tmp_path):
     """camera.offset_px is in full-frame pixels; the stored frames of an ROI start at its corner.
     The fit of the ROI must be the fit of the full frame (before the fix it was off by the ROI
-    origin: another camera, another fit)."""
+    origin: another camera, another fit). The ROI run also has another live [mesh] material:
+    the fit uses the material /mesh was built for (before, the live config's: another fit)."""
     from _forward_case import CAMERA, forward_case
 
-    from vfcli.camera.camera import gap_mask, rasterize
+    from vfcli.camera.raster import gap_mask, rasterize
     from vfcli.model.mesh import TAG_FIXTURE
     from vfcli.stages.base import RunContext
     from vfcli.stages.optimize import run_optimize
@@ -208,7 +209,8 @@ def test_a_configured_pose_with_an_roi_gives_the_fit_of_the_full_frame(tmp_path)
     for name, roi in (("full", False), ("roi", True)):
         path = tmp_path / f"{name}.h5"
         _forward_store(path, case, masks, pad_rows, pad_cols, roi)
-        run_optimize(RunContext.open(path, overrides=sets), "r")
+        live = ["mesh.youngs_modulus_pa=8800.0", "mesh.density_kg_m3=2000.0"] if roi else []
+        run_optimize(RunContext.open(path, overrides=sets + live), "r")
         with Store(path).read() as r:
             fits[name] = (r.read("optimize", "controls", "r"), r.read("optimize", "history_total", "r"),
                           r.attrs("optimize", "r"))

@@ -7,7 +7,6 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.store import layout
 from vfcli.store.reader import StoreReader
 
 #: The per-iteration series of a run (``history_<key>`` datasets).
@@ -51,9 +50,7 @@ class OptimizeRun:
 
 def run_names(reader: StoreReader) -> list[str]:
     """Names of the complete optimisation runs in the store."""
-    prefix = layout.stage("optimize").group_path("x")[: -1]
-    return [p[len(prefix):] for p in reader.stage_paths()
-            if p.startswith(prefix) and reader.has_stage("optimize", p[len(prefix):])]
+    return [run for run in reader.runs("optimize") if reader.has_stage("optimize", run)]
 
 
 def read_optimize_run(reader: StoreReader, run: str) -> OptimizeRun:

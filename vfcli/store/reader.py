@@ -106,6 +106,12 @@ class StoreReader:
                 out.append(f"/{name}")
         return out
 
+    def runs(self, name: str) -> list[str]:
+        """Names of the runs of a stage with runs (``/optimize/<run>``), complete or not."""
+        if not layout.stage(name).has_runs:
+            raise ValueError(f"stage {name!r} has no runs")
+        return list(self._f[name]) if name in self._f else []
+
     def has_stage(self, name: str, run: str | None = None, complete: bool = True) -> bool:
         path = layout.stage(name).group_path(run)
         if path not in self._f:
