@@ -553,3 +553,25 @@ def test_banded_normal_equations_equal_the_dense_gemm_ones():
     banded = normal_equations_banded(a, cols, r, BandedBasis(basis), base)
     for d, b in zip(dense, banded):
         np.testing.assert_allclose(b, d, rtol=1e-10, atol=1e-10 * np.abs(d).max())
+
+
+def test_the_core_defaults_of_sync_are_the_configs():
+    """One source for the sync settings: every default of the core's public functions is the
+    [sync] config's default, under its core name."""
+    import inspect
+
+    from vfcli.config import SyncConfig
+    from vfcli.sync import align, f0, phase
+
+    d = SyncConfig()
+    names = {"n_harmonics": d.n_harmonics, "knot_cycles": d.knot_cycles, "max_f0_deviation": d.max_drift,
+             "min_quality": d.min_quality, "min_cycles": d.min_cycles, "smooth": d.smooth,
+             "phase_reference": d.phase_reference, "f_range": (d.f0_min_hz, d.f0_max_hz)}
+    seen = 0
+    for fn in (align.sync_scan, align.align_epoch, align.phase_track, align.video_phase_reference,
+               align.epoch_phase_tracks, f0.estimate_f0, f0.coarse_f0, phase.track_phase, phase.fit_free_phase):
+        for name, param in inspect.signature(fn).parameters.items():
+            if name in names and param.default is not inspect.Parameter.empty:
+                assert param.default == names[name], (fn.__name__, name)
+                seen += 1
+    assert seen >= 25

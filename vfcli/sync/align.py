@@ -61,11 +61,11 @@ import logging
 
 import numpy as np
 
+from vfcli.config import SyncConfig
 from vfcli.errors import InputDataError
 from vfcli.sync.average import invert_monotonic, matched_times, phase_average_at
-from vfcli.sync.f0 import check_signal, coarse_f0, estimate_f0
+from vfcli.sync.f0 import F_RANGE, check_signal, coarse_f0, estimate_f0
 from vfcli.sync.phase import (
-    DEFAULT_SMOOTH,
     PhaseTracks,
     PressureTemplate,
     fit_free_phase,
@@ -73,6 +73,9 @@ from vfcli.sync.phase import (
     track_phase,
 )
 from vfcli.sync.types import EpochAlignment, SyncResult, VideoPhase
+
+#: The defaults of every setting below are the [sync] config's (one source, vfcli/config.py).
+_D = SyncConfig()
 
 __all__ = [
     "estimate_f0", "phase_track", "VideoPhase", "SyncResult", "EpochAlignment",
@@ -89,8 +92,8 @@ NO_PERIODICITY_QUALITY = 0.5
 
 def video_phase_reference(
     video_pressure: np.ndarray, fs: float, t0: float, frame_times: np.ndarray, *,
-    f_range: tuple[float, float] = (50.0, 500.0), n_harmonics: int = 10,
-    knot_cycles: float = 2.0, smooth: float = DEFAULT_SMOOTH, source: str = "video pressure",
+    f_range: tuple[float, float] = F_RANGE, n_harmonics: int = _D.n_harmonics,
+    knot_cycles: float = _D.knot_cycles, smooth: float = _D.smooth, source: str = "video pressure",
 ) -> VideoPhase:
     """Template and phase of the video's pressure, evaluated at the frame times.
 
@@ -150,9 +153,9 @@ def video_phase_reference(
 
 def phase_track(
     p: np.ndarray, fs: float, *, t0: float = 0.0, template: PressureTemplate | None = None,
-    f_range: tuple[float, float] = (50.0, 500.0), n_harmonics: int = 10,
-    knot_cycles: float = 2.0, smooth: float = DEFAULT_SMOOTH,
-    phase_reference: str = "fundamental", source: str = "pressure signal",
+    f_range: tuple[float, float] = F_RANGE, n_harmonics: int = _D.n_harmonics,
+    knot_cycles: float = _D.knot_cycles, smooth: float = _D.smooth,
+    phase_reference: str = _D.phase_reference, source: str = "pressure signal",
 ) -> tuple[PhaseTracks, PressureTemplate]:
     """Cycle phase of one pressure record (any unit), as a smooth spline of time.
 
@@ -199,9 +202,9 @@ def phase_track(
 
 def epoch_phase_tracks(
     reference: np.ndarray, fs: float, video: VideoPhase, *,
-    f_range: tuple[float, float] = (50.0, 500.0), knot_cycles: float = 2.0,
-    min_cycles: float = 2.0, smooth: float = DEFAULT_SMOOTH,
-    phase_reference: str = "fundamental",
+    f_range: tuple[float, float] = F_RANGE, knot_cycles: float = _D.knot_cycles,
+    min_cycles: float = _D.min_cycles, smooth: float = _D.smooth,
+    phase_reference: str = _D.phase_reference,
 ) -> tuple[PhaseTracks, np.ndarray]:
     """Phase tracks of P reference records against the video's template.
 
@@ -261,9 +264,9 @@ def epoch_phase_tracks(
 
 def align_epoch(
     reference: np.ndarray, velocity: np.ndarray, fs_ldv: float, video: VideoPhase, *,
-    f_range: tuple[float, float] = (50.0, 500.0), knot_cycles: float = 2.0,
-    max_f0_deviation: float = 0.05, min_quality: float = 0.9, min_cycles: float = 2.0,
-    smooth: float = DEFAULT_SMOOTH, phase_reference: str = "fundamental",
+    f_range: tuple[float, float] = F_RANGE, knot_cycles: float = _D.knot_cycles,
+    max_f0_deviation: float = _D.max_drift, min_quality: float = _D.min_quality, min_cycles: float = _D.min_cycles,
+    smooth: float = _D.smooth, phase_reference: str = _D.phase_reference,
 ) -> EpochAlignment:
     """Align one LDV epoch onto the video's frame times (options as in :func:`sync_scan`).
 
@@ -297,10 +300,10 @@ def align_epoch(
 def sync_scan(
     video_pressure: np.ndarray, fs_video_p: float, t0_video_p: float,
     frame_times: np.ndarray, ldv_reference: np.ndarray, ldv_velocity: np.ndarray,
-    fs_ldv: float, *, f_range: tuple[float, float] = (50.0, 500.0),
-    n_harmonics: int = 10, knot_cycles: float = 2.0, max_f0_deviation: float = 0.05,
-    min_quality: float = 0.9, min_cycles: float = 2.0, smooth: float = DEFAULT_SMOOTH,
-    phase_reference: str = "fundamental", source: str = "video pressure",
+    fs_ldv: float, *, f_range: tuple[float, float] = F_RANGE,
+    n_harmonics: int = _D.n_harmonics, knot_cycles: float = _D.knot_cycles, max_f0_deviation: float = _D.max_drift,
+    min_quality: float = _D.min_quality, min_cycles: float = _D.min_cycles, smooth: float = _D.smooth,
+    phase_reference: str = _D.phase_reference, source: str = "video pressure",
 ) -> SyncResult:
     """Synchronise all LDV epochs of a scan onto the video's frame times.
 
@@ -365,9 +368,9 @@ def sync_scan(
 
 def _align_all(
     ref: np.ndarray, vel: np.ndarray, fs: float, video: VideoPhase, *,
-    f_range: tuple[float, float] = (50.0, 500.0), knot_cycles: float = 2.0,
-    max_f0_deviation: float = 0.05, min_quality: float = 0.9, min_cycles: float = 2.0,
-    smooth: float = DEFAULT_SMOOTH, phase_reference: str = "fundamental",
+    f_range: tuple[float, float] = F_RANGE, knot_cycles: float = _D.knot_cycles,
+    max_f0_deviation: float = _D.max_drift, min_quality: float = _D.min_quality, min_cycles: float = _D.min_cycles,
+    smooth: float = _D.smooth, phase_reference: str = _D.phase_reference,
 ) -> SyncResult:
     _check_settings(f_range, knot_cycles, max_f0_deviation, min_quality, min_cycles,
                     smooth, phase_reference)

@@ -25,7 +25,12 @@ from __future__ import annotations
 import numpy as np
 import scipy.fft
 
+from vfcli.config import SyncConfig
 from vfcli.errors import InputDataError
+
+#: Defaults from the [sync] config (one source, vfcli/config.py).
+_D = SyncConfig()
+F_RANGE: tuple[float, float] = (_D.f0_min_hz, _D.f0_max_hz)
 
 #: Harmonics in the coarse harmonic-sum score.
 N_SCORE_HARMONICS = 5
@@ -45,7 +50,7 @@ def _detrend_rows(y: np.ndarray) -> np.ndarray:
 
 
 def coarse_f0(
-    p: np.ndarray, fs: float, f_range: tuple[float, float] = (50.0, 500.0)
+    p: np.ndarray, fs: float, f_range: tuple[float, float] = F_RANGE
 ) -> tuple[np.ndarray, np.ndarray]:
     """Harmonic-sum f0 of each row, refined to a fraction of a bin.
 
@@ -128,10 +133,10 @@ def coarse_f0(
 def estimate_f0(
     p: np.ndarray,
     fs: float,
-    f_range: tuple[float, float] = (50.0, 500.0),
+    f_range: tuple[float, float] = F_RANGE,
     *,
     source: str = "pressure signal",
-    n_harmonics: int = 10,
+    n_harmonics: int = _D.n_harmonics,
 ) -> float:
     """Fundamental frequency of a periodic signal, Hz, with sub-bin precision.
 

@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import BSpline
 
+from vfcli.config import SyncConfig
 from vfcli.sync.gauss_newton import (
     CHUNK,
     MODES,
@@ -149,8 +150,8 @@ def baseline_basis(n: int, degree: int = BASELINE_DEGREE) -> np.ndarray:
 #: Weight of the curvature (third-derivative) penalty on the phase spline (see
 #: :func:`vfcli.sync.gauss_newton.gauss_newton`);
 #: chosen by measurement: 0.1 with knots every 2 cycles follows an f0 modulation of period
-#: 50 ms and halves the noise at the record ends.
-DEFAULT_SMOOTH = 0.1
+#: 50 ms and halves the noise at the record ends. The value is sync.smooth's default (vfcli/config.py).
+DEFAULT_SMOOTH = SyncConfig().smooth
 #: Samples kept per period of the highest template harmonic when striding the fit.
 SAMPLES_PER_HARMONIC = 8.0
 #: Template harmonics above the last one reaching this fraction of the largest are dropped.
@@ -235,7 +236,7 @@ def n_intervals_for(duration: float, f0: float, knot_cycles: float) -> int:
 
 def fit_free_phase(
     y: np.ndarray, fs: float, f_init: float, psi_init: float, *,
-    n_intervals: int, degree: int = 3, n_harmonics: int = 10, t_start: float = 0.0,
+    n_intervals: int, degree: int = 3, n_harmonics: int = SyncConfig().n_harmonics, t_start: float = 0.0,
     stride: int | None = None, n_outer: int = 5, smooth: float = DEFAULT_SMOOTH,
 ) -> FreeFit:
     """Fit template and smooth phase to one record.
