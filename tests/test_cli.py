@@ -96,6 +96,8 @@ def test_a_stage_stores_its_figures_and_warnings_and_info_shows_them(vfcli, tmp_
     assert summary["figures"] == {k: v for k, v in printed.items() if k not in ("stage", "status")}
     text = vfcli("info", path).stdout
     assert f"nodes={printed['nodes']}" in text and f"tets={printed['tets']}" in text
+    again = json.loads(vfcli("mesh", path, "--json", "--set", "mesh.target_edge_mm=2.5").stdout)
+    assert again == {**printed, "status": "up-to-date"}       # an up-to-date stage reports its stored figures
 
 
 def test_warnings_logged_by_a_stage_are_stored_whatever_the_verbosity(tmp_path):

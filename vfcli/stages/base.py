@@ -83,6 +83,7 @@ def run_stage(
     input_paths = list(input_paths or [])
     stored_json = ctx.stored_config.model_dump_json(exclude_unset=True)
     previous: dict[str, Any] = {}
+    stored_summary: dict[str, Any] = {}
     inputs: dict[str, Any] | None = None if input_paths else {}  # None: hashed while the stage is written
     if ctx.store.exists():
         with ctx.store.read() as r:
@@ -92,6 +93,7 @@ def run_stage(
             if not ctx.force and r.has_stage(name, run):  # only then do the hashes decide
                 inputs = describe_inputs(input_paths, previous) if input_paths else {}
                 current = r.is_current(name, config_json, inputs, upstream, run)
+            stored_summary = (r.summary(name, run) or {}) if current else {}
             config_changed = r.recording_config_json() != stored_json
     elif upstream:
         up = layout.stage(upstream[0][0])
@@ -103,7 +105,7 @@ def run_stage(
             with ctx.store.write(ctx.command) as w:
                 w.set_recording_config(stored_json)
         log.info("%s is up to date (inputs and config unchanged); --force reruns", path)
-        return StageResult(path, "up-to-date")
+        return StageResult(path, "up-to-date", dict(stored_summary.get("figures", {})))
     hashed = _Background(describe_inputs, input_paths, previous) if inputs is None else None
     with ctx.store.write(ctx.command) as w:
         w.set_recording_config(stored_json)
