@@ -206,6 +206,25 @@ def test_second_run_is_up_to_date_and_a_fields_setting_reruns_only_fields(record
         assert r.digest("flow") == out["digests"][0] and r.digest("fields") != out["digests"][1]
 
 
+def test_the_flow_pipeline_runs_on_plain_arrays_as_the_stage_runs_it(recording):
+    """vfcli.flow.pipeline reads nothing: fed the video as a numpy array it gives the stage's
+    stored /flow, bit for bit."""
+    from vfcli.config import FlowConfig
+    from vfcli.flow.pipeline import flow_pipeline
+
+    ph, path, _, out, _ = recording
+    with Store(path).read() as r:
+        frames = r.read("hsc", "frames")
+    calib, stream = flow_pipeline(frames, FlowConfig(), fps=ph.fps, px_per_mm=ph.px_per_mm, rotation_deg=0.0,
+                                  t0_s=float(out["frame_time"][0]))
+    got = list(stream)
+    assert [fr.index for fr in got] == list(range(len(frames)))
+    assert calib.threshold == out["flow_attrs"]["threshold_counts"]
+    np.testing.assert_array_equal(np.array([fr.mask for fr in got]), out["gap_mask"])
+    np.testing.assert_array_equal(np.array([fr.velocity_mm_s for fr in got]).astype(np.float32), out["flow"])
+    np.testing.assert_array_equal(np.array([fr.area_mm2 for fr in got]), out["glottal_area"])
+
+
 def test_every_flow_setting_shapes_exactly_one_of_the_two_stages():
     """Which settings decide that /flow or /fields is up to date comes from the config model:
     a new [flow] setting without its tag fails here instead of being silently ignored."""
