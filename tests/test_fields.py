@@ -46,11 +46,12 @@ def test_tps_predicts_held_out_points_of_a_smooth_field():
     held[np.random.default_rng(3).choice(len(pts), 40, replace=False)] = True
     interior = (pts[:, 0] > 20) & (pts[:, 0] < 140) & (pts[:, 1] > 20) & (pts[:, 1] < 108)
     held &= interior
+    assert held.sum() > 20  # 27 interior points held out
     w_flagged = np.where(held, np.nan, w)  # flagged points may carry NaN: they are left out
     tps = LdvTps(pts, good=~held)
     pred = tps.at(pts[held], w_flagged)
     err = np.abs(pred - w[held]).max() / np.abs(w).max()
-    assert err < 0.005  # measured 0.02% of the amplitude
+    assert err < 4e-4  # measured 1.65e-4 of the amplitude
 
 
 def test_flagged_points_are_left_out_of_the_grid_operator():
@@ -133,7 +134,7 @@ def test_quadratic_spline_converges_at_third_order_inside():
         tau = np.linspace(0.3, 0.7, 200) * (n - 1)
         errs.append(np.abs(quadratic_spline_eval(c, tau) - np.sin(2 * np.pi * tau / (n - 1))).max())
     rates = np.log2(np.array(errs[:-1]) / np.array(errs[1:]))
-    assert np.all(rates > 2.7), rates
+    assert np.all(np.abs(rates - 3) < 0.25), rates  # measured 3.16, 3.07
 
 
 # ---- the field ----------------------------------------------------------------------------
@@ -181,7 +182,7 @@ def test_evaluate_field_with_the_exact_tps_matches_the_grid_between_pixels():
     t = np.array([0.4e-4, 1.5e-4])
     exact = evaluate_field(field, times, valid, y, t, tps=tps, w_points=w_pts)
     gridded = evaluate_field(field, times, valid, y, t)
-    np.testing.assert_allclose(exact[:, 2], gridded[:, 2], rtol=2e-3)
+    np.testing.assert_allclose(exact[:, 2], gridded[:, 2], rtol=1.3e-3)  # measured 6.5e-4
     k0 = np.floor(t / 1e-4).astype(int)
     a = t / 1e-4 - k0
     direct = [(1 - a[i]) * tps.at(y[i : i + 1], w_pts[:, k0[i]])[0] + a[i] * tps.at(y[i : i + 1], w_pts[:, k0[i] + 1])[0] for i in range(2)]
