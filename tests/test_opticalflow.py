@@ -125,6 +125,7 @@ def test_stream_yields_every_frame_on_the_frame_time_base(phantom, stream):
 def test_stream_velocity_matches_the_instantaneous_velocity_at_frame_times(phantom, stream):
     frames, _, out = stream
     eps = 1e-8
+    assert len(out) == len(STREAM)
     for f, k in zip(out, STREAM):
         t = phantom.frame_time(k)
         v_true = (phantom.true_flow(t, t + eps) - phantom.true_flow(t, t - eps)) / (2 * eps) / phantom.fps
@@ -139,6 +140,7 @@ def test_stream_with_split_folds_matches_the_instantaneous_velocity(phantom, str
     out = list(flow_stream(iter(frames), fps=phantom.fps, px_per_mm=phantom.px_per_mm, threshold=threshold,
                            counts_range=intensity_range(frames), t0_s=phantom.frame_time(STREAM[0]), split_folds=True))
     eps = 1e-8
+    assert len(out) == len(STREAM)
     for f, k in zip(out[1:-1], STREAM[1:-1]):
         t = phantom.frame_time(k)
         v_true = (phantom.true_flow(t, t + eps) - phantom.true_flow(t, t - eps)) / (2 * eps) / phantom.fps
