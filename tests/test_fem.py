@@ -15,8 +15,9 @@ from vfcli.model.solver import available_backends
 PARAMS = M5Params()
 PRESSURE_PA = 800.0
 #: Eigenfrequencies of one clamped M5 fold, D = 8, L = 15, E = 4.4 kPa, nu = 0.499, rho = 1070:
-#: P2 on refined meshes extrapolated to h -> 0 by bench/fem_mode_reference.py (its output: REFERENCE)
-REFERENCE_MODES_HZ = np.array([49.0, 72.6, 84.1, 85.5, 95.5, 98.2])
+#: P2 on meshes of target edge 1.5, 1.2, 1.0 and 0.85 mm, recomputed by bench/fem_mode_reference.py
+#: (its "extrapolated f0" line; the 1.0 and 0.85 mm meshes agree within 0.1 %)
+REFERENCE_MODES_HZ = np.array([48.9, 72.3, 83.7, 85.4, 95.4, 97.9])
 
 
 @pytest.fixture(scope="module")
@@ -334,7 +335,9 @@ def test_eigenfrequencies_match_reference_and_modes_are_mass_normalised():
     mod = ElasticModel(m)
     freqs, shapes = mod.modes(6, fold=1)
     print("fold-1 eigenfrequencies (Hz):", np.round(freqs, 2))
-    np.testing.assert_allclose(freqs, REFERENCE_MODES_HZ, rtol=0.01)
+    # the default mesh is a little stiff: measured +0.38 to +0.56 % above the converged values
+    rel = freqs / REFERENCE_MODES_HZ - 1
+    assert np.all((rel > 0) & (rel < 0.01)), rel
     np.testing.assert_allclose(shapes.T @ mod.mass @ shapes, np.eye(6), atol=1e-8)
     omega2 = np.diag(shapes.T @ mod.stiffness @ shapes)
     np.testing.assert_allclose(np.sqrt(omega2) / (2 * np.pi), freqs, rtol=1e-8)
