@@ -2,7 +2,6 @@
 inference and dropout flags."""
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
