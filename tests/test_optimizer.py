@@ -1,6 +1,5 @@
 """Fitting a forward-simulated case: recovery, monotone decrease, speed against the paper's method, resume."""
 import doctest
-import time
 
 import numpy as np
 import pytest
@@ -46,8 +45,7 @@ def test_lbfgs_from_zero_recovers_the_superior_motion_and_decreases_e_monotonica
     assert len(total) == 61 and res.history["iteration"][-1] == 60
     assert np.all(np.diff(total) < 0)
     assert total[-1] < 3e-3 * total[0]
-    assert superior_velocity_error(case, np.zeros_like(res.x)) == pytest.approx(1.0)
-    assert superior_velocity_error(case, res.x) < 0.05
+    assert superior_velocity_error(case, res.x) < 0.05  # measured 0.032 (a zero start is 1 by definition)
     np.testing.assert_allclose(res.history["motion"] + res.history["gap"], total, rtol=1e-12)
     assert np.all(np.diff(res.history["wall_time"]) >= 0) and np.all(np.diff(res.history["n_evals"]) > 0)
     assert res.kept_x.shape == (61, case.problem.n_params)
@@ -108,37 +106,12 @@ def test_paper_method_resumes_deterministically():
     np.testing.assert_allclose(cont.x, full.x, rtol=1e-10, atol=1e-10 * np.abs(full.x).max())
 
 
-@pytest.mark.slow
-def test_exact_gradient_is_over_100_times_faster_than_the_fd_gradient():
-    """3x3x10 one-sided (780 controls), 20 frames: time per gradient.
-
-    The FD gradient is timed on 40 of its 780 evaluations and scaled (each one is a
-    full objective evaluation of the same cost)."""
-    c = forward_case(resolution=(3, 3, 10), sides=("inferior",), n_frames=20)
-    p, x = c.problem, 0.5 * c.x_true
-    p.value_and_grad(x)
-    t0 = time.perf_counter()
-    for _ in range(3):
-        p.value_and_grad(x)
-    t_exact = (time.perf_counter() - t0) / 3
-    f0 = p.evaluate(x).total
-    k = 40
-    t0 = time.perf_counter()
-    for i in range(k):
-        e = np.zeros_like(x)
-        e[i] = 0.1
-        p.evaluate(x + e).total - f0
-    t_fd = (time.perf_counter() - t0) / k * p.n_params
-    print(f"per gradient: exact {t_exact * 1e3:.0f} ms, FD {t_fd:.1f} s (n = {p.n_params}), ratio {t_fd / t_exact:.0f}")
-    assert t_fd > 100 * t_exact
-
-
 def test_gauss_newton_recovers_the_superior_motion_in_few_iterations(case):
     res = fit(case.problem, method="gauss-newton", max_iter=30, options=FitOptions(ftol=1e-8))
     total = res.history["total"]
     assert np.all(np.diff(total) < 0)
-    assert total[-1] < 3e-3 * total[0]
-    assert superior_velocity_error(case, res.x) < 0.05
+    assert total[-1] < 1e-8 * total[0]  # measured 4.0e-9
+    assert superior_velocity_error(case, res.x) < 3e-4  # measured 1.3e-4
     lb = fit(case.problem, method="lbfgs", max_iter=60, options=OPTS)
     print(f"gauss-newton: E {total[-1]:.3g} after {len(total) - 1} iterations / {res.history['n_evals'][-1]} "
           f"evaluations; lbfgs: E {lb.history['total'][-1]:.3g} after 60 / {lb.history['n_evals'][-1]}")

@@ -45,6 +45,7 @@ def test_lcurve_corner_recovers_the_signal_where_no_regularisation_fails(seed, n
     # the predicted misfit and penalty are those of the exact regularised solutions (where these are
     # well conditioned: from the corner on)
     k = int(np.argmin(np.abs(curve.weights - curve.chosen)))
+    assert len(curve.weights[k::3]) >= 3
     for w, rho, eta in zip(curve.weights[k::3], curve.misfit[k::3], curve.penalty[k::3]):
         z = solution(w)
         assert rho == pytest.approx(np.sum((a @ z - y) ** 2), rel=1e-6, abs=1e-10 * float(y @ y))
