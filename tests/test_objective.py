@@ -106,7 +106,7 @@ def test_symmetric_outside_charges_simulated_tissue_in_the_measured_gap_only(cas
              for o in ("paper", "symmetric")}
     assert terms["paper"].motion < 1e-20
     assert terms["symmetric"].motion == pytest.approx(expected, rel=1e-10)
-    with pytest.raises(ConfigError, match="gap masks"):
+    with pytest.raises(ValueError, match="gap masks"):
         Problem(case.model.mesh, CAMERA, case.response, Measurement(m.times, m.velocity, valid, m.gap_lo, m.gap_hi),
                 ObjectiveSettings(outside="symmetric"))
 
