@@ -224,3 +224,11 @@ def test_motion_residuals_reproduce_the_motion_term(case):
     per_frame = np.nansum(res ** 2, axis=(1, 2, 3)) / np.array([fr.n_norm for fr in frames])
     assert np.mean(per_frame) == pytest.approx(p.frozen_value(x, frames).motion, rel=1e-12)
     assert np.all(np.isnan(res[~case.measurement.valid]))
+
+
+def test_out_of_range_objective_settings_are_bugs_not_config_errors():
+    """The config bounds these fields (OptimizeConfig); a bad value reaching the core is a caller's bug."""
+    for bad in ({"outside": "both"}, {"gap_weight": -1.0}, {"gap_length_mm": 0.0}, {"lateral_axis": 2}):
+        with pytest.raises(ValueError) as err:
+            ObjectiveSettings(**bad)
+        assert not isinstance(err.value, ConfigError)

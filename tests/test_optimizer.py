@@ -167,3 +167,12 @@ def test_gauss_newton_stops_once_a_step_barely_changes_the_reconstruction(case):
     longer = fit(case.problem, method="gauss-newton", max_iter=len(kept) + 2, options=FitOptions(ftol=1e-12))
     np.testing.assert_allclose(longer.kept_x[:len(kept)], kept, rtol=1e-10, atol=1e-10 * np.abs(kept).max())
     assert longer.state.iteration > res.state.iteration
+
+
+def test_out_of_range_fit_options_are_bugs_not_config_errors():
+    from vfcli.errors import ConfigError
+
+    for bad in ({"memory": 0}, {"armijo": 0.7}, {"fd_step": 0.0}):
+        with pytest.raises(ValueError) as err:
+            FitOptions(**bad)
+        assert not isinstance(err.value, ConfigError)

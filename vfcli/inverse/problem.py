@@ -84,7 +84,6 @@ import scipy.sparse as sp
 
 from vfcli.camera.camera import Camera, rasterize
 from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, measured_silhouettes, surface_edges
-from vfcli.errors import ConfigError
 from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
 from vfcli.model.response.base import Response
@@ -134,7 +133,11 @@ OUTSIDE = ("paper", "symmetric")
 
 @dataclass(frozen=True)
 class ObjectiveSettings:
-    """Weights and definitions of E (see module docstring)."""
+    """Weights and definitions of E (see module docstring).
+
+    Raises ValueError for values out of range: the config (``vfcli.config.OptimizeConfig``)
+    bounds every field it sets, so a bad value here is a caller's bug, not a user's.
+    """
 
     motion_weight: float = 1.0
     gap_weight: float = 1.0
@@ -153,14 +156,14 @@ class ObjectiveSettings:
 
     def __post_init__(self) -> None:
         if self.outside not in OUTSIDE:
-            raise ConfigError(f"outside must be one of {OUTSIDE}, got {self.outside!r}")
+            raise ValueError(f"outside must be one of {OUTSIDE}, got {self.outside!r}")
         if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0
                 and len(self.component_weights) == 3 and min(self.component_weights) >= 0):
-            raise ConfigError("objective weights must be >= 0")
+            raise ValueError("objective weights must be >= 0")
         if not self.gap_length_mm > 0:
-            raise ConfigError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
+            raise ValueError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
         if self.lateral_axis not in (0, 1):
-            raise ConfigError(f"lateral_axis must be 0 or 1, got {self.lateral_axis!r}")
+            raise ValueError(f"lateral_axis must be 0 or 1, got {self.lateral_axis!r}")
 
 
 @dataclass

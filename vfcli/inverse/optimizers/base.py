@@ -40,7 +40,6 @@ from typing import Callable
 
 import numpy as np
 
-from vfcli.errors import ConfigError
 from vfcli.inverse.terms import Terms
 from vfcli.inverse.workspace import Workspace
 
@@ -72,6 +71,9 @@ class FitOptions:
     fd_step : forward-difference step of the paper method, x units.
     lm_damping : initial Levenberg-Marquardt damping mu (gauss-newton), relative to diag(H).
     keep_every : keep the control values of every k-th iteration (and the last).
+
+    Raises ValueError for values out of range (the config bounds the fields it sets; a bad value
+    here is a caller's bug).
     """
 
     memory: int = 10
@@ -87,9 +89,9 @@ class FitOptions:
 
     def __post_init__(self) -> None:
         if self.memory < 1 or self.max_line_search < 1 or self.keep_every < 1:
-            raise ConfigError("fit memory, max_line_search and keep_every must be >= 1")
+            raise ValueError("fit memory, max_line_search and keep_every must be >= 1")
         if not (self.initial_step > 0 and self.fd_step > 0 and 0 < self.armijo < 0.5):
-            raise ConfigError("fit initial_step and fd_step must be > 0, armijo in (0, 0.5)")
+            raise ValueError("fit initial_step and fd_step must be > 0, armijo in (0, 0.5)")
 
 
 @dataclass
