@@ -216,7 +216,7 @@ class Problem:
         f, (h, w) = len(times), camera.shape
         if measurement.velocity.shape != (f, h, w, 3) or measurement.valid.shape != (f, h, w):
             raise ValueError(f"measurement velocity/valid must be ({f}, {h}, {w}, 3)/({f}, {h}, {w}), got "
-                              f"{measurement.velocity.shape}/{measurement.valid.shape}")
+                             f"{measurement.velocity.shape}/{measurement.valid.shape}")
         if st.outside == "symmetric" and (measurement.gap is None or np.shape(measurement.gap) != (f, h, w)):
             raise ValueError(f"outside='symmetric' needs the measurement's ({f}, {h}, {w}) gap masks")
         self.dt = float(times[1] - times[0])

@@ -68,7 +68,8 @@ class GapTerm(Term):
     def value(self, ev: Evaluation) -> float:
         p = ev.problem
         st = p.settings
-        if not st.gap_weight:
+        weight = self.weight(st)
+        if not weight:
             return 0.0
         n_f, n_sil, ell = p.n_frames, self._n_sil(p), st.gap_length_mm
         gap = 0.0
@@ -84,21 +85,22 @@ class GapTerm(Term):
                 if ev.wants_grad:
                     # d arctan(q)/ds, q = ((s - m) / (k l))^2
                     dphi = (2.0 * (s - tgt) / (p.camera.px_per_mm * ell) ** 2) / (1.0 + q * q)
-                    dphi *= st.gap_weight / (n_f * n_sil)
+                    dphi *= weight / (n_f * n_sil)
                     gs = np.zeros((len(scr), 2))
                     np.add.at(gs, ee[:, 0], dphi[:, None] * d0)
                     np.add.at(gs, ee[:, 1], dphi[:, None] * d1)
                     ev.grad_disp[f, :, :2] += gs @ p.camera.matrix
-        return st.gap_weight * gap / n_f
+        return weight * gap / n_f
 
     def n_kron(self, problem, n_lin_terms: int) -> int:
-        return problem.n_frames * n_lin_terms ** 2 if problem.settings.gap_weight else 0
+        return problem.n_frames * n_lin_terms ** 2 if self.weight(problem.settings) else 0
 
     def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
                     out: KronBlocks) -> None:
         p = ev.problem
         st = p.settings
-        if not st.gap_weight:
+        weight = self.weight(st)
+        if not weight:
             return
         scale_px = p.camera.px_per_mm * st.gap_length_mm
         pairs = term_pairs(lin.n_terms)
@@ -111,7 +113,7 @@ class GapTerm(Term):
             if not len(dist):
                 continue
             q = (dist / scale_px) ** 2
-            curv = (st.gap_weight / (p.n_frames * self._n_sil(p))) * 2.0 / ((1.0 + q * q) * scale_px ** 2)
+            curv = (weight / (p.n_frames * self._n_sil(p))) * 2.0 / ((1.0 + q * q) * scale_px ** 2)
             for stack, g in zip(out.blocks, groups):
                 qg = [qr[:, g] for qr in q_rows]
                 # the silhouettes of the group's folds

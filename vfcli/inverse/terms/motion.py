@@ -78,7 +78,7 @@ class MotionTerm(Term):
 
     def value(self, ev: Evaluation) -> float:
         p = ev.problem
-        w = p.settings.motion_weight
+        w = self.weight(p.settings)
         cw = np.asarray(p.settings.component_weights, dtype=float)
         u, n_f = ev.disp, p.n_frames
         motion = 0.0
@@ -92,19 +92,20 @@ class MotionTerm(Term):
         return w * motion / n_f
 
     def n_kron(self, problem, n_lin_terms: int) -> int:
-        return problem.n_frames * n_lin_terms ** 2 if problem.settings.motion_weight else 0
+        return problem.n_frames * n_lin_terms ** 2 if self.weight(problem.settings) else 0
 
     def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
                     out: KronBlocks) -> None:
         p = ev.problem
         st = p.settings
-        if not st.motion_weight:
+        weight = self.weight(st)
+        if not weight:
             return
         pairs = term_pairs(lin.n_terms)
         b = lin.temporal
         for f, fr in enumerate(ev.frames):
             db = [bj[f + 1] - bj[f] for bj in b]
-            w = 2.0 * st.motion_weight / (p.n_frames * fr.n_norm * p.dt ** 2)
+            w = 2.0 * weight / (p.n_frames * fr.n_norm * p.dt ** 2)
             seen, gram = seen_vertex_gram(fr.m_both)
             for i, (j, k) in enumerate(pairs):
                 at = f * len(pairs) + i

@@ -22,14 +22,14 @@ class RidgeTerm(Term):
     data = False
 
     def value(self, ev: Evaluation) -> float:
-        w = ev.problem.settings.ridge_weight
+        w = self.weight(ev.problem.settings)
         omega_x = ev.problem.penalty @ ev.x
         if ev.grad_x is not None:
             ev.grad_x += (2.0 * w / len(ev.x)) * omega_x
         return w * float(ev.x @ omega_x) / len(ev.x)
 
     def hessian_matrix(self, ev: Evaluation) -> sp.spmatrix | None:
-        w = ev.problem.settings.ridge_weight
+        w = self.weight(ev.problem.settings)
         if not w:
             return None
         return (2.0 * w / ev.problem.n_params) * sp.csr_matrix(ev.problem.penalty)
