@@ -129,6 +129,13 @@ class Term:
         return None
 
 
+class FrameTerm(Term):
+    """A data term with one Gauss-Newton block per frame and linearisation term pair (motion, gap)."""
+
+    def n_kron(self, problem, n_lin_terms: int) -> int:
+        return problem.n_frames * n_lin_terms ** 2 if self.weight(problem.settings) else 0
+
+
 def term_pairs(n_terms: int) -> list[tuple[int, int]]:
     """(j, k) index pairs of a product of two sums of ``n_terms`` terms, (0, 0) first."""
     return [(j, k) for j in range(n_terms) for k in range(n_terms)]

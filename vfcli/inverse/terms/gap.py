@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from vfcli.camera.silhouette import crossing_with_gradient
-from vfcli.inverse.terms.base import Evaluation, GroupedLinearization, KronBlocks, Term, term_pairs
+from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, term_pairs
 
 
 def gap_rows(problem, positions: np.ndarray, sil: list, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -56,7 +56,7 @@ def gap_rows(problem, positions: np.ndarray, sil: list, basis: np.ndarray) -> tu
     return np.concatenate(rows), np.concatenate(dists)
 
 
-class GapTerm(Term):
+class GapTerm(FrameTerm):
     """``gap_weight * E_gap`` (module docstring), dimensionless times the weight."""
 
     name = "gap"
@@ -91,9 +91,6 @@ class GapTerm(Term):
                     np.add.at(gs, ee[:, 1], dphi[:, None] * d1)
                     ev.grad_disp[f, :, :2] += gs @ p.camera.matrix
         return weight * gap / n_f
-
-    def n_kron(self, problem, n_lin_terms: int) -> int:
-        return problem.n_frames * n_lin_terms ** 2 if self.weight(problem.settings) else 0
 
     def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
                     out: KronBlocks) -> None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.inverse.terms.base import Evaluation, GroupedLinearization, KronBlocks, Term, term_pairs
+from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, term_pairs
 
 
 def seen_vertex_gram(m_both: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
@@ -71,7 +71,7 @@ def motion_block(seen: np.ndarray, gram: sp.csr_matrix, basis: np.ndarray,
     return out
 
 
-class MotionTerm(Term):
+class MotionTerm(FrameTerm):
     """``motion_weight * E_motion`` (module docstring), (mm/s)^2 times the weight."""
 
     name = "motion"
@@ -90,9 +90,6 @@ class MotionTerm(Term):
                 ev.grad_disp[f + 1] += gd
                 ev.grad_disp[f] -= gd
         return w * motion / n_f
-
-    def n_kron(self, problem, n_lin_terms: int) -> int:
-        return problem.n_frames * n_lin_terms ** 2 if self.weight(problem.settings) else 0
 
     def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
                     out: KronBlocks) -> None:
