@@ -82,8 +82,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.camera.camera import Camera, rasterize
-from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, measured_silhouettes, surface_edges
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import rasterize
+from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, surface_edges
+from vfcli.flow.gap.opening import measured_silhouettes
 from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
 from vfcli.model.response.base import Response
