@@ -4,7 +4,8 @@ model, the Levenberg-Marquardt fit and the uncertainty through the Response prot
 The response under test is written here (not in the package): a quasi-static part plus a slowly relaxing
 part, ``U(t) = R_fast C b(t) + R_slow C (h * b)(t)`` with h a first-order low-pass of time constant tau
 (a crude viscoelastic fold).  Its linearisation has two separable terms, so the Gauss-Newton blocks are
-sums over four term pairs.
+sums over four term pairs.  A second, nonlinear response (a saturating lateral displacement) plugs in
+through its tangent, one separable term per time.
 """
 import numpy as np
 import pytest
@@ -170,3 +171,91 @@ def test_displacement_std_of_the_two_term_response_is_the_exact_propagation(rela
     for f in (0, 4, len(p.sim_times) - 1):
         expected = np.sqrt(np.einsum("ij,jk,ik->i", jac[f], cov, jac[f])).reshape(-1, 3)
         np.testing.assert_allclose(std[f], expected, rtol=1e-8, atol=1e-12 * expected.max())
+
+
+class SaturatingResponse:
+    """A nonlinear response: the lateral (y) displacement of the quasi-static response saturates,
+    ``u_y -> s tanh(u_y / s)`` (a crude contact).  Its tangent at x is separable per time:
+    ``dU(t_i) = D_i R dC b(t_i)`` with D_i (N, 3) the saturation's slope at t_i, i.e. one term
+    (R_i = D_i R, B_i = b masked to t_i) per time of ``times``."""
+
+    def __init__(self, quasi_static: QuasiStaticResponse, scale_mm: float) -> None:
+        self.qs, self.s = quasi_static, scale_mm
+        self.n_params, self.n_vertices = quasi_static.n_params, quasi_static.n_vertices
+
+    def _slope(self, u):
+        d = np.ones_like(u)
+        d[..., 1] = 1.0 - np.tanh(u[..., 1] / self.s) ** 2
+        return d
+
+    def displacements(self, x, times):
+        u = self.qs.displacements(x, times)
+        u[..., 1] = self.s * np.tanh(u[..., 1] / self.s)
+        return u
+
+    def adjoint(self, g, times, x=None):
+        return self.qs.adjoint(g * self._slope(self.qs.displacements(x, times)), times)
+
+    def linearize(self, x, times):
+        d = self._slope(self.qs.displacements(x, times))                 # (T, N, 3)
+        b = self.qs.time_basis(times)
+        terms = []
+        for i in range(len(b)):
+            bi = np.zeros_like(b)
+            bi[i] = b[i]
+            terms.append(SeparableTerm(self.qs.basis_ * d[i][:, :, None], bi))
+        return Linearization(tuple(terms))
+
+    def penalty_operator(self):
+        return self.qs.penalty_operator()
+
+
+@pytest.fixture(scope="module")
+def saturating():
+    model = elastic_model()
+    n_frames = 6
+    fps = n_frames * F0_HZ
+    times = 0.002 + np.arange(n_frames) / fps
+    field = ForceField(ForceFieldSpec((2, 2, 3), ("inferior",)), (times[0], times[-1] + 1.0 / fps))
+    resp = SaturatingResponse(QuasiStaticResponse(model, field), scale_mm=0.08)
+    x_true = true_controls(field, seed=2)
+    meas = synthesize_measurement(model.mesh, CAMERA, resp, times, x_true, SETTINGS)
+    return model, resp, meas, x_true
+
+
+def test_a_nonlinear_response_plugs_in_through_its_tangent(saturating):
+    """Gradient and Gauss-Newton model use the tangent at x: the gradient matches central differences of
+    the frozen E, the linearization is the response's derivative, and a Levenberg-Marquardt fit from zero
+    recovers the superior motion; the posterior propagates through the tangent."""
+    model, resp, meas, x_true = saturating
+    p = Problem(model.mesh, CAMERA, resp, meas, SETTINGS)
+    u_true = p.displacements(x_true)
+    lin_u = resp.qs.displacements(x_true, p.sim_times)
+    assert np.abs(u_true - lin_u).max() > 0.2 * np.abs(lin_u).max()      # really nonlinear at the truth
+    x0 = 0.7 * x_true
+    lin = resp.linearize(x0, p.sim_times)
+    dx = np.random.default_rng(3).normal(0, 1e-3, p.n_params)
+    np.testing.assert_allclose(lin.apply(dx), (p.displacements(x0 + dx) - p.displacements(x0 - dx)) / 2,
+                               rtol=1e-6, atol=1e-8 * np.abs(lin.apply(dx)).max())
+    frames = p.freeze(x0)
+    _, grad = p.frozen_value_and_grad(x0, frames)
+    for d in np.random.default_rng(4).normal(size=(3, p.n_params)):
+        fd = (p.frozen_value(x0 + 0.1 * d, frames).total - p.frozen_value(x0 - 0.1 * d, frames).total) / 0.2
+        assert grad @ d == pytest.approx(fd, rel=1e-5)
+    res = fit(p, method="gauss-newton", max_iter=30, options=FitOptions(ftol=1e-10))
+    total = res.history["total"]
+    assert np.all(np.diff(total) < 0) and total[-1] < 1e-3 * total[0]
+    sup = np.unique(model.mesh.faces[model.mesh.face_tag == TAG_SUPERIOR])
+    vt = np.diff(u_true, axis=0)[:, sup]
+    vf = np.diff(p.displacements(res.x), axis=0)[:, sup]
+    assert np.linalg.norm(vf - vt) / np.linalg.norm(vt) < 0.05
+    gn = gauss_newton_model(p.with_weights(ridge_weight=1e-7), res.x)
+    post = posterior(gn, ResidualCorrelation(5000, 1.0, 1.0, 5000.0))
+    std = displacement_std(post.covariance, gn.linearization)
+    h = 1e-4
+    jac = np.stack([((p.displacements(res.x + h * e) - p.displacements(res.x - h * e)) / (2 * h)).reshape(len(p.sim_times), -1)
+                    for e in np.eye(p.n_params)], axis=-1)
+    cov = post.covariance.dense()
+    for f in (1, 4):
+        expected = np.sqrt(np.einsum("ij,jk,ik->i", jac[f], cov, jac[f])).reshape(-1, 3)
+        np.testing.assert_allclose(std[f], expected, rtol=1e-5, atol=1e-9 * expected.max())
