@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vfcli.inverse.linearization import BlockMatrix, QuadraticModel
-from vfcli.inverse.problem import Terms
+from vfcli.inverse.block_matrix import BlockMatrix
+from vfcli.inverse.linearization import QuadraticModel
+from vfcli.inverse.terms import Terms
 from vfcli.inverse.regularization import lcurve
 
 
