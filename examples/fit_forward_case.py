@@ -56,8 +56,9 @@ x = result.x
 # Laplace posterior at the optimum, scaled by the motion residuals' own size and correlation
 u = problem.displacements(x)
 frames = problem.freeze(x, u)
-post = posterior(gauss_newton_model(problem, x, frames, u), effective_sample_size(problem.motion_residuals(x, frames)))
-std = displacement_std(post.covariance, response.basis_, response.time_basis(problem.sim_times))  # (F + 1, N, 3) mm
+model_gn = gauss_newton_model(problem, x, frames, u)
+post = posterior(model_gn, effective_sample_size(problem.motion_residuals(x, frames)))
+std = displacement_std(post.covariance, model_gn.linearization)  # (F + 1, N, 3) mm
 
 inferior = model.mesh.node_side == SIDE_INFERIOR
 u_true = problem.displacements(x_true)
