@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -18,7 +18,22 @@ from vfcli.errors import ConfigError
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    # allow_inf_nan=False: NaN/inf in any float field (tuples too) is a config error at load time
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+#: A pixel coordinate, px (bounded: a camera frame is at most a few thousand px).
+_Px = Annotated[float, Field(ge=-1e6, le=1e6)]
+#: An entry of the LDV affine map (mm per mm or mm).
+_AffineEntry = Annotated[float, Field(ge=-1e4, le=1e4)]
+#: A pixel index or size of a region of interest, px.
+_RoiInt = Annotated[int, Field(ge=0, le=10**6)]
+#: A per-fold mounting offset, mm.
+_OffsetMm = Annotated[float, Field(ge=-10, le=10)]
+#: A per-fold mounting rotation, degrees.
+_RotDeg = Annotated[float, Field(ge=-90, le=90)]
+#: A number of Legendre shapes (1..8: a 3 mm medial surface meshed at 1-2 mm resolves no more).
+_Shapes = Annotated[int, Field(ge=1, le=8)]
 
 
 class CameraConfig(_Section):
@@ -27,7 +42,7 @@ class CameraConfig(_Section):
     fps_hz: float | None = Field(None, gt=0, le=1e7, description="Frame rate in Hz; null: from the video's metadata")
     px_per_mm: float = Field(20.0, gt=0, le=1000, description="Image scale from a calibration target, px/mm")
     rotation_deg: float = Field(0.0, ge=-180, le=180, description="In-plane rotation of the model frame in the image, degrees")
-    offset_px: tuple[float, float] = Field(
+    offset_px: tuple[_Px, _Px] = Field(
         (0.0, 0.0), description="Pixel (col, row) of the model origin (x = 0, y = 0), px"
     )
 
@@ -35,7 +50,7 @@ class CameraConfig(_Section):
 class LdvFrameConfig(_Section):
     """How the vibrometer's point coordinates map into the camera frame (mm)."""
 
-    affine: tuple[tuple[float, float, float], tuple[float, float, float]] = Field(
+    affine: tuple[tuple[_AffineEntry, _AffineEntry, _AffineEntry], tuple[_AffineEntry, _AffineEntry, _AffineEntry]] = Field(
         ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
         description="2x3 affine map from scan (x, y) in mm to camera-frame (x, y) in mm",
     )
@@ -46,7 +61,7 @@ class IngestHscConfig(_Section):
 
     first_frame: int = Field(0, ge=0, le=10**9, description="First frame to ingest (index)")
     n_frames: int | None = Field(None, ge=1, le=10**9, description="Number of frames to ingest; null: to the end")
-    roi_px: tuple[int, int, int, int] | None = Field(
+    roi_px: tuple[_RoiInt, _RoiInt, _RoiInt, _RoiInt] | None = Field(
         None, description="Region of interest (col0, row0, width, height) in px; null: whole frame"
     )
     pressure_group: str | None = Field(None, description="TDMS group of the pressure; null: the only one")
@@ -66,6 +81,9 @@ class IngestLdvConfig(_Section):
     grid_cols: int = Field(22, ge=1, le=1000, description="Columns of the scan grid (points)")
     velocity_id1: str = Field("Response Time Trace", description="UFF id1 of the vibrometer channel")
     reference_id1: str = Field("Reference Time Trace", description="UFF id1 of the pressure reference channel")
+    length_unit: Literal["m", "cm", "mm", "um", "in"] | None = Field(
+        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: such a "
+        "file is refused (the UFF standard has no default unit; files with 164 and CSV/MAT state their own)")
 
 
 class SyncConfig(_Section):
@@ -129,9 +147,9 @@ class MeshConfig(_Section):
     depth_mm: float = Field(8.0, gt=2, le=20, description="D: medial-lateral depth of one fold, mm")
     length_mm: float = Field(15.0, gt=2, le=40, description="L: anterior-posterior length, mm")
     gap_mm: float = Field(0.1, ge=0, le=2, description="Pre-phonatory gap between the folds, mm")
-    offset_y_mm: tuple[float, float] = Field((0.0, 0.0), description="Per-fold (left, right) lateral mounting offset, mm")
-    offset_z_mm: tuple[float, float] = Field((0.0, 0.0), description="Per-fold (left, right) vertical mounting offset, mm")
-    rotation_deg: tuple[float, float] = Field(
+    offset_y_mm: tuple[_OffsetMm, _OffsetMm] = Field((0.0, 0.0), description="Per-fold (left, right) lateral mounting offset, mm")
+    offset_z_mm: tuple[_OffsetMm, _OffsetMm] = Field((0.0, 0.0), description="Per-fold (left, right) vertical mounting offset, mm")
+    rotation_deg: tuple[_RotDeg, _RotDeg] = Field(
         (0.0, 0.0), description="Per-fold (left, right) mounting rotation about the x axis, degrees"
     )
     target_edge_mm: float = Field(1.5, ge=0.1, le=5, description="Target tetrahedron edge length, mm")
@@ -180,7 +198,7 @@ class OptimizeConfig(_Section):
     )
     pressure_time_degree: int = Field(4, ge=0, le=30, description="Degree of the free Bernstein correction in time of "
                                       "the pressure load model (1)")
-    pressure_medial_shapes: tuple[int, int] = Field(
+    pressure_medial_shapes: tuple[_Shapes, _Shapes] = Field(
         (3, 2), description="Pressure load model: Legendre shapes on the medial surface (in height, even ones along the fold)"
     )
     pressure_inferior_linear: bool = Field(False, description="Pressure load model: add a linear variation along the "
@@ -283,6 +301,14 @@ def _parse_value(text: str) -> Any:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except (RecursionError, ValueError, MemoryError) as exc:  # nested too deep, a 5000-digit integer
+        raise ConfigError(f"--set value {text[:40]!r}...: {_toml_limit(exc)}") from None
+
+
+def _toml_limit(exc: BaseException) -> str:
+    if isinstance(exc, RecursionError):
+        return "nested too deep to be a config"
+    return f"not a config value ({str(exc)[:120]})"
 
 
 def apply_overrides(base: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
@@ -324,11 +350,17 @@ def load_config(
     if path is not None:
         path = Path(path)
         try:
+            if path.exists() and not path.is_file():
+                raise ConfigError(f"{path}: config is not a regular file")
             data = tomllib.loads(path.read_text())
         except FileNotFoundError:
             raise ConfigError(f"{path}: config file not found") from None
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read the config ({exc.strerror or exc})") from None
+        except (RecursionError, ValueError, MemoryError) as exc:  # 100,000-deep nesting, 5,000-digit integers
+            raise ConfigError(f"{path}: {_toml_limit(exc)}") from None
         stored = _validate(data, str(path))
     elif stored_json:
         stored = _validate(json.loads(stored_json), "stored recording config")
