@@ -9,7 +9,8 @@ Exit codes
 1  internal error (a bug: please report it with the traceback)
 2  usage or config error (bad option, invalid config value)
 3  bad input data (unreadable, truncated, inconsistent or non-physical raw files)
-4  store locked by another writer, or not a vfcli store / incompatible version
+4  store locked by another writer, not writable (permissions, a lock path that is a
+   directory), or not a vfcli store / incompatible version
 5  a stage this command needs is missing or incomplete (run the upstream command first)
 6  not implemented yet
 """
@@ -50,6 +51,12 @@ class InputDataError(VfcliError):
 
 class StoreLockedError(VfcliError):
     """Another process is writing the store (exit 4)."""
+
+    exit_code = EXIT_STORE
+
+
+class StoreAccessError(VfcliError):
+    """The store (its folder or lock file) cannot be written: permissions, a directory in the way (exit 4)."""
 
     exit_code = EXIT_STORE
 

@@ -50,7 +50,7 @@ import numpy as np
 from vfcli import __version__
 
 from vfcli.store import layout
-from vfcli.errors import ConfigError, MissingStageError, StoreFormatError, StoreLockedError
+from vfcli.errors import ConfigError, MissingStageError, StoreAccessError, StoreFormatError, StoreLockedError
 from vfcli.store.chunks import NBIT_BITS, ChunkCodec, encode_frames, unpack_nbit12
 from vfcli.store.provenance import same_inputs, stage_digest
 
@@ -209,6 +209,8 @@ def _now() -> str:
 
 
 def _open_h5(path: Path, mode: str) -> h5py.File:
+    if path.exists() and not path.is_file():  # a FIFO would block the open; a directory is no store
+        raise StoreFormatError("not a regular file, so not a store", path)
     try:
         return h5py.File(path, mode)
     except OSError as exc:
@@ -654,8 +656,13 @@ class Store:
 
     @contextmanager
     def _lock(self) -> Iterator[None]:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(_lock_path(self.path), os.O_RDWR | os.O_CREAT, 0o644)
+        try:  # a read-only folder, an unwritable lock file, a lock path that is a directory
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            if not os.access(self.path.parent, os.W_OK | os.X_OK):
+                raise PermissionError(errno.EACCES, "folder not writable", str(self.path.parent))
+            fd = os.open(_lock_path(self.path), os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise StoreAccessError(f"cannot write the store: {exc.strerror or exc}: {exc.filename}", self.path) from None
         try:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
