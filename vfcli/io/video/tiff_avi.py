@@ -192,6 +192,7 @@ def _imread(path: Path) -> np.ndarray:
         if img is None:
             raise InputDataError("unreadable image (not a PNG/BMP or corrupt)", path)
     if img.ndim == 3:
+        _check_dtype(img.dtype, path)  # OpenCV converts 8/16-bit unsigned colour only
         if img.shape[2] == 4:
             img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
         elif img.shape[2] == 3:
