@@ -158,7 +158,7 @@ def test_tdms_channel_shorter_than_its_group_is_refused(tmp_path):
                          ChannelObject("daq", "p_sub", _pressure_samples(500), properties=props),
                          ChannelObject("daq", "trigger", np.zeros(500), properties=props)])
         w.write_segment([ChannelObject("daq", "trigger", np.zeros(500), properties=props)])
-    with pytest.raises(InputDataError, match="holds 500 samples, another channel of the group 1000"):
+    with pytest.raises(InputDataError, match="holds 500 samples, another channel of the group at the same rate 1000"):
         read_pressure(path, channel="p_sub")
 
 
@@ -297,6 +297,13 @@ def test_uff_without_units_record_via_the_cli(tmp_path):
     assert r.returncode == 0, r.stderr
 
 
+def test_scan_with_an_absurd_pressure_reference_is_refused(tmp_path):
+    scan = _scan()
+    scan.reference *= 1e305
+    with pytest.raises(InputDataError, match="ref.uff: reference pressure reaches 1.1[0-9]*e\\+308 Pa"):
+        read_ldv(_pyuff(tmp_path / "ref.uff", scan), expected_grid=(3, 4))
+
+
 def test_mat_with_text_node_ids_is_an_input_error(tmp_path):
     from scipy.io import savemat
 
@@ -419,6 +426,17 @@ def test_unreadable_mraw_partner_is_one_line_exit_3(tmp_path):
         os.chmod(mraw, 0o644)
     _assert_refused(r, 3, "rec.mraw", "cannot be read: Permission denied")
     assert not (tmp_path / "new.h5").exists()
+
+
+def test_image_folder_with_a_32_bit_colour_image_is_an_input_error(tmp_path):
+    import tifffile
+
+    d = tmp_path / "frames"
+    d.mkdir()
+    tifffile.imwrite(d / "f1.tif", np.ones((4, 5, 3), np.int32), photometric="rgb")
+    with pytest.raises(InputDataError, match="f1.tif: unsupported pixel type int32"):
+        with open_video(d) as v:
+            v.read()
 
 
 def test_info_on_a_fifo_refuses_instead_of_hanging(tmp_path):

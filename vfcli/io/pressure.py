@@ -244,22 +244,24 @@ def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | No
 def _check_tdms_complete(p: Path, tdms, gname: str, ch, n: int, warned: list[str]) -> None:
     """Refuse a channel with fewer samples than the file promises (a truncated TDMS).
 
-    npTDMS reads a truncated last segment with only a warning; the channel then holds fewer
-    samples than its ``wf_samples`` property (per segment, as LabVIEW writes it) or than the
-    other channels of its group, which a DAQ samples together.
+    npTDMS reads a truncated last segment with only a logged warning ("less data than
+    expected"), which vfcli turns into a refusal; a channel shorter than another channel of
+    its group at the same sample interval (a DAQ samples them together) is refused too.
     """
     name = f"{gname}/{ch.name}"
     trunc = [w for w in warned if "less data than expected" in w or "not a multiple of the chunk" in w]
     if trunc:
         raise InputDataError(f"channel {name} is truncated ({n} samples read; npTDMS: {trunc[0][:120]})", p)
     try:
-        promised = [len(c) for c in tdms[gname].channels() if c.name != ch.name]
+        dt = ch.properties.get("wf_increment")
+        promised = [len(c) for c in tdms[gname].channels()
+                    if c.name != ch.name and c.properties.get("wf_increment") == dt]
     except Exception:  # noqa: BLE001 - lengths are a plausibility check only
         promised = []
     longest = max(promised, default=n)
     if longest > n:
-        raise InputDataError(f"channel {name} holds {n} samples, another channel of the group "
-                             f"{longest}: truncated file?", p)
+        raise InputDataError(f"channel {name} holds {n} samples, another channel of the group at the same "
+                             f"rate {longest}: truncated file?", p)
 
 
 def write_pressure_tdms(path: str | Path, samples_pa: np.ndarray, fs: float, t0: float = 0.0,
@@ -468,7 +470,6 @@ def _check_wav_chunks(p: Path, riff: bytes) -> None:
 
 
 def _read_wav(p: Path, channel: str | int | None, pa_per_fs: float) -> PressureRecord:
-
     from scipy.io import wavfile
 
     if not (np.isfinite(pa_per_fs) and pa_per_fs > 0):
