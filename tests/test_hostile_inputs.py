@@ -397,23 +397,23 @@ def test_store_in_a_read_only_folder_is_one_line_exit_4(tmp_path, hsc_store):
     assert store.read_bytes() == before
 
 
-def test_unwritable_lock_file_is_one_line_exit_4(tmp_path, hsc_store):
-    store, video, before = hsc_store
-    lock = tmp_path / ".rec.h5.lock"
-    lock.touch()
+def _lock_unwritable(lock: Path) -> str:
     os.chmod(lock, 0o444)
-    r = _run_without_dac("ingest-hsc", "-q", "--force", store, video)
-    _assert_refused(r, 4, "rec.h5", "cannot write the store: Permission denied", ".rec.h5.lock")
-    assert store.read_bytes() == before
+    return "cannot write the store: Permission denied"
 
 
-def test_lock_path_that_is_a_directory_is_one_line_exit_4(tmp_path, hsc_store):
-    store, video, before = hsc_store
-    lock = tmp_path / ".rec.h5.lock"
+def _lock_a_directory(lock: Path) -> str:
     lock.unlink()
     lock.mkdir()
-    r = run_vfcli("ingest-hsc", "-q", "--force", store, video)
-    _assert_refused(r, 4, "rec.h5", "cannot write the store: Is a directory")
+    return "cannot write the store: Is a directory"
+
+
+@pytest.mark.parametrize("spoil", [_lock_unwritable, _lock_a_directory])
+def test_lock_file_that_cannot_be_opened_is_one_line_exit_4(tmp_path, hsc_store, spoil):
+    store, video, before = hsc_store
+    says = spoil(tmp_path / ".rec.h5.lock")   # the lock file the first ingest left
+    r = _run_without_dac("ingest-hsc", "-q", "--force", store, video)
+    _assert_refused(r, 4, "rec.h5", says, ".rec.h5.lock")
     assert store.read_bytes() == before
 
 
