@@ -27,6 +27,7 @@ class _Section(BaseModel):
 _Px = Annotated[float, Field(ge=-1e6, le=1e6)]
 #: An entry of the LDV affine map (mm per mm or mm).
 _AffineEntry = Annotated[float, Field(ge=-1e4, le=1e4)]
+_AffineRow = tuple[_AffineEntry, _AffineEntry, _AffineEntry]
 #: A pixel index or size of a region of interest, px.
 _RoiInt = Annotated[int, Field(ge=0, le=10**6)]
 #: A per-fold mounting offset, mm.
@@ -51,7 +52,7 @@ class CameraConfig(_Section):
 class LdvFrameConfig(_Section):
     """How the vibrometer's point coordinates map into the camera frame (mm)."""
 
-    affine: tuple[tuple[_AffineEntry, _AffineEntry, _AffineEntry], tuple[_AffineEntry, _AffineEntry, _AffineEntry]] = Field(
+    affine: tuple[_AffineRow, _AffineRow] = Field(
         ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
         description="2x3 affine map from scan (x, y) in mm to camera-frame (x, y) in mm",
     )

@@ -1,29 +1,29 @@
 """Plausible ranges of what the instruments' files may state, and the checks against them.
 
-A value outside its range cannot come from the rig of /work/shared/reference/physical-setup.md
-(or from any rig vfcli is built for): the readers refuse it with one line and exit 3 instead
-of storing it. The ranges are deliberately wide (orders of magnitude around the rig's values)
+A value outside its range cannot come from the rig of the reference notes "The physical
+set-up: numbers to build with" (or from any rig vfcli is built for): the readers refuse it
+with one line and exit 3 instead of storing it. The ranges are deliberately wide (orders of magnitude around the rig's values)
 so that only impossible or mis-scaled values are refused; docs/input-checks.md lists them.
 
-Sources of each range (physical-setup.md unless said otherwise):
+Sources of each range (those notes, and "The instruments' file formats", unless said otherwise):
 
 * video frame rate: the SA-X2 records 10,000 frames/s; high-speed cameras reach about 1e6
   frames/s at small frames, ``camera.fps_hz`` allows up to 1e7. Below 1 frame/s a video
   cannot show a 50-500 Hz phonation.
 * Photron start frame (frames from the trigger): a camera counter, bounded like
-  ``ingest_hsc.first_frame`` (1e9 frames: a day at 10 kHz).
+  ``ingest_hsc.first_frame`` (1e9 frames: more than a day at 10 kHz).
 * vibrometer sampling rate: 50 kHz in the paper. `sync` fits ``sync.n_harmonics`` (10) harmonics
   of f0 up to ``sync.f0_max_hz`` (500 Hz), so anything below 10 kHz cannot be this kind of
-  recording (a rate written 1 kHz instead of 50 kHz is refused); the PSV-500's acquisition
-  tops out at 25.6 MHz.
+  recording (a rate written 1 kHz instead of 50 kHz is refused). Upper bound 25.6 MHz: an
+  estimate far above any vibrometer acquisition rate (est.).
 * vibrometer point extent: 374 points on the superior surface of two folds 15-17 mm long and
   5-10 mm deep each; a scan spans a few mm to about 35 mm. Allowed: 0.2-100 mm, so a file in
   metres read as mm (x 1e-3) or mm read as metres (x 1e3), or coordinates scaled by 1e6,
   is refused.
 * vibrometer velocity: superior-surface velocities 0.1-0.5 m/s, closing velocities up to
-  1.6 m/s; the PSV-500's largest range is 30 m/s. Allowed: |v| <= 100 m/s.
-* pressure: subglottal pressure 300-3000 Pa (the Kulite XCQ-093 reads up to a few bar).
-  Allowed: |p| <= 1e6 Pa (10 bar); the sampling rate 1 Hz-10 MHz (the paper: 50 kHz).
+  1.6 m/s. Allowed: |v| <= 100 m/s, far above any vocal-fold velocity (est.).
+* pressure: subglottal pressure 300-3000 Pa. Allowed: |p| <= 1e6 Pa (10 bar, est.: no
+  phonation rig holds it); the sampling rate 1 Hz-10 MHz (the paper: 50 kHz).
 """
 from __future__ import annotations
 

@@ -47,11 +47,11 @@ import numpy as np
 
 from vfcli.errors import InputDataError
 from vfcli.io._common import check_finite, require_file
+from vfcli.io.ldv.dropouts import detect_dropouts
+from vfcli.io.ldv.grid import infer_grid
 from vfcli.io.limits import (LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S, MAX_ABS_PRESSURE_PA,
                              check_abs_max, check_ldv_extent, check_range)
 from vfcli.io.pressure import PA_PER_UNIT
-from vfcli.io.ldv.dropouts import detect_dropouts
-from vfcli.io.ldv.grid import infer_grid
 
 logger = logging.getLogger(__name__)
 
@@ -182,7 +182,9 @@ def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_uni
         check_finite(ref, path, "reference")
         ref_key = re.sub(r"[\s_]", "", reference_unit or "").lower()
         if ref_key in PA_PER_UNIT:  # a pressure reference: the same bound as the pressure readers
-            check_abs_max(ref * PA_PER_UNIT[ref_key], MAX_ABS_PRESSURE_PA, "reference pressure", "Pa", path)
+            with np.errstate(over="ignore"):
+                ref_pa = ref * PA_PER_UNIT[ref_key]
+            check_abs_max(ref_pa, MAX_ABS_PRESSURE_PA, "reference pressure", "Pa", path)
     if t0 is not None:
         t0 = np.asarray(t0, dtype=np.float64).reshape(-1)
         if t0.shape != (p,):
