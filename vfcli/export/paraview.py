@@ -1,0 +1,74 @@
+"""The reconstructed motion of a run as ParaView time series: transient VTKHDF and .pvd + .vtu.
+
+Point data per step (units in the array names, ParaView shows them as they are):
+``displacement_mm`` (N, 3), ``displacement_magnitude_mm``, ``velocity_mm_per_s`` (N, 3, central
+differences of the displacements over the model times), ``displacement_std_mm`` (N, 3, the
+stated standard deviation, when the run has one) and ``load_uN`` (N, 3, the applied nodal
+surface load, Pa mm^2 = uN, when it could be evaluated). Points are the deformed positions
+(rest + displacement, mm), so ParaView's time slider plays the motion without a filter.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from vfcli.model.mesh import FoldMesh
+
+
+def motion_fields(times: np.ndarray, displacements: np.ndarray, std: np.ndarray | None = None,
+                  load: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Point data of every step.
+
+    times : (T,) s; displacements : (T, N, 3) mm; std : (T, N, 3) mm or None; load : (T, N, 3) uN or None.
+    Returns name -> (T, N) or (T, N, 3) float32.
+    """
+    d = np.asarray(displacements, dtype=np.float64)
+    out = {"displacement_mm": d, "displacement_magnitude_mm": np.linalg.norm(d, axis=2)}
+    out["velocity_mm_per_s"] = np.gradient(d, np.asarray(times, dtype=float), axis=0) if len(times) > 1 else np.zeros_like(d)
+    if std is not None:
+        out["displacement_std_mm"] = np.asarray(std, dtype=np.float64)
+    if load is not None:
+        out["load_uN"] = np.asarray(load, dtype=np.float64)
+    return {k: v.astype(np.float32) for k, v in out.items()}
+
+
+def write_vtkhdf(path: str | Path, mesh: FoldMesh, times: np.ndarray, displacements: np.ndarray,
+                 fields: dict[str, np.ndarray]) -> Path:
+    """Transient VTKHDF (``.vtkhdf``): tetrahedra once, deformed points and point data per step."""
+    from vfcli.store.vtkhdf import write_transient_tets
+
+    pts = mesh.nodes[None].astype(np.float64) + np.asarray(displacements, dtype=np.float64)
+    write_transient_tets(path, pts, mesh.tets, times, fields)
+    return Path(path)
+
+
+def write_pvd(path: str | Path, mesh: FoldMesh, times: np.ndarray, displacements: np.ndarray,
+              fields: dict[str, np.ndarray]) -> list[Path]:
+    """A ``.pvd`` collection of one ``.vtu`` per step (in ``<stem>/``), for readers older than VTKHDF 2."""
+    import pyvista as pv
+
+    path = Path(path)
+    folder = path.with_suffix("")
+    folder.mkdir(parents=True, exist_ok=True)
+    cells = {pv.CellType.TETRA: np.asarray(mesh.tets, dtype=np.int64)}
+    written, entries = [], []
+    for k, t in enumerate(np.asarray(times, dtype=float)):
+        grid = pv.UnstructuredGrid(cells, (mesh.nodes + displacements[k]).astype(np.float64))
+        for name, v in fields.items():
+            grid.point_data[name] = v[k]
+        grid.point_data["fold"] = _node_fold(mesh)
+        vtu = folder / f"step_{k:04d}.vtu"
+        grid.save(vtu, binary=True)
+        written.append(vtu)
+        entries.append(f'    <DataSet timestep="{t:.9g}" group="" part="0" file={quoteattr(f"{folder.name}/{vtu.name}")}/>')
+    path.write_text('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+                    "  <Collection>\n" + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")
+    return [path, *written]
+
+
+def _node_fold(mesh: FoldMesh) -> np.ndarray:
+    fold = np.zeros(mesh.n_nodes, np.int32)
+    fold[mesh.fold_nodes(1)] = 1
+    return fold

@@ -1,0 +1,339 @@
+"""`vfcli export FILE --to DIR`: ParaView time series, the model over the video, figures, tables.
+
+Reads the store (never writes it) and writes derived files into DIR, with ``export.json``
+listing what was written from which store groups (their digests). Rerun on an unchanged
+store with the same options, the export says so and does nothing.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from vfcli import __version__
+from vfcli.camera.camera import Camera, interpolate, rasterize
+from vfcli.camera.pose import camera_to_model
+from vfcli.errors import ConfigError, MissingStageError
+from vfcli.export import figures, paraview, video
+from vfcli.model.mesh import SIDE_SUPERIOR, FoldMesh
+from vfcli.store.runs import OptimizeRun, read_mesh, read_run, run_names, stage_digests
+from vfcli.store.transaction import Store, StoreReader
+
+log = logging.getLogger(__name__)
+
+WHAT = ("paraview", "video", "figures", "tables")
+MANIFEST = "export.json"
+
+
+@dataclass
+class ExportResult:
+    """What an export did (printed by the CLI like a stage result)."""
+
+    stage: str
+    status: Literal["written", "up-to-date"]
+    summary: dict[str, Any] = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"stage": self.stage, "status": self.status, **self.summary}
+
+
+def parse_what(text: str) -> tuple[str, ...]:
+    """``"paraview,video"`` -> ('paraview', 'video'); ConfigError naming an unknown item."""
+    items = tuple(dict.fromkeys(s.strip() for s in text.split(",") if s.strip()))
+    bad = [s for s in items if s not in WHAT]
+    if bad or not items:
+        raise ConfigError(f"--what {text!r}: choose from {', '.join(WHAT)} (comma separated)")
+    return items
+
+
+def run_camera(run: OptimizeRun, shape: tuple[int, int]) -> Camera:
+    """The camera pose a run was fitted with, on frames of ``shape`` (rows, cols)."""
+    a = run.attrs
+    return Camera(float(a["px_per_mm"]), float(a["camera_rotation_deg"]),
+                  tuple(np.asarray(a["camera_offset_px"], float)), shape[1], shape[0])
+
+
+def nearest_frames(frame_time: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Index of the frame nearest each time (s)."""
+    i = np.clip(np.searchsorted(frame_time, times), 1, len(frame_time) - 1)
+    return np.where(np.abs(frame_time[i - 1] - times) <= np.abs(frame_time[i] - times), i - 1, i)
+
+
+def surface_velocity_at(camera: Camera, mesh: FoldMesh, run: OptimizeRun, pixels: np.ndarray) -> np.ndarray:
+    """(T, P, 3) mm/s: the model's velocity (model frame) of the surface point seen at each pixel (col, row).
+
+    NaN where the model's surface does not cover the pixel at that step.
+    """
+    vel = np.gradient(run.displacements.astype(float), run.sim_time, axis=0)
+    px = np.round(np.asarray(pixels, float)).astype(int)
+    inside = (px[:, 0] >= 0) & (px[:, 0] < camera.width) & (px[:, 1] >= 0) & (px[:, 1] < camera.height)
+    out = np.full((len(run.sim_time), len(px), 3), np.nan)
+    for k in range(len(run.sim_time)):
+        raster = rasterize(camera, mesh.nodes + run.displacements[k], mesh.faces)
+        img = interpolate(raster, vel[k])
+        out[k, inside] = img[px[inside, 1], px[inside, 0]]
+    return out
+
+
+def screen_points(camera: Camera, mesh: FoldMesh) -> tuple[np.ndarray, list[str]]:
+    """One screen point per fold: the superior-surface node nearest (u, v) = (0.5, 0.5), as (col, row)."""
+    from vfcli.export.figures import FOLD_NAMES
+
+    pts, labels = [], []
+    for k in (0, 1):
+        nodes = np.intersect1d(mesh.fold_nodes(k), np.flatnonzero(mesh.node_side == SIDE_SUPERIOR))
+        if nodes.size == 0:
+            continue
+        n = nodes[np.argmin(np.sum((mesh.uv[nodes] - 0.5) ** 2, axis=1))]
+        p = camera.project(mesh.nodes[n])
+        pts.append(p)
+        labels.append(f"{FOLD_NAMES[k]} fold, mid superior surface (px {p[0]:.0f}, {p[1]:.0f})")
+    return np.array(pts), labels
+
+
+class _Export:
+    """One export: the open store, the runs and the output folder."""
+
+    def __init__(self, reader: StoreReader, runs: list[OptimizeRun], out: Path, times_ms: list[float] | None,
+                 fps: float) -> None:
+        self.r, self.runs, self.out, self.fps = reader, runs, out, fps
+        self.times_ms = times_ms
+        self.mesh = read_mesh(reader)
+        self.frames = reader.frames("hsc", "frames")
+        self.frame_time = np.asarray(reader.read("hsc", "frame_time"), float)
+        self.shape = tuple(self.frames[0].shape)
+        self.cameras = {run.name: run_camera(run, self.shape) for run in runs}
+        self.files: list[Path] = []
+        self.notes: list[str] = []
+
+    # -- ParaView ---------------------------------------------------------
+    def paraview(self) -> None:
+        d = self.out / "paraview"
+        d.mkdir(parents=True, exist_ok=True)
+        for run in self.runs:
+            fields = paraview.motion_fields(run.sim_time, run.displacements, run.displacement_std)
+            self.files.append(paraview.write_vtkhdf(d / f"{run.name}.vtkhdf", self.mesh, run.sim_time,
+                                                    run.displacements, fields))
+            self.files += paraview.write_pvd(d / f"{run.name}.pvd", self.mesh, run.sim_time, run.displacements, fields)
+
+    # -- the model over the video -----------------------------------------
+    def overlay_frames(self, scale: int = 2) -> tuple[list[np.ndarray], list[float]]:
+        """Side-by-side overlay images (one panel per run) at the first run's model times."""
+        sup = self.mesh.faces[self.mesh.face_tag == 2]
+        t_ref = self.runs[0].sim_time
+        all_idx = np.concatenate([nearest_frames(self.frame_time, r.sim_time) for r in self.runs])
+        sample = self.frames[np.unique(all_idx)].astype(float)
+        lo, hi = np.percentile(sample, [0.5, 99.5])
+        vmax = max(float(np.max(np.linalg.norm(r.displacements, axis=2)[:, np.unique(sup)])) for r in self.runs)
+        images, times = [], []
+        for k in range(len(t_ref)):
+            panels = []
+            for run in self.runs:
+                kk = min(k, len(run.sim_time) - 1)
+                fi = int(nearest_frames(self.frame_time, run.sim_time[kk:kk + 1])[0])
+                base = video.gray_to_rgb(self.frames[fi], lo, hi, scale)
+                verts = self.mesh.nodes + run.displacements[kk]
+                mag = np.linalg.norm(run.displacements[kk], axis=1)
+                img = video.draw_mesh(base, self.cameras[run.name], verts, sup, mag, vmax, scale)
+                panels.append(video.annotate(img, [f"run {run.name}", f"t = {1e3 * run.sim_time[kk]:.2f} ms",
+                                                   "colour: |displacement|"], vmax))
+            images.append(video.side_by_side(panels))
+            times.append(float(t_ref[k]))
+        return images, times
+
+    def video(self) -> None:
+        d = self.out / "video"
+        d.mkdir(parents=True, exist_ok=True)
+        images, times = self.overlay_frames()
+        self.files.append(video.write_mp4(d / "overlay.mp4", images, self.fps))
+        if self.times_ms:
+            chosen = sorted({int(np.argmin(np.abs(1e3 * np.asarray(times) - t))) for t in self.times_ms})
+        else:
+            chosen = sorted(set(np.linspace(0, len(images) - 1, min(4, len(images))).round().astype(int)))
+        for k in chosen:
+            self.files.append(video.write_png(d / f"overlay_t{1e3 * times[k]:07.3f}ms.png", images[k]))
+
+    # -- figures ----------------------------------------------------------
+    def figures(self) -> None:
+        d = self.out / "figures"
+        d.mkdir(parents=True, exist_ok=True)
+        self.files += figures.convergence({r.name: r.history for r in self.runs}, d / "fig7_convergence")
+        self.files += self._fig8(d)
+        if self.r.has_stage("flow"):
+            t = np.asarray(self.r.read("flow", "frame_time"), float)
+            windows = {r.name: (float(r.sim_time[0]), float(r.sim_time[-1])) for r in self.runs}
+            self.files += figures.glottal_area(t, self.r.read("flow", "glottal_area"), windows, d / "glottal_area")
+            self.files += self._kymogram(d)
+        else:
+            self.notes.append("no /flow: glottal area and kymogram skipped")
+        if self.r.has_stage("sync") and self.r.has_stage("ldv"):
+            self.files += figures.sync_quality_map(self.r.read("ldv", "grid_index"), self.r.read("sync", "quality"),
+                                                   self.r.read("sync", "ok"), self.r.read("ldv", "dropout"),
+                                                   d / "sync_quality")
+        else:
+            self.notes.append("no /sync: sync quality map skipped")
+        for run in self.runs:
+            if run.displacement_std is None:
+                self.notes.append(f"run {run.name} states no uncertainty: its map is skipped")
+                continue
+            self.files += figures.uncertainty_on_folds(self.mesh, run.displacement_std, run.name,
+                                                       d / f"uncertainty_{run.name}")
+
+    def _fig8(self, d: Path) -> list[Path]:
+        if not self.r.has_stage("fields"):
+            self.notes.append("no /fields: figure 8 skipped")
+            return []
+        cam0 = self.cameras[self.runs[0].name]
+        pts, labels = screen_points(cam0, self.mesh)
+        ft = np.asarray(self.r.read("fields", "frame_time"), float)
+        lo = min(float(r.sim_time[0]) for r in self.runs)
+        hi = max(float(r.sim_time[-1]) for r in self.runs)
+        sel = np.flatnonzero((ft >= lo - 1e-9) & (ft <= hi + 1e-9))
+        vel = self.r.frames("fields", "velocity")[sel].astype(float)          # (F, H, W, 3) camera frame
+        valid = self.r.frames("fields", "valid")[sel]
+        px = np.round(pts).astype(int)
+        meas = vel[:, px[:, 1], px[:, 0]]                                       # (F, P, 3)
+        meas[~valid[:, px[:, 1], px[:, 0]]] = np.nan
+        meas[..., :2] = camera_to_model(meas[..., :2], cam0.rotation_deg)
+        sim = {r.name: (r.sim_time, surface_velocity_at(self.cameras[r.name], self.mesh, r, pts)) for r in self.runs}
+        return figures.velocities(ft[sel], meas, sim, labels, d / "fig8_velocities")
+
+    def _kymogram(self, d: Path) -> list[Path]:
+        from scipy.ndimage import map_coordinates
+
+        masks = self.r.frames("flow", "gap_mask")
+        counts = np.zeros(masks[0].shape)
+        for i in range(0, len(masks), 128):
+            counts += masks[i:i + 128].sum(axis=0)
+        rows, cols = np.nonzero(counts)
+        if rows.size < 3:
+            self.notes.append("no glottal gap detected: kymogram skipped")
+            return []
+        w = counts[rows, cols]
+        xy = np.column_stack([cols, rows]).astype(float)
+        c = np.average(xy, axis=0, weights=w)
+        cov = np.cov((xy - c).T, aweights=w)
+        axis = np.linalg.eigh(cov)[1][:, -1]
+        along = (xy - c) @ axis
+        normal = np.array([-axis[1], axis[0]])
+        cam = self.cameras[self.runs[0].name]
+        left = cam.project(self.mesh.nodes[self.mesh.fold_nodes(0)].mean(axis=0))
+        if (left - c) @ normal > 0:            # sample from the left fold (first) to the right fold
+            normal = -normal
+        half_px = 2.0 * cam.px_per_mm          # 4 mm across the glottis
+        s = np.linspace(-half_px, half_px, 96)
+        fracs = (0.25, 0.5, 0.75)
+        lines = []
+        for f in fracs:
+            p0 = c + axis * (along.min() + f * (along.max() - along.min()))
+            pts = p0[None] + s[:, None] * normal[None]
+            lines.append(pts)
+        out = np.zeros((len(fracs), len(self.frames), len(s)))
+        for i in range(0, len(self.frames), 128):
+            block = self.frames[i:i + 128].astype(float)
+            for j, pts in enumerate(lines):
+                for k in range(len(block)):
+                    out[j, i + k] = map_coordinates(block[k], [pts[:, 1], pts[:, 0]], order=1, mode="nearest")
+        names = [f"{int(100 * f)} % along the glottis" for f in fracs]
+        return figures.kymogram(self.frame_time, out, names, 2 * half_px / cam.px_per_mm, d / "kymogram")
+
+    # -- tables -----------------------------------------------------------
+    def tables(self) -> None:
+        d = self.out / "tables"
+        d.mkdir(parents=True, exist_ok=True)
+        self.files.append(self._runs_table(d / "runs.csv"))
+        if self.r.has_stage("sync") and self.r.has_stage("fields"):
+            self.files.append(self._ldv_table(d / "ldv_velocities.csv"))
+        else:
+            self.notes.append("no /sync or /fields: vibrometer table skipped")
+
+    def _runs_table(self, path: Path) -> Path:
+        cols = ["run", "setup", "loads", "method", "iterations", "E_start", "E_final", "wall_time_s", "converged",
+                "n_frames", "t_start_s", "t_end_s", "inferior_uncertainty_rel", "superior_uncertainty_rel"]
+        with open(path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(cols)
+            for r in self.runs:
+                h, a = r.history, r.attrs
+                w.writerow([r.name, a.get("setup", ""), a.get("loads", ""), a.get("method", ""),
+                            int(h["iteration"][-1]) if len(h.get("iteration", [])) else 0,
+                            f"{float(h['total'][0]):.6g}", f"{float(h['total'][-1]):.6g}",
+                            f"{float(h['wall_time'][-1]):.3f}" if "wall_time" in h else "",
+                            bool(a.get("converged", False)), len(r.sim_time) - 1,
+                            f"{r.sim_time[0]:.6f}", f"{r.sim_time[-1]:.6f}",
+                            a.get("inferior_uncertainty_rel", ""), a.get("superior_uncertainty_rel", "")])
+        return path
+
+    def _ldv_table(self, path: Path) -> Path:
+        """Long table: one row per vibrometer point and video frame inside any run's window."""
+        ldv_px = np.asarray(self.r.read("fields", "ldv_px"), float)         # (P, 2) col, row
+        grid = np.asarray(self.r.read("ldv", "grid_index"), int)
+        ok = np.asarray(self.r.read("sync", "ok"), bool)
+        w_meas = self.r.dataset("sync", "aligned_w")
+        ft = np.asarray(self.r.read("sync", "frame_time"), float)
+        lo = min(float(r.sim_time[0]) for r in self.runs)
+        hi = max(float(r.sim_time[-1]) for r in self.runs)
+        sel = np.flatnonzero((ft >= lo - 1e-9) & (ft <= hi + 1e-9))
+        meas = np.asarray(w_meas[:, sel[0]:sel[-1] + 1], float) if sel.size else np.zeros((len(ldv_px), 0))
+        sims = {}
+        for r in self.runs:
+            v = surface_velocity_at(self.cameras[r.name], self.mesh, r, ldv_px)[..., 2]   # (T, P) mm/s
+            on = np.full((len(sel), len(ldv_px)), np.nan)
+            for j, t in enumerate(ft[sel]):
+                k = np.flatnonzero(np.abs(r.sim_time - t) < 1e-7)
+                if k.size:
+                    on[j] = v[k[0]]
+            sims[r.name] = on
+        with open(path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["point", "grid_row", "grid_col", "screen_col_px", "screen_row_px", "aligned", "time_s",
+                        "measured_vz_mm_per_s", *[f"run_{n}_vz_mm_per_s" for n in sims]])
+            for p in range(len(ldv_px)):
+                for j, t in enumerate(ft[sel]):
+                    w.writerow([p, grid[p, 0], grid[p, 1], f"{ldv_px[p, 0]:.2f}", f"{ldv_px[p, 1]:.2f}", bool(ok[p]),
+                                f"{t:.7f}", f"{meas[p, j]:.6g}", *[f"{s[j, p]:.6g}" for s in sims.values()]])
+        return path
+
+
+def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None = None,
+                 what: tuple[str, ...] = WHAT, times_ms: list[float] | None = None, fps: float = 10.0,
+                 force: bool = False) -> ExportResult:
+    """Export a store's runs into ``out_dir`` (see the module docstring). The store is opened read-only."""
+    out = Path(out_dir)
+    store = Store(path)
+    with store.read() as reader:
+        names = run_names(reader)
+        if not names:
+            raise MissingStageError("no optimisation run in the store; run `vfcli optimize` first", path)
+        wanted = list(dict.fromkeys(runs)) if runs else names
+        missing = [n for n in wanted if n not in names]
+        if missing:
+            raise MissingStageError(f"run {missing[0]!r} is not in the store (runs: {', '.join(names)})", path)
+        key = {"vfcli_version": __version__, "store": str(Path(path).resolve()), "digests": stage_digests(reader),
+               "runs": wanted, "what": list(what), "times_ms": times_ms, "fps": fps}
+        manifest = out / MANIFEST
+        if not force and manifest.exists():
+            try:
+                old = json.loads(manifest.read_text())
+            except (OSError, ValueError):
+                old = {}
+            if old.get("key") == key and all((out / f).exists() for f in old.get("files", [])):
+                log.info("%s is up to date (store and options unchanged); --force rewrites it", out)
+                return ExportResult(str(out), "up-to-date", {"files": len(old["files"])})
+        out.mkdir(parents=True, exist_ok=True)
+        job = _Export(reader, [read_run(reader, n) for n in wanted], out, times_ms, fps)
+        for item in WHAT:
+            if item in what:
+                getattr(job, item)()
+    rel = [str(f.relative_to(out)) for f in job.files]
+    manifest.write_text(json.dumps({"key": key, "files": rel, "notes": job.notes}, indent=2))
+    for note in job.notes:
+        log.warning(note)
+    summary = {"runs": ",".join(wanted), "files": len(rel), **({"skipped": "; ".join(job.notes)} if job.notes else {})}
+    return ExportResult(str(out), "written", summary, job.files)
