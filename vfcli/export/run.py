@@ -104,7 +104,7 @@ class _Export:
                  fps: float) -> None:
         self.r, self.runs, self.out, self.fps = reader, runs, out, fps
         self.times_ms = times_ms
-        self.mesh = read_mesh(reader)
+        self.mesh = read_mesh(reader) if reader.has_stage("mesh") else None
         self.frames = reader.frames("hsc", "frames")
         self.frame_time = np.asarray(reader.read("hsc", "frame_time"), float)
         self.shape = tuple(self.frames[0].shape)
@@ -222,11 +222,15 @@ class _Export:
         axis = np.linalg.eigh(cov)[1][:, -1]
         along = (xy - c) @ axis
         normal = np.array([-axis[1], axis[0]])
-        cam = self.cameras[self.runs[0].name]
-        left = cam.project(self.mesh.nodes[self.mesh.fold_nodes(0)].mean(axis=0))
-        if (left - c) @ normal > 0:            # sample from the left fold (first) to the right fold
-            normal = -normal
-        half_px = 2.0 * cam.px_per_mm          # 4 mm across the glottis
+        px_per_mm = float(self.r.attrs("flow")["px_per_mm"])
+        if self.runs:                          # sample from the left fold (first) to the right fold
+            cam = self.cameras[self.runs[0].name]
+            left = cam.project(self.mesh.nodes[self.mesh.fold_nodes(0)].mean(axis=0))
+            if (left - c) @ normal > 0:
+                normal = -normal
+        else:
+            self.notes.append("no run (no camera pose): the kymogram's left/right are not checked against the model")
+        half_px = 2.0 * px_per_mm              # 4 mm across the glottis
         s = np.linspace(-half_px, half_px, 96)
         fracs = (0.25, 0.5, 0.75)
         lines = []
@@ -241,7 +245,7 @@ class _Export:
                 for k in range(len(block)):
                     out[j, i + k] = map_coordinates(block[k], [pts[:, 1], pts[:, 0]], order=1, mode="nearest")
         names = [f"{int(100 * f)} % along the glottis" for f in fracs]
-        return figures.kymogram(self.frame_time, out, names, 2 * half_px / cam.px_per_mm, d / "kymogram")
+        return figures.kymogram(self.frame_time, out, names, 2 * half_px / px_per_mm, d / "kymogram")
 
     # -- tables -----------------------------------------------------------
     def tables(self) -> None:
