@@ -104,6 +104,15 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
     return Path(path)
 
 
+def write_jpeg(path: str | Path, image: np.ndarray, quality: int = 82) -> Path:
+    """Write an RGB uint8 image as JPEG (photographic frames: a fraction of the PNG's size)."""
+    import cv2
+
+    if not cv2.imwrite(str(path), np.ascontiguousarray(image[..., ::-1]), [cv2.IMWRITE_JPEG_QUALITY, int(quality)]):
+        raise RuntimeError(f"{path}: OpenCV could not write the JPEG")
+    return Path(path)
+
+
 def _ffmpeg():
     try:
         import imageio_ffmpeg

@@ -79,7 +79,7 @@ def _gap_frames(job: _Export, d: Path) -> list[Path]:
         cv2.drawContours(img, contours, -1, (255, 40, 40), 1, cv2.LINE_AA)
         img = video.annotate(img, [f"frame {int(k)}", f"t = {1e3 * job.frame_time[int(k)]:.2f} ms",
                                    f"gap {int(masks[int(k)].sum())} px"], 0.0, "")[:, :-30]
-        out.append(video.write_png(d / f"gap_{int(k):05d}.png", img))
+        out.append(video.write_jpeg(d / f"gap_{int(k):05d}.jpg", img))
     return out
 
 
@@ -201,8 +201,11 @@ def build_report(reader: StoreReader, work: Path) -> str:
         parts.append(f"<p>{m.n_nodes} nodes, {len(m.tets)} tetrahedra, volume left {m.fold_volume(0):.1f} mm³, "
                      f"right {m.fold_volume(1):.1f} mm³.</p>")
         try:
+            import cv2
+
             render_mesh_png(m, d / "mesh.png")
-            parts.append(figure(d / "mesh.png", "The M5 model of both folds, boundary tags in colour", 800))
+            video.write_jpeg(d / "mesh.jpg", cv2.imread(str(d / "mesh.png"))[..., ::-1], 88)
+            parts.append(figure(d / "mesh.jpg", "The M5 model of both folds, boundary tags in colour", 800))
         except (OSError, RuntimeError) as exc:
             parts.append(f'<p class="warn">Mesh picture not rendered: {esc(exc)}</p>')
     else:
