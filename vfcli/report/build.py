@@ -22,7 +22,7 @@ from vfcli.export import figures, video
 from vfcli.export.run import ExportResult, _Export
 from vfcli.report.html import esc, figure, fmt, kv_table, page, pretty_json, table, video_tag
 from vfcli.store import layout
-from vfcli.store.runs import read_run, run_names
+from vfcli.store.runs import read_run, run_names, stage_runs
 from vfcli.store.transaction import Store, StoreReader
 
 log = logging.getLogger(__name__)
@@ -214,7 +214,7 @@ def build_report(reader: StoreReader, work: Path) -> str:
     parts.append(_runs_section(job, work))
     # -- diagnosis
     parts.append("<h2>Diagnosis</h2>")
-    diag = [p for p in reader.stage_paths() if p.startswith("/diagnose/")]
+    diag = [layout.stage("diagnose").group_path(n) for n in stage_runs(reader, "diagnose")]
     if diag:
         for p in diag:
             plain, notes, summary = _stage_attrs(reader, p)

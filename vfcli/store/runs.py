@@ -45,11 +45,18 @@ class OptimizeRun:
     digest: str = ""
 
 
+def stage_runs(reader: StoreReader, name: str) -> list[str]:
+    """Names of the complete runs of a stage with runs (``optimize``, ``diagnose``), sorted."""
+    from vfcli.store import layout
+
+    prefix = layout.stage(name).group_path("-").removesuffix("-")   # "/<name>/"
+    return sorted(p[len(prefix):] for p in reader.stage_paths()
+                  if p.startswith(prefix) and reader.has_stage(name, p[len(prefix):]))
+
+
 def run_names(reader: StoreReader) -> list[str]:
     """Names of the complete optimisation runs in the store, sorted."""
-    prefix = "/optimize/"
-    return sorted(p[len(prefix):] for p in reader.stage_paths()
-                  if p.startswith(prefix) and reader.has_stage("optimize", p[len(prefix):]))
+    return stage_runs(reader, "optimize")
 
 
 def _plain(v: Any) -> Any:
