@@ -1,6 +1,7 @@
 """A small optimised phantom store shared by the export and report tests (built once per session)."""
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -22,7 +23,8 @@ def optimised_store(tmp_path_factory) -> Path:
 
     Built once per test session under pytest's base temp folder; tests copy it before writing.
     """
-    d = tmp_path_factory.getbasetemp() / "export_store"
+    # VFCLI_TEST_STORE_DIR keeps the store between sessions while developing (never set in CI)
+    d = Path(os.environ.get("VFCLI_TEST_STORE_DIR") or tmp_path_factory.getbasetemp()) / "export_store"
     store = d / "rec.h5"
     if (d / "done").exists():
         return store
