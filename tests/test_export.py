@@ -57,6 +57,32 @@ def test_vtkhdf_reads_back_equal_to_the_store_at_every_step(exported):
             np.testing.assert_array_equal(grid.point_data["displacement_std_mm"], run.displacement_std[k])
             np.testing.assert_allclose(grid.point_data["velocity_mm_per_s"], vel[k], rtol=1e-6,
                                        atol=1e-6 * np.abs(vel).max())
+            assert grid.point_data["surface_load_Pa"].shape == (mesh.n_nodes, 3)
+
+
+def test_the_pressure_run_pushes_the_inferior_surface_up_by_about_the_recorded_pressure(exported):
+    import vtk
+    import pyvista as pv
+
+    store, out, _ = exported
+    with Store(store).read() as r:
+        mesh = read_mesh(r)
+        run = read_run(r, "pressure")
+        pt, p = r.read("hsc", "pressure_time"), r.read("hsc", "pressure")
+    p_rms = float(np.sqrt(np.mean(p[(pt >= run.sim_time[0]) & (pt <= run.sim_time[-1])] ** 2)))
+    reader = vtk.vtkHDFReader()
+    reader.SetFileName(str(out / "paraview" / "pressure.vtkhdf"))
+    reader.SetStep(len(run.sim_time) // 2)
+    reader.Update()
+    load = pv.wrap(reader.GetOutput()).point_data["surface_load_Pa"]
+    inferior = np.unique(mesh.faces[mesh.face_tag == 1])
+    inner = np.setdiff1d(inferior, np.unique(mesh.faces[mesh.face_tag != 1]))   # not on a tag boundary
+    assert inner.size > 10
+    up = load[inner, 2]
+    assert np.median(up) > 0                                # pressure pushes into the body: +z from below
+    assert 0.2 * p_rms < np.median(np.linalg.norm(load[inner], axis=1)) < 5 * p_rms
+    fixture_only = np.setdiff1d(np.unique(mesh.faces[mesh.face_tag == 4]), np.unique(mesh.faces[mesh.face_tag != 4]))
+    assert np.all(load[fixture_only] == 0)                  # nothing applied on the clamped walls
 
 
 def test_pvd_collection_reads_back_with_pyvista(exported):

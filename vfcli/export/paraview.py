@@ -3,8 +3,8 @@
 Point data per step (units in the array names, ParaView shows them as they are):
 ``displacement_mm`` (N, 3), ``displacement_magnitude_mm``, ``velocity_mm_per_s`` (N, 3, central
 differences of the displacements over the model times), ``displacement_std_mm`` (N, 3, the
-stated standard deviation, when the run has one) and ``load_uN`` (N, 3, the applied nodal
-surface load, Pa mm^2 = uN, when it could be evaluated). Points are the deformed positions
+stated standard deviation, when the run has one) and ``surface_load_Pa`` (N, 3, the applied
+surface traction averaged onto the nodes, zero off the loaded surfaces; vfcli/export/loads.py). Points are the deformed positions
 (rest + displacement, mm), so ParaView's time slider plays the motion without a filter.
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ def motion_fields(times: np.ndarray, displacements: np.ndarray, std: np.ndarray 
                   load: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Point data of every step.
 
-    times : (T,) s; displacements : (T, N, 3) mm; std : (T, N, 3) mm or None; load : (T, N, 3) uN or None.
+    times : (T,) s; displacements : (T, N, 3) mm; std : (T, N, 3) mm or None; load : (T, N, 3) Pa or None.
     Returns name -> (T, N) or (T, N, 3) float32.
     """
     d = np.asarray(displacements, dtype=np.float64)
@@ -30,7 +30,7 @@ def motion_fields(times: np.ndarray, displacements: np.ndarray, std: np.ndarray 
     if std is not None:
         out["displacement_std_mm"] = np.asarray(std, dtype=np.float64)
     if load is not None:
-        out["load_uN"] = np.asarray(load, dtype=np.float64)
+        out["surface_load_Pa"] = np.asarray(load, dtype=np.float64)
     return {k: v.astype(np.float32) for k, v in out.items()}
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from vfcli import __version__
 from vfcli.camera.camera import Camera, interpolate, rasterize
 from vfcli.camera.pose import camera_to_model
-from vfcli.errors import ConfigError, MissingStageError
+from vfcli.errors import ConfigError, MissingStageError, VfcliError
 from vfcli.export import figures, paraview, video
 from vfcli.model.mesh import SIDE_SUPERIOR, FoldMesh
 from vfcli.store.runs import OptimizeRun, read_mesh, read_run, run_names, stage_digests
@@ -117,10 +117,24 @@ class _Export:
         d = self.out / "paraview"
         d.mkdir(parents=True, exist_ok=True)
         for run in self.runs:
-            fields = paraview.motion_fields(run.sim_time, run.displacements, run.displacement_std)
+            fields = paraview.motion_fields(run.sim_time, run.displacements, run.displacement_std, self._load(run))
             self.files.append(paraview.write_vtkhdf(d / f"{run.name}.vtkhdf", self.mesh, run.sim_time,
                                                     run.displacements, fields))
             self.files += paraview.write_pvd(d / f"{run.name}.pvd", self.mesh, run.sim_time, run.displacements, fields)
+
+    def _load(self, run: OptimizeRun) -> np.ndarray | None:
+        """(T, N, 3) Pa applied surface traction of a run, or None (with a note) when it cannot be rebuilt."""
+        from vfcli.export.loads import applied_traction
+
+        pressure = None
+        if self.r.has_stage("hsc") and "pressure" in self.r.group("hsc"):
+            pressure = (self.r.read("hsc", "pressure_time"), self.r.read("hsc", "pressure"))
+        try:
+            return applied_traction(self.mesh, run.config.get("optimize", {}), run.config.get("mesh", {}),
+                                    run.controls, run.sim_time, pressure)
+        except (ValueError, KeyError, VfcliError) as exc:
+            self.notes.append(f"run {run.name}: applied load not exported ({exc})")
+            return None
 
     # -- the model over the video -----------------------------------------
     def overlay_frames(self, scale: int = 2) -> tuple[list[np.ndarray], list[float]]:
