@@ -334,7 +334,7 @@ def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None =
         if missing:
             raise MissingStageError(f"run {missing[0]!r} is not in the store (runs: {', '.join(names)})", path)
         key = {"vfcli_version": __version__, "store": str(Path(path).resolve()), "digests": stage_digests(reader),
-               "runs": wanted, "what": list(what), "times_ms": times_ms, "fps": fps}
+               "runs": wanted, "what": sorted(what), "times_ms": times_ms, "fps": fps}
         manifest = out / MANIFEST
         if not force and manifest.exists():
             try:
