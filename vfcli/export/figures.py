@@ -136,11 +136,15 @@ def sync_quality_map(grid_index: np.ndarray, quality: np.ndarray, ok: np.ndarray
     img = np.full(shape, np.nan)
     img[gi[:, 0], gi[:, 1]] = quality
     fig, ax = plt.subplots(figsize=(6.4, 5), dpi=110)
-    im = ax.imshow(img, cmap="viridis", vmin=0, vmax=1, origin="upper")
+    q = np.asarray(quality, float)
+    lo = float(np.floor(10 * np.nanmin(q)) / 10) if np.isfinite(q).any() else 0.0  # spread the colours over the data
+    im = ax.imshow(img, cmap="viridis", vmin=min(max(lo, 0.0), 0.9), vmax=1, origin="upper")
     bad = ~np.asarray(ok, bool)
     drop = np.asarray(dropout, bool)
     ax.plot(gi[bad, 1], gi[bad, 0], "rx", ms=6, label="not aligned")
-    ax.plot(gi[drop, 1], gi[drop, 0], "wo", ms=5, mfc="none", label="signal dropout")
+    ax.plot(gi[drop, 1], gi[drop, 0], "o", color="m", ms=6, mfc="none", mew=1.5, label="signal dropout")
+    ax.xaxis.get_major_locator().set_params(integer=True)
+    ax.yaxis.get_major_locator().set_params(integer=True)
     ax.set_xlabel("scan column")
     ax.set_ylabel("scan row")
     ax.set_title(f"Sync quality of the {len(quality)} vibrometer points ({shape[0]} x {shape[1]} grid)")
