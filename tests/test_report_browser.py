@@ -8,13 +8,11 @@ fails (never skips) when they are missing.
 from __future__ import annotations
 
 import os
-import shutil
 from pathlib import Path
 
-import pytest
 
 from _export_store import optimised_store
-from conftest import ROOT, run_vfcli
+from conftest import run_vfcli
 
 CHROMIUM = os.environ.get("VFCLI_CHROMIUM", "/usr/bin/chromium")
 
