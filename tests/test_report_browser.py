@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-
 from _export_store import optimised_store
 from conftest import run_vfcli
 
