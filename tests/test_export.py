@@ -203,4 +203,6 @@ def test_unknown_run_and_unknown_item_are_one_line_errors(exported, tmp_path):
     assert res.returncode == 5 and "nope" in res.stderr and "Traceback" not in res.stderr
     res = run_vfcli("export", store, "--to", tmp_path / "o", "--what", "paraview,movies")
     assert res.returncode == 2 and "movies" in res.stderr and "Traceback" not in res.stderr
+    res = run_vfcli("export", store, "--to", tmp_path / "o", "--point", "5000,3")
+    assert res.returncode == 2 and "5000,3" in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "o").exists()

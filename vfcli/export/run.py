@@ -52,6 +52,15 @@ def parse_what(text: str) -> tuple[str, ...]:
     return items
 
 
+def parse_point(text: str) -> tuple[float, float]:
+    """``"120,64"`` -> (120.0, 64.0) screen pixel (col, row); ConfigError otherwise."""
+    try:
+        col, row = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--point {text!r}: expected COL,ROW in pixels, e.g. 120,64") from None
+    return col, row
+
+
 def run_camera(run: OptimizeRun, shape: tuple[int, int]) -> Camera:
     """The camera pose a run was fitted with, on frames of ``shape`` (rows, cols)."""
     a = run.attrs
@@ -101,8 +110,9 @@ class _Export:
     """One export: the open store, the runs and the output folder."""
 
     def __init__(self, reader: StoreReader, runs: list[OptimizeRun], out: Path, times_ms: list[float] | None,
-                 fps: float) -> None:
+                 fps: float, points_px: list[tuple[float, float]] | None = None) -> None:
         self.r, self.runs, self.out, self.fps = reader, runs, out, fps
+        self.points_px = points_px
         self.times_ms = times_ms
         self.mesh = read_mesh(reader) if reader.has_stage("mesh") else None
         self.frames = reader.frames("hsc", "frames")
@@ -111,6 +121,10 @@ class _Export:
         self.cameras = {run.name: run_camera(run, self.shape) for run in runs}
         self.files: list[Path] = []
         self.notes: list[str] = []
+        h, w = self.shape[:2]
+        bad = [p for p in (points_px or []) if not (0 <= p[0] < w and 0 <= p[1] < h)]
+        if bad:
+            raise ConfigError(f"--point {bad[0][0]:g},{bad[0][1]:g}: outside the {w} x {h} px frames")
 
     # -- ParaView ---------------------------------------------------------
     def paraview(self) -> None:
@@ -204,7 +218,11 @@ class _Export:
             self.notes.append("no /fields: figure 8 skipped")
             return []
         cam0 = self.cameras[self.runs[0].name]
-        pts, labels = screen_points(cam0, self.mesh)
+        if self.points_px:
+            pts = np.asarray(self.points_px, float)
+            labels = [f"screen point (px {p[0]:.0f}, {p[1]:.0f})" for p in pts]
+        else:
+            pts, labels = screen_points(cam0, self.mesh)
         ft = np.asarray(self.r.read("fields", "frame_time"), float)
         lo = min(float(r.sim_time[0]) for r in self.runs)
         hi = max(float(r.sim_time[-1]) for r in self.runs)
@@ -321,7 +339,7 @@ class _Export:
 
 def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None = None,
                  what: tuple[str, ...] = WHAT, times_ms: list[float] | None = None, fps: float = 10.0,
-                 force: bool = False) -> ExportResult:
+                 force: bool = False, points_px: list[tuple[float, float]] | None = None) -> ExportResult:
     """Export a store's runs into ``out_dir`` (see the module docstring). The store is opened read-only."""
     out = Path(out_dir)
     store = Store(path)
@@ -334,7 +352,8 @@ def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None =
         if missing:
             raise MissingStageError(f"run {missing[0]!r} is not in the store (runs: {', '.join(names)})", path)
         key = {"vfcli_version": __version__, "store": str(Path(path).resolve()), "digests": stage_digests(reader),
-               "runs": wanted, "what": sorted(what), "times_ms": times_ms, "fps": fps}
+               "runs": wanted, "what": sorted(what), "times_ms": times_ms, "fps": fps,
+               "points_px": [list(map(float, p)) for p in points_px] if points_px else None}
         manifest = out / MANIFEST
         if not force and manifest.exists():
             try:
@@ -344,8 +363,8 @@ def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None =
             if old.get("key") == key and all((out / f).exists() for f in old.get("files", [])):
                 log.info("%s is up to date (store and options unchanged); --force rewrites it", out)
                 return ExportResult(str(out), "up-to-date", {"files": len(old["files"])})
+        job = _Export(reader, [read_run(reader, n) for n in wanted], out, times_ms, fps, points_px)
         out.mkdir(parents=True, exist_ok=True)
-        job = _Export(reader, [read_run(reader, n) for n in wanted], out, times_ms, fps)
         for item in WHAT:
             if item in what:
                 getattr(job, item)()
