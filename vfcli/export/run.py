@@ -170,7 +170,7 @@ class _Export:
                 mag = np.linalg.norm(run.displacements[kk], axis=1)
                 img = video.draw_mesh(base, self.cameras[run.name], verts, sup, mag, vmax, scale)
                 panels.append(video.annotate(img, [f"run {run.name}", f"t = {1e3 * run.sim_time[kk]:.2f} ms",
-                                                   "colour: |displacement|"], vmax))
+                                                   "colour: displacement magnitude"], vmax))
             images.append(video.side_by_side(panels))
             times.append(float(t_ref[k]))
         return images, times
