@@ -16,7 +16,8 @@ from typing import Any, Literal
 import numpy as np
 
 from vfcli import __version__
-from vfcli.camera.camera import Camera, interpolate, rasterize
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import interpolate, rasterize
 from vfcli.camera.pose import camera_to_model
 from vfcli.errors import ConfigError, MissingStageError, VfcliError
 from vfcli.export import figures, paraview, video
