@@ -1,4 +1,5 @@
-"""The reconstructed motion of a run as ParaView time series: transient VTKHDF and .pvd + .vtu.
+"""The reconstructed motion of a run as ParaView time series: the point data, and the .pvd + .vtu
+collection (the transient VTKHDF file is written by vfcli/store/vtkhdf.py, HDF5 being the store's).
 
 Point data per step (units in the array names, ParaView shows them as they are):
 ``displacement_mm`` (N, 3), ``displacement_magnitude_mm``, ``velocity_mm_per_s`` (N, 3, central
@@ -32,16 +33,6 @@ def motion_fields(times: np.ndarray, displacements: np.ndarray, std: np.ndarray 
     if load is not None:
         out["surface_load_Pa"] = np.asarray(load, dtype=np.float64)
     return {k: v.astype(np.float32) for k, v in out.items()}
-
-
-def write_vtkhdf(path: str | Path, mesh: FoldMesh, times: np.ndarray, displacements: np.ndarray,
-                 fields: dict[str, np.ndarray]) -> Path:
-    """Transient VTKHDF (``.vtkhdf``): tetrahedra once, deformed points and point data per step."""
-    from vfcli.store.vtkhdf import write_transient_tets
-
-    pts = mesh.nodes[None].astype(np.float64) + np.asarray(displacements, dtype=np.float64)
-    write_transient_tets(path, pts, mesh.tets, times, fields)
-    return Path(path)
 
 
 def write_pvd(path: str | Path, mesh: FoldMesh, times: np.ndarray, displacements: np.ndarray,
