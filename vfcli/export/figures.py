@@ -9,9 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vfcli.export.sampling import FOLD_NAMES  # 0 left, 1 right (/mesh tet_fold)
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR, FoldMesh
-
-FOLD_NAMES = ("left", "right")  # /mesh tet_fold: 0 left, 1 right
 
 
 def _pyplot():

@@ -28,11 +28,9 @@ import numpy as np
 
 from vfcli import __version__
 from vfcli.camera.camera import Camera
-from vfcli.camera.raster import interpolate, rasterize
 from vfcli.camera.pose import camera_to_model
 from vfcli.errors import ConfigError, MissingStageError, VfcliError
-from vfcli.export import figures, paraview, video
-from vfcli.model.mesh import SIDE_SUPERIOR, FoldMesh
+from vfcli.export import figures, paraview, sampling, video
 from vfcli.report.html import esc, figure, fmt, kv_table, page, pretty_json, table, video_tag
 from vfcli.store import layout
 from vfcli.store.runs import OptimizeRun, read_mesh, read_run, run_names, stage_digests, stage_runs
@@ -81,44 +79,6 @@ def run_camera(run: OptimizeRun, shape: tuple[int, int]) -> Camera:
     a = run.attrs
     return Camera(float(a["px_per_mm"]), float(a["camera_rotation_deg"]),
                   tuple(np.asarray(a["camera_offset_px"], float)), shape[1], shape[0])
-
-
-def nearest_frames(frame_time: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Index of the frame nearest each time (s)."""
-    i = np.clip(np.searchsorted(frame_time, times), 1, len(frame_time) - 1)
-    return np.where(np.abs(frame_time[i - 1] - times) <= np.abs(frame_time[i] - times), i - 1, i)
-
-
-def surface_velocity_at(camera: Camera, mesh: FoldMesh, run: OptimizeRun, pixels: np.ndarray) -> np.ndarray:
-    """(T, P, 3) mm/s: the model's velocity (model frame) of the surface point seen at each pixel (col, row).
-
-    NaN where the model's surface does not cover the pixel at that step.
-    """
-    vel = np.gradient(run.displacements.astype(float), run.sim_time, axis=0)
-    px = np.round(np.asarray(pixels, float)).astype(int)
-    inside = (px[:, 0] >= 0) & (px[:, 0] < camera.width) & (px[:, 1] >= 0) & (px[:, 1] < camera.height)
-    out = np.full((len(run.sim_time), len(px), 3), np.nan)
-    for k in range(len(run.sim_time)):
-        raster = rasterize(camera, mesh.nodes + run.displacements[k], mesh.faces)
-        img = interpolate(raster, vel[k])
-        out[k, inside] = img[px[inside, 1], px[inside, 0]]
-    return out
-
-
-def screen_points(camera: Camera, mesh: FoldMesh) -> tuple[np.ndarray, list[str]]:
-    """One screen point per fold: the superior-surface node nearest (u, v) = (0.5, 0.5), as (col, row)."""
-    from vfcli.export.figures import FOLD_NAMES
-
-    pts, labels = [], []
-    for k in (0, 1):
-        nodes = np.intersect1d(mesh.fold_nodes(k), np.flatnonzero(mesh.node_side == SIDE_SUPERIOR))
-        if nodes.size == 0:
-            continue
-        n = nodes[np.argmin(np.sum((mesh.uv[nodes] - 0.5) ** 2, axis=1))]
-        p = camera.project(mesh.nodes[n])
-        pts.append(p)
-        labels.append(f"{FOLD_NAMES[k]} fold, mid superior surface (px {p[0]:.0f}, {p[1]:.0f})")
-    return np.array(pts), labels
 
 
 class _Export:
@@ -171,7 +131,7 @@ class _Export:
         """Side-by-side overlay images (one panel per run) at the first run's model times."""
         sup = self.mesh.faces[self.mesh.face_tag == 2]
         t_ref = self.runs[0].sim_time
-        all_idx = np.concatenate([nearest_frames(self.frame_time, r.sim_time) for r in self.runs])
+        all_idx = np.concatenate([sampling.nearest_frames(self.frame_time, r.sim_time) for r in self.runs])
         sample = self.frames[np.unique(all_idx)].astype(float)
         lo, hi = np.percentile(sample, [0.5, 99.5])
         vmax = max(float(np.max(np.linalg.norm(r.displacements, axis=2)[:, np.unique(sup)])) for r in self.runs)
@@ -180,7 +140,7 @@ class _Export:
             panels = []
             for run in self.runs:
                 kk = min(k, len(run.sim_time) - 1)
-                fi = int(nearest_frames(self.frame_time, run.sim_time[kk:kk + 1])[0])
+                fi = int(sampling.nearest_frames(self.frame_time, run.sim_time[kk:kk + 1])[0])
                 base = video.gray_to_rgb(self.frames[fi], lo, hi, scale)
                 verts = self.mesh.nodes + run.displacements[kk]
                 mag = np.linalg.norm(run.displacements[kk], axis=1)
@@ -238,7 +198,7 @@ class _Export:
             pts = np.asarray(self.points_px, float)
             labels = [f"screen point (px {p[0]:.0f}, {p[1]:.0f})" for p in pts]
         else:
-            pts, labels = screen_points(cam0, self.mesh)
+            pts, labels = sampling.screen_points(cam0, self.mesh)
         ft = np.asarray(self.r.read("fields", "frame_time"), float)
         lo = min(float(r.sim_time[0]) for r in self.runs)
         hi = max(float(r.sim_time[-1]) for r in self.runs)
@@ -249,51 +209,28 @@ class _Export:
         meas = vel[:, px[:, 1], px[:, 0]]                                       # (F, P, 3)
         meas[~valid[:, px[:, 1], px[:, 0]]] = np.nan
         meas[..., :2] = camera_to_model(meas[..., :2], cam0.rotation_deg)
-        sim = {r.name: (r.sim_time, surface_velocity_at(self.cameras[r.name], self.mesh, r, pts)) for r in self.runs}
+        sim = {r.name: (r.sim_time, sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements, r.sim_time, pts)) for r in self.runs}
         return figures.velocities(ft[sel], meas, sim, labels, d / "fig8_velocities")
 
     def _kymogram(self, d: Path) -> list[Path]:
-        from scipy.ndimage import map_coordinates
-
         masks = self.r.frames("flow", "gap_mask")
         counts = np.zeros(masks[0].shape)
         for i in range(0, len(masks), 128):
             counts += masks[i:i + 128].sum(axis=0)
-        rows, cols = np.nonzero(counts)
-        if rows.size < 3:
-            self.notes.append("no glottal gap detected: kymogram skipped")
-            return []
-        w = counts[rows, cols]
-        xy = np.column_stack([cols, rows]).astype(float)
-        c = np.average(xy, axis=0, weights=w)
-        cov = np.cov((xy - c).T, aweights=w)
-        axis = np.linalg.eigh(cov)[1][:, -1]
-        along = (xy - c) @ axis
-        normal = np.array([-axis[1], axis[0]])
         px_per_mm = float(self.r.attrs("flow")["px_per_mm"])
-        if self.runs:                          # sample from the left fold (first) to the right fold
-            cam = self.cameras[self.runs[0].name]
-            left = cam.project(self.mesh.nodes[self.mesh.fold_nodes(0)].mean(axis=0))
-            if (left - c) @ normal > 0:
-                normal = -normal
+        left = None
+        if self.runs:
+            left = self.cameras[self.runs[0].name].project(self.mesh.nodes[self.mesh.fold_nodes(0)].mean(axis=0))
         else:
             self.notes.append("no run (no camera pose): the kymogram's left/right are not checked against the model")
-        half_px = 2.0 * px_per_mm              # 4 mm across the glottis
-        s = np.linspace(-half_px, half_px, 96)
-        fracs = (0.25, 0.5, 0.75)
-        lines = []
-        for f in fracs:
-            p0 = c + axis * (along.min() + f * (along.max() - along.min()))
-            pts = p0[None] + s[:, None] * normal[None]
-            lines.append(pts)
-        out = np.zeros((len(fracs), len(self.frames), len(s)))
+        lines, names = sampling.glottis_lines(counts, px_per_mm, left)
+        if lines is None:
+            self.notes.append("no glottal gap detected: kymogram skipped")
+            return []
+        out = np.zeros((len(lines), len(self.frames), lines.shape[1]))
         for i in range(0, len(self.frames), 128):
-            block = self.frames[i:i + 128].astype(float)
-            for j, pts in enumerate(lines):
-                for k in range(len(block)):
-                    out[j, i + k] = map_coordinates(block[k], [pts[:, 1], pts[:, 0]], order=1, mode="nearest")
-        names = [f"{int(100 * f)} % along the glottis" for f in fracs]
-        return figures.kymogram(self.frame_time, out, names, 2 * half_px / px_per_mm, d / "kymogram")
+            out[:, i:i + 128] = sampling.sample_lines(self.frames[i:i + 128], lines)
+        return figures.kymogram(self.frame_time, out, names, 4.0, d / "kymogram")
 
     # -- tables -----------------------------------------------------------
     def tables(self) -> None:
@@ -335,7 +272,7 @@ class _Export:
         meas = np.asarray(w_meas[:, sel[0]:sel[-1] + 1], float) if sel.size else np.zeros((len(ldv_px), 0))
         sims = {}
         for r in self.runs:
-            v = surface_velocity_at(self.cameras[r.name], self.mesh, r, ldv_px)[..., 2]   # (T, P) mm/s
+            v = sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements, r.sim_time, ldv_px)[..., 2]   # (T, P) mm/s
             on = np.full((len(sel), len(ldv_px)), np.nan)
             for j, t in enumerate(ft[sel]):
                 k = np.flatnonzero(np.abs(r.sim_time - t) < 1e-7)
