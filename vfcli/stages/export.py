@@ -14,7 +14,6 @@ this module reads the store and hands it numpy arrays.
 """
 from __future__ import annotations
 
-import csv
 import datetime as _dt
 import json
 import logging
@@ -30,7 +29,7 @@ from vfcli import __version__
 from vfcli.camera.camera import Camera
 from vfcli.camera.pose import camera_to_model
 from vfcli.errors import ConfigError, MissingStageError, VfcliError
-from vfcli.export import figures, paraview, sampling, video
+from vfcli.export import figures, paraview, sampling, tables, video
 from vfcli.report.html import esc, figure, fmt, kv_table, page, pretty_json, table, video_tag
 from vfcli.store import layout
 from vfcli.store.runs import OptimizeRun, read_mesh, read_run, run_names, stage_digests, stage_runs
@@ -209,7 +208,8 @@ class _Export:
         meas = vel[:, px[:, 1], px[:, 0]]                                       # (F, P, 3)
         meas[~valid[:, px[:, 1], px[:, 0]]] = np.nan
         meas[..., :2] = camera_to_model(meas[..., :2], cam0.rotation_deg)
-        sim = {r.name: (r.sim_time, sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements, r.sim_time, pts)) for r in self.runs}
+        sim = {r.name: (r.sim_time, sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements,
+                                                               r.sim_time, pts)) for r in self.runs}
         return figures.velocities(ft[sel], meas, sim, labels, d / "fig8_velocities")
 
     def _kymogram(self, d: Path) -> list[Path]:
@@ -243,21 +243,19 @@ class _Export:
             self.notes.append("no /sync or /fields: vibrometer table skipped")
 
     def _runs_table(self, path: Path) -> Path:
-        cols = ["run", "setup", "loads", "method", "iterations", "E_start", "E_final", "wall_time_s", "converged",
-                "n_frames", "t_start_s", "t_end_s", "inferior_uncertainty_rel", "superior_uncertainty_rel"]
-        with open(path, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(cols)
-            for r in self.runs:
-                h, a = r.history, r.attrs
-                w.writerow([r.name, a.get("setup", ""), a.get("loads", ""), a.get("method", ""),
-                            int(h["iteration"][-1]) if len(h.get("iteration", [])) else 0,
-                            f"{float(h['total'][0]):.6g}", f"{float(h['total'][-1]):.6g}",
-                            f"{float(h['wall_time'][-1]):.3f}" if "wall_time" in h else "",
-                            bool(a.get("converged", False)), len(r.sim_time) - 1,
-                            f"{r.sim_time[0]:.6f}", f"{r.sim_time[-1]:.6f}",
-                            a.get("inferior_uncertainty_rel", ""), a.get("superior_uncertainty_rel", "")])
-        return path
+        rows = []
+        for r in self.runs:
+            h, a = r.history, r.attrs
+            rows.append({"run": r.name, "setup": a.get("setup", ""), "loads": a.get("loads", ""),
+                         "method": a.get("method", ""),
+                         "iterations": int(h["iteration"][-1]) if len(h.get("iteration", [])) else 0,
+                         "E_start": f"{float(h['total'][0]):.6g}", "E_final": f"{float(h['total'][-1]):.6g}",
+                         "wall_time_s": f"{float(h['wall_time'][-1]):.3f}" if "wall_time" in h else "",
+                         "converged": bool(a.get("converged", False)), "n_frames": len(r.sim_time) - 1,
+                         "t_start_s": f"{r.sim_time[0]:.6f}", "t_end_s": f"{r.sim_time[-1]:.6f}",
+                         "inferior_uncertainty_rel": a.get("inferior_uncertainty_rel", ""),
+                         "superior_uncertainty_rel": a.get("superior_uncertainty_rel", "")})
+        return tables.write_runs(path, rows)
 
     def _ldv_table(self, path: Path) -> Path:
         """Long table: one row per vibrometer point and video frame inside any run's window."""
@@ -272,22 +270,15 @@ class _Export:
         meas = np.asarray(w_meas[:, sel[0]:sel[-1] + 1], float) if sel.size else np.zeros((len(ldv_px), 0))
         sims = {}
         for r in self.runs:
-            v = sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements, r.sim_time, ldv_px)[..., 2]   # (T, P) mm/s
+            v = sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements, r.sim_time,
+                                             ldv_px)[..., 2]                     # (T, P) mm/s
             on = np.full((len(sel), len(ldv_px)), np.nan)
             for j, t in enumerate(ft[sel]):
                 k = np.flatnonzero(np.abs(r.sim_time - t) < 1e-7)
                 if k.size:
                     on[j] = v[k[0]]
             sims[r.name] = on
-        with open(path, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["point", "grid_row", "grid_col", "screen_col_px", "screen_row_px", "aligned", "time_s",
-                        "measured_vz_mm_per_s", *[f"run_{n}_vz_mm_per_s" for n in sims]])
-            for p in range(len(ldv_px)):
-                for j, t in enumerate(ft[sel]):
-                    w.writerow([p, grid[p, 0], grid[p, 1], f"{ldv_px[p, 0]:.2f}", f"{ldv_px[p, 1]:.2f}", bool(ok[p]),
-                                f"{t:.7f}", f"{meas[p, j]:.6g}", *[f"{s[j, p]:.6g}" for s in sims.values()]])
-        return path
+        return tables.write_ldv(path, ldv_px, grid, ok, ft[sel], meas, sims)
 
 
 def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None = None,
