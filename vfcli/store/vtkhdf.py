@@ -35,7 +35,7 @@ def write_transient_tets(path: str | Path, points: np.ndarray, tets: np.ndarray,
     tmp = Path(path).with_name(Path(path).name + ".tmp")
     with h5py.File(tmp, "w") as f:
         g = f.create_group("VTKHDF")
-        g.attrs["Version"] = np.array([2, 2], dtype=np.int64)
+        g.attrs["Version"] = np.array([2, 0], dtype=np.int64)   # transient UnstructuredGrid: VTK 9.3+ / ParaView 5.12+
         g.attrs.create("Type", np.bytes_("UnstructuredGrid"), dtype=h5py.string_dtype("ascii", len("UnstructuredGrid")))
         g.create_dataset("NumberOfPoints", data=np.array([n_p], np.int64))
         g.create_dataset("NumberOfCells", data=np.array([n_c], np.int64))
