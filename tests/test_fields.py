@@ -43,11 +43,12 @@ def test_tps_predicts_held_out_points_of_a_smooth_field():
     held[np.random.default_rng(3).choice(len(pts), 40, replace=False)] = True
     interior = (pts[:, 0] > 20) & (pts[:, 0] < 140) & (pts[:, 1] > 20) & (pts[:, 1] < 108)
     held &= interior
+    assert held.sum() > 20  # 27 interior points held out
     w_flagged = np.where(held, np.nan, w)  # flagged points may carry NaN: they are left out
     tps = LdvTps(pts, good=~held)
     pred = tps.at(pts[held], w_flagged)
     err = np.abs(pred - w[held]).max() / np.abs(w).max()
-    assert err < 0.005  # measured 0.02% of the amplitude
+    assert err < 4e-4  # measured 1.65e-4 of the amplitude
 
 
 def test_flagged_points_are_left_out_of_the_grid_operator():

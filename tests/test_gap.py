@@ -300,9 +300,12 @@ def test_segment_stream_holds_only_a_few_frames_and_matches_one_frame_at_a_time(
         assert len(read) <= k + gap.half_window_frames + 1  # yielded as soon as the window is full
         np.testing.assert_array_equal(frame, frames[k])
         np.testing.assert_array_equal(seg.mask, segs[k].mask)
+    assert k == len(frames) - 1  # every frame came out
     # without smoothing in time, the stream is the per-frame segmentation
     still = SubpixelGap(gap.threshold, gap.model, 5, gap.midline, 0, half_window_px=gap.half_window_px)
-    for (_, seg), f in zip(segment_stream(iter(frames[10:14]), still), frames[10:14]):
+    out = list(segment_stream(iter(frames[10:14]), still))
+    assert len(out) == 4
+    for (_, seg), f in zip(out, frames[10:14]):
         np.testing.assert_array_equal(seg.mask, segment_gap(f, still).mask)
 
 

@@ -96,6 +96,7 @@ def test_dropouts_are_where_the_truth_says():
     # outside the dropout mask the data are clean
     assert not outlier[~s.truth.dropout_mask].any()
     assert not s.truth.dropout_mask[kind == DROPOUT_NONE].any()
+    assert (kind == DROPOUT_SPIKES).any() and (kind == DROPOUT_FLAT).any()  # both loops below run
     for p in np.flatnonzero(kind == DROPOUT_SPIKES):
         assert outlier[p][s.truth.dropout_mask[p]].all()
     for p in np.flatnonzero(kind == DROPOUT_FLAT):

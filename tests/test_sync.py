@@ -9,7 +9,6 @@ so the true epoch time matching every video frame is known.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -281,19 +280,15 @@ def test_timing_error_is_below_half_an_ldv_sample(small_scan):
 
 
 @pytest.mark.slow
-def test_timing_error_and_wall_time_for_a_full_374_point_scan():
+def test_timing_error_for_a_full_374_point_scan():
     scene = make_scene(n_points=374, seed=0)
-    wall, cpu = time.perf_counter(), time.process_time()
-    res = run_sync(scene)
-    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    print(f"\n374 points x {scene.ref.shape[1]} samples: sync wall {wall:.2f} s, cpu {cpu:.2f} s")
+    res = run_sync(scene)  # its time: bench/bench_unit_timings.py
     assert res.ok.all(), set(res.reason)
     value = _report_timing(scene, res, "374 points")
     rel = rms(res.aligned_w - true_velocity(scene)) / rms(true_velocity(scene))
     print(f"aligned velocity relative RMS error {rel:.2e}")
     assert value < 5e-6, f"RMS timing error {value * 1e6:.2f} us (target < 10 us)"
     assert rel < 0.01, f"aligned velocity relative RMS error {rel:.2e}"
-    assert cpu < 60.0, f"sync took {cpu:.1f} s of CPU"
 
 
 def test_aligned_velocity_matches_the_truth_on_the_frame_times(small_scan):

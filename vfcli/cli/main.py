@@ -62,8 +62,11 @@ def _register() -> None:
     from vfcli.cli.optimize import optimize_cmd
     from vfcli.cli.sync import sync_cmd
     from vfcli.cli.synth import synth_cmd
+    from vfcli.cli.export import export_cmd
+    from vfcli.cli.report import report_cmd
 
-    built = {"ingest-hsc": ingest_hsc_cmd, "ingest-ldv": ingest_ldv_cmd, "mesh": mesh_cmd, "sync": sync_cmd, "synth": synth_cmd, "flow": flow_cmd, "optimize": optimize_cmd}
+    built = {"ingest-hsc": ingest_hsc_cmd, "ingest-ldv": ingest_ldv_cmd, "mesh": mesh_cmd, "sync": sync_cmd, "synth": synth_cmd, "flow": flow_cmd, "optimize": optimize_cmd,
+             "export": export_cmd, "report": report_cmd}
     todo = [
         ("ingest-hsc", "Ingest the high-speed video and the pressure recorded with it."),
         ("ingest-ldv", "Ingest the scanning-vibrometer grid."),
