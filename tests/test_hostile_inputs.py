@@ -304,6 +304,19 @@ def test_scan_with_an_absurd_pressure_reference_is_refused(tmp_path):
         read_ldv(_pyuff(tmp_path / "ref.uff", scan), expected_grid=(3, 4))
 
 
+def test_scan_with_an_absurd_reference_in_volts_is_refused(tmp_path):
+    scan = _scan()
+    scan.reference = scan.reference / 100 * 1e305   # volts, scaled
+    scan.reference_unit = "V"
+    path = tmp_path / "volts.mat"
+    from scipy.io import savemat
+
+    savemat(path, {"coords": scan.coords_mm, "velocity": scan.velocity_mm_s, "fs": FS_P,
+                   "reference": scan.reference, "reference_unit": "V"})
+    with pytest.raises(InputDataError, match="volts.mat: reference reaches 1.1[0-9]*e\\+306 V"):
+        read_ldv(path, expected_grid=(3, 4))
+
+
 def test_mat_with_text_node_ids_is_an_input_error(tmp_path):
     from scipy.io import savemat
 

@@ -24,6 +24,8 @@ Sources of each range (those notes, and "The instruments' file formats", unless 
   1.6 m/s. Allowed: |v| <= 100 m/s, far above any vocal-fold velocity (est.).
 * pressure: subglottal pressure 300-3000 Pa. Allowed: |p| <= 1e6 Pa (10 bar, est.: no
   phonation rig holds it); the sampling rate 1 Hz-10 MHz (the paper: 50 kHz).
+  A vibrometer reference channel in a pressure unit has the same bound; in volts (or a unit
+  vfcli does not know) |x| <= 1e6 (a transducer amplifier gives +-10 V).
 """
 from __future__ import annotations
 
@@ -45,6 +47,9 @@ LDV_EXTENT_MM = (0.2, 100.0)
 LDV_MAX_ABS_VELOCITY_MM_S = 1e5
 #: Largest |pressure| of a sample, Pa.
 MAX_ABS_PRESSURE_PA = 1e6
+#: Largest |sample| of an LDV reference channel not in a pressure unit (volts: a transducer
+#: amplifier gives +-10 V), in the channel's own unit.
+MAX_ABS_REFERENCE = 1e6
 #: Pressure sampling rate, Hz.
 PRESSURE_FS_RANGE = (1.0, 1e7)
 

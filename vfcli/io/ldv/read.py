@@ -50,7 +50,7 @@ from vfcli.io._common import check_finite, require_file
 from vfcli.io.ldv.dropouts import detect_dropouts
 from vfcli.io.ldv.grid import infer_grid
 from vfcli.io.limits import (LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S, MAX_ABS_PRESSURE_PA,
-                             check_abs_max, check_ldv_extent, check_range)
+                             MAX_ABS_REFERENCE, check_abs_max, check_ldv_extent, check_range)
 from vfcli.io.pressure import PA_PER_UNIT
 
 logger = logging.getLogger(__name__)
@@ -185,6 +185,8 @@ def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_uni
             with np.errstate(over="ignore"):
                 ref_pa = ref * PA_PER_UNIT[ref_key]
             check_abs_max(ref_pa, MAX_ABS_PRESSURE_PA, "reference pressure", "Pa", path)
+        else:  # volts from the transducer's amplifier (+-10 V), or a unit vfcli does not know
+            check_abs_max(ref, MAX_ABS_REFERENCE, "reference", reference_unit or "(no unit)", path)
     if t0 is not None:
         t0 = np.asarray(t0, dtype=np.float64).reshape(-1)
         if t0.shape != (p,):
