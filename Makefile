@@ -26,7 +26,7 @@ bench: venv
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 schemas: venv
-	$(BIN)/vfcli schemas --out schemas
+	$(BIN)/vfcli schemas --out schemas --layout-doc docs/store-layout.md --example examples/recording.toml
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache

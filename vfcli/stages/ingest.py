@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from vfcli.config import calibration_warnings
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
 from vfcli.io.ldv.read import LdvChannels, read_ldv
@@ -68,6 +69,8 @@ def frame_filter(compression: str, meta: VideoMeta) -> str:
 def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | None = None) -> StageResult:
     """Stream the video into /hsc (unchanged bit depth, one frame per chunk) with its pressure."""
     cfg, cam = ctx.config.ingest_hsc, ctx.config.camera
+    for line in calibration_warnings(ctx.stored_config, ctx.config, ctx.store.path):
+        log.warning(line)
     video = Path(video)
     inputs = _video_files(video) + ([Path(pressure)] if pressure else [])
     config_json = json.dumps({"ingest_hsc": cfg.model_dump(mode="json"), "camera": cam.model_dump(mode="json")}, sort_keys=True)
