@@ -2,11 +2,12 @@
 import numpy as np
 import pytest
 
-from vfcli.camera.camera import gap_mask, rasterize
+from vfcli.camera.raster import gap_mask, rasterize
 from vfcli.errors import ConfigError
 from vfcli.model.mesh import TAG_FIXTURE
 from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
-from vfcli.camera.silhouette import edge_crossings, measured_silhouettes
+from vfcli.camera.silhouette import edge_crossings
+from vfcli.flow.gap.opening import measured_silhouettes
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import CAMERA, forward_case

@@ -491,16 +491,24 @@ def test_template_phase_reference_meets_the_target_on_an_unchanged_waveform(smal
     assert value < 5e-6, f"RMS timing error {value * 1e6:.2f} us"
 
 
-def test_invalid_sync_settings_are_config_errors(small_scan):
+def test_invalid_sync_settings_are_bugs_in_the_core_and_user_errors_in_the_config(small_scan):
+    """The core refuses bad settings with ValueError; the [sync] config refuses them first as ConfigError."""
+    from vfcli.config import load_config
     from vfcli.errors import ConfigError
 
     scene, _ = small_scan
-    with pytest.raises(ConfigError, match="phase_reference"):
+    with pytest.raises(ValueError, match="phase_reference"):
         run_sync(scene, phase_reference="peak")
-    with pytest.raises(ConfigError, match="min_quality"):
+    with pytest.raises(ValueError, match="min_quality"):
         run_sync(scene, min_quality=1.5)
-    with pytest.raises(ConfigError, match="knot_cycles"):
+    with pytest.raises(ValueError, match="knot_cycles"):
         run_sync(scene, knot_cycles=0.0)
+    with pytest.raises(ValueError, match="f_range"):
+        run_sync(scene, f_range=(300.0, 100.0))
+    for override, field in (("sync.phase_reference=peak", "phase_reference"), ("sync.min_quality=1.5", "min_quality"),
+                            ("sync.knot_cycles=0", "knot_cycles"), ("sync.f0_min_hz=600", "f0_min_hz")):
+        with pytest.raises(ConfigError, match=field):
+            load_config(overrides=[override])
 
 
 def test_an_inverted_reference_channel_is_rejected():

@@ -9,17 +9,18 @@ from __future__ import annotations
 
 import difflib
 import json
+import math
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from vfcli.errors import ConfigError
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
 
 class CameraConfig(_Section):
@@ -84,6 +85,12 @@ class SyncConfig(_Section):
         "fundamental", description="Phase zero: peak of each record's pressure fundamental, or the video's whole waveform"
     )
 
+    @model_validator(mode="after")
+    def _f0_range(self) -> "SyncConfig":
+        if not self.f0_min_hz < self.f0_max_hz:
+            raise ValueError(f"f0_min_hz ({self.f0_min_hz}) must be below f0_max_hz ({self.f0_max_hz})")
+        return self
+
 
 class FlowConfig(_Section):
     """`vfcli flow`: gap segmentation and optical flow (/flow), then the surface velocity field (/fields)."""
@@ -118,6 +125,12 @@ class FlowConfig(_Section):
         True, description="Velocity valid only inside the convex hull of the good LDV points (no TPS extrapolation)"
     )
 
+    @model_validator(mode="after")
+    def _odd_median(self) -> "FlowConfig":
+        if self.median_px % 2 == 0:
+            raise ValueError(f"median_px ({self.median_px}) must be odd")
+        return self
+
 
 class MeshConfig(_Section):
     """`vfcli mesh`: the M5 model (Scherer et al. 2001, uniform glottis) and its tetrahedralisation."""
@@ -141,6 +154,16 @@ class MeshConfig(_Section):
     youngs_modulus_pa: float = Field(4400.0, gt=0, le=1e8, description="Young's modulus E, Pa")
     poisson_ratio: float = Field(0.499, ge=0, lt=0.5, description="Poisson's ratio nu (1)")
     density_kg_m3: float = Field(1070.0, gt=0, le=1e5, description="Density of the silicone, kg/m^3")
+
+    @model_validator(mode="after")
+    def _arcs_fit(self) -> "MeshConfig":
+        if self.exit_radius_mm >= self.thickness_mm:
+            raise ValueError(f"exit_radius_mm ({self.exit_radius_mm}) must be smaller than thickness_mm "
+                             f"({self.thickness_mm})")
+        run = self.depth_mm - self.entrance_radius_mm * (1 - math.cos(math.radians(self.entrance_sweep_deg)))
+        if self.exit_radius_mm >= self.depth_mm or run <= 0:
+            raise ValueError(f"depth_mm ({self.depth_mm}) is too small for the exit and entrance arcs")
+        return self
 
 
 class OptimizeConfig(_Section):
@@ -282,6 +305,8 @@ def _one_line(exc: ValidationError, source: str) -> str:
         loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
         if err["type"] == "extra_forbidden":
             parts.append(_unknown_setting(tuple(err["loc"])))
+        elif isinstance(err.get("input"), dict):  # a rule across the fields of a section
+            parts.append(f"{loc}: {err['msg']}")
         else:
             parts.append(f"{loc} = {err.get('input')!r}: {err['msg']}")
     return f"{source}: invalid config: " + "; ".join(parts)

@@ -82,11 +82,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.camera.camera import Camera, rasterize
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import rasterize
 from vfcli.errors import ConfigError
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
-from vfcli.camera.silhouette import (crossing_with_gradient, edge_crossings, extreme_per_ray, measured_silhouettes,
-                              surface_edges)
+from vfcli.camera.silhouette import crossing_with_gradient, edge_crossings, extreme_per_ray, surface_edges
+from vfcli.flow.gap.opening import measured_silhouettes
 
 
 @dataclass(frozen=True)
