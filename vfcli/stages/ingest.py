@@ -69,8 +69,6 @@ def frame_filter(compression: str, meta: VideoMeta) -> str:
 def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | None = None) -> StageResult:
     """Stream the video into /hsc (unchanged bit depth, one frame per chunk) with its pressure."""
     cfg, cam = ctx.config.ingest_hsc, ctx.config.camera
-    for line in calibration_warnings(ctx.stored_config, ctx.config, ctx.store.path):
-        log.warning(line)
     video = Path(video)
     inputs = _video_files(video) + ([Path(pressure)] if pressure else [])
     config_json = json.dumps({"ingest_hsc": cfg.model_dump(mode="json"), "camera": cam.model_dump(mode="json")}, sort_keys=True)
@@ -132,7 +130,10 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             summary["pressure_samples"] = int(rec.samples.size)
         return summary
 
-    return run_stage(ctx, "hsc", config_json=config_json, body=body, input_paths=inputs)
+    result = run_stage(ctx, "hsc", config_json=config_json, body=body, input_paths=inputs)
+    for line in calibration_warnings(ctx.stored_config, ctx.config, ctx.store.path):
+        log.warning(line)  # after the write: a failed ingest prints its error alone
+    return result
 
 
 def _to_camera_frame(coords_mm: np.ndarray, affine: np.ndarray) -> np.ndarray:
