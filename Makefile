@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; set PYTHON=/path/to/python3.11" >&2; exit 2; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[export,test]'
+	$(BIN)/python -m pip install --quiet -e '.[export,test,viz]'
 	@touch $(STAMP)
 
 demo: venv
@@ -34,7 +34,7 @@ bench: venv
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 schemas: venv
-	$(BIN)/vfcli schemas --out schemas
+	$(BIN)/vfcli schemas --out schemas --layout-doc docs/store-layout.md --example examples/recording.toml
 
 clean:
 	rm -rf $(VENV) $(DEMO) .pytest_cache
