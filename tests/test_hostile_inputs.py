@@ -464,12 +464,3 @@ def test_video_that_is_a_fifo_is_refused(tmp_path):
     os.mkfifo(fifo)
     with pytest.raises(InputDataError, match="not a regular file"):
         open_video(fifo)
-
-
-def test_config_that_is_a_fifo_is_refused(tmp_path):
-    from vfcli.config import load_config
-
-    fifo = tmp_path / "pipe.toml"
-    os.mkfifo(fifo)
-    with pytest.raises(ConfigError, match="not a regular file"):
-        load_config(fifo)

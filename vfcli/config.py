@@ -393,8 +393,6 @@ def load_config(
     if path is not None:
         path = Path(path)
         try:
-            if path.exists() and not path.is_file():
-                raise ConfigError(f"{path}: config is not a regular file")
             data = tomllib.loads(path.read_text())
         except FileNotFoundError:
             raise ConfigError(f"{path}: config file not found") from None
