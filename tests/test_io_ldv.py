@@ -90,7 +90,9 @@ def _pyuff_file(path, scan, order, id2_vel="Vib  Geschwindigkeit", id2_ref="Ref1
                                disp_cs=np.zeros(scan.n_points, int), color=np.ones(scan.n_points, int),
                                x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2], return_full_dict=True)
     sets = [pyuff.prepare_151(model_name="psv", description="scan", db_app="PSV",
-                              program="PSV", return_full_dict=True), geo]
+                              program="PSV", return_full_dict=True),
+            pyuff.prepare_164(units_code=1, units_description="SI", temp_mode=2, length=1.0, force=1.0,
+                              temp=1.0, temp_offset=273.15, return_full_dict=True), geo]
     t = np.arange(scan.n_samples) / FS
     for i in order:
         for id1, id2, data, unit in (("Response Time Trace", id2_vel,

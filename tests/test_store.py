@@ -415,7 +415,7 @@ def test_the_package_exports_the_public_names_of_its_modules():
 
 def test_typed_readers_return_what_the_stages_wrote(tmp_path):
     from vfcli.model.mesh import build_mesh
-    from vfcli.store import read_optimize_run, read_stored_mesh, run_names
+    from vfcli.store import read_run, read_stored_mesh, run_names
 
     mesh = build_mesh(target_edge_mm=3.0)
     store = Store(tmp_path / "r.h5")
@@ -437,16 +437,16 @@ def test_typed_readers_return_what_the_stages_wrote(tmp_path):
             s.put("sim_time", np.arange(2) * 1e-4)
     with store.read() as r:
         stored = read_stored_mesh(r)
-        run = read_optimize_run(r, "a")
+        run = read_run(r, "a")
         with pytest.raises(MissingStageError):
-            read_optimize_run(r, "c")
+            read_run(r, "c")
         names = run_names(r)
     assert (stored.youngs_modulus_pa, stored.poisson_ratio, stored.density_kg_m3, stored.length_mm) == (5000.0, 0.45, 1000.0, 14.5)
     np.testing.assert_array_equal(stored.mesh.nodes, mesh.nodes)
     np.testing.assert_array_equal(stored.mesh.faces, mesh.faces)
     np.testing.assert_array_equal(run.displacements, disp)
     np.testing.assert_array_equal(run.history["total"], [3.0, 2.0])
-    assert run.std is None and list(run.parameter_names) == ["p0", "p1", "p2"]
+    assert run.displacement_std is None and list(run.parameter_names) == ["p0", "p1", "p2"]
     assert run.attrs["camera_rotation_deg"] == 1.5 and run.attrs["converged"]
     assert sorted(names) == ["a", "b"]
 

@@ -7,12 +7,13 @@ silently ignored setting. The CLI loads a config once: the file (``--config``), 
 """
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import tomllib
 import typing
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
@@ -20,7 +21,23 @@ from vfcli.errors import ConfigError
 
 
 class _Section(BaseModel):
+    # allow_inf_nan=False: NaN/inf in any float field (tuples too) is a config error at load time
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+#: A pixel coordinate, px (bounded: a camera frame is at most a few thousand px).
+_Px = Annotated[float, Field(ge=-1e6, le=1e6)]
+#: An entry of the LDV affine map (mm per mm or mm).
+_AffineEntry = Annotated[float, Field(ge=-1e4, le=1e4)]
+_AffineRow = tuple[_AffineEntry, _AffineEntry, _AffineEntry]
+#: A pixel index or size of a region of interest, px.
+_RoiInt = Annotated[int, Field(ge=0, le=10**6)]
+#: A per-fold mounting offset, mm.
+_OffsetMm = Annotated[float, Field(ge=-10, le=10)]
+#: A per-fold mounting rotation, degrees.
+_RotDeg = Annotated[float, Field(ge=-90, le=90)]
+#: A number of Legendre shapes (1..8: a 3 mm medial surface meshed at 1-2 mm resolves no more).
+_Shapes = Annotated[int, Field(ge=1, le=8)]
 
 
 class CameraConfig(_Section):
@@ -29,7 +46,7 @@ class CameraConfig(_Section):
     fps_hz: float | None = Field(None, gt=0, le=1e7, description="Frame rate in Hz; null: from the video's metadata")
     px_per_mm: float = Field(20.0, gt=0, le=1000, description="Image scale from a calibration target, px/mm")
     rotation_deg: float = Field(0.0, ge=-180, le=180, description="In-plane rotation of the model frame in the image, degrees")
-    offset_px: tuple[float, float] = Field(
+    offset_px: tuple[_Px, _Px] = Field(
         (0.0, 0.0), description="Pixel (col, row) of the model origin (x = 0, y = 0) in the full frame, px"
     )
     pose: Literal["estimate", "config"] = Field(
@@ -48,7 +65,7 @@ class CameraConfig(_Section):
 class LdvFrameConfig(_Section):
     """How the vibrometer's point coordinates map into the camera frame (mm)."""
 
-    affine: tuple[tuple[float, float, float], tuple[float, float, float]] = Field(
+    affine: tuple[_AffineRow, _AffineRow] = Field(
         ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
         description="2x3 affine map from scan (x, y) in mm to camera-frame (x, y) in mm",
     )
@@ -59,7 +76,7 @@ class IngestHscConfig(_Section):
 
     first_frame: int = Field(0, ge=0, le=10**9, description="First frame to ingest (index)")
     n_frames: int | None = Field(None, ge=1, le=10**9, description="Number of frames to ingest; null: to the end")
-    roi_px: tuple[int, int, int, int] | None = Field(
+    roi_px: tuple[_RoiInt, _RoiInt, _RoiInt, _RoiInt] | None = Field(
         None, description="Region of interest (col0, row0, width, height) in px; null: whole frame"
     )
     pressure_group: str | None = Field(None, description="TDMS group of the pressure; null: the only one")
@@ -79,6 +96,9 @@ class IngestLdvConfig(_Section):
     grid_cols: int = Field(22, ge=1, le=1000, description="Columns of the scan grid (points)")
     velocity_id1: str = Field("Response Time Trace", description="UFF id1 of the vibrometer channel")
     reference_id1: str = Field("Reference Time Trace", description="UFF id1 of the pressure reference channel")
+    length_unit: Literal["m", "cm", "mm", "um", "in"] | None = Field(
+        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: such a "
+        "file is refused (the UFF standard has no default unit; files with 164 and CSV/MAT state their own)")
 
 
 class SyncConfig(_Section):
@@ -179,9 +199,9 @@ class MeshConfig(_Section):
     depth_mm: float = Field(8.0, gt=2, le=20, description="D: medial-lateral depth of one fold, mm")
     length_mm: float = Field(15.0, gt=2, le=40, description="L: anterior-posterior length, mm")
     gap_mm: float = Field(0.1, ge=0, le=2, description="Pre-phonatory gap between the folds, mm")
-    offset_y_mm: tuple[float, float] = Field((0.0, 0.0), description="Per-fold (left, right) lateral mounting offset, mm")
-    offset_z_mm: tuple[float, float] = Field((0.0, 0.0), description="Per-fold (left, right) vertical mounting offset, mm")
-    rotation_deg: tuple[float, float] = Field(
+    offset_y_mm: tuple[_OffsetMm, _OffsetMm] = Field((0.0, 0.0), description="Per-fold (left, right) lateral mounting offset, mm")
+    offset_z_mm: tuple[_OffsetMm, _OffsetMm] = Field((0.0, 0.0), description="Per-fold (left, right) vertical mounting offset, mm")
+    rotation_deg: tuple[_RotDeg, _RotDeg] = Field(
         (0.0, 0.0), description="Per-fold (left, right) mounting rotation about the x axis, degrees"
     )
     target_edge_mm: float = Field(1.5, ge=0.1, le=5, description="Target tetrahedron edge length, mm")
@@ -240,7 +260,7 @@ class OptimizeConfig(_Section):
     )
     pressure_time_degree: int = Field(4, ge=0, le=30, description="Degree of the free Bernstein correction in time of "
                                       "the pressure load model (1)")
-    pressure_medial_shapes: tuple[int, int] = Field(
+    pressure_medial_shapes: tuple[_Shapes, _Shapes] = Field(
         (3, 2), description="Pressure load model: Legendre shapes on the medial surface (in height, even ones along the fold)"
     )
     pressure_inferior_linear: bool = Field(False, description="Pressure load model: add a linear variation along the "
@@ -319,12 +339,28 @@ SCHEMA_MODELS: dict[str, type[BaseModel]] = {
 }
 
 
+def _unknown_setting(loc: tuple[Any, ...]) -> str:
+    """'camera.px_per_m: unknown setting (did you mean camera.px_per_mm?)': the nearest known key
+    of the same section (difflib), else the section's keys."""
+    model: type[BaseModel] = RecordingConfig
+    for part in loc[:-1]:
+        field = model.model_fields.get(str(part))
+        if field is None or not (isinstance(field.annotation, type) and issubclass(field.annotation, BaseModel)):
+            return f"{'.'.join(map(str, loc))}: unknown setting"
+        model = field.annotation
+    prefix = "".join(f"{p}." for p in loc[:-1])
+    known = list(model.model_fields)
+    near = difflib.get_close_matches(str(loc[-1]), known, n=1, cutoff=0.6)
+    hint = f"did you mean {prefix}{near[0]}?" if near else f"known: {', '.join(prefix + k for k in known)}"
+    return f"{prefix}{loc[-1]}: unknown setting ({hint})"
+
+
 def _one_line(exc: ValidationError, source: str) -> str:
     parts = []
     for err in exc.errors():
         loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
         if err["type"] == "extra_forbidden":
-            parts.append(f"{loc}: unknown setting")
+            parts.append(_unknown_setting(tuple(err["loc"])))
         elif isinstance(err.get("input"), dict):  # a rule across the fields of a section
             parts.append(f"{loc}: {err['msg']}")
         else:
@@ -345,6 +381,14 @@ def _parse_value(text: str) -> Any:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except (RecursionError, ValueError, MemoryError) as exc:  # nested too deep, a 5000-digit integer
+        raise ConfigError(f"--set value {text[:40]!r}...: {_toml_limit(exc)}") from None
+
+
+def _toml_limit(exc: BaseException) -> str:
+    if isinstance(exc, RecursionError):
+        return "nested too deep to be a config"
+    return f"not a config value ({str(exc)[:120]})"
 
 
 def apply_overrides(base: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
@@ -391,6 +435,10 @@ def load_config(
             raise ConfigError(f"{path}: config file not found") from None
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read the config ({exc.strerror or exc})") from None
+        except (RecursionError, ValueError, MemoryError) as exc:  # 100,000-deep nesting, 5,000-digit integers
+            raise ConfigError(f"{path}: {_toml_limit(exc)}") from None
         stored = _validate(data, str(path))
     elif stored_json:
         stored = _validate(json.loads(stored_json), "stored recording config")
@@ -400,6 +448,44 @@ def load_config(
     if overrides:
         effective = _validate(apply_overrides(stored.model_dump(mode="json"), overrides), "--set")
     return stored, effective
+
+
+def persist_overrides(stored: RecordingConfig, overrides: list[str]) -> RecordingConfig:
+    """The stored config with ``--set section.field=value`` items applied, to be stored
+    (`vfcli config FILE --set ...`); only the values given so far count as set."""
+    return _validate(apply_overrides(stored.model_dump(mode="json", exclude_unset=True), overrides), "--set")
+
+
+#: Settings a lab measures for its own setup; left at the default they silently scale results.
+CALIBRATION: dict[str, tuple[str, str]] = {
+    "camera.px_per_mm": ("px/mm", "measure it on a calibration target in the folds' plane"),
+}
+
+
+def default_calibration(stored: RecordingConfig, effective: RecordingConfig) -> list[str]:
+    """The :data:`CALIBRATION` keys that no config file or ``--set`` gave a value: they are at
+    their default (a value equal to the default counts as given when the stored config sets it)."""
+    out = []
+    for key in CALIBRATION:
+        section, name = key.split(".")
+        model = getattr(effective, section)
+        default = type(model).model_fields[name].default
+        if getattr(model, name) == default and name not in getattr(stored, section).model_fields_set:
+            out.append(key)
+    return out
+
+
+def calibration_warnings(stored: RecordingConfig, effective: RecordingConfig, store: str | Path) -> list[str]:
+    """One line per :func:`default_calibration` key: its default value and how to set it."""
+    lines = []
+    for key in default_calibration(stored, effective):
+        section, name = key.split(".")
+        value = getattr(getattr(effective, section), name)
+        unit, how = CALIBRATION[key]
+        lines.append(f"{key} is not set: the default {value:g} {unit} is used, and every length and velocity from "
+                     f"the video scales with it; {how} and set it with `vfcli config {store} --set {key}=VALUE` "
+                     f"(or in recording.toml), then rerun")
+    return lines
 
 
 def export_schemas(out_dir: str | Path) -> list[Path]:

@@ -9,9 +9,11 @@ Exit codes
 1  internal error (a bug: please report it with the traceback)
 2  usage or config error (bad option, invalid config value)
 3  bad input data (unreadable, truncated, inconsistent or non-physical raw files)
-4  store locked by another writer, or not a vfcli store / incompatible version
+4  store locked by another writer, not writable (permissions, a lock path that is a
+   directory), or not a vfcli store / incompatible version
 5  a stage this command needs is missing or incomplete (run the upstream command first)
 6  not implemented yet
+130  interrupted (Ctrl-C, SIGINT); a stage is committed whole or not at all, so no half-written stage is left
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ EXIT_BAD_INPUT = 3
 EXIT_STORE = 4
 EXIT_MISSING_STAGE = 5
 EXIT_NOT_IMPLEMENTED = 6
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a command killed by Ctrl-C
 
 
 class VfcliError(Exception):
@@ -50,6 +53,12 @@ class InputDataError(VfcliError):
 
 class StoreLockedError(VfcliError):
     """Another process is writing the store (exit 4)."""
+
+    exit_code = EXIT_STORE
+
+
+class StoreAccessError(VfcliError):
+    """The store (its folder or lock file) cannot be written: permissions, a directory in the way (exit 4)."""
 
     exit_code = EXIT_STORE
 

@@ -15,7 +15,8 @@ def require_file(path: str | Path, what: str = "file") -> Path:
     Raises
     ------
     InputDataError
-        If the file is missing, a directory or empty (0 bytes).
+        If the file is missing, not a regular file (a directory, a FIFO: never opened, so
+        never waited on), empty (0 bytes) or not readable (permissions).
     """
     p = Path(path)
     if not p.exists():
@@ -24,6 +25,11 @@ def require_file(path: str | Path, what: str = "file") -> Path:
         raise InputDataError(f"{what} is not a regular file", p)
     if p.stat().st_size == 0:
         raise InputDataError(f"{what} is empty (0 bytes)", p)
+    try:
+        with open(p, "rb"):
+            pass
+    except OSError as exc:  # PermissionError and the like: the reader would fail later
+        raise InputDataError(f"{what} cannot be read: {exc.strerror or exc}", p) from None
     return p
 
 

@@ -3,7 +3,10 @@
 scipy.io.loadmat (1.17) can crash the interpreter (segmentation fault) on
 corrupt files, e.g. a data element tag with an unknown type, so vfcli walks the
 tag structure first: every data element must have a known type and lie within
-its parent; compressed elements are inflated (bounded) and walked too.
+its parent; compressed elements are inflated and walked too, within a budget of
+inflated bytes for the whole file (:func:`inflate_budget`: 100 times the file's size,
+at least 64 MiB, at most 2 GiB), counted while inflating: a small file that inflates
+past the budget (a "zip bomb") is refused before it takes the memory.
 """
 from __future__ import annotations
 
@@ -16,7 +19,19 @@ from vfcli.errors import InputDataError
 _VALID_TYPES = {1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 14, 15, 16, 17, 18}
 _MI_MATRIX, _MI_COMPRESSED = 14, 15
 _MAX_INFLATE = 2**31
+_MIN_INFLATE = 64 * 2**20
+_INFLATE_RATIO = 100
 _MAX_DEPTH = 32
+_STEP = 16 * 2**20
+
+
+def inflate_budget(file_size: int) -> int:
+    """Inflated bytes a .mat file of ``file_size`` bytes may hold in all (bytes).
+
+    Measured data (velocities, coordinates in float64) deflate by a factor of 1-10;
+    100 leaves room for zero-padded arrays without letting 2 MB become 2 GiB.
+    """
+    return int(min(_MAX_INFLATE, max(_MIN_INFLATE, _INFLATE_RATIO * file_size)))
 
 
 def check_mat5(path: str | Path) -> None:
@@ -38,10 +53,28 @@ def check_mat5(path: str | Path) -> None:
                              p)
     if version != 0x0100:
         raise InputDataError(f"unknown .mat version 0x{version:04x}", p)
-    _walk(buf, 128, len(buf), fmt, 0, p, top=True)
+    _walk(buf, 128, len(buf), fmt, 0, p, top=True, budget=[inflate_budget(len(buf))])
 
 
-def _walk(buf: bytes, pos: int, end: int, fmt: str, depth: int, p: Path, top: bool) -> None:
+def _inflate(data: bytes, budget: list[int], p: Path) -> bytes:
+    """Inflate ``data`` in steps, refusing as soon as the file's budget is spent."""
+    d = zlib.decompressobj()
+    out = bytearray()
+    chunk = d.decompress(data, _STEP)
+    while True:
+        out += chunk
+        if len(out) > budget[0]:
+            raise InputDataError(f"compressed element inflates past {budget[0] // 2**20} MiB (the limit "
+                                 "for a file of this size): corrupt or not measurement data", p)
+        if not d.unconsumed_tail:
+            break
+        chunk = d.decompress(d.unconsumed_tail, _STEP)
+    budget[0] -= len(out)
+    return bytes(out)
+
+
+def _walk(buf: bytes, pos: int, end: int, fmt: str, depth: int, p: Path, top: bool,
+          budget: list[int]) -> None:
     if depth > _MAX_DEPTH:
         raise InputDataError("corrupt .mat file: nesting too deep", p)
     while pos < end:
@@ -65,13 +98,13 @@ def _walk(buf: bytes, pos: int, end: int, fmt: str, depth: int, p: Path, top: bo
             raise InputDataError(f"corrupt .mat file: element at byte {pos} runs past its end "
                                  "(truncated file?)", p)
         if typ == _MI_MATRIX:
-            _walk(buf, start, stop, fmt, depth + 1, p, top=False)
+            _walk(buf, start, stop, fmt, depth + 1, p, top=False, budget=budget)
         elif typ == _MI_COMPRESSED:
             try:
-                d = zlib.decompressobj()
-                inner = d.decompress(buf[start:stop], _MAX_INFLATE)
+                inner = _inflate(buf[start:stop], budget, p)
             except zlib.error as exc:
                 raise InputDataError(f"corrupt .mat file: bad compressed element ({exc})",
                                      p) from None
-            _walk(inner, 0, len(inner), fmt, depth + 1, p, top=False)
+            _walk(inner, 0, len(inner), fmt, depth + 1, p, top=False, budget=budget)
+            del inner
         pos = stop if typ == _MI_COMPRESSED else stop + (-n) % 8

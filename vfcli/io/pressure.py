@@ -42,6 +42,7 @@ import csv
 import io
 import logging
 import re
+import warnings
 from pathlib import Path
 from typing import NamedTuple
 
@@ -49,6 +50,7 @@ import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import check_finite, require_file
+from vfcli.io.limits import MAX_ABS_PRESSURE_PA, PRESSURE_FS_RANGE, check_abs_max, check_range
 
 logger = logging.getLogger(__name__)
 
@@ -105,7 +107,12 @@ def _finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
         raise InputDataError(f"start time {t0} s is not finite", path)
     scale = pa_per_unit(unit, path)
     fs = float(f"{fs:.12g}")  # 1 / wf_increment: drop the last-digit noise of the inverse
-    return PressureRecord(samples * scale, fs, float(t0), unit, source)
+    check_range(fs, *PRESSURE_FS_RANGE, "pressure sampling rate", "Hz", path)
+    with np.errstate(over="ignore"):
+        pa = samples * scale
+    check_finite(pa, path, "pressure signal (in Pa)")
+    check_abs_max(pa, MAX_ABS_PRESSURE_PA, "pressure", "Pa", path)
+    return PressureRecord(pa, fs, float(t0), unit, source)
 
 
 def read_pressure(
@@ -164,18 +171,35 @@ def _read_tdms(p: Path, group: str | None, channel: str | int | None,
     with open(p, "rb") as fh:
         if fh.read(4) != b"TDSm":
             raise InputDataError("not a TDMS file (no 'TDSm' lead-in)", p)
+    nptdms_log = logging.getLogger("nptdms")
+    said = _Said()
+    nptdms_log.addHandler(said)
     try:
-        tdms = TdmsFile.open(p)  # metadata only; the chosen channel's data is read below
-    except Exception as exc:  # npTDMS raises ValueError/struct.error/... on corrupt files
-        raise InputDataError(f"unreadable TDMS: {type(exc).__name__}: {exc}", p) from None
-    try:
-        return _read_tdms_channel(p, tdms, group, channel, unit)
+        try:
+            tdms = TdmsFile.open(p)  # metadata only; the chosen channel's data is read below
+        except Exception as exc:  # npTDMS raises ValueError/struct.error/... on corrupt files
+            raise InputDataError(f"unreadable TDMS: {type(exc).__name__}: {exc}", p) from None
+        try:
+            return _read_tdms_channel(p, tdms, group, channel, unit, said.messages)
+        finally:
+            tdms.close()
     finally:
-        tdms.close()
+        nptdms_log.removeHandler(said)
+
+
+class _Said(logging.Handler):
+    """Collects npTDMS's warnings (it reads a truncated file with a logged warning only)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
 
 
 def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | None,
-                       unit: str | None) -> PressureRecord:
+                       unit: str | None, warned: list[str]) -> PressureRecord:
     try:
         chans = [(g.name, c) for g in tdms.groups() for c in g.channels()]
     except Exception as exc:
@@ -209,11 +233,35 @@ def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | No
         raise InputDataError(f"wf_increment {dt} s is not positive", p)
     if not np.issubdtype(np.asarray(data).dtype, np.number):
         raise InputDataError(f"channel {gname}/{ch.name} is not numeric", p)
+    _check_tdms_complete(p, tdms, gname, ch, len(data), warned)
     file_unit = str(props.get("unit_string", "")).strip() or None
     unit_used = _resolve_unit(file_unit, unit, p)
     start = props.get("wf_start_time")
     src = f"TDMS {p.name} {gname}/{ch.name}" + (f", wf_start_time {start}" if start else "")
     return _finish(data, 1.0 / dt, t0, unit_used, src, p)
+
+
+def _check_tdms_complete(p: Path, tdms, gname: str, ch, n: int, warned: list[str]) -> None:
+    """Refuse a channel with fewer samples than the file promises (a truncated TDMS).
+
+    npTDMS reads a truncated last segment with only a logged warning ("less data than
+    expected"), which vfcli turns into a refusal; a channel shorter than another channel of
+    its group at the same sample interval (a DAQ samples them together) is refused too.
+    """
+    name = f"{gname}/{ch.name}"
+    trunc = [w for w in warned if "less data than expected" in w or "not a multiple of the chunk" in w]
+    if trunc:
+        raise InputDataError(f"channel {name} is truncated ({n} samples read; npTDMS: {trunc[0][:120]})", p)
+    try:
+        dt = ch.properties.get("wf_increment")
+        promised = [len(c) for c in tdms[gname].channels()
+                    if c.name != ch.name and c.properties.get("wf_increment") == dt]
+    except Exception:  # noqa: BLE001 - lengths are a plausibility check only
+        promised = []
+    longest = max(promised, default=n)
+    if longest > n:
+        raise InputDataError(f"channel {name} holds {n} samples, another channel of the group at the same "
+                             f"rate {longest}: truncated file?", p)
 
 
 def write_pressure_tdms(path: str | Path, samples_pa: np.ndarray, fs: float, t0: float = 0.0,
@@ -395,9 +443,33 @@ def write_pressure_csv(path: str | Path, samples_pa: np.ndarray, fs: float, t0: 
 
 # --------------------------------------------------------------------------- WAV
 
-def _read_wav(p: Path, channel: str | int | None, pa_per_fs: float) -> PressureRecord:
-    import warnings
+def _check_wav_chunks(p: Path, riff: bytes) -> None:
+    """Refuse a WAV whose ``data`` chunk claims more bytes than the file holds.
 
+    scipy reads such a file with a warning and returns what is there; a header that
+    lies about the length is a truncated or corrupt recording. RF64 (sizes in the ds64
+    chunk) is left to scipy.
+    """
+    import struct
+
+    if riff == b"RF64":
+        return
+    fmt = ">I" if riff == b"RIFX" else "<I"
+    size = p.stat().st_size
+    with open(p, "rb") as fh:
+        pos = 12
+        while pos + 8 <= size:
+            fh.seek(pos)
+            tag, n = fh.read(4), struct.unpack(fmt, fh.read(4))[0]
+            if tag == b"data":
+                if pos + 8 + n > size:
+                    raise InputDataError(f"truncated WAV: the data chunk claims {n} bytes, the file holds "
+                                         f"{size - pos - 8} after its header", p)
+                return
+            pos += 8 + n + (n & 1)
+
+
+def _read_wav(p: Path, channel: str | int | None, pa_per_fs: float) -> PressureRecord:
     from scipy.io import wavfile
 
     if not (np.isfinite(pa_per_fs) and pa_per_fs > 0):
@@ -406,6 +478,10 @@ def _read_wav(p: Path, channel: str | int | None, pa_per_fs: float) -> PressureR
         head = fh.read(12)
     if head[:4] not in (b"RIFF", b"RIFX", b"RF64") or head[8:12] != b"WAVE":
         raise InputDataError("not a WAV file (no RIFF/WAVE header)", p)
+    _check_wav_chunks(p, head[:4])
+    if channel is not None and not (isinstance(channel, int) or str(channel).strip().isdigit()):
+        raise ConfigError(f"{p}: the channel of a WAV is its index (0, 1, ...), not {channel!r}: "
+                          "set ingest_hsc.pressure_channel")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

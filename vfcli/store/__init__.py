@@ -6,7 +6,7 @@ spelt), :mod:`~vfcli.store.transaction` (lock, atomic commit, :class:`StageWrite
 datasets, :class:`FrameReader`, N-bit), :mod:`~vfcli.store.chunks` (chunk encoding),
 :mod:`~vfcli.store.provenance`, :mod:`~vfcli.store.info`, :mod:`~vfcli.store.truth` (a
 phantom's truth file), and the typed readers :mod:`~vfcli.store.mesh` (/mesh) and
-:mod:`~vfcli.store.optimize_run` (/optimize/<run>).
+:mod:`~vfcli.store.runs` (/optimize/<run>).
 
 The public names below are imported on first use (``from vfcli.store import Store``), so
 importing :mod:`vfcli.store.layout` alone does not load h5py.
@@ -22,7 +22,7 @@ _PUBLIC = {
     "FrameReader": "frames", "COMPRESSIONS": "frames", "CHUNK_CODECS": "frames",
     "read_truth": "truth", "write_truth": "truth", "TruthWriter": "truth",
     "StoredMesh": "mesh", "read_mesh": "mesh", "read_stored_mesh": "mesh",
-    "OptimizeRun": "optimize_run", "read_optimize_run": "optimize_run", "run_names": "optimize_run",
+    "OptimizeRun": "runs", "read_run": "runs", "run_names": "runs",
     "store_info": "info",
 }
 

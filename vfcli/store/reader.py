@@ -24,6 +24,8 @@ from vfcli.store.provenance import same_inputs
 
 def open_h5(path: Path, mode: str) -> h5py.File:
     """The HDF5 file at ``path``; :class:`StoreFormatError` when it is not one."""
+    if path.exists() and not path.is_file():  # a FIFO would block the open; a directory is no store
+        raise StoreFormatError("not a regular file, so not a store", path)
     try:
         return h5py.File(path, mode)
     except OSError as exc:

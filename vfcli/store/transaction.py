@@ -34,7 +34,7 @@ import h5py
 import numpy as np
 
 from vfcli import __version__
-from vfcli.errors import ConfigError, StoreLockedError
+from vfcli.errors import ConfigError, StoreAccessError, StoreLockedError
 from vfcli.store import layout
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
@@ -347,8 +347,13 @@ class Store:
 
     @contextmanager
     def _lock(self) -> Iterator[None]:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(_lock_path(self.path), os.O_RDWR | os.O_CREAT, 0o644)
+        try:  # a read-only folder, an unwritable lock file, a lock path that is a directory
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            if not os.access(self.path.parent, os.W_OK | os.X_OK):
+                raise PermissionError(errno.EACCES, "folder not writable", str(self.path.parent))
+            fd = os.open(_lock_path(self.path), os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise StoreAccessError(f"cannot write the store: {exc.strerror or exc}: {exc.filename}", self.path) from None
         try:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -79,8 +79,9 @@ def detect_dropouts(
     dmed = np.median(dv, axis=1, keepdims=True)
     dsig = MAD_TO_SIGMA * np.median(np.abs(dv - dmed), axis=1, keepdims=True)
     tiny = np.finfo(float).tiny
-    amp_z = dev / np.maximum(sig, tiny)
-    jz = np.abs(dv - dmed) / np.maximum(dsig, tiny)
+    with np.errstate(over="ignore"):  # a frozen (zero-MAD) signal: z = inf is the intended "huge"
+        amp_z = dev / np.maximum(sig, tiny)
+        jz = np.abs(dv - dmed) / np.maximum(dsig, tiny)
     jump_at = np.zeros_like(v, dtype=bool)          # sample touches a big jump
     big = jz > jump_k
     jump_at[:, :-1] |= big

@@ -17,7 +17,10 @@ UFF (``.uff``/``.unv``, as PSV exports them; read with pyuff)
     Records are matched to geometry by node number, never by order.
     Units: velocity from the 58 ordinate units label (m/s, mm/s, um/s; without
     a label ``velocity_unit``, default m/s); coordinates from dataset 164
-    (length factor, SI = file / factor), else ``length_unit`` (default m).
+    (length factor, SI = file / factor), else ``length_unit``
+    (``ingest_ldv.length_unit``). The UFF standard defines no default length
+    unit (files without 164 are written in m and in mm alike), so a file
+    without 164 and no ``length_unit`` is refused, naming that field.
     The reference keeps its own unit (label, e.g. 'V' or 'Pa').
 CSV (vfcli layout, written by :func:`vfcli.io.ldv.write.write_ldv_csv`)
     Comment lines ``# fs = <Hz>`` (required), ``# velocity_unit = mm/s``,
@@ -46,6 +49,9 @@ from vfcli.errors import InputDataError
 from vfcli.io._common import check_finite, require_file
 from vfcli.io.ldv.dropouts import detect_dropouts
 from vfcli.io.ldv.grid import infer_grid
+from vfcli.io.limits import (LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S, MAX_ABS_PRESSURE_PA,
+                             MAX_ABS_REFERENCE, check_abs_max, check_ldv_extent, check_range)
+from vfcli.io.pressure import PA_PER_UNIT
 
 logger = logging.getLogger(__name__)
 
@@ -141,10 +147,15 @@ def _round_rate(fs: float) -> float:
 
 def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_unit, t0,
                 source: str, path: Path, expected_grid: tuple[int, int] | None,
-                notes: list[str] | None = None) -> LdvScan:
-    """Validate arrays, sort by node number, infer the grid and flag dropouts."""
+                notes: list[str] | None = None, unit_hint: str = "") -> LdvScan:
+    """Validate arrays (plausible ranges: vfcli/io/limits.py), sort by node number, infer
+    the grid and flag dropouts. ``unit_hint`` ends the message of an implausible extent."""
     notes = list(notes or [])
-    node_ids = np.asarray(node_ids).astype(np.int64).reshape(-1)
+    try:
+        node_ids = np.asarray(node_ids).astype(np.int64).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        raise InputDataError(f"node numbers are not integers: {np.asarray(node_ids).reshape(-1)[:3]}",
+                             path) from None
     coords = np.asarray(coords_mm, dtype=np.float64)
     vel = np.asarray(velocity_mm_s, dtype=np.float64)
     p = node_ids.size
@@ -158,14 +169,24 @@ def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_uni
         raise InputDataError("duplicate node numbers", path)
     if not (np.isfinite(fs) and fs > 0):
         raise InputDataError(f"sampling rate {fs} Hz is not positive", path)
+    check_range(fs, *LDV_FS_RANGE, "vibrometer sampling rate", "Hz", path)
     check_finite(coords, path, "coordinates")
     check_finite(vel, path, "velocity")
+    check_ldv_extent(coords, path, unit_hint)
+    check_abs_max(vel, LDV_MAX_ABS_VELOCITY_MM_S, "velocity", "mm/s", path)
     ref = None
     if reference is not None:
         ref = np.asarray(reference, dtype=np.float64)
         if ref.shape != vel.shape:
             raise InputDataError(f"reference has shape {ref.shape}, velocity {vel.shape}", path)
         check_finite(ref, path, "reference")
+        ref_key = re.sub(r"[\s_]", "", reference_unit or "").lower()
+        if ref_key in PA_PER_UNIT:  # a pressure reference: the same bound as the pressure readers
+            with np.errstate(over="ignore"):
+                ref_pa = ref * PA_PER_UNIT[ref_key]
+            check_abs_max(ref_pa, MAX_ABS_PRESSURE_PA, "reference pressure", "Pa", path)
+        else:  # volts from the transducer's amplifier (+-10 V), or a unit vfcli does not know
+            check_abs_max(ref, MAX_ABS_REFERENCE, "reference", reference_unit or "(no unit)", path)
     if t0 is not None:
         t0 = np.asarray(t0, dtype=np.float64).reshape(-1)
         if t0.shape != (p,):
@@ -206,7 +227,8 @@ def read_ldv(
         Expected scan grid (default 17 x 22); a different grid is reported in
         ``LdvScan.notes`` and logged, not raised.
     velocity_unit, length_unit : str or None
-        Units when the file does not state them (see module docstring).
+        Units when the file does not state them (see module docstring); a UFF
+        without dataset 164 needs ``length_unit``.
     kind : {'uff', 'csv', 'mat'} or None
         Force the format; default from the extension (.uff/.unv/.csv/.mat).
 
@@ -268,8 +290,15 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
         if not (np.isfinite(factor) and factor > 0):
             raise InputDataError(f"dataset 164 length factor {factor} is not positive", p)
         mm_per = 1e3 / factor
+        unit_hint = " (dataset 164 states the unit)"
+    elif length_unit is None:
+        span = float(np.max(np.ptp(g_xyz[:, :2], axis=0))) if len(g_xyz) else 0.0
+        raise InputDataError(
+            f"no units dataset (164): the length unit of the point coordinates (spanning {span:.4g} "
+            "file units) is unknown; set ingest_ldv.length_unit (m, mm, ...)", p)
     else:
-        mm_per = _unit_factor(MM_PER_UNIT, length_unit or "m", "length", p)
+        mm_per = _unit_factor(MM_PER_UNIT, length_unit, "length", p)
+        unit_hint = f" (ingest_ldv.length_unit = {length_unit!r})"
     vel_re = re.compile(ch.velocity_id2, re.IGNORECASE)
     ref_re = re.compile(ch.reference_id2, re.IGNORECASE)
     vel, ref = {}, {}
@@ -344,7 +373,7 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
         notes.append("no reference records")
     src = f"UFF {p.name}: {nodes.size} points, {n_s} samples, velocity in {v_unit}"
     return finish_scan(nodes, coords, velocity, 1.0 / inc, reference, ref_unit, t0, src, p,
-                       expected_grid, notes)
+                       expected_grid, notes, unit_hint)
 
 
 # --------------------------------------------------------------------------- CSV

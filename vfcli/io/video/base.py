@@ -33,6 +33,7 @@ from typing import Callable, Iterator, Protocol
 import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
+from vfcli.io.limits import FPS_RANGE, MAX_ABS_START_FRAME, check_range
 
 logger = logging.getLogger(__name__)
 
@@ -84,6 +85,14 @@ class VideoMeta:
     trigger_index: int | None = None
     description: str = ""
     packed_bits: int | None = None
+
+    def __post_init__(self) -> None:
+        """Refuse a frame rate or start frame no recording can have (vfcli/io/limits.py)."""
+        if self.fps is not None:
+            object.__setattr__(self, "fps", check_range(self.fps, *FPS_RANGE, "frame rate", "frames/s",
+                                                        self.path))
+        check_range(self.start_frame, -MAX_ABS_START_FRAME, MAX_ABS_START_FRAME, "start frame", "frames",
+                    self.path)
 
     @property
     def t0(self) -> float | None:

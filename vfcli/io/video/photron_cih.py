@@ -45,6 +45,7 @@ _CIHX_FIELDS: dict[str, tuple[str, type]] = {
     "EffectiveBit Depth": ("imageDataInfo/effectiveBit/depth", int),
     "EffectiveBit Side": ("imageDataInfo/effectiveBit/side", str),
     "Color Bit": ("imageDataInfo/colorInfo/bit", int),
+    "Color Type": ("imageDataInfo/colorInfo/type", str),
     "Comment Text": ("basicInfo/comment", str),
 }
 

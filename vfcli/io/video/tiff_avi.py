@@ -75,9 +75,13 @@ class TiffSource(VideoSource):
             raise InputDataError(f"TIFF page size {shape} is implausible for a "
                                  f"{p.stat().st_size}-byte file (corrupt header)", p)
         self.path = p
-        self.meta = VideoMeta(
-            path=str(p), kind="tiff", n_frames=n, height=shape[0], width=shape[1], dtype=dtype,
-            bit_depth=_bits_of(dtype), fps=fps, description=f"multi-page TIFF, {n} pages")
+        try:
+            self.meta = VideoMeta(
+                path=str(p), kind="tiff", n_frames=n, height=shape[0], width=shape[1], dtype=dtype,
+                bit_depth=_bits_of(dtype), fps=fps, description=f"multi-page TIFF, {n} pages")
+        except InputDataError:
+            self.close()
+            raise
 
     def _fps_from_metadata(self) -> float | None:
         tif = self._tif
@@ -86,7 +90,7 @@ class TiffSource(VideoSource):
             if desc.startswith("{"):
                 fps = json.loads(desc).get("fps")
                 if fps is not None:
-                    return float(fps) if float(fps) > 0 else None
+                    return float(fps)  # VideoMeta refuses an impossible rate
             meta = tif.shaped_metadata
             if meta and "fps" in meta[0]:
                 return float(meta[0]["fps"])
@@ -188,6 +192,7 @@ def _imread(path: Path) -> np.ndarray:
         if img is None:
             raise InputDataError("unreadable image (not a PNG/BMP or corrupt)", path)
     if img.ndim == 3:
+        _check_dtype(img.dtype, path)  # OpenCV converts 8/16-bit unsigned colour only
         if img.shape[2] == 4:
             img = cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
         elif img.shape[2] == 3:
