@@ -214,7 +214,7 @@ def test_config_set_persists_into_the_stored_config_and_the_next_stage_uses_it(t
     ("camra.px_per_mm", "camra: unknown setting (did you mean camera?)"),
     ("flow.median", "flow.median: unknown setting (did you mean flow.median_px?)"),
     ("camera.zzz", "camera.zzz: unknown setting (known: camera.fps_hz, camera.px_per_mm, camera.rotation_deg, "
-                   "camera.offset_px)"),
+                   "camera.offset_px, camera.pose)"),
 ])
 def test_an_unknown_key_suggests_the_nearest_one(tmp_path, key, message):
     store = tmp_path / "r.h5"
