@@ -57,7 +57,7 @@ import numpy as np
 
 from vfcli.inverse.block_matrix import BlockMatrix
 from vfcli.inverse.linearization import QuadraticModel, gauss_newton_model
-from vfcli.model.response.base import Linearization, SeparableTerm
+from vfcli.model.response.base import Linearization
 
 #: Motion-term component weights (model x, y, z) of each instrument's own data: the
 #: camera's optical flow gives the in-plane velocity, the vibrometer the vertical one.
@@ -175,8 +175,7 @@ def posterior(model: QuadraticModel, correlation: ResidualCorrelation) -> Poster
     return Posterior(cov, kappa, dof, correlation)
 
 
-def displacement_std(covariance: BlockMatrix, linearization: Linearization | np.ndarray,
-                     time_basis: np.ndarray | None = None) -> np.ndarray:
+def displacement_std(covariance: BlockMatrix, linearization: Linearization) -> np.ndarray:
     """Standard deviation of every vertex displacement component at every time.
 
     Parameters
@@ -186,16 +185,11 @@ def displacement_std(covariance: BlockMatrix, linearization: Linearization | np.
         (``QuadraticModel.linearization``, :meth:`vfcli.model.response.base.Response.linearize`):
         ``dU(t) = sum_j R_j dC B_j(t)``, R_j (N, 3, S) mm per unit control, B_j (T, n_time).
 
-    time_basis : only for the older form ``displacement_std(covariance, basis, time_basis)`` of a
-        one-term response (basis (N, 3, S), time_basis (T, n_time)); prefer the linearization.
-
     Returns
     -------
     (T, N, 3) float64, mm: ``sqrt(diag(J_t Cov J_t^T))`` with ``J_t = sum_j R_j (x) B_j(t)``.
     """
     lin = linearization
-    if time_basis is not None:
-        lin = Linearization((SeparableTerm(np.asarray(linearization, dtype=float), np.atleast_2d(time_basis)),))
     n_t, n_v = lin.n_time, lin.n_vertices
     n_times = lin.terms[0].temporal.shape[0]
     var = np.zeros((n_times, n_v, 3))
