@@ -9,8 +9,9 @@ Exit codes
 1  internal error (a bug: please report it with the traceback)
 2  usage or config error (bad option, invalid config value)
 3  bad input data (unreadable, truncated, inconsistent or non-physical raw files)
-4  store locked by another writer, not writable (permissions, a lock path that is a
-   directory), or not a vfcli store / incompatible version
+4  store locked by another writer (or held open by another program), not writable
+   (permissions, a lock path that is a directory), not a vfcli store / incompatible version,
+   or damaged (a stage whose structure or checksums differ from what vfcli wrote)
 5  a stage this command needs is missing or incomplete (run the upstream command first)
 6  not implemented yet
 130  interrupted (Ctrl-C, SIGINT); a stage is committed whole or not at all, so no half-written stage is left
@@ -67,6 +68,11 @@ class StoreFormatError(VfcliError):
     """Not a vfcli store, or written by an incompatible version (exit 4)."""
 
     exit_code = EXIT_STORE
+
+
+class StoreDamagedError(StoreFormatError):
+    """A stage whose structure or checksums differ from what vfcli wrote: a damaged or
+    hand-edited store (exit 4); the message names the stage and the dataset."""
 
 
 class MissingStageError(VfcliError):

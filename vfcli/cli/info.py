@@ -5,6 +5,7 @@ import json
 
 import click
 
+from vfcli.errors import StoreDamagedError
 from vfcli.store.info import store_info
 
 
@@ -19,6 +20,7 @@ def info_cmd(file: str, as_json: bool) -> None:
     info = store_info(file)
     if as_json:
         click.echo(json.dumps(info, indent=2, default=str))
+        _refuse_damaged(info)
         return
     click.echo(f"{info['path']}  ({info['size_bytes'] / 1e6:.1f} MB, format {info['format']} v{info['format_version']}, created {info['created_utc']})")
     for leftover in info["interrupted_writes"]:
@@ -27,6 +29,9 @@ def info_cmd(file: str, as_json: bool) -> None:
         click.echo("  no stages yet")
     for st in info["stages"]:
         prov = st["provenance"]
+        if st.get("damaged"):
+            click.echo(f"  {st['path']:<22} DAMAGED: " + "; ".join(st["damaged"]))
+            continue
         flag = "incomplete" if not st["complete"] else ("STALE: " + "; ".join(st["stale_because"]) if st["stale"] else "ok")
         click.echo(f"  {st['path']:<22} {st['size_bytes'] / 1e6:9.2f} MB  {flag}")
         click.echo(f"      written {prov.get('created_utc', '?')} by vfcli {prov.get('vfcli_version', '?')}: {prov.get('command', '?')}")
@@ -43,3 +48,12 @@ def info_cmd(file: str, as_json: bool) -> None:
     missing = info["missing_stages"]
     if missing:
         click.echo("  not yet written: " + ", ".join(missing))
+    _refuse_damaged(info)
+
+
+def _refuse_damaged(info: dict) -> None:
+    """Exit 4 (one line on stderr) after showing the store when a stage is damaged."""
+    damaged = [st["damaged"][0] for st in info["stages"] if st.get("damaged")]
+    if damaged:
+        more = f" (and {len(damaged) - 1} more damaged stages)" if len(damaged) > 1 else ""
+        raise StoreDamagedError(f"damaged store: {damaged[0]}{more}", info["path"])

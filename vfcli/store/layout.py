@@ -24,6 +24,10 @@ ROOT_CONFIG_ATTR = "recording_config_json"
 #: command prints) and the warnings it logged, as JSON ``{"figures": {...}, "warnings": [...]}``.
 SUMMARY_ATTR = "summary_json"
 
+#: Stage-group attribute holding the stage's manifest: each dataset's shape, dtype and SHA-256,
+#: and the SHA-256 of the group's other attributes (:mod:`vfcli.store.integrity`).
+MANIFEST_ATTR = "manifest_json"
+
 #: Attributes every stage group carries (its provenance).
 PROVENANCE_ATTRS = (
     "stage",

@@ -16,8 +16,8 @@ from typing import Any, Mapping
 import h5py
 import numpy as np
 
-from vfcli.errors import MissingStageError, StoreFormatError
-from vfcli.store import layout
+from vfcli.errors import MissingStageError, StoreDamagedError, StoreFormatError, StoreLockedError
+from vfcli.store import integrity, layout
 from vfcli.store.frames import FrameReader
 from vfcli.store.provenance import same_inputs
 
@@ -29,7 +29,27 @@ def open_h5(path: Path, mode: str) -> h5py.File:
     try:
         return h5py.File(path, mode)
     except OSError as exc:
+        if "lock" in str(exc).lower():  # libhdf5's own file lock, held by a program writing the file
+            raise StoreLockedError(f"another program holds the store open for writing ({_lock_holder(path)}; "
+                                   "HDF5 file lock); close it and try again", path) from None
         raise StoreFormatError(f"cannot open as an HDF5 store ({exc})", path) from None
+
+
+def _lock_holder(path: Path) -> str:
+    """Which process holds a lock on ``path`` ("process 123: python writer.py"), from /proc/locks."""
+    try:
+        st = path.stat()
+        inode = f":{st.st_ino}"
+        for line in Path("/proc/locks").read_text().splitlines():
+            fields = line.split()
+            pid = next((x for x in fields if x.isdigit()), None)
+            dev_ino = next((x for x in fields if x.count(":") == 2), "")
+            if pid and dev_ino.endswith(inode) and int(pid) > 0:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                return f"process {pid}: {cmd[:80]}" if cmd else f"process {pid}"
+    except (OSError, ValueError):
+        pass
+    return "holder unknown"
 
 
 def check_format(f: h5py.File, path: Path) -> None:
@@ -55,6 +75,7 @@ class StageStatus:
     size_bytes: int
     stale_because: list[str] = field(default_factory=list)
     summary: dict[str, Any] | None = None
+    damaged: list[str] = field(default_factory=list)
 
     @property
     def stale(self) -> bool:
@@ -73,6 +94,7 @@ class StageStatus:
             "size_bytes": self.size_bytes,
             "provenance": prov,
             "summary": self.summary,
+            "damaged": self.damaged,
         }
 
 
@@ -94,6 +116,30 @@ class StoreReader:
     def __init__(self, f: h5py.File, path: Path) -> None:
         self._f = f
         self.path = path
+        self._checked: dict[str, list[str]] = {}
+
+    # -- integrity (vfcli/store/integrity.py) ------------------------------
+    def problems(self, path: str) -> list[str]:
+        """What is wrong with stage group ``path`` (structure, provenance; no data read)."""
+        if path not in self._checked:
+            self._checked[path] = integrity.check_structure(self._f, path)
+        return self._checked[path]
+
+    def _damaged(self, problem: str) -> StoreDamagedError:
+        stage = problem.split("/")[1].split()[0].rstrip(":") if problem.startswith("/") else ""
+        fix = (f"; rewrite it (`vfcli {layout.STAGES[stage].written_by} --force`) or restore the store from a copy"
+               if stage in layout.STAGES else "")
+        return StoreDamagedError(f"damaged store: {problem}{fix}", self.path)
+
+    def refuse_damaged(self, keep: str | None = None) -> None:
+        """:class:`StoreDamagedError` naming the first damaged stage other than ``keep``."""
+        try:
+            paths = self.stage_paths()
+        except integrity.H5_ERRORS as exc:
+            raise self._damaged(f"its stage groups cannot be listed ({integrity._why(exc)})") from None
+        for p in paths:
+            if p != keep and self.problems(p):
+                raise self._damaged(self.problems(p)[0])
 
     # -- stages -----------------------------------------------------------
     def stage_paths(self) -> list[str]:
@@ -129,14 +175,23 @@ class StoreReader:
                 f"run `vfcli {st.written_by}` first",
                 self.path,
             )
+        if self.problems(st.group_path(run)):
+            raise self._damaged(self.problems(st.group_path(run))[0])
         return self._f[st.group_path(run)]
 
     def read(self, name: str, key: str, run: str | None = None) -> np.ndarray:
         """A whole dataset as a numpy array (text datasets as ``str``)."""
         ds = self.dataset(name, key, run)
-        if h5py.check_string_dtype(ds.dtype):
-            return ds.asstr()[()]
-        return FrameReader(ds)[()]
+        g = self._f[layout.stage(name).group_path(run)]
+        problem = integrity.check_dataset(ds, g.name, integrity.stage_manifest(self._f, g.name))
+        if problem:  # a whole read is checked against the stage's SHA-256 (frames: by `vfcli info --verify`)
+            raise self._damaged(problem)
+        try:
+            if h5py.check_string_dtype(ds.dtype):
+                return ds.asstr()[()]
+            return FrameReader(ds)[()]
+        except OSError as exc:
+            raise self._damaged(f"{ds.name} cannot be read ({integrity._why(exc)})") from None
 
     def frames(self, name: str, key: str, run: str | None = None) -> FrameReader:
         """A per-frame dataset, lazily, for reading frames by index (:class:`FrameReader`)."""
@@ -161,11 +216,23 @@ class StoreReader:
         return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in self._f.attrs.items()}
 
     def recording_config_json(self) -> str | None:
+        """The recording's config as stored (JSON); :class:`StoreDamagedError` when it is not a JSON object."""
         v = self._f.attrs.get(layout.ROOT_CONFIG_ATTR)
-        return None if v is None else str(v)
+        if v is None:
+            return None
+        try:
+            if not isinstance(json.loads(str(v)), dict):
+                raise ValueError("not a JSON object")
+        except ValueError as exc:
+            raise self._damaged(f"root attribute '{layout.ROOT_CONFIG_ATTR}' is not valid "
+                                f"({integrity._why(exc)})") from None
+        return str(v)
 
     # -- provenance checks ---------------------------------------------------
     def status(self, path: str) -> StageStatus:
+        """What `vfcli info` shows of stage group ``path``; a damaged stage shows its problems only."""
+        if self.problems(path):
+            return StageStatus(path, False, {}, 0, damaged=self.problems(path))
         g = self._f[path]
         prov = {k: g.attrs[k] for k in layout.PROVENANCE_ATTRS if k in g.attrs}
         prov = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in prov.items()}
@@ -205,7 +272,7 @@ class StoreReader:
         return recorded == wanted
 
     def previous_inputs(self, name: str, run: str | None = None) -> dict[str, Any]:
-        if not self.has_stage(name, run):
+        if not self.has_stage(name, run) or self.problems(layout.stage(name).group_path(run)):
             return {}
         return json.loads(self.group(name, run).attrs.get("inputs_json", "{}"))
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from vfcli import __version__
 from vfcli.errors import ConfigError, StoreAccessError, StoreLockedError
-from vfcli.store import layout
+from vfcli.store import integrity, layout
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
 from vfcli.store.provenance import stage_digest
@@ -290,6 +290,7 @@ class StoreWriter:
         st = layout.stage(name)
         path = st.group_path(run)
         upstream_digests = self.reader.upstream_digests(upstream or [])
+        self.reader.refuse_damaged(keep=path)  # never carry a damaged stage forward
         if path in self._f:
             del self._f[path]
         g = self._f.require_group(path)
@@ -297,6 +298,7 @@ class StoreWriter:
         writer = StageWriter(g, st)
         yield writer
         writer.attach_scales()
+        g.attrs[layout.MANIFEST_ATTR] = integrity.manifest(g)
         if callable(inputs):
             inputs = inputs()
         record = {
