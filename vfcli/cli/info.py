@@ -12,12 +12,14 @@ from vfcli.store.info import store_info
 @click.command("info")
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="Print the same as JSON.")
-def info_cmd(file: str, as_json: bool) -> None:
+@click.option("--verify", is_flag=True, help="Check every dataset against its stored SHA-256 too (reads the whole store).")
+def info_cmd(file: str, as_json: bool, verify: bool) -> None:
     """Show the stages in FILE with their provenance, sizes, staleness, figures and warnings.
 
-    Reads every group; writes nothing.
+    Reads every group; writes nothing. Exit 4 when a stage is damaged (its structure, or with
+    --verify its data, differs from what vfcli wrote).
     """
-    info = store_info(file)
+    info = store_info(file, verify=verify)
     if as_json:
         click.echo(json.dumps(info, indent=2, default=str))
         _refuse_damaged(info)

@@ -9,10 +9,14 @@ from vfcli.store import layout
 from vfcli.store.transaction import Store
 
 
-def store_info(path: str | Path) -> dict[str, Any]:
-    """Stages with provenance, sizes, staleness; leftovers of interrupted writes."""
+def store_info(path: str | Path, verify: bool = False) -> dict[str, Any]:
+    """Stages with provenance, sizes, staleness, damage; leftovers of interrupted writes.
+    ``verify``: check every dataset's SHA-256 too (reads the whole store)."""
     store = Store(path)
     with store.read() as r:
+        if verify:
+            for p in r.stage_paths():
+                r.problems(p, contents=True)
         root = r.root_attrs()
         stages = [r.status(p).to_json() for p in r.stage_paths()]
         present = {p.split("/")[1] for p in r.stage_paths()}

@@ -118,6 +118,7 @@ def check_structure(f: h5py.File, path: str) -> list[str]:
     if g is None or man is None:
         return problems
     try:
+        g.visititems(lambda _name, _obj: None)  # every object header and link of the group opens
         for key, want in man.get("datasets", {}).items():
             where = f"{path}/{key}"
             if key not in g:
@@ -165,3 +166,18 @@ def check_contents(f: h5py.File, path: str) -> list[str]:
 def stage_manifest(f: h5py.File, path: str) -> dict[str, Any] | None:
     """The parsed manifest of a stage group that :func:`check_structure` passed (None: none)."""
     return _read_manifest(f, path)[1]
+
+
+def h5py_damage(exc: BaseException) -> str | None:
+    """The one-line reason when ``exc`` was raised by h5py/libhdf5 reading a damaged file (the
+    innermost frame is in h5py, and it is not a name that does not exist: that is a bug of
+    the caller); None otherwise."""
+    if not isinstance(exc, H5_ERRORS):
+        return None
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    if tb is None or f"{'/'}h5py{'/'}" not in tb.tb_frame.f_code.co_filename.replace("\\", "/"):
+        return None
+    why = _why(exc)
+    return None if "doesn't exist" in why or "does not exist" in why else why

@@ -54,9 +54,12 @@ def _lock_holder(path: Path) -> str:
 
 def check_format(f: h5py.File, path: Path) -> None:
     """:class:`StoreFormatError` unless ``f`` is a vfcli store this vfcli can read."""
-    if f.attrs.get("format") != layout.FORMAT_NAME:
+    try:
+        name, version = f.attrs.get("format"), int(f.attrs.get("format_version", -1))
+    except integrity.H5_ERRORS as exc:
+        raise StoreDamagedError(f"damaged store: its root attributes cannot be read ({integrity._why(exc)})", path) from None
+    if name != layout.FORMAT_NAME:
         raise StoreFormatError("not a vfcli store (no 'format' attribute)", path)
-    version = int(f.attrs.get("format_version", -1))
     if version > layout.FORMAT_VERSION:
         raise StoreFormatError(
             f"written by a newer vfcli (store format {version}, this vfcli reads up to "
@@ -119,15 +122,17 @@ class StoreReader:
         self._checked: dict[str, list[str]] = {}
 
     # -- integrity (vfcli/store/integrity.py) ------------------------------
-    def problems(self, path: str) -> list[str]:
-        """What is wrong with stage group ``path`` (structure, provenance; no data read)."""
-        if path not in self._checked:
-            self._checked[path] = integrity.check_structure(self._f, path)
+    def problems(self, path: str, contents: bool = False) -> list[str]:
+        """What is wrong with stage group ``path``: its structure and provenance (no data read),
+        and with ``contents`` every dataset's SHA-256 too (reads every stored byte)."""
+        if path not in self._checked or (contents and not self._checked[path]):
+            check = integrity.check_contents if contents else integrity.check_structure
+            self._checked[path] = check(self._f, path)
         return self._checked[path]
 
     def _damaged(self, problem: str) -> StoreDamagedError:
         stage = problem.split("/")[1].split()[0].rstrip(":") if problem.startswith("/") else ""
-        fix = (f"; rewrite it (`vfcli {layout.STAGES[stage].written_by} --force`) or restore the store from a copy"
+        fix = (f"; rewrite it with `vfcli {layout.STAGES[stage].written_by}` or restore the store from a copy"
                if stage in layout.STAGES else "")
         return StoreDamagedError(f"damaged store: {problem}{fix}", self.path)
 

@@ -34,7 +34,7 @@ import h5py
 import numpy as np
 
 from vfcli import __version__
-from vfcli.errors import ConfigError, StoreAccessError, StoreLockedError
+from vfcli.errors import ConfigError, StoreAccessError, StoreDamagedError, StoreLockedError
 from vfcli.store import integrity, layout
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
@@ -65,6 +65,15 @@ def _leftover_tmp_files(path: Path) -> list[Path]:
 
 def _now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _raise_damage(exc: BaseException, path: Path) -> None:
+    """Re-raise ``exc``, as :class:`StoreDamagedError` when libhdf5 raised it on a damaged file
+    (exit 4, one line, instead of a traceback)."""
+    why = integrity.h5py_damage(exc)
+    if why is None:
+        raise exc
+    raise StoreDamagedError(f"damaged store: libhdf5 cannot read it ({why}); restore it from a copy", path) from None
 
 
 class StageWriter:
@@ -340,6 +349,8 @@ class Store:
         try:
             check_format(f, self.path)
             yield StoreReader(f, self.path)
+        except integrity.H5_ERRORS as exc:
+            _raise_damage(exc, self.path)
         finally:
             f.close()
 
@@ -400,9 +411,9 @@ class Store:
                     os.fsync(dfd)
                 finally:
                     os.close(dfd)
-            except BaseException:
+            except BaseException as exc:
                 try:
                     f.close()
                 finally:
                     tmp.unlink(missing_ok=True)
-                raise
+                _raise_damage(exc, self.path)
