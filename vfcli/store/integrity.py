@@ -177,7 +177,7 @@ def h5py_damage(exc: BaseException) -> str | None:
     tb = exc.__traceback__
     while tb is not None and tb.tb_next is not None:
         tb = tb.tb_next
-    if tb is None or f"{'/'}h5py{'/'}" not in tb.tb_frame.f_code.co_filename.replace("\\", "/"):
+    if tb is None or "h5py" not in tb.tb_frame.f_code.co_filename.replace("\\", "/").split("/"):
         return None
     why = _why(exc)
     return None if "doesn't exist" in why or "does not exist" in why else why

@@ -1,8 +1,12 @@
 """Provenance of a stage: hashes of raw input files and the digest of a stage.
 
-File hashes are cached by (size, mtime_ns): a file whose size and modification time
-are unchanged since the last run is not hashed again, so re-running a pipeline over a
-4 GB video does not cost a full read to find out that nothing changed.
+File hashes are cached by (size, mtime_ns, ctime_ns): a file whose size, modification time
+and status-change time are unchanged since the last run is not hashed again, so re-running a
+pipeline over a 4 GB video does not cost a full read to find out that nothing changed. The
+ctime is what makes the cache safe against a file edited and its mtime restored (``touch -d``,
+``os.utime``): the kernel sets the ctime to the current time on every write and on every
+change of the mtime, and no call sets it back. Any doubt (a record without a ctime, a file
+copied or moved) costs one hash, never a missed change.
 """
 from __future__ import annotations
 
@@ -27,10 +31,10 @@ def sha256_file(path: str | Path) -> str:
 def describe_inputs(
     paths: list[str | Path], previous: Mapping[str, Mapping[str, Any]] | None = None
 ) -> dict[str, dict[str, Any]]:
-    """Identify raw input files: ``{absolute path: {sha256, size, mtime_ns}}``.
+    """Identify raw input files: ``{absolute path: {sha256, size, mtime_ns, ctime_ns}}``.
 
     Folders (a folder of numbered images) are described by every file in them.
-    A file whose size and mtime match ``previous`` reuses the previous hash.
+    A file whose size, mtime and ctime match ``previous`` reuses the previous hash.
     """
     previous = previous or {}
     out: dict[str, dict[str, Any]] = {}
@@ -42,11 +46,11 @@ def describe_inputs(
         st = os.stat(f)
         key = str(f)
         old = previous.get(key)
-        if old and old.get("size") == st.st_size and old.get("mtime_ns") == st.st_mtime_ns:
+        if old and (old.get("size"), old.get("mtime_ns"), old.get("ctime_ns")) == (st.st_size, st.st_mtime_ns, st.st_ctime_ns):
             digest = old["sha256"]
         else:
             digest = sha256_file(f)
-        out[key] = {"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+        out[key] = {"sha256": digest, "size": st.st_size, "mtime_ns": st.st_mtime_ns, "ctime_ns": st.st_ctime_ns}
     return out
 
 
