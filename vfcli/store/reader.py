@@ -22,12 +22,13 @@ from vfcli.store.frames import FrameReader
 from vfcli.store.provenance import same_inputs
 
 
-def open_h5(path: Path, mode: str) -> h5py.File:
-    """The HDF5 file at ``path``; :class:`StoreFormatError` when it is not one."""
+def open_h5(path: Path, mode: str, **kwargs: Any) -> h5py.File:
+    """The HDF5 file at ``path`` (``kwargs`` to :class:`h5py.File`); :class:`StoreFormatError` when
+    it is not one, :class:`StoreLockedError` when another program holds it open for writing."""
     if path.exists() and not path.is_file():  # a FIFO would block the open; a directory is no store
         raise StoreFormatError("not a regular file, so not a store", path)
     try:
-        return h5py.File(path, mode)
+        return h5py.File(path, mode, **kwargs)
     except OSError as exc:
         if "lock" in str(exc).lower():  # libhdf5's own file lock, held by a program writing the file
             raise StoreLockedError(f"another program holds the store open for writing ({_lock_holder(path)}; "
@@ -45,7 +46,8 @@ def _lock_holder(path: Path) -> str:
             pid = next((x for x in fields if x.isdigit()), None)
             dev_ino = next((x for x in fields if x.count(":") == 2), "")
             if pid and dev_ino.endswith(inode) and int(pid) > 0:
-                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace").strip()
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                cmd = " ".join(cmd.split())
                 return f"process {pid}: {cmd[:80]}" if cmd else f"process {pid}"
     except (OSError, ValueError):
         pass
@@ -264,7 +266,11 @@ class StoreReader:
         upstream: list[tuple[str, str | None]] | None = None,
         run: str | None = None,
     ) -> bool:
-        """True when the stage exists, is complete, and its config, inputs and upstream are unchanged."""
+        """True when the stage exists, is complete, and its config, inputs and upstream are unchanged.
+
+        :class:`StoreDamagedError` when another stage of the store is damaged: a command never
+        reports "up to date" on a damaged store (its own damaged stage is rewritten)."""
+        self.refuse_damaged(keep=layout.stage(name).group_path(run))
         if not self.has_stage(name, run):
             return False
         st = self.status(layout.stage(name).group_path(run))

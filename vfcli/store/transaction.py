@@ -45,6 +45,9 @@ if TYPE_CHECKING:
     from vfcli.io.video.base import FrameBatch
 
 _TMP_MARK = ".tmp-"
+#: HDF5 format versions of what vfcli writes: v2 object headers, B-trees and heaps, all checksummed
+#: (libhdf5 refuses a flipped byte in them instead of reading it).
+_LIBVER = ("v110", "latest")
 _COMPRESSION = COMPRESSIONS["gzip"]
 
 
@@ -392,9 +395,9 @@ class Store:
                 with self.read():  # refuses files that are not vfcli stores
                     pass
                 shutil.copyfile(self.path, tmp)
-                f = open_h5(tmp, "r+")
+                f = open_h5(tmp, "r+", libver=_LIBVER)  # new objects get checksummed (v2) object headers
             else:
-                f = h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True, libver=("v110", "latest"))
+                f = h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True, libver=_LIBVER)
                 f.attrs["format"] = layout.FORMAT_NAME
                 f.attrs["format_version"] = layout.FORMAT_VERSION
                 f.attrs["created_utc"] = _now()
