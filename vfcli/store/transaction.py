@@ -417,6 +417,8 @@ class Store:
             except BaseException as exc:
                 try:
                     f.close()
+                except integrity.H5_ERRORS:
+                    pass  # a damaged copy may not close cleanly; it is deleted and exc raised
                 finally:
                     tmp.unlink(missing_ok=True)
                 _raise_damage(exc, self.path)
