@@ -219,3 +219,23 @@ def test_a_store_held_open_by_another_program_names_it(store):
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_flipped_byte_in_a_gzip_frame_chunk_is_a_damaged_store_not_a_traceback(built, tmp_path):
+    """gzip frame chunks are not checksummed by vfcli on read; zlib's own check refuses the damage."""
+    from vfcli.errors import StoreDamagedError
+    from vfcli.store import Store
+
+    raw, _ = built
+    store = tmp_path / "rec.h5"
+    r = run_vfcli("ingest-hsc", "-q", store, raw / "video.cihx", "--pressure", raw / "video_pressure.csv",
+                  "--config", raw / "recording.toml", "--set", "ingest_hsc.compression=gzip")
+    assert r.returncode == 0, r.stderr
+    off, size = _data_offset(store, "/hsc/frames", chunk=7)
+    _flip(store, off + size // 2)
+    with Store(store).read() as rd:
+        frames = rd.frames("hsc", "frames")
+        assert frames[6].shape == frames.shape[1:]  # the other chunks read
+    with pytest.raises(StoreDamagedError, match="damaged store"):
+        with Store(store).read() as rd:
+            rd.frames("hsc", "frames")[7]
