@@ -6,8 +6,8 @@ When a stage is committed, :func:`manifest` records in the stage group's
 * every dataset of the stage: its shape, its dtype and the SHA-256 of what it stores
   (:func:`dataset_sha256`: the stored bytes of each chunk of a chunked dataset, as HDF5 keeps
   them, so checking a compressed video costs no decompression; the values of any other);
-* the SHA-256 of the stage's own attributes (sampling rates, calibration, summary; not the
-  provenance, which is checked by parsing it).
+* the names and SHA-256 of the stage's own attributes at that moment (sampling rates,
+  calibration, summary; not the provenance, which is checked by parsing it).
 
 :func:`check_structure` (cheap: opens the datasets, reads no data) checks that the provenance
 attributes are all there and parse, and that every dataset of the manifest is there with its
@@ -62,9 +62,14 @@ def _plain(value: Any) -> Any:
     return value if isinstance(value, (str, int, float, bool)) or value is None else repr(value)
 
 
-def attrs_sha256(g: h5py.Group) -> str:
-    """SHA-256 of the stage group's attributes other than its provenance and manifest."""
-    items = {k: _plain(g.attrs[k]) for k in sorted(g.attrs) if k not in _NOT_HASHED_ATTRS}
+def hashed_attrs(g: h5py.Group) -> list[str]:
+    """Names of the stage group's attributes the manifest covers: all but the provenance and manifest."""
+    return sorted(k for k in g.attrs if k not in _NOT_HASHED_ATTRS)
+
+
+def attrs_sha256(g: h5py.Group, names: list[str]) -> str:
+    """SHA-256 of the stage group's attributes ``names`` (a missing one counts as damage: KeyError)."""
+    items = {k: _plain(g.attrs[k]) for k in names}
     return hashlib.sha256(json.dumps(items, sort_keys=True, default=repr).encode()).hexdigest()
 
 
@@ -74,7 +79,8 @@ def manifest(g: h5py.Group) -> str:
     for key, obj in g.items():
         if isinstance(obj, h5py.Dataset):
             datasets[key] = {"shape": list(obj.shape), "dtype": obj.dtype.str, "sha256": dataset_sha256(obj)}
-    return json.dumps({"datasets": datasets, "attrs_sha256": attrs_sha256(g)}, sort_keys=True)
+    names = hashed_attrs(g)
+    return json.dumps({"datasets": datasets, "attrs": names, "attrs_sha256": attrs_sha256(g, names)}, sort_keys=True)
 
 
 def _json_attr(g: h5py.Group, name: str, kind: type) -> Any:
@@ -94,7 +100,7 @@ def _read_manifest(f: h5py.File, path: str) -> tuple[h5py.Group | None, dict[str
             return None, None, [f"{path} is not a group"]
         names = set(g.attrs)
     except H5_ERRORS as exc:
-        return None, None, [f"{path} cannot be read ({_why(exc)})"]
+        return None, None, [f"{path} cannot be read ({why(exc)})"]
     problems = [f"{path} has no '{a}' attribute" for a in layout.PROVENANCE_ATTRS if a not in names]
     for name, kind in (("config_json", dict), ("inputs_json", dict), ("upstream_json", dict),
                        (layout.SUMMARY_ATTR, dict), (layout.MANIFEST_ATTR, dict)):
@@ -102,14 +108,16 @@ def _read_manifest(f: h5py.File, path: str) -> tuple[h5py.Group | None, dict[str
             try:
                 _json_attr(g, name, kind)
             except H5_ERRORS + (json.JSONDecodeError,) as exc:
-                problems.append(f"{path}: attribute '{name}' is not valid ({_why(exc)})")
+                problems.append(f"{path}: attribute '{name}' is not valid ({why(exc)})")
     if problems or layout.MANIFEST_ATTR not in names:
         return g, None, problems
     return g, _json_attr(g, layout.MANIFEST_ATTR, dict), problems
 
 
-def _why(exc: BaseException) -> str:
-    return (str(exc).splitlines() or [type(exc).__name__])[0][:160] or type(exc).__name__
+def why(exc: BaseException) -> str:
+    """The first line of an exception's message (a KeyError's without its quotes), at most 160 characters."""
+    text = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+    return (text.splitlines() or [""])[0][:160] or type(exc).__name__
 
 
 def check_structure(f: h5py.File, path: str) -> list[str]:
@@ -130,10 +138,14 @@ def check_structure(f: h5py.File, path: str) -> list[str]:
             elif list(ds.shape) != want["shape"] or ds.dtype.str != want["dtype"]:
                 problems.append(f"{where} is {ds.dtype.str} {list(ds.shape)}, the stage wrote "
                                 f"{want['dtype']} {want['shape']}")
-        if attrs_sha256(g) != man.get("attrs_sha256"):
+        names = man.get("attrs", [])
+        missing = [k for k in names if k not in g.attrs]
+        if missing:
+            problems.append(f"{path} has no '{missing[0]}' attribute (deleted)")
+        elif attrs_sha256(g, names) != man.get("attrs_sha256"):
             problems.append(f"{path}: its attributes differ from what the stage wrote (checksum)")
     except H5_ERRORS as exc:
-        problems.append(f"{path} cannot be read ({_why(exc)})")
+        problems.append(f"{path} cannot be read ({why(exc)})")
     return problems
 
 
@@ -146,7 +158,7 @@ def check_dataset(ds: h5py.Dataset, path: str, man: dict[str, Any] | None) -> st
     try:
         got = dataset_sha256(ds)
     except H5_ERRORS as exc:
-        return f"{ds.name} cannot be read ({_why(exc)})"
+        return f"{ds.name} cannot be read ({why(exc)})"
     return None if got == want["sha256"] else f"{ds.name}: its stored bytes differ from what the stage wrote (SHA-256)"
 
 
@@ -179,5 +191,5 @@ def h5py_damage(exc: BaseException) -> str | None:
         tb = tb.tb_next
     if tb is None or "h5py" not in tb.tb_frame.f_code.co_filename.replace("\\", "/").split("/"):
         return None
-    why = _why(exc)
-    return None if "doesn't exist" in why or "does not exist" in why else why
+    reason = why(exc)
+    return None if "doesn't exist" in reason or "does not exist" in reason else reason

@@ -59,7 +59,7 @@ def check_format(f: h5py.File, path: Path) -> None:
     try:
         name, version = f.attrs.get("format"), int(f.attrs.get("format_version", -1))
     except integrity.H5_ERRORS as exc:
-        raise StoreDamagedError(f"damaged store: its root attributes cannot be read ({integrity._why(exc)})", path) from None
+        raise StoreDamagedError(f"damaged store: its root attributes cannot be read ({integrity.why(exc)})", path) from None
     if name != layout.FORMAT_NAME:
         raise StoreFormatError("not a vfcli store (no 'format' attribute)", path)
     if version > layout.FORMAT_VERSION:
@@ -143,7 +143,7 @@ class StoreReader:
         try:
             paths = self.stage_paths()
         except integrity.H5_ERRORS as exc:
-            raise self._damaged(f"its stage groups cannot be listed ({integrity._why(exc)})") from None
+            raise self._damaged(f"its stage groups cannot be listed ({integrity.why(exc)})") from None
         for p in paths:
             if p != keep and self.problems(p):
                 raise self._damaged(self.problems(p)[0])
@@ -198,7 +198,7 @@ class StoreReader:
                 return ds.asstr()[()]
             return FrameReader(ds)[()]
         except OSError as exc:
-            raise self._damaged(f"{ds.name} cannot be read ({integrity._why(exc)})") from None
+            raise self._damaged(f"{ds.name} cannot be read ({integrity.why(exc)})") from None
 
     def frames(self, name: str, key: str, run: str | None = None) -> FrameReader:
         """A per-frame dataset, lazily, for reading frames by index (:class:`FrameReader`)."""
@@ -232,7 +232,7 @@ class StoreReader:
                 raise ValueError("not a JSON object")
         except ValueError as exc:
             raise self._damaged(f"root attribute '{layout.ROOT_CONFIG_ATTR}' is not valid "
-                                f"({integrity._why(exc)})") from None
+                                f"({integrity.why(exc)})") from None
         return str(v)
 
     # -- provenance checks ---------------------------------------------------
