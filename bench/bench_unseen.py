@@ -54,6 +54,9 @@ from vfcli.synth.scoring import interval_coverage, iou, rms, side_truth  # noqa:
 STAGES = ["synth", "ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize"]
 NEEDS = {"synth": [], "ingest-hsc": ["synth"], "ingest-ldv": ["synth"], "sync": ["ingest-hsc", "ingest-ldv"],
          "flow": ["sync"], "mesh": ["ingest-hsc"], "optimize": ["flow", "mesh"]}
+#: what a user does when a stage fails with bad input and names the setting (the grid of a turned
+#: camera's scan reads as 22 x 17 in the camera frame)
+RETRY = {"ingest-ldv": ["ingest_ldv.grid_rows=22", "ingest_ldv.grid_cols=17"]}
 WARN = re.compile(r"warn", re.IGNORECASE)
 
 
@@ -70,7 +73,7 @@ def pipeline(seed: int, work: Path, duration: float, synth_sets: list[str], opt_
     raw, store = work / "raw", work / "recording.h5"
     sets = lambda xs: sum((["--set", s] for s in xs), [])  # noqa: E731
     cmds = {
-        "synth": ["synth", raw, "--seed", seed, "--force",
+        "synth": ["synth", raw, "--seed", seed,
                   *sets(["synth.panel='widened'", f"synth.duration_s={duration}", *synth_sets])],
         "ingest-hsc": ["ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
                        "--config", raw / "recording.toml"],
@@ -90,6 +93,14 @@ def pipeline(seed: int, work: Path, duration: float, synth_sets: list[str], opt_
         out[stage] = (rc, wall, [ln for ln in lines if WARN.search(ln)], lines[-1] if lines else "")
         print(f"  seed {seed}: vfcli {stage}: exit {rc}, {wall:.0f} s" + (f" ({lines[-1][:160]})" if rc else ""),
               file=sys.stderr, flush=True)
+        if rc == 3 and stage in RETRY:      # follow the error's advice once, as a user would; reported
+            retry = RETRY[stage]
+            rc2, wall2, err2 = run(cmds[stage] + sum((["--set", x] for x in retry), []))
+            lines2 = [ln.strip() for ln in err2.splitlines() if ln.strip()]
+            out[f"{stage} (first try)"] = out[stage]
+            out[stage] = (rc2, wall2, [ln for ln in lines2 if WARN.search(ln)], lines2[-1] if lines2 else "")
+            print(f"  seed {seed}: vfcli {stage} --set {' --set '.join(retry)}: exit {rc2}, {wall2:.0f} s", file=sys.stderr,
+                  flush=True)
     return out
 
 
@@ -214,7 +225,9 @@ def main() -> None:
     print("| ---: |" + " --- |" * (len(STAGES) + 1))
     for seed, stages, empty, _ in results:
         cells = [("skipped" if st[0] is None else f"exit {st[0]}") + (f", {len(st[2])} warning(s)" if st[2] else "")
-                 for st in (stages[k] for k in STAGES)]
+                 + (f" (first try exit {stages[k + ' (first try)'][0]}, retried with the advised setting)"
+                    if k + " (first try)" in stages else "")
+                 for k, st in ((k, stages[k]) for k in STAGES)]
         print(f"| {seed} | " + " | ".join(cells) + f" | {', '.join(empty) or 'none'} |")
     print("\n| seed | sync RMS (us) | gap IoU | area error (total) | area error (median, open) | frames with gap | "
           "LDV on image (true) | inferior oscillating error | inferior static error (mm) | mean z true / est (mm) | "
@@ -229,10 +242,13 @@ def main() -> None:
               f"{_fmt(s.get('coverage90'), True, 2)} | {_fmt(s.get('stated_std_rel'), True, 2)} |")
     print("\nWarnings and failures:")
     for seed, stages, _, _ in results:
-        for k in STAGES:
+        for k in [k for k in stages if k.split(" ")[0] in STAGES]:
             rc, _, warns, last = stages[k]
-            for wline in dict.fromkeys(warns):
+            distinct = list(dict.fromkeys(warns))
+            for wline in distinct[:3]:
                 print(f"- seed {seed}, {k}: {wline[:300]}")
+            if len(distinct) > 3:
+                print(f"- seed {seed}, {k}: ... and {len(distinct) - 3} more warning lines like these")
             if rc not in (0, None):
                 print(f"- seed {seed}, {k} exit {rc}: {last[:300]}")
     more = "".join(f" --set {x}" for x in args.sets) + "".join(f" --optimize-set {x}" for x in args.opt_sets)
