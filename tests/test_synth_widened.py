@@ -14,7 +14,7 @@ from vfcli.store.transaction import read_truth
 from vfcli.synth.instruments import (
     DROPOUT_SPIKES, LdvSettings, PressureWaveform, simulate_ldv_scan,
 )
-from vfcli.synth.widened import RANGES, LoadDistribution, draw_widened
+from vfcli.synth.widened import FOV_REL, RANGES, LoadDistribution, draw_widened
 
 N_SEEDS = 400
 NOMINAL = MeshConfig()
@@ -58,6 +58,7 @@ def test_zoom_runs_from_glottis_off_the_image_to_all_folds_in_view(draws):
     fov = np.array([d.fov_mm for d in draws])
     length = np.array([d.length_mm for d in draws])
     extent = np.array([max(d.length_mm, 2 * d.depth_mm + d.gap_mm) for d in draws])
+    assert FOV_REL == (0.65, 1.3)  # the documented range
     assert np.all(fov >= 0.65 * length - 1e-9) and np.all(fov <= 1.3 * extent + 1e-9)
     assert np.mean(fov < length) > 0.2, "too few seeds where the glottis runs off the image"
     assert np.mean(fov > extent) > 0.1, "too few seeds with every fold in view"

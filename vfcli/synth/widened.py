@@ -26,11 +26,13 @@ from vfcli.config import MeshConfig
 #: seed-sequence tag of the widened draw's own generator
 STREAM = 0x5715
 
-#: (low, high) of each drawn quantity; "log" ranges are drawn log-uniform
+#: field of view (the frame's smaller side), log-uniform from FOV_REL[0] x the glottis length (it
+#: runs off the image) to FOV_REL[1] x the folds' larger extent max(L, 2 D + gap) (all in view) [est]
+FOV_REL = (0.65, 1.3)
+
+#: (low, high) of each drawn quantity (uniform; psf_sigma_px log-uniform)
 RANGES: dict[str, tuple[float, float]] = {
     "rotation_deg": (-180.0, 180.0),         # camera in-plane angle, any [issue 15]
-    "fov_rel_low": (0.65, 0.65),             # field of view >= 0.65 x the glottis length (runs off) [est]
-    "fov_rel_high": (1.3, 1.3),              # <= 1.3 x the folds' larger extent (all in view) [est]
     "centre_offset_rel": (-0.15, 0.15),      # glottis centre from the image centre, x image size [est]
     "psf_sigma_px": (0.3, 3.0),              # Gaussian optics blur, log [issue 15]
     "thickness_mm": (2.5, 3.5),              # T, Scherer 3.0 [est range]
@@ -164,8 +166,8 @@ def draw_widened(seed: int, width_px: int, height_px: int, nominal: MeshConfig) 
     depth = _u(rng, "depth_mm")
     length = _u(rng, "length_mm")
     gap = _u(rng, "gap_mm")
-    fov_lo = RANGES["fov_rel_low"][0] * length
-    fov_hi = RANGES["fov_rel_high"][0] * max(length, 2 * depth + gap)
+    fov_lo = FOV_REL[0] * length
+    fov_hi = FOV_REL[1] * max(length, 2 * depth + gap)
     fov = float(np.exp(rng.uniform(np.log(fov_lo), np.log(fov_hi))))
     size = min(width_px, height_px)
     centre = (_u(rng, "centre_offset_rel") * width_px, _u(rng, "centre_offset_rel") * height_px)
