@@ -16,12 +16,19 @@ need it. Afterwards, and only then, truth.h5 is read and the products are scored
   error: total over frames (sum of the reconstructed / sum of the true - 1) and the median
   relative error over frames open more than 10 % of the widest;
 * LDV points: fraction whose ``/fields/ldv_px`` lies on the image, and the true fraction;
+* flow: relative RMS error of ``/flow/flow`` (u, v) on the true visible surface against the true
+  velocity in the model's (x, y) axes and in the image's (col, row) axes (which frame it is in);
 * inferior surface (which no instrument sees), over optimize's window at the
   reconstruction mesh's inferior nodes: the oscillating part (displacement minus its mean over
   the window) RMS error relative to the RMS true oscillation; the static part (the mean over the
   window) RMS error, mm, and the true and reconstructed mean vertical displacement, mm; the
   total error relative to the RMS true displacement; the coverage of the 90 % intervals
-  ``displacement +- 1.645 displacement_std`` (every inferior node, component and time).
+  ``displacement +- 1.645 displacement_std`` (every inferior node, component and time);
+* optimize's pose (from the config or estimated from the gap): rotation error (deg, wrapped) and
+  model-origin error (mm), against the true pose or its 180-degree turn about the glottis centre
+  (the same reconstruction of symmetric folds), whichever is nearer; the relative error of the motion data as optimize uses them
+  (``/fields`` (u, v) turned by ``camera_to_model`` with the rotation it used) against the true
+  (x, y) velocity; the final gap term (0: no gap rays).
 
 Reproduce::
 
@@ -33,6 +40,7 @@ Reproduce::
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
@@ -46,10 +54,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vfcli.camera.camera import Camera  # noqa: E402
+from vfcli.camera.pose import camera_to_model  # noqa: E402
 from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.stages.mesh import read_mesh  # noqa: E402
 from vfcli.store.transaction import Store, read_truth  # noqa: E402
-from vfcli.synth.scoring import interval_coverage, iou, rms, side_truth  # noqa: E402
+from vfcli.synth.scoring import interval_coverage, iou, relative_rms_error, rms, side_truth  # noqa: E402
 
 STAGES = ["synth", "ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize"]
 NEEDS = {"synth": [], "ingest-hsc": ["synth"], "ingest-ldv": ["synth"], "sync": ["ingest-hsc", "ingest-ldv"],
@@ -105,14 +114,17 @@ def pipeline(seed: int, work: Path, duration: float, synth_sets: list[str], opt_
 
 
 def empty_products(store: Path, stages: dict) -> list[str]:
-    """Stages that exited 0 with an empty product."""
+    """Stages that exited 0 with an empty product (flow: also no LDV point on the image, so the
+    fields' w comes from no measurement)."""
     empty = []
     with Store(store).read() as r:
+        h, w = r.dataset("hsc", "frames").shape[1:] if stages["ingest-hsc"][0] == 0 else (0, 0)
         checks = {
             "ingest-hsc": lambda: r.dataset("hsc", "frames").shape[0] == 0,
             "ingest-ldv": lambda: r.dataset("ldv", "velocity").shape[0] == 0,
             "sync": lambda: not r.read("sync", "ok").any(),
-            "flow": lambda: not r.read("flow", "gap_mask").any() or not r.read("fields", "valid").any(),
+            "flow": lambda: (not r.read("flow", "gap_mask").any() or not r.read("fields", "valid").any()
+                             or not _on_image(r.read("fields", "ldv_px"), w, h).any()),
             "optimize": lambda: float(r.read("optimize", "history_gap", _run(r))[-1]) == 0.0,
         }
         for stage, check in checks.items():
@@ -154,6 +166,15 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             s["frames_with_gap"] = f"{int(gap.any(axis=(1, 2)).sum())}/{len(gap)} (true {int(tg.any(axis=(1, 2)).sum())})"
             px = r.read("fields", "ldv_px")
             s["ldv_on_image"] = float(np.mean(_on_image(px, w, h)))
+            # which axes the flow's (u, v) are in: the model's (x, y) or the image's (col, row)
+            tv, _ = read_truth(raw / "truth.h5", ["screen/velocity", "screen/visible"])
+            surface = tv["screen/visible"][: len(gap)] & ~tg & ~gap
+            surface[[0, -1]] = False
+            flow = r.read("flow", "flow")
+            true_v = tv["screen/velocity"][: len(gap)]
+            s["flow_err_model_axes"] = relative_rms_error(flow[surface], true_v[surface][:, :2])
+            s["flow_err_image_axes"] = relative_rms_error(flow[surface], cam.project_vector(true_v[surface]) / cam.px_per_mm)
+            del tv, flow, true_v
         if stages["optimize"][0] == 0:
             run_name = _run(r)
             mesh = read_mesh(r)
@@ -161,6 +182,30 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             std = r.read("optimize", "displacement_std", run_name).astype(float)[:-1]
             sim_time = r.read("optimize", "sim_time", run_name)[:-1]
             s["gap_term_final"] = float(r.read("optimize", "history_gap", run_name)[-1])
+            oa = r.attrs("optimize", run_name)
+            rot_used, off_used = float(oa["camera_rotation_deg"]), np.asarray(oa["camera_offset_px"], float)
+            s["pose"] = str(oa.get("pose_source", "?"))
+            # the folds are symmetric: the pose turned by 180 deg about the glottis centre (origin at x = L)
+            # is the same reconstruction; score against the nearer of the two and say which
+            rot_err = float(np.mod(rot_used - a["camera_rotation_deg"] + 180.0, 360.0) - 180.0)
+            flipped = abs(rot_err) > 90
+            true_off = np.asarray(a["camera_offset_px"], float)
+            if flipped:
+                true_off = true_off + cam.project(np.array([[a["widened_length_mm"], 0.0]]))[0] - cam.project(np.zeros((1, 2)))[0]
+                rot_err = float(np.mod(rot_err, 360.0) - 180.0)
+            s["pose_flipped"] = flipped
+            s["pose_rot_err_deg"] = rot_err
+            s["pose_origin_err_mm"] = float(np.linalg.norm(off_used - true_off) / cam.px_per_mm)
+            # the motion data as optimize uses them: /fields (u, v) turned by camera_to_model(rotation used)
+            fi = np.searchsorted(r.read("fields", "frame_time"), sim_time - 1e-9)
+            fv = r.read("fields", "velocity")[fi].astype(float)
+            valid = r.read("fields", "valid")[fi]
+            tv, _ = read_truth(raw / "truth.h5", ["screen/velocity"])
+            true_w = tv["screen/velocity"][np.searchsorted(t["frames/time"], sim_time - 1e-9)]
+            ok = valid & np.isfinite(true_w).all(axis=-1)
+            sign = -1.0 if flipped else 1.0     # model (x, y) reversed in the flipped pose
+            s["motion_data_err"] = relative_rms_error(camera_to_model(fv[..., :2], rot_used)[ok], sign * true_w[ok][:, :2])
+            del tv, true_w, fv
     if stages["optimize"][0] == 0:
         truth_mesh = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
         idx = np.searchsorted(t["frames/time"], sim_time - 1e-9)
@@ -177,6 +222,7 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
         s["inf_total_err"] = rms(est - ref) / rms(ref)
         s["coverage90"] = interval_coverage(est, std[:, nodes], ref)
         s["stated_std_rel"] = rms(std[:, nodes]) / rms(ref)
+        s["inf_nodes_scored"] = int(len(nodes))
     return s
 
 
@@ -198,14 +244,22 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="folder for the phantoms and stores (else a temporary one)")
     ap.add_argument("--set", dest="sets", action="append", default=[])
     ap.add_argument("--optimize-set", dest="opt_sets", action="append", default=[])
+    ap.add_argument("--rescore", action="store_true",
+                    help="score the products of an earlier run in --keep DIR again (its stages.json) without rerunning")
     args = ap.parse_args()
+    if args.rescore and args.keep is None:
+        ap.error("--rescore needs --keep DIR")
     base = args.keep or Path(tempfile.mkdtemp(prefix="bench_unseen_"))
     results = []
     for seed in args.seeds:
         work = base / f"seed{seed}"
         work.mkdir(parents=True, exist_ok=True)
-        (work / "recording.h5").unlink(missing_ok=True)
-        stages = pipeline(seed, work, args.duration, args.sets, args.opt_sets)
+        if args.rescore:
+            stages = {k: tuple(v) for k, v in json.loads((work / "stages.json").read_text()).items()}
+        else:
+            (work / "recording.h5").unlink(missing_ok=True)
+            stages = pipeline(seed, work, args.duration, args.sets, args.opt_sets)
+            (work / "stages.json").write_text(json.dumps(stages))
         store = work / "recording.h5"
         empty = empty_products(store, stages) if store.exists() else []
         s = score(work / "raw", store, stages) if stages["synth"][0] == 0 else {}
@@ -230,16 +284,25 @@ def main() -> None:
                  for k, st in ((k, stages[k]) for k in STAGES)]
         print(f"| {seed} | " + " | ".join(cells) + f" | {', '.join(empty) or 'none'} |")
     print("\n| seed | sync RMS (us) | gap IoU | area error (total) | area error (median, open) | frames with gap | "
-          "LDV on image (true) | inferior oscillating error | inferior static error (mm) | mean z true / est (mm) | "
+          "LDV on image (true) | flow error in model / image axes | inferior oscillating error | inferior static error (mm) | mean z true / est (mm) | "
           "inferior total error | 90 % coverage | stated std / RMS true |")
-    print("| ---: |" + " ---: |" * 12)
+    print("| ---: |" + " ---: |" * 13)
     for seed, _, _, s in results:
         print(f"| {seed} | {_fmt(s.get('sync_rms_us'))} | {_fmt(s.get('gap_iou'))} | {_fmt(s.get('area_total_err'), True, 3)} | "
               f"{_fmt(s.get('area_median_err'), True, 3)} | {s.get('frames_with_gap', '-')} | "
-              f"{_fmt(s.get('ldv_on_image'))} ({_fmt(s.get('ldv_on_image_true'))}) | {_fmt(s.get('inf_osc_err'), True, 2)} | "
+              f"{_fmt(s.get('ldv_on_image'))} ({_fmt(s.get('ldv_on_image_true'))}) | "
+              f"{_fmt(s.get('flow_err_model_axes'), True, 2)} / {_fmt(s.get('flow_err_image_axes'), True, 2)} | {_fmt(s.get('inf_osc_err'), True, 2)} | "
               f"{_fmt(s.get('inf_static_err_mm'), digits=3)} | {_fmt(s.get('inf_mean_z_true_mm'), digits=3)} / "
               f"{_fmt(s.get('inf_mean_z_est_mm'), digits=3)} | {_fmt(s.get('inf_total_err'), True, 2)} | "
               f"{_fmt(s.get('coverage90'), True, 2)} | {_fmt(s.get('stated_std_rel'), True, 2)} |")
+    print("\n| seed | pose source | rotation error (deg) | model origin error (mm) | optimize's (x, y) motion data error "
+          "| final gap term | inferior nodes scored |")
+    print("| ---: | --- | ---: | ---: | ---: | ---: | ---: |")
+    for seed, _, _, s in results:
+        flip = " (turned by 180 deg: equivalent)" if s.get("pose_flipped") else ""
+        print(f"| {seed} | {s.get('pose', '-')}{flip} | {_fmt(s.get('pose_rot_err_deg'), digits=1)} | "
+              f"{_fmt(s.get('pose_origin_err_mm'))} | {_fmt(s.get('motion_data_err'), True, 2)} | "
+              f"{_fmt(s.get('gap_term_final'), digits=3)} | {s.get('inf_nodes_scored', '-')} |")
     print("\nWarnings and failures:")
     for seed, stages, _, _ in results:
         for k in [k for k in stages if k.split(" ")[0] in STAGES]:
