@@ -8,7 +8,8 @@ OUTDIR receives what a lab would copy off its instruments, plus the truth:
   (50 kHz, from the first frame);
 - ``scan.uff`` (Polytec PSV layout) and ``scan.csv``: the vibrometer scan, one epoch per point
   with its pressure reference channel; coordinates in camera-frame mm (pixel / px_per_mm);
-- ``recording.toml``: what the lab knows (frame scale, fold geometry and mounting);
+- ``recording.toml``: what the lab knows (frame scale, fold geometry and mounting; with
+  ``synth.panel = "widened"`` also the camera rotation in the seeds that state it, docs/synth.md);
 - ``truth.h5``: the true motion, the hidden effect and every generator parameter (read by
   tests and benchmarks only; no other command opens it);
 - ``phantom.json``: the settings that made the folder (so an unchanged rerun does nothing).
