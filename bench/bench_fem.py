@@ -149,7 +149,8 @@ def markdown(size_rows: list[dict], struct_rows: list[dict], h_struct: float, n_
             "`backend=\"auto\"` picks the first installed of `vfcli.model.solver.AUTO_ORDER`; splu (SuperLU, "
             "always installed) is the fallback.",
             "- Accuracy at the default size (tests/test_fem.py): the six lowest eigenfrequencies of one fold "
-            "are within 1 % of the reference 49.0, 72.6, 84.1, 85.5, 95.5, 98.2 Hz; the lateral and vertical "
+            "are 0.4-0.6 % above the converged 48.9, 72.3, 83.7, 85.4, 95.4, 97.9 Hz (bench/fem_mode_reference.py); "
+            "the lateral and vertical "
             "displacements under 800 Pa on the inferior and medial surfaces agree with a refined mesh "
             "(edge 1.1 mm) within 2 %.",
             "- Spread between runs: in an earlier run the same day on a less loaded machine the default-size "

@@ -27,7 +27,8 @@ sys.path.insert(0, str(ROOT))
 
 from _runner import best  # noqa: E402
 from vfcli.inverse.linearization import gauss_newton_model  # noqa: E402
-from vfcli.inverse.optimizers.base import _lm_solve  # noqa: E402
+from vfcli.inverse.optimizers.levenberg_marquardt import lm_solve  # noqa: E402
+from vfcli.inverse.workspace import Workspace  # noqa: E402
 from vfcli.stages.base import RunContext  # noqa: E402
 from vfcli.stages.optimize import build_problem  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
@@ -50,15 +51,16 @@ def measure(store: Path, setup: str, n_frames: int, edge: float, repeat: int) ->
     build = time.perf_counter() - t
     rng = np.random.default_rng(0)
     x = rng.normal(0.0, 50.0, problem.n_params)
-    model = gauss_newton_model(problem, x)
+    ws = Workspace()   # reused across repeats, as a fit reuses it across iterations
+    model = gauss_newton_model(problem, x, workspace=ws)
     return {
         "n_params": problem.n_params,
         "dof": 3 * problem.mesh.n_nodes,
         "build": build,
         "evaluate": best(lambda: problem.evaluate(x), repeat),
         "gradient": best(lambda: problem.value_and_grad(x), repeat),
-        "gn_model": best(lambda: gauss_newton_model(problem, x), repeat),
-        "lm_solve": best(lambda: _lm_solve(model.hessian, model.grad, 1e-3), repeat),
+        "gn_model": best(lambda: gauss_newton_model(problem, x, workspace=ws), repeat),
+        "lm_solve": best(lambda: lm_solve(model.hessian, model.grad, 1e-3, ws), repeat),
     }
 
 

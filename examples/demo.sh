@@ -38,11 +38,12 @@ step sync       "ingest-hsc ingest-ldv" "$STORE"
 step flow       "sync"            "$STORE"
 step mesh       ""                "$STORE" --preview "$OUT/mesh.png"
 step optimize   "flow mesh"       "$STORE" --plot "$OUT/convergence.png" --uncertainty-map "$OUT/inferior_uncertainty.png"
-step export     "optimize"        "$STORE" --out "$OUT/export"
+step export     "optimize"        "$STORE" --to "$OUT/export"
+step report     "ingest-hsc"      "$STORE" --out "$OUT/report.html"
 
 echo
 echo "== results"
-for s in synth ingest-hsc ingest-ldv sync flow mesh optimize export; do
+for s in synth ingest-hsc ingest-ldv sync flow mesh optimize export report; do
     printf '  %-11s %s\n' "$s" "${STATE[$s]:-not run}"
 done
 if [ -f "$STORE" ]; then
@@ -51,6 +52,8 @@ if [ -f "$STORE" ]; then
     echo
     echo "Results: store $STORE (open it with HDFView or h5dump)"
     for f in "$OUT"/*.png; do [ -e "$f" ] && echo "         picture $f"; done
+    [ -d "$OUT/export/paraview" ] && echo "         ParaView: $OUT/export/paraview/*.vtkhdf (or *.pvd), video $OUT/export/video/overlay.mp4"
+    [ -f "$OUT/report.html" ] && echo "         report  $OUT/report.html (open it in a browser)"
 fi
 missing=$(for s in "${!STATE[@]}"; do [ "${STATE[$s]}" != done ] && echo "$s"; done | sort | tr '\n' ' ')
 [ -n "$missing" ] && echo "Not yet available in this version: $missing(see README, 'Status')"

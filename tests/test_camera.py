@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from vfcli.camera.camera import Camera, gap_mask, interpolate, rasterize, raycast_points, surface_velocity
-from vfcli.errors import ConfigError
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import gap_mask, interpolate, rasterize, raycast_points, surface_velocity
 
 
 def grid_surface(nx, ny, x0, x1, y0, y1, height=lambda x, y: 0.0 * x):
@@ -54,8 +54,19 @@ def test_project_unproject_round_trip_and_convention():
 
 
 def test_camera_rejects_bad_scale():
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         Camera(0.0, 0.0, (0.0, 0.0), 8, 8)
+    with pytest.raises(ValueError):
+        Camera(10.0, 0.0, (np.nan, 0.0), 8, 8)
+
+
+@pytest.mark.parametrize("override", ["camera.px_per_mm=nan", "camera.offset_px=[0, inf]", "camera.rotation_deg=nan"])
+def test_the_config_refuses_non_finite_camera_values_before_the_camera_sees_them(override):
+    from vfcli.config import load_config
+    from vfcli.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=override.split("=")[0]):
+        load_config(overrides=[override])
 
 
 def test_rasterize_matches_brute_force_on_random_overlapping_triangles():

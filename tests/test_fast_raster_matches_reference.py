@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vfcli.camera.camera import _INSIDE_TOL, Camera, rasterize
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import _INSIDE_TOL, rasterize
 from vfcli.inverse.problem import Measurement, Problem
 from vfcli.camera.silhouette import edge_crossings, extreme_per_ray
 

@@ -3,7 +3,6 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from vfcli.errors import ConfigError
 from vfcli.model.loads.force_field import ForceField, ForceFieldSpec
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
 
@@ -32,8 +31,8 @@ def test_paper_setups_have_the_expected_number_of_control_values(name, n_spatial
 
 
 @pytest.mark.parametrize("bad", ["3x3-two-sided", "3x3x10", "0x3x10-one-sided"])
-def test_bad_setup_names_are_config_errors(bad):
-    with pytest.raises(ConfigError):
+def test_bad_setup_names_are_value_errors(bad):
+    with pytest.raises(ValueError):
         ForceField(ForceFieldSpec.from_name(bad), (0.0, 1.0))
 
 
@@ -96,7 +95,7 @@ def test_time_basis_spans_the_time_range():
     np.testing.assert_allclose(b[0], np.eye(5)[0])
     np.testing.assert_allclose(b[2], np.eye(5)[4])
     np.testing.assert_allclose(b.sum(axis=1), 1.0)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         ForceField(ForceFieldSpec((2, 2, 5)), (0.03, 0.01))
 
 

@@ -8,7 +8,6 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from _flow_phantom import SlitPhantom
-from vfcli.errors import ConfigError
 from vfcli.flow.gap.detect import binary_median_1d, gap_mask, gap_threshold, glottal_area, midline_from_masks
 from vfcli.flow.gap.subpixel import (
     EdgeModel,
@@ -95,7 +94,7 @@ def test_glottal_area_counts_pixels_over_scale_squared():
     m[0, 2:4, 1:6] = True  # 10 px
     assert glottal_area(m[0], 2.0) == pytest.approx(2.5)
     np.testing.assert_allclose(glottal_area(m, 2.0), [2.5, 0.0])
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         glottal_area(m, 0.0)
 
 
@@ -137,14 +136,20 @@ def test_threshold_warns_when_the_gap_never_opens(video, caplog):
     assert "no distinct edge" in caplog.text or "no gap core" in caplog.text
 
 
-def test_bad_settings_raise_config_errors():
+def test_bad_settings_are_value_errors_in_the_core_and_config_errors_in_the_config():
+    from vfcli.config import load_config
+    from vfcli.errors import ConfigError
+
     f = np.zeros((10, 10), np.uint16)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         gap_mask(f, 10.0, median_px=4)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         gap_mask(f, 10.0, lateral_axis=2)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         gap_threshold(f, open_fraction=0.0)
+    with pytest.raises(ConfigError, match="median_px"):  # the user's value never reaches gap_mask
+        load_config(overrides=["flow.median_px=4"])
+    load_config(overrides=["flow.median_px=7"])
 
 
 def test_midline_from_masks_is_the_mean_gap_row_per_column():
@@ -295,9 +300,12 @@ def test_segment_stream_holds_only_a_few_frames_and_matches_one_frame_at_a_time(
         assert len(read) <= k + gap.half_window_frames + 1  # yielded as soon as the window is full
         np.testing.assert_array_equal(frame, frames[k])
         np.testing.assert_array_equal(seg.mask, segs[k].mask)
+    assert k == len(frames) - 1  # every frame came out
     # without smoothing in time, the stream is the per-frame segmentation
     still = SubpixelGap(gap.threshold, gap.model, 5, gap.midline, 0, half_window_px=gap.half_window_px)
-    for (_, seg), f in zip(segment_stream(iter(frames[10:14]), still), frames[10:14]):
+    out = list(segment_stream(iter(frames[10:14]), still))
+    assert len(out) == 4
+    for (_, seg), f in zip(out, frames[10:14]):
         np.testing.assert_array_equal(seg.mask, segment_gap(f, still).mask)
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vfcli.errors import ConfigError
 from vfcli.synth.instruments import (DROPOUT_FLAT, DROPOUT_NONE, DROPOUT_SPIKES, LdvSettings, PeriodicTable,
                                PressureWaveform, cycle_phase, ldv_scan_grid, simulate_ldv_scan,
                                slow_f0_drift, subglottal_pressure, vertical_velocity_table,
@@ -97,6 +96,7 @@ def test_dropouts_are_where_the_truth_says():
     # outside the dropout mask the data are clean
     assert not outlier[~s.truth.dropout_mask].any()
     assert not s.truth.dropout_mask[kind == DROPOUT_NONE].any()
+    assert (kind == DROPOUT_SPIKES).any() and (kind == DROPOUT_FLAT).any()  # both loops below run
     for p in np.flatnonzero(kind == DROPOUT_SPIKES):
         assert outlier[p][s.truth.dropout_mask[p]].all()
     for p in np.flatnonzero(kind == DROPOUT_FLAT):
@@ -145,13 +145,13 @@ def test_periodic_table_interpolates_a_sampled_cycle():
     assert np.allclose(f(pts, np.broadcast_to(grid, (3, m)))[:2], table[:2])
 
 
-def test_same_seed_same_bytes_and_bad_settings_are_config_errors():
+def test_same_seed_same_bytes_and_bad_settings_are_value_errors():
     a, _ = scan(9, epoch_s=0.02)
     b, _ = scan(9, epoch_s=0.02)
     assert a.velocity.tobytes() == b.velocity.tobytes() and a.pressure.tobytes() == b.pressure.tobytes()
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         LdvSettings(dropout_fraction=1.5)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         PressureWaveform(harmonics=(1.0, 0.5), phases_rad=(0.0,))
 
 

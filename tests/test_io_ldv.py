@@ -2,8 +2,6 @@
 inference and dropout flags."""
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -140,14 +138,11 @@ def test_configurable_channel_labels(tmp_path):
     assert only_vel.reference is None and "no reference records" in only_vel.notes
 
 
-def test_full_psv_scan_writes_in_seconds_and_pyuff_reads_it_exactly(tmp_path):
+def test_full_psv_scan_written_is_read_exactly_by_pyuff(tmp_path):
     import pyuff
 
     scan = _scan(rows=17, cols=22, n_s=10_000, seed=2)
-    t = time.perf_counter()
-    path = write_ldv_uff(tmp_path / "full.uff", scan)
-    dt = time.perf_counter() - t
-    assert dt < 15, f"writing 374 x 2 x 10000 took {dt:.1f} s"
+    path = write_ldv_uff(tmp_path / "full.uff", scan)  # its time: bench/bench_unit_timings.py
     sets = pyuff.UFF(str(path)).read_sets()
     assert len(sets) == 3 + 2 * 374
     k = 3 + 2 * 200

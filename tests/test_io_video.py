@@ -108,7 +108,7 @@ def test_lazy_batches_decode_the_same_frames_as_iter_frames(tmp_path, bits, star
     with open_video(mraw) as v:
         eager = list(v.iter_frames(start, stop, roi, batch=3))
         lazy = list(v.iter_lazy_frames(start, stop, roi, batch=3))
-    assert [b.shape for b in lazy] == [b.shape for b in eager]
+    assert [b.shape for b in lazy] == [b.shape for b in eager] and len(lazy) > 0
     for e, b in zip(eager, lazy):
         assert b.dtype == e.dtype
         assert np.array_equal(np.stack([b[i] for i in range(len(b))]), e)

@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from vfcli.inverse.linearization import gap_rows, gauss_newton_model
+from vfcli.inverse.linearization import gauss_newton_model
+from vfcli.inverse.terms.gap import gap_rows
 from vfcli.inverse.problem import ObjectiveSettings, Problem
 
 try:

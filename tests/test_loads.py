@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from vfcli.errors import ConfigError
+from vfcli.errors import ConfigError, InputDataError
 from vfcli.model.loads.pressure import PressureLoad
 from vfcli.model.mesh import TAG_INFERIOR, TAG_MEDIAL
 from vfcli.inverse.problem import ObjectiveSettings, Problem, synthesize_measurement
@@ -104,8 +104,12 @@ def test_time_basis_is_the_normalised_pressure_then_bernstein(load):
     t, p = subglottal_pressure()
     np.testing.assert_allclose(b[:, 0] * load.p_ref, np.interp(TIMES, t, p), rtol=1e-12)
     np.testing.assert_allclose(b[:, 1:].sum(axis=1), 1.0, rtol=1e-12)
-    with pytest.raises(ConfigError, match="covers"):
+    with pytest.raises(ConfigError, match="covers.*optimize.first_frame"):  # the user's window: exit 2
         PressureLoad(t, p, (0.0, 0.02))
+    with pytest.raises(InputDataError, match="zero"):  # the recording: exit 3
+        PressureLoad(t, np.zeros_like(p), (TIMES[0], TIMES[-1]))
+    with pytest.raises(ValueError, match="t1 < t2"):  # a broken caller: exit 1 with a traceback
+        PressureLoad(t, p, (TIMES[-1], TIMES[0]))
 
 
 def true_controls(load: PressureLoad, seed: int = 3) -> np.ndarray:

@@ -4,7 +4,6 @@ import math
 import numpy as np
 import pytest
 
-from vfcli.errors import ConfigError
 from vfcli.model.m5 import M5Params
 
 
@@ -71,6 +70,41 @@ def test_folds_are_mirror_images_then_offset_and_rotated():
     {"exit_radius_mm": 3.0}, {"depth_mm": -1.0}, {"gap_mm": -0.1}, {"entrance_sweep_deg": 120.0},
     {"offset_y_mm": (1.0, 2.0, 3.0)}, {"depth_mm": 0.5},
 ])
-def test_invalid_shapes_raise_config_error(kwargs):
-    with pytest.raises(ConfigError):
+def test_invalid_shapes_raise_value_error(kwargs):
+    with pytest.raises(ValueError):
         M5Params(**kwargs)
+
+
+@pytest.mark.parametrize("override, field", [
+    ("mesh.exit_radius_mm=3.5", "exit_radius_mm"), ("mesh.depth_mm=2.5", "depth_mm"),
+])
+def test_the_config_refuses_shapes_the_model_would_reject(override, field):
+    """A [mesh] section the M5 model rejects is a user error (ConfigError naming the field), caught by the config."""
+    from vfcli.config import load_config
+    from vfcli.errors import ConfigError
+
+    extra = ["mesh.entrance_radius_mm=5", "mesh.entrance_sweep_deg=90"] if field == "depth_mm" else []
+    with pytest.raises(ConfigError, match=field):
+        load_config(overrides=[override, *extra])
+
+
+def test_every_mesh_config_the_config_accepts_builds_an_m5_profile():
+    """Random [mesh] values inside the config's bounds: the config refuses them or M5Params accepts them."""
+    from vfcli.config import MeshConfig
+    from vfcli.model.m5 import m5_params_from
+
+    rng = np.random.default_rng(0)
+    bounds = {"thickness_mm": (0.5, 10), "exit_radius_mm": (0.05, 5), "entrance_radius_mm": (0.05, 5),
+              "entrance_sweep_deg": (0, 90), "inferior_angle_deg": (0, 89.9), "depth_mm": (2, 20),
+              "length_mm": (2, 40), "gap_mm": (0, 2)}
+    accepted = refused = 0
+    for _ in range(400):
+        values = {k: float(rng.uniform(lo, hi)) for k, (lo, hi) in bounds.items()}
+        try:
+            cfg = MeshConfig(**values)
+        except ValueError:  # pydantic's ValidationError
+            refused += 1
+            continue
+        m5_params_from(cfg)
+        accepted += 1
+    assert accepted > 50 and refused > 50

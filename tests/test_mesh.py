@@ -2,7 +2,6 @@
 import numpy as np
 import pytest
 
-from vfcli.errors import ConfigError
 from vfcli.model.m5 import M5Params
 from vfcli.model.mesh import (SIDE_INFERIOR, SIDE_NONE, SIDE_SUPERIOR, TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL,
                         TAG_SUPERIOR, FoldMesh, boundary_faces, build_mesh)
@@ -127,11 +126,11 @@ def test_round_trip_through_plain_arrays(mesh):
 
 def test_quality_reported_and_bad_sizes_rejected(mesh):
     assert mesh.min_dihedral_deg() > 1.0
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         build_mesh(PARAMS, target_edge_mm=0.0)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         build_mesh(PARAMS, min_ratio=0.9)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         FoldMesh(**{**mesh.to_arrays(), "tets": mesh.tets[:, :3]})
 
 

@@ -2,11 +2,12 @@
 import numpy as np
 import pytest
 
-from vfcli.camera.camera import gap_mask, rasterize
+from vfcli.camera.raster import gap_mask, rasterize
 from vfcli.errors import ConfigError
 from vfcli.model.mesh import TAG_FIXTURE
 from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
-from vfcli.camera.silhouette import edge_crossings, measured_silhouettes
+from vfcli.camera.silhouette import edge_crossings
+from vfcli.flow.gap.opening import measured_silhouettes
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import CAMERA, forward_case
@@ -106,7 +107,7 @@ def test_symmetric_outside_charges_simulated_tissue_in_the_measured_gap_only(cas
              for o in ("paper", "symmetric")}
     assert terms["paper"].motion < 1e-20
     assert terms["symmetric"].motion == pytest.approx(expected, rel=1e-10)
-    with pytest.raises(ConfigError, match="gap masks"):
+    with pytest.raises(ValueError, match="gap masks"):
         Problem(case.model.mesh, CAMERA, case.response, Measurement(m.times, m.velocity, valid, m.gap_lo, m.gap_hi),
                 ObjectiveSettings(outside="symmetric"))
 
@@ -224,3 +225,11 @@ def test_motion_residuals_reproduce_the_motion_term(case):
     per_frame = np.nansum(res ** 2, axis=(1, 2, 3)) / np.array([fr.n_norm for fr in frames])
     assert np.mean(per_frame) == pytest.approx(p.frozen_value(x, frames).motion, rel=1e-12)
     assert np.all(np.isnan(res[~case.measurement.valid]))
+
+
+def test_out_of_range_objective_settings_are_bugs_not_config_errors():
+    """The config bounds these fields (OptimizeConfig); a bad value reaching the core is a caller's bug."""
+    for bad in ({"outside": "both"}, {"gap_weight": -1.0}, {"gap_length_mm": 0.0}, {"lateral_axis": 2}):
+        with pytest.raises(ValueError) as err:
+            ObjectiveSettings(**bad)
+        assert not isinstance(err.value, ConfigError)

@@ -4,7 +4,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vfcli.errors import ConfigError
 from vfcli.flow.gap.opening import OpeningTracker, gap_centers, opening_distance
 
 
@@ -97,9 +96,9 @@ def test_simulated_mask_uses_the_measured_fallback():
 
 
 def test_bad_inputs_raise():
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         opening_distance(np.zeros((4, 4), bool), np.nan)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         OpeningTracker((4, 4)).update(np.zeros((5, 4), bool))
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         opening_distance(np.zeros((4, 4), bool), 0.0, lateral_axis=3)

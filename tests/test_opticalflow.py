@@ -60,25 +60,25 @@ def _epe(phantom, frames, rng, estimator, k):
 
 
 @pytest.mark.parametrize(
-    "method, preset, fast_limit",
-    [("sparse_to_dense", None, 0.25), ("dis", "medium", 0.2), ("dis", "fast", 0.35)],
+    "method, preset, limit, fast_limit",
+    [("sparse_to_dense", None, 0.08, 0.25), ("dis", "medium", 0.1, 0.2), ("dis", "fast", 0.12, 0.35)],
 )
-def test_flow_end_point_error_below_0_3_px_per_frame_on_the_folds(phantom, pairs, method, preset, fast_limit):
-    """Measured (px/frame): mean over the fold 0.02-0.04 (S2D), 0.04-0.06 (DIS medium),
-    0.03-0.07 (DIS fast); fast pixels >3 px from the gap up to 0.19 / 0.12 / 0.29."""
+def test_flow_end_point_error_below_0_3_px_per_frame_on_the_folds(phantom, pairs, method, preset, limit, fast_limit):
+    """Measured (px/frame): mean over the fold up to 0.042 (S2D), 0.056 (DIS medium),
+    0.069 (DIS fast); fast pixels >3 px from the gap up to 0.19 / 0.12 / 0.29."""
     frames, rng = pairs
     est = FlowEstimator(method, dis_preset=preset or "medium")
     fastest = 0.0
     for k in PAIRS:
         epe, epe_fast, top = _epe(phantom, frames, rng, est, k)
         fastest = max(fastest, top)
-        assert epe < 0.1, (k, epe)  # the issue's target is 0.3
+        assert epe < limit, (k, epe)  # the issue's target is 0.3
         assert epe_fast < fast_limit, (k, epe_fast)
     assert fastest > 0.9  # realistic motion: a zero flow would be > 0.5 px/frame off on the fast pixels
 
 
 def test_split_folds_sharpens_the_flow_next_to_the_gap(phantom, pairs):
-    """Measured near-edge (<= 3 px) EPE, S2D: 0.20-0.48 px/frame plain, 0.09-0.13 split."""
+    """Measured near-edge (<= 3 px) EPE, S2D: 0.20-0.48 px/frame plain, 0.058-0.078 split (0.16-0.31 of plain)."""
     import cv2
 
     frames, rng = pairs
@@ -94,7 +94,7 @@ def test_split_folds_sharpens_the_flow_next_to_the_gap(phantom, pairs):
         near = fold & (cv2.dilate((~fold).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0)
         plain = np.linalg.norm(est(a, b) - true, axis=-1)[near].mean()
         split = np.linalg.norm(split_fold_flow(est, a, b, centre) - true, axis=-1)[near].mean()
-        assert split < 0.2 and split < 0.8 * plain, (k, plain, split)
+        assert split < 0.15 and split < 0.5 * plain, (k, plain, split)
 
 
 def test_eight_bit_mapping_is_fixed_per_recording():
@@ -112,7 +112,7 @@ def test_pixel_flow_converts_to_model_velocity_with_scale_rate_and_rotation():
     np.testing.assert_allclose(pixel_to_model_velocity(flow, 20.0, 10_000.0), [[500.0, 250.0]])
     # rotation 90 deg: [col, row] = s R [x, y], R = [[0, -1], [1, 0]]: a +x motion moves +row
     np.testing.assert_allclose(pixel_to_model_velocity(np.array([[0.0, 1.0]]), 1.0, 1.0, 90.0), [[1.0, 0.0]], atol=1e-12)
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         pixel_to_model_velocity(flow, 0.0, 1.0)
 
 
@@ -125,13 +125,13 @@ def test_stream_yields_every_frame_on_the_frame_time_base(phantom, stream):
 def test_stream_velocity_matches_the_instantaneous_velocity_at_frame_times(phantom, stream):
     frames, _, out = stream
     eps = 1e-8
+    assert len(out) == len(STREAM)
     for f, k in zip(out, STREAM):
         t = phantom.frame_time(k)
         v_true = (phantom.true_flow(t, t + eps) - phantom.true_flow(t, t - eps)) / (2 * eps) / phantom.fps
         fold = np.isfinite(v_true[..., 0]) & ~f.mask
         err = np.linalg.norm(f.flow_px - v_true, axis=-1)[fold].mean()
-        limit = 0.3 if k in (STREAM[0], STREAM[-1]) else 0.15  # extrapolated ends
-        assert err < limit, (k, err)
+        assert err < 0.12, (k, err)  # measured 0.024-0.062 px/frame, the extrapolated ends included
         np.testing.assert_allclose(f.velocity_mm_s, pixel_to_model_velocity(f.flow_px, phantom.px_per_mm, phantom.fps), rtol=1e-6)
 
 
@@ -140,6 +140,7 @@ def test_stream_with_split_folds_matches_the_instantaneous_velocity(phantom, str
     out = list(flow_stream(iter(frames), fps=phantom.fps, px_per_mm=phantom.px_per_mm, threshold=threshold,
                            counts_range=intensity_range(frames), t0_s=phantom.frame_time(STREAM[0]), split_folds=True))
     eps = 1e-8
+    assert len(out) == len(STREAM)
     for f, k in zip(out[1:-1], STREAM[1:-1]):
         t = phantom.frame_time(k)
         v_true = (phantom.true_flow(t, t + eps) - phantom.true_flow(t, t - eps)) / (2 * eps) / phantom.fps
@@ -188,8 +189,8 @@ def test_stream_accepts_batches_and_short_videos():
         list(flow_stream([batch[:1]], fps=1e4, px_per_mm=15.0, threshold=10.0, counts_range=(0, 4095), method="dis"))
 
 
-def test_unknown_method_or_preset_is_a_config_error():
-    with pytest.raises(ConfigError):
+def test_unknown_method_or_preset_is_a_value_error():
+    with pytest.raises(ValueError):
         FlowEstimator("farneback")
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError):
         FlowEstimator("dis", dis_preset="slow")

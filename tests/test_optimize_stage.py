@@ -41,6 +41,14 @@ def store(tmp_path_factory):
     return store, raw
 
 
+def _footprint_px(rotation_deg, offset_px, px_per_mm=9.0, length_mm=15.0, depth_mm=8.0):
+    """(4, 2) image positions [col, row] of the model points x in {0, L}, y in {-D, D}."""
+    r = np.radians(rotation_deg)
+    rot = np.array([[np.cos(r), -np.sin(r)], [np.sin(r), np.cos(r)]])
+    corners = np.array([[0.0, -depth_mm], [0.0, depth_mm], [length_mm, -depth_mm], [length_mm, depth_mm]])
+    return px_per_mm * corners @ rot.T + np.asarray(offset_px, float)
+
+
 def test_optimize_stores_a_decreasing_history_and_the_motion(store, tmp_path):
     path, raw = store
     plot = tmp_path / "conv.png"
@@ -57,8 +65,17 @@ def test_optimize_stores_a_decreasing_history_and_the_motion(store, tmp_path):
     assert len(names) == 780 and names[0].startswith("fold0/inferior/x")
     assert plot.stat().st_size > 1000
     truth = read_truth(raw / "truth.h5", [])[1]
-    assert abs(attrs["camera_rotation_deg"] - truth["camera_rotation_deg"]) < 0.5
-    assert np.abs(attrs["camera_offset_px"] - truth["camera_offset_px"]).max() < 4.0
+    # the pose found from the gap must beat the guess "folds centred, not rotated" (synth's nominal camera,
+    # off by the phantom's unknown rotation <= 2 deg and offset <= 3 px): error = the largest image
+    # distance (px) between where the two poses put the corners of the folds' footprint
+    est = _footprint_px(attrs["camera_rotation_deg"], attrs["camera_offset_px"])
+    true = _footprint_px(truth["camera_rotation_deg"], truth["camera_offset_px"])
+    guess = _footprint_px(0.0, [79.5 - 9 * 15 / 2, 79.5])  # 160 x 160 px, 9 px/mm, L = 15 mm
+    err, guess_err = np.linalg.norm(est - true, axis=1).max(), np.linalg.norm(guess - true, axis=1).max()
+    rot_err = abs(attrs["camera_rotation_deg"] - truth["camera_rotation_deg"])
+    print(f"pose error: {rot_err:.3f} deg, footprint {err:.2f} px; the centred guess: "
+          f"{abs(truth['camera_rotation_deg']):.3f} deg, {guess_err:.2f} px")
+    assert rot_err < 0.02 and err < 1.5 and err < 0.5 * guess_err  # measured 0.007 deg, 0.92 px; guess 3.96 px
     again = run_vfcli("optimize", path, *FIT, "--set", "optimize.max_iterations=4", "--run", "short")
     assert "up to date" in again.stdout
 
@@ -112,14 +129,12 @@ def _inferior_truth(path, raw, run):
     return disp[:, nodes], std[:, nodes], ref
 
 
-def test_pressure_loads_state_an_uncertainty_that_covers_the_unseen_inferior_surface(store, tmp_path):
-    """The 90 % intervals of the reconstructed inferior surface (never observed) cover the phantom's
-    true displacement at least at their rate, and the error is within the stated uncertainty.
-
-    (The issue asks for 85-95 %; on this phantom the intervals are conservative, about 98 %, and on
-    the benchmark's seed 2 they understate (49 %): docs/benchmarks.md. Not calibrated yet.)"""
+@pytest.fixture(scope="module")
+def pressure_run(store, tmp_path_factory):
+    """optimize --loads pressure, run "p": (coverage of the inferior surface's 90 % intervals,
+    relative RMS error, relative RMS stated std, uncertainty map path)."""
     path, raw = store
-    png = tmp_path / "unc.png"
+    png = tmp_path_factory.mktemp("unc") / "unc.png"
     res = run_vfcli("optimize", path, "--loads", "pressure", "--set", "optimize.n_frames=48",
                     "--set", "optimize.first_frame=10", "--set", "mesh.target_edge_mm=2.5", "--run", "p",
                     "--uncertainty-map", png)
@@ -131,12 +146,29 @@ def test_pressure_loads_state_an_uncertainty_that_covers_the_unseen_inferior_sur
     rel_std = np.sqrt(np.mean(std ** 2)) / np.sqrt(np.mean(est ** 2))
     print(f"inferior: error {100 * rel_err:.1f} %, stated {100 * rel_std:.1f} %, 90 % interval coverage "
           f"{100 * coverage:.1f} %")
+    return coverage, rel_err, rel_std, png
+
+
+def test_pressure_loads_state_an_uncertainty_that_covers_the_unseen_inferior_surface(store, pressure_run):
+    """The 90 % intervals of the reconstructed inferior surface (never observed) do not understate:
+    they cover the phantom's true displacement at >= 85 %, and the error is within the stated
+    uncertainty (measured: coverage 98.6 %, error 6.5 %, stated 23.1 %)."""
+    path, _ = store
+    coverage, rel_err, rel_std, png = pressure_run
     assert coverage >= 0.85
     assert rel_err <= rel_std
     assert png.stat().st_size > 5000
     with Store(path).read() as r:
         attrs = r.attrs("optimize", "p")
     assert attrs["ridge_weight"] > 0 and attrs["residual_n_eff"] > 0
+
+
+@pytest.mark.xfail(strict=True, reason="not calibrated: the intervals are conservative on this phantom (98.6 %) "
+                   "and understate on the benchmark's seed 2 (49 %, docs/benchmarks.md)")
+def test_the_90_percent_intervals_cover_85_to_95_percent_of_the_truth(pressure_run):
+    """The issue's claim, two-sided: a 90 % interval is neither too narrow nor too wide."""
+    coverage = pressure_run[0]
+    assert 0.85 <= coverage <= 0.95, f"coverage {100 * coverage:.1f} %"
 
 
 def test_uncertainty_map_without_the_uncertainty_is_a_config_error(store, tmp_path):

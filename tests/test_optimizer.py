@@ -1,12 +1,10 @@
 """Fitting a forward-simulated case: recovery, monotone decrease, speed against the paper's method, resume."""
 import doctest
-import time
 
 import numpy as np
 import pytest
 
 import vfcli.inverse.optimizers.base
-from vfcli.errors import ConfigError
 from vfcli.model.mesh import TAG_SUPERIOR
 from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
 
@@ -46,8 +44,7 @@ def test_lbfgs_from_zero_recovers_the_superior_motion_and_decreases_e_monotonica
     assert len(total) == 61 and res.history["iteration"][-1] == 60
     assert np.all(np.diff(total) < 0)
     assert total[-1] < 3e-3 * total[0]
-    assert superior_velocity_error(case, np.zeros_like(res.x)) == pytest.approx(1.0)
-    assert superior_velocity_error(case, res.x) < 0.05
+    assert superior_velocity_error(case, res.x) < 0.05  # measured 0.032 (a zero start is 1 by definition)
     np.testing.assert_allclose(res.history["motion"] + res.history["gap"], total, rtol=1e-12)
     assert np.all(np.diff(res.history["wall_time"]) >= 0) and np.all(np.diff(res.history["n_evals"]) > 0)
     assert res.kept_x.shape == (61, case.problem.n_params)
@@ -73,16 +70,11 @@ def test_keep_every_keeps_every_kth_and_the_last(case):
     np.testing.assert_array_equal(res.kept_iterations, [0, 3, 6, 7])
 
 
-def test_scipy_lbfgsb_decreases_e(tiny):
-    res = fit(tiny.problem, method="scipy-lbfgsb", max_iter=10, options=OPTS)
-    assert res.history["total"][-1] < 0.1 * res.history["total"][0]
-    assert res.state.iteration == len(res.history["total"]) - 1
-
-
-def test_bad_method_and_start_are_config_errors(tiny):
-    with pytest.raises(ConfigError):
+def test_bad_method_and_start_are_bugs_not_config_errors(tiny):
+    """The config admits only the known methods (a Literal), so another name or a wrong x0 is a caller's bug."""
+    with pytest.raises(ValueError, match="newton"):
         fit(tiny.problem, method="newton")
-    with pytest.raises(ConfigError):
+    with pytest.raises(ValueError, match="x0"):
         fit(tiny.problem, x0=np.zeros(3))
 
 
@@ -108,37 +100,12 @@ def test_paper_method_resumes_deterministically():
     np.testing.assert_allclose(cont.x, full.x, rtol=1e-10, atol=1e-10 * np.abs(full.x).max())
 
 
-@pytest.mark.slow
-def test_exact_gradient_is_over_100_times_faster_than_the_fd_gradient():
-    """3x3x10 one-sided (780 controls), 20 frames: time per gradient.
-
-    The FD gradient is timed on 40 of its 780 evaluations and scaled (each one is a
-    full objective evaluation of the same cost)."""
-    c = forward_case(resolution=(3, 3, 10), sides=("inferior",), n_frames=20)
-    p, x = c.problem, 0.5 * c.x_true
-    p.value_and_grad(x)
-    t0 = time.perf_counter()
-    for _ in range(3):
-        p.value_and_grad(x)
-    t_exact = (time.perf_counter() - t0) / 3
-    f0 = p.evaluate(x).total
-    k = 40
-    t0 = time.perf_counter()
-    for i in range(k):
-        e = np.zeros_like(x)
-        e[i] = 0.1
-        p.evaluate(x + e).total - f0
-    t_fd = (time.perf_counter() - t0) / k * p.n_params
-    print(f"per gradient: exact {t_exact * 1e3:.0f} ms, FD {t_fd:.1f} s (n = {p.n_params}), ratio {t_fd / t_exact:.0f}")
-    assert t_fd > 100 * t_exact
-
-
 def test_gauss_newton_recovers_the_superior_motion_in_few_iterations(case):
     res = fit(case.problem, method="gauss-newton", max_iter=30, options=FitOptions(ftol=1e-8))
     total = res.history["total"]
     assert np.all(np.diff(total) < 0)
-    assert total[-1] < 3e-3 * total[0]
-    assert superior_velocity_error(case, res.x) < 0.05
+    assert total[-1] < 1e-8 * total[0]  # measured 4.0e-9
+    assert superior_velocity_error(case, res.x) < 3e-4  # measured 1.3e-4
     lb = fit(case.problem, method="lbfgs", max_iter=60, options=OPTS)
     print(f"gauss-newton: E {total[-1]:.3g} after {len(total) - 1} iterations / {res.history['n_evals'][-1]} "
           f"evaluations; lbfgs: E {lb.history['total'][-1]:.3g} after 60 / {lb.history['n_evals'][-1]}")
@@ -173,3 +140,12 @@ def test_gauss_newton_stops_once_a_step_barely_changes_the_reconstruction(case):
     longer = fit(case.problem, method="gauss-newton", max_iter=len(kept) + 2, options=FitOptions(ftol=1e-12))
     np.testing.assert_allclose(longer.kept_x[:len(kept)], kept, rtol=1e-10, atol=1e-10 * np.abs(kept).max())
     assert longer.state.iteration > res.state.iteration
+
+
+def test_out_of_range_fit_options_are_bugs_not_config_errors():
+    from vfcli.errors import ConfigError
+
+    for bad in ({"memory": 0}, {"armijo": 0.7}, {"fd_step": 0.0}):
+        with pytest.raises(ValueError) as err:
+            FitOptions(**bad)
+        assert not isinstance(err.value, ConfigError)

@@ -88,7 +88,7 @@ def test_aligned_velocity_matches_the_true_surface_velocity(raw, synced):
         w, ok = r.read("sync", "aligned_w"), r.read("sync", "ok")
     # truth: the vertical velocity at each point at each frame's phase, from the truth's own cycle table
     from vfcli.synth.motion import PeriodicMotion
-    from vfcli.camera.camera import raycast_points
+    from vfcli.camera.raster import raycast_points
     from vfcli.synth.phantom import view_surface
     from vfcli.model.mesh import FoldMesh
 

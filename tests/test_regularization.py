@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from vfcli.inverse.linearization import BlockMatrix, QuadraticModel
-from vfcli.inverse.problem import Terms
+from vfcli.inverse.block_matrix import BlockMatrix
+from vfcli.inverse.linearization import QuadraticModel
+from vfcli.inverse.terms import Terms
 from vfcli.inverse.regularization import lcurve
 
 
@@ -45,6 +46,7 @@ def test_lcurve_corner_recovers_the_signal_where_no_regularisation_fails(seed, n
     # the predicted misfit and penalty are those of the exact regularised solutions (where these are
     # well conditioned: from the corner on)
     k = int(np.argmin(np.abs(curve.weights - curve.chosen)))
+    assert len(curve.weights[k::3]) >= 3
     for w, rho, eta in zip(curve.weights[k::3], curve.misfit[k::3], curve.penalty[k::3]):
         z = solution(w)
         assert rho == pytest.approx(np.sum((a @ z - y) ** 2), rel=1e-6, abs=1e-10 * float(y @ y))

@@ -195,14 +195,13 @@ def test_second_writer_fails_at_once_and_corrupts_nothing(tmp_path, vfcli):
     holder = subprocess.Popen([*WRITER, str(path), "5", "3", "30"], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "writing"
-        t0 = time.perf_counter()
         with pytest.raises(StoreLockedError, match="another vfcli process is writing"):
             with Store(path).write("second"):
                 pass
         cfg = tmp_path / "rec.toml"
         cfg.write_text("[camera]\npx_per_mm = 30\n")
         res = vfcli("config", path, "--config", cfg)
-        assert time.perf_counter() - t0 < 10
+        assert holder.poll() is None  # failed while the lock was held (30 s): it did not wait for it
         assert res.returncode == 4, res.stderr
         assert res.stderr.count("\n") == 1 and "another vfcli process is writing" in res.stderr
         # readers are not blocked and see the old, complete store

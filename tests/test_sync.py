@@ -9,7 +9,6 @@ so the true epoch time matching every video frame is known.
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -281,19 +280,15 @@ def test_timing_error_is_below_half_an_ldv_sample(small_scan):
 
 
 @pytest.mark.slow
-def test_timing_error_and_wall_time_for_a_full_374_point_scan():
+def test_timing_error_for_a_full_374_point_scan():
     scene = make_scene(n_points=374, seed=0)
-    wall, cpu = time.perf_counter(), time.process_time()
-    res = run_sync(scene)
-    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
-    print(f"\n374 points x {scene.ref.shape[1]} samples: sync wall {wall:.2f} s, cpu {cpu:.2f} s")
+    res = run_sync(scene)  # its time: bench/bench_unit_timings.py
     assert res.ok.all(), set(res.reason)
     value = _report_timing(scene, res, "374 points")
     rel = rms(res.aligned_w - true_velocity(scene)) / rms(true_velocity(scene))
     print(f"aligned velocity relative RMS error {rel:.2e}")
     assert value < 5e-6, f"RMS timing error {value * 1e6:.2f} us (target < 10 us)"
     assert rel < 0.01, f"aligned velocity relative RMS error {rel:.2e}"
-    assert cpu < 60.0, f"sync took {cpu:.1f} s of CPU"
 
 
 def test_aligned_velocity_matches_the_truth_on_the_frame_times(small_scan):
@@ -491,16 +486,24 @@ def test_template_phase_reference_meets_the_target_on_an_unchanged_waveform(smal
     assert value < 5e-6, f"RMS timing error {value * 1e6:.2f} us"
 
 
-def test_invalid_sync_settings_are_config_errors(small_scan):
+def test_invalid_sync_settings_are_bugs_in_the_core_and_user_errors_in_the_config(small_scan):
+    """The core refuses bad settings with ValueError; the [sync] config refuses them first as ConfigError."""
+    from vfcli.config import load_config
     from vfcli.errors import ConfigError
 
     scene, _ = small_scan
-    with pytest.raises(ConfigError, match="phase_reference"):
+    with pytest.raises(ValueError, match="phase_reference"):
         run_sync(scene, phase_reference="peak")
-    with pytest.raises(ConfigError, match="min_quality"):
+    with pytest.raises(ValueError, match="min_quality"):
         run_sync(scene, min_quality=1.5)
-    with pytest.raises(ConfigError, match="knot_cycles"):
+    with pytest.raises(ValueError, match="knot_cycles"):
         run_sync(scene, knot_cycles=0.0)
+    with pytest.raises(ValueError, match="f_range"):
+        run_sync(scene, f_range=(300.0, 100.0))
+    for override, field in (("sync.phase_reference=peak", "phase_reference"), ("sync.min_quality=1.5", "min_quality"),
+                            ("sync.knot_cycles=0", "knot_cycles"), ("sync.f0_min_hz=600", "f0_min_hz")):
+        with pytest.raises(ConfigError, match=field):
+            load_config(overrides=[override])
 
 
 def test_an_inverted_reference_channel_is_rejected():

@@ -85,6 +85,7 @@ def test_ldv_reads_back_with_pyuff_and_equals_truth_plus_stated_noise(phantom):
 def test_no_file_but_truth_names_the_effect(phantom):
     _, attrs = read_truth(phantom / "truth.h5", [])
     assert attrs["effect"] in effects.EFFECTS
+    assert len(list(phantom.iterdir())) >= 8  # video, scan, pressure, config, manifest files
     for f in phantom.iterdir():
         if f.name == "truth.h5":
             continue

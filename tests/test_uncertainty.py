@@ -4,8 +4,11 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from vfcli.inverse.linearization import BlockMatrix, QuadraticModel
-from vfcli.inverse.problem import Measurement, Problem, Terms
+from vfcli.inverse.block_matrix import BlockMatrix
+from vfcli.inverse.linearization import QuadraticModel
+from vfcli.inverse.problem import Measurement, Problem
+from vfcli.inverse.terms import Terms
+from vfcli.model.response.base import Linearization, SeparableTerm
 from vfcli.inverse.optimizers.base import fit
 from vfcli.inverse.uncertainty import (ResidualCorrelation, displacement_std, effective_sample_size, instrument_fits,
                                instrument_std, posterior)
@@ -87,7 +90,9 @@ def test_displacement_std_is_the_exact_propagation_of_the_covariance(order):
         g = rng.normal(size=(len(i), len(i)))
         blocks.append(g @ g.T)
     cov = BlockMatrix(n, tuple(idx), tuple(blocks))
-    std = displacement_std(cov, basis, tb)
+    std = displacement_std(cov, Linearization((SeparableTerm(basis, tb),)))
+    # the older (basis, time basis) form of a one-term response is the same propagation
+    np.testing.assert_array_equal(displacement_std(cov, basis, tb), std)
     dense = cov.dense()
     for f in range(n_f):
         jac = np.einsum("vcs,t->vcst", basis, tb[f]).reshape(n_v * 3, n)   # d U(t_f) / d x, x = C.ravel()

@@ -7,18 +7,20 @@ silently ignored setting. The CLI loads a config once: the file (``--config``), 
 """
 from __future__ import annotations
 
+import difflib
 import json
+import math
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from vfcli.errors import ConfigError
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
 
 class CameraConfig(_Section):
@@ -83,6 +85,12 @@ class SyncConfig(_Section):
         "fundamental", description="Phase zero: peak of each record's pressure fundamental, or the video's whole waveform"
     )
 
+    @model_validator(mode="after")
+    def _f0_range(self) -> "SyncConfig":
+        if not self.f0_min_hz < self.f0_max_hz:
+            raise ValueError(f"f0_min_hz ({self.f0_min_hz}) must be below f0_max_hz ({self.f0_max_hz})")
+        return self
+
 
 class FlowConfig(_Section):
     """`vfcli flow`: gap segmentation and optical flow (/flow), then the surface velocity field (/fields)."""
@@ -117,6 +125,12 @@ class FlowConfig(_Section):
         True, description="Velocity valid only inside the convex hull of the good LDV points (no TPS extrapolation)"
     )
 
+    @model_validator(mode="after")
+    def _odd_median(self) -> "FlowConfig":
+        if self.median_px % 2 == 0:
+            raise ValueError(f"median_px ({self.median_px}) must be odd")
+        return self
+
 
 class MeshConfig(_Section):
     """`vfcli mesh`: the M5 model (Scherer et al. 2001, uniform glottis) and its tetrahedralisation."""
@@ -140,6 +154,16 @@ class MeshConfig(_Section):
     youngs_modulus_pa: float = Field(4400.0, gt=0, le=1e8, description="Young's modulus E, Pa")
     poisson_ratio: float = Field(0.499, ge=0, lt=0.5, description="Poisson's ratio nu (1)")
     density_kg_m3: float = Field(1070.0, gt=0, le=1e5, description="Density of the silicone, kg/m^3")
+
+    @model_validator(mode="after")
+    def _arcs_fit(self) -> "MeshConfig":
+        if self.exit_radius_mm >= self.thickness_mm:
+            raise ValueError(f"exit_radius_mm ({self.exit_radius_mm}) must be smaller than thickness_mm "
+                             f"({self.thickness_mm})")
+        run = self.depth_mm - self.entrance_radius_mm * (1 - math.cos(math.radians(self.entrance_sweep_deg)))
+        if self.exit_radius_mm >= self.depth_mm or run <= 0:
+            raise ValueError(f"depth_mm ({self.depth_mm}) is too small for the exit and entrance arcs")
+        return self
 
 
 class OptimizeConfig(_Section):
@@ -271,12 +295,30 @@ SCHEMA_MODELS: dict[str, type[BaseModel]] = {
 }
 
 
+def _unknown_setting(loc: tuple[Any, ...]) -> str:
+    """'camera.px_per_m: unknown setting (did you mean camera.px_per_mm?)': the nearest known key
+    of the same section (difflib), else the section's keys."""
+    model: type[BaseModel] = RecordingConfig
+    for part in loc[:-1]:
+        field = model.model_fields.get(str(part))
+        if field is None or not (isinstance(field.annotation, type) and issubclass(field.annotation, BaseModel)):
+            return f"{'.'.join(map(str, loc))}: unknown setting"
+        model = field.annotation
+    prefix = "".join(f"{p}." for p in loc[:-1])
+    known = list(model.model_fields)
+    near = difflib.get_close_matches(str(loc[-1]), known, n=1, cutoff=0.6)
+    hint = f"did you mean {prefix}{near[0]}?" if near else f"known: {', '.join(prefix + k for k in known)}"
+    return f"{prefix}{loc[-1]}: unknown setting ({hint})"
+
+
 def _one_line(exc: ValidationError, source: str) -> str:
     parts = []
     for err in exc.errors():
         loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
         if err["type"] == "extra_forbidden":
-            parts.append(f"{loc}: unknown setting")
+            parts.append(_unknown_setting(tuple(err["loc"])))
+        elif isinstance(err.get("input"), dict):  # a rule across the fields of a section
+            parts.append(f"{loc}: {err['msg']}")
         else:
             parts.append(f"{loc} = {err.get('input')!r}: {err['msg']}")
     return f"{source}: invalid config: " + "; ".join(parts)
@@ -350,6 +392,44 @@ def load_config(
     if overrides:
         effective = _validate(apply_overrides(stored.model_dump(mode="json"), overrides), "--set")
     return stored, effective
+
+
+def persist_overrides(stored: RecordingConfig, overrides: list[str]) -> RecordingConfig:
+    """The stored config with ``--set section.field=value`` items applied, to be stored
+    (`vfcli config FILE --set ...`); only the values given so far count as set."""
+    return _validate(apply_overrides(stored.model_dump(mode="json", exclude_unset=True), overrides), "--set")
+
+
+#: Settings a lab measures for its own setup; left at the default they silently scale results.
+CALIBRATION: dict[str, tuple[str, str]] = {
+    "camera.px_per_mm": ("px/mm", "measure it on a calibration target in the folds' plane"),
+}
+
+
+def default_calibration(stored: RecordingConfig, effective: RecordingConfig) -> list[str]:
+    """The :data:`CALIBRATION` keys that no config file or ``--set`` gave a value: they are at
+    their default (a value equal to the default counts as given when the stored config sets it)."""
+    out = []
+    for key in CALIBRATION:
+        section, name = key.split(".")
+        model = getattr(effective, section)
+        default = type(model).model_fields[name].default
+        if getattr(model, name) == default and name not in getattr(stored, section).model_fields_set:
+            out.append(key)
+    return out
+
+
+def calibration_warnings(stored: RecordingConfig, effective: RecordingConfig, store: str | Path) -> list[str]:
+    """One line per :func:`default_calibration` key: its default value and how to set it."""
+    lines = []
+    for key in default_calibration(stored, effective):
+        section, name = key.split(".")
+        value = getattr(getattr(effective, section), name)
+        unit, how = CALIBRATION[key]
+        lines.append(f"{key} is not set: the default {value:g} {unit} is used, and every length and velocity from "
+                     f"the video scales with it; {how} and set it with `vfcli config {store} --set {key}=VALUE` "
+                     f"(or in recording.toml), then rerun")
+    return lines
 
 
 def export_schemas(out_dir: str | Path) -> list[Path]:

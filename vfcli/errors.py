@@ -12,6 +12,7 @@ Exit codes
 4  store locked by another writer, or not a vfcli store / incompatible version
 5  a stage this command needs is missing or incomplete (run the upstream command first)
 6  not implemented yet
+130  interrupted (Ctrl-C, SIGINT); a stage is committed whole or not at all, so no half-written stage is left
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ EXIT_BAD_INPUT = 3
 EXIT_STORE = 4
 EXIT_MISSING_STAGE = 5
 EXIT_NOT_IMPLEMENTED = 6
+EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a command killed by Ctrl-C
 
 
 class VfcliError(Exception):

@@ -1,1 +1,2 @@
-"""The camera: orthographic projection, rasterisation, silhouettes and the pose of the model in the image."""
+"""The camera: orthographic projection (camera), rasterisation (raster), simulated silhouettes
+(silhouette) and the pose of the model in the image (pose)."""

@@ -1,7 +1,8 @@
-"""Gap silhouettes: the measured ones from gap masks, the simulated ones from mesh edges.
+"""Simulated gap silhouettes, from mesh edges (the measured ones, from gap masks, are
+:func:`vfcli.flow.gap.opening.measured_silhouettes`).
 
 Rays are the lateral image lines (``lateral_axis == 0``: rows are lateral, one ray
-per column, as in :mod:`vfcli.flow.gap.opening`).  A fold's simulated silhouette on a ray
+per column, as in :mod:`vfcli.flow.gap.rays`).  A fold's simulated silhouette on a ray
 is the lateral screen position of its medial-most point, the extreme over the
 crossings of its surface edges with the ray (:func:`edge_crossings`,
 :func:`extreme_per_ray`); for a fixed choice of edge it is a smooth function of
@@ -10,41 +11,6 @@ the two end vertices, which is what :mod:`vfcli.inverse.problem` differentiates.
 from __future__ import annotations
 
 import numpy as np
-
-from vfcli.flow.gap.opening import OpeningTracker
-
-
-def measured_silhouettes(gap_masks: np.ndarray, lateral_axis: int = 0,
-                         initial_center: np.ndarray | float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Measured gap silhouettes per frame and ray from gap masks.
-
-    Parameters
-    ----------
-    gap_masks : (F, H, W) bool.
-    lateral_axis : 0 (rows lateral, one ray per column) or 1.
-    initial_center : fallback opening location before a ray is seen open (see
-        :class:`vfcli.flow.gap.opening.OpeningTracker`).
-
-    Returns
-    -------
-    lo, hi : (F, n_rays) float64 lateral px of the outermost transitions (edges at
-        half-integers); on closed rays both are the last known opening location.
-    """
-    masks = np.asarray(gap_masks, dtype=bool)
-    tracker = OpeningTracker(masks.shape[1:], lateral_axis, initial_center)
-    lo = np.empty((len(masks), tracker.n_rays))
-    hi = np.empty_like(lo)
-    for f, mask in enumerate(masks):
-        m = mask if lateral_axis == 0 else mask.T
-        trans = m[1:] != m[:-1]
-        has = trans.any(axis=0)
-        first = np.argmax(trans, axis=0) + 0.5
-        last = trans.shape[0] - 1 - np.argmax(trans[::-1], axis=0) + 0.5
-        tracker.observe(mask)
-        fb = tracker.fallback_center()
-        lo[f] = np.where(has, first, fb)
-        hi[f] = np.where(has, last, fb)
-    return lo, hi
 
 
 def surface_edges(faces: np.ndarray) -> np.ndarray:

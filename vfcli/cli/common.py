@@ -6,17 +6,25 @@ import json
 import logging
 import shlex
 import sys
-from typing import Any, Callable
+import warnings
+from typing import TYPE_CHECKING, Any, Callable
 
 import click
 
-from vfcli.progress import make_progress
-from vfcli.stages.base import RunContext, StageResult
+if TYPE_CHECKING:  # imported when a command runs (`vfcli --help` stays light)
+    from vfcli.stages.base import StageResult
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:
+    """Log to stderr: warnings and errors (-v info, -vv debug); ``quiet``: errors only.
+
+    ``quiet`` also silences Python warnings (numpy's, a library's deprecations), which
+    bypass logging.
+    """
     level = logging.WARNING - 10 * verbose if not quiet else logging.ERROR
     logging.basicConfig(level=max(level, logging.DEBUG), format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    if quiet:
+        warnings.simplefilter("ignore")
 
 
 def run_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -25,7 +33,7 @@ def run_options(func: Callable[..., Any]) -> Callable[..., Any]:
         click.option("--config", "config_path", type=click.Path(dir_okay=False), help="recording.toml; stored with the recording (replaces the stored config)."),
         click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value for this run (repeatable)."),
         click.option("--force", is_flag=True, help="Rerun even when inputs and config are unchanged."),
-        click.option("--quiet", "-q", is_flag=True, help="No progress bars, errors only."),
+        click.option("--quiet", "-q", is_flag=True, help="Print errors only (no progress bars, summary or warnings)."),
         click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary (JSON) on stdout."),
         click.option("-v", "--verbose", count=True, help="More logging (-vv for debug)."),
     ]):
@@ -40,6 +48,9 @@ def store_command(func: Callable[..., Any]) -> Callable[..., Any]:
     @run_options
     @functools.wraps(func)
     def wrapper(file: str, config_path: str | None, overrides: tuple[str, ...], force: bool, quiet: bool, as_json: bool, verbose: int, **kwargs: Any) -> None:
+        from vfcli.progress import make_progress
+        from vfcli.stages.base import RunContext
+
         setup_logging(verbose, quiet)
         ctx = RunContext.open(
             file,
@@ -50,17 +61,23 @@ def store_command(func: Callable[..., Any]) -> Callable[..., Any]:
             progress=make_progress(False if quiet else None),
         )
         result = func(ctx=ctx, **kwargs)
-        report(result, as_json)
+        report(result, as_json, quiet)
 
     return wrapper
 
 
-def report(result: StageResult | list[StageResult], as_json: bool) -> None:
-    """Print what a command did: one line per stage, or JSON."""
+def report(result: StageResult | list[StageResult], as_json: bool, quiet: bool | None = None) -> None:
+    """Print what a command did: one line per stage, or JSON (``--json``, even with ``quiet``);
+    nothing when ``quiet`` (None: the running command's ``--quiet``)."""
+    if quiet is None:
+        ctx = click.get_current_context(silent=True)
+        quiet = bool(ctx and ctx.params.get("quiet"))
     results = result if isinstance(result, list) else [result]
     if as_json:
         payload = [r.to_json() for r in results]
         click.echo(json.dumps(payload[0] if len(payload) == 1 else payload, indent=2, default=str))
+        return
+    if quiet:
         return
     for r in results:
         if r.status == "up-to-date":

@@ -1,9 +1,10 @@
 """`vfcli config FILE`: store or update a recording's config, or show it."""
 from __future__ import annotations
 
+import dataclasses
+
 import click
 
-from vfcli.stages.base import save_recording_config
 from vfcli.cli.common import store_command
 
 
@@ -11,14 +12,22 @@ from vfcli.cli.common import store_command
 @store_command
 @click.option("--show", is_flag=True, help="Print the effective config (stored + --set) as JSON.")
 def config_cmd(ctx, show: bool):  # type: ignore[no-untyped-def]
-    """Store the recording config given with --config (creates FILE if needed).
+    """Store the recording config given with --config (creates FILE if needed); --set
+    section.field=value updates the stored config (here, unlike in other commands, it is kept).
 
     Reads and writes the root attribute with the recording config; no stage.
     """
-    from vfcli.stages.base import StageResult
+    from vfcli.config import persist_overrides
+    from vfcli.stages.base import StageResult, save_recording_config
 
     if show:
         click.echo(ctx.config.model_dump_json(indent=2))
         return []
+    overrides = list(click.get_current_context().params.get("overrides") or ())
+    summary = {}
+    if overrides:
+        stored = persist_overrides(ctx.stored_config, overrides)
+        ctx = dataclasses.replace(ctx, stored_config=stored, config=stored)
+        summary = {"set": " ".join(overrides)}
     changed = save_recording_config(ctx)
-    return StageResult("/ (recording config)", "written" if changed else "up-to-date")
+    return StageResult("/ (recording config)", "written" if changed else "up-to-date", summary)

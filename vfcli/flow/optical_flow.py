@@ -107,7 +107,7 @@ class FlowEstimator:
         import cv2
 
         if method not in ("sparse_to_dense", "dis"):
-            raise ConfigError(f"optical flow: unknown method {method!r} (sparse_to_dense or dis)")
+            raise ValueError(f"optical flow: unknown method {method!r} (sparse_to_dense or dis)")
         self.method = method
         self.params = dict(grid_step=int(grid_step), k=int(k), sigma=float(sigma), use_post_proc=bool(use_post_proc),
                            fgs_lambda=float(fgs_lambda), fgs_sigma=float(fgs_sigma))
@@ -118,7 +118,7 @@ class FlowEstimator:
                                   "(cv2.optflow is missing); install it instead of opencv-python")
         else:
             if dis_preset not in DIS_PRESETS:
-                raise ConfigError(f"optical flow: unknown DIS preset {dis_preset!r} (one of {DIS_PRESETS})")
+                raise ValueError(f"optical flow: unknown DIS preset {dis_preset!r} (one of {DIS_PRESETS})")
             preset = getattr(cv2, f"DISOPTICAL_FLOW_PRESET_{dis_preset.upper()}")
             self._dis = cv2.DISOpticalFlow.create(preset)
 
@@ -155,7 +155,7 @@ def pixel_to_model_velocity(flow_px: np.ndarray, px_per_mm: float, fps: float, r
         (u, v) = (x, y) velocity components, mm/s.
     """
     if px_per_mm <= 0 or fps <= 0:
-        raise ConfigError(f"flow conversion: px_per_mm and fps must be positive, got {px_per_mm}, {fps}")
+        raise ValueError(f"flow conversion: px_per_mm and fps must be positive, got {px_per_mm}, {fps}")
     th = np.deg2rad(rotation_deg)
     c, s = np.cos(th), np.sin(th)
     flow = np.asarray(flow_px, dtype=np.float32)
@@ -254,7 +254,7 @@ def _single_frames(frames: Iterable[np.ndarray]) -> Iterator[np.ndarray]:
         elif a.ndim == 2:
             yield a
         else:
-            raise ConfigError(f"flow: frames must be (H, W) or (k, H, W) arrays, got shape {a.shape}")
+            raise ValueError(f"flow: frames must be (H, W) or (k, H, W) arrays, got shape {a.shape}")
 
 
 def flow_stream(
@@ -373,7 +373,7 @@ def flow_stream(
     try:
         f1 = next(it)
     except StopIteration:
-        raise ConfigError("flow: the video needs at least 2 frames") from None
+        raise ConfigError("flow: the video needs at least 2 frames (ingest_hsc.n_frames)") from None
     img0, g0 = prepare(f0)
     img1, g1 = prepare(f1)
     fwd0 = pair_flow(img0, img1)  # pair (0, 1)

@@ -82,11 +82,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.camera.camera import Camera, rasterize
-from vfcli.errors import ConfigError
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import rasterize
+from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, surface_edges
+from vfcli.flow.gap.opening import measured_silhouettes
+from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
-from vfcli.camera.silhouette import (crossing_with_gradient, edge_crossings, extreme_per_ray, measured_silhouettes,
-                              surface_edges)
+from vfcli.model.response.base import Response
 
 
 @dataclass(frozen=True)
@@ -133,7 +135,11 @@ OUTSIDE = ("paper", "symmetric")
 
 @dataclass(frozen=True)
 class ObjectiveSettings:
-    """Weights and definitions of E (see module docstring)."""
+    """Weights and definitions of E (see module docstring).
+
+    Raises ValueError for values out of range: the config (``vfcli.config.OptimizeConfig``)
+    bounds every field it sets, so a bad value here is a caller's bug, not a user's.
+    """
 
     motion_weight: float = 1.0
     gap_weight: float = 1.0
@@ -152,24 +158,14 @@ class ObjectiveSettings:
 
     def __post_init__(self) -> None:
         if self.outside not in OUTSIDE:
-            raise ConfigError(f"outside must be one of {OUTSIDE}, got {self.outside!r}")
+            raise ValueError(f"outside must be one of {OUTSIDE}, got {self.outside!r}")
         if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0
                 and len(self.component_weights) == 3 and min(self.component_weights) >= 0):
-            raise ConfigError("objective weights must be >= 0")
+            raise ValueError("objective weights must be >= 0")
         if not self.gap_length_mm > 0:
-            raise ConfigError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
+            raise ValueError(f"gap_length_mm must be > 0, got {self.gap_length_mm!r}")
         if self.lateral_axis not in (0, 1):
-            raise ConfigError(f"lateral_axis must be 0 or 1, got {self.lateral_axis!r}")
-
-
-@dataclass(frozen=True)
-class Terms:
-    """Value of E and its weighted terms (``total = motion + gap + ridge``)."""
-
-    total: float
-    motion: float
-    gap: float
-    ridge: float = 0.0
+            raise ValueError(f"lateral_axis must be 0 or 1, got {self.lateral_axis!r}")
 
 
 @dataclass
@@ -187,43 +183,51 @@ class _Frame:
 
 
 class Problem:
-    """E(x) for a linear response, a camera and a measurement.
+    """E(x) for a response, a camera and a measurement.
 
     Parameters
     ----------
     mesh : FoldMesh.
     camera : Camera.
-    response : linear map x -> vertex displacements (e.g. :class:`vfcli.model.response.quasi_static.QuasiStaticResponse`).
+    response : a :class:`vfcli.model.response.base.Response` (e.g.
+        :class:`vfcli.model.response.quasi_static.QuasiStaticResponse`); used through its methods only.
     measurement : Measurement (its velocity/valid images must match ``camera.shape``).
     settings : ObjectiveSettings.
+    terms : the terms of E (:mod:`vfcli.inverse.terms`), default motion, gap and ridge; each reads
+        its weight from ``settings`` (or carries its own).
     """
 
-    def __init__(self, mesh: FoldMesh, camera: Camera, response, measurement: Measurement,
-                 settings: ObjectiveSettings | None = None) -> None:
+    def __init__(self, mesh: FoldMesh, camera: Camera, response: Response, measurement: Measurement,
+                 settings: ObjectiveSettings | None = None, terms: tuple[Term, ...] | None = None) -> None:
         self.mesh, self.camera, self.response = mesh, camera, response
-        lm = getattr(response, "load_model", None)
-        #: (n, n) sparse PSD matrix Omega of the ridge term (identity by default)
-        self.penalty = lm.penalty_operator() if hasattr(lm, "penalty_operator") else sp.identity(response.n_params)
+        #: the terms of E, summed in this order
+        self.terms: tuple[Term, ...] = tuple(terms) if terms is not None else tuple(t() for t in DEFAULT_TERMS)
+        names = [t.name for t in self.terms]
+        if len(set(names)) != len(names) or not all(names):
+            raise ValueError(f"the terms of E need distinct non-empty names, got {names}")
+        #: (n, n) sparse PSD matrix Omega of the ridge term (identity unless the response says otherwise)
+        self.penalty = (response.penalty_operator() if hasattr(response, "penalty_operator")
+                        else sp.identity(response.n_params, format="csr"))
         self.meas, self.settings = measurement, settings or ObjectiveSettings()
         st = self.settings
         times = np.asarray(measurement.times, dtype=float)
         if times.ndim != 1 or len(times) < 2 or not np.allclose(np.diff(times), times[1] - times[0], rtol=1e-6):
-            raise ConfigError("measurement times must be (F,) uniformly spaced, F >= 2")
+            raise ValueError("measurement times must be (F,) uniformly spaced, F >= 2")
         if not times[1] > times[0]:
-            raise ConfigError("measurement times must increase")
+            raise ValueError("measurement times must increase")
         f, (h, w) = len(times), camera.shape
         if measurement.velocity.shape != (f, h, w, 3) or measurement.valid.shape != (f, h, w):
-            raise ConfigError(f"measurement velocity/valid must be ({f}, {h}, {w}, 3)/({f}, {h}, {w}), got "
-                              f"{measurement.velocity.shape}/{measurement.valid.shape}")
+            raise ValueError(f"measurement velocity/valid must be ({f}, {h}, {w}, 3)/({f}, {h}, {w}), got "
+                             f"{measurement.velocity.shape}/{measurement.valid.shape}")
         if st.outside == "symmetric" and (measurement.gap is None or np.shape(measurement.gap) != (f, h, w)):
-            raise ConfigError(f"outside='symmetric' needs the measurement's ({f}, {h}, {w}) gap masks")
+            raise ValueError(f"outside='symmetric' needs the measurement's ({f}, {h}, {w}) gap masks")
         self.dt = float(times[1] - times[0])
         self.sim_times = np.append(times, times[-1] + self.dt)
         self.n_frames = f
         self.ray_comp = 0 if st.lateral_axis == 0 else 1
         self.n_rays_img = w if st.lateral_axis == 0 else h
         if measurement.gap_lo.shape != (f, self.n_rays_img) or measurement.gap_hi.shape != (f, self.n_rays_img):
-            raise ConfigError(f"measurement gap_lo/gap_hi must be ({f}, {self.n_rays_img})")
+            raise ValueError(f"measurement gap_lo/gap_hi must be ({f}, {self.n_rays_img})")
         self.tri = mesh.faces[np.isin(mesh.face_tag, st.visible_tags)]
         self.fold_edges = [surface_edges(mesh.faces[mesh.face_fold == k]) for k in (0, 1)]
         rest = camera.project(mesh.nodes)
@@ -326,49 +330,14 @@ class Problem:
     # ------------------------------------------------------------ value and gradient
     def _frozen(self, x: np.ndarray, frames: list[_Frame], disp: np.ndarray | None,
                 grad: bool) -> tuple[Terms, np.ndarray | None]:
-        st = self.settings
+        """E (sum of the weighted terms, in the order of :attr:`terms`) and, with ``grad``, its gradient."""
         u = self.displacements(x) if disp is None else disp
-        g = np.zeros_like(u) if grad else None
-        n_f = self.n_frames
-        motion = gap = 0.0
-        p = self.camera.matrix
-        ell = st.gap_length_mm
-        n_sil = 2.0 * max(len(self.rays), 1)
-        rc = self.ray_comp
-        cw = np.asarray(st.component_weights, dtype=float)
-        for f, fr in enumerate(frames):
-            du = u[f + 1] - u[f]
-            r = fr.m_both @ du / self.dt - fr.v_both
-            motion += (np.sum(r * r @ cw) + fr.const) / fr.n_norm
-            if grad and st.motion_weight:
-                gd = (fr.m_both.T @ (r * cw)) * (2.0 * st.motion_weight / (n_f * fr.n_norm * self.dt))
-                g[f + 1] += gd
-                g[f] -= gd
-            if not st.gap_weight:
-                continue
-            scr = self.camera.project(self.mesh.nodes + u[f])
-            for side, (rays, edge, tgt) in enumerate(fr.sil):
-                if rays.size == 0:
-                    continue
-                ee = self.fold_edges[self.fold_order[side]][edge]
-                s, d0, d1 = crossing_with_gradient(scr, ee, rays, rc)
-                q = ((s - tgt) / (self.camera.px_per_mm * ell)) ** 2
-                gap += np.sum(np.arctan(q)) / n_sil
-                if grad:
-                    # d arctan(q)/ds, q = ((s - m) / (k l))^2
-                    dphi = (2.0 * (s - tgt) / (self.camera.px_per_mm * ell) ** 2) / (1.0 + q * q)
-                    dphi *= st.gap_weight / (n_f * n_sil)
-                    gs = np.zeros((len(scr), 2))
-                    np.add.at(gs, ee[:, 0], dphi[:, None] * d0)
-                    np.add.at(gs, ee[:, 1], dphi[:, None] * d1)
-                    g[f, :, :2] += gs @ p
-        omega_x = self.penalty @ x
-        ridge = st.ridge_weight * float(x @ omega_x) / len(x)
-        terms = Terms(st.motion_weight * motion / n_f + st.gap_weight * gap / n_f + ridge,
-                      st.motion_weight * motion / n_f, st.gap_weight * gap / n_f, ridge)
+        ev = Evaluation(self, x, u, frames, np.zeros_like(u) if grad else None,
+                        np.zeros(len(x)) if grad else None)
+        terms = Terms.from_parts({t.name: t.value(ev) for t in self.terms})
         if not grad:
             return terms, None
-        return terms, self.response.adjoint(g, self.sim_times) + (2.0 * st.ridge_weight / len(x)) * omega_x
+        return terms, self.response.adjoint(ev.grad_disp, self.sim_times, x) + ev.grad_x
 
     def motion_residuals(self, x: np.ndarray, frames: list[_Frame]) -> np.ndarray:
         """(F, H, W, 3) simulated minus measured velocity, mm/s, for a frozen raster.

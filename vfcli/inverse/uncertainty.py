@@ -1,8 +1,8 @@
 """How well the recording determines the reconstruction: posterior covariance of a fit.
 
-The fitted model is linear in its control values x (vertex displacements
-``U(t) = R C b(t)``), and around the optimum E is well described by its
-Gauss-Newton model (:mod:`vfcli.inverse.linearization`).  Reading E as a scaled negative
+Around the optimum the displacements are described by the response's linearisation
+(``dU(t) = sum_j R_j dC B_j(t)``, exact for a linear response such as ``U(t) = R C b(t)``),
+and E by its Gauss-Newton model (:mod:`vfcli.inverse.linearization`).  Reading E as a scaled negative
 log-posterior, ``-log p(x | data) = kappa * E(x) + const`` (the ridge term then acts
 as a Gaussian prior on x), the Laplace approximation gives
 
@@ -55,7 +55,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vfcli.inverse.linearization import BlockMatrix, QuadraticModel, gauss_newton_model
+from vfcli.inverse.block_matrix import BlockMatrix
+from vfcli.inverse.linearization import QuadraticModel, gauss_newton_model
+from vfcli.model.response.base import Linearization, SeparableTerm
 
 #: Motion-term component weights (model x, y, z) of each instrument's own data: the
 #: camera's optical flow gives the in-plane velocity, the vibrometer the vertical one.
@@ -173,31 +175,41 @@ def posterior(model: QuadraticModel, correlation: ResidualCorrelation) -> Poster
     return Posterior(cov, kappa, dof, correlation)
 
 
-def displacement_std(covariance: BlockMatrix, basis: np.ndarray, time_basis: np.ndarray) -> np.ndarray:
+def displacement_std(covariance: BlockMatrix, linearization: Linearization | np.ndarray,
+                     time_basis: np.ndarray | None = None) -> np.ndarray:
     """Standard deviation of every vertex displacement component at every time.
 
     Parameters
     ----------
-    covariance : (n, n) Cov(x) with ``x = C.ravel()``, C (S, T).
-    basis : (N, 3, S) vertex displacement per unit spatial control value, mm.
-    time_basis : (F, T) time basis at the simulated times.
+    covariance : (n, n) Cov(x) with ``x = C.ravel()``, C (S, n_time), (x units)^2.
+    linearization : the response's dU/dx at the fit and the simulated times
+        (``QuadraticModel.linearization``, :meth:`vfcli.model.response.base.Response.linearize`):
+        ``dU(t) = sum_j R_j dC B_j(t)``, R_j (N, 3, S) mm per unit control, B_j (T, n_time).
+
+    time_basis : only for the older form ``displacement_std(covariance, basis, time_basis)`` of a
+        one-term response (basis (N, 3, S), time_basis (T, n_time)); prefer the linearization.
 
     Returns
     -------
-    (F, N, 3) float64, mm.
+    (T, N, 3) float64, mm: ``sqrt(diag(J_t Cov J_t^T))`` with ``J_t = sum_j R_j (x) B_j(t)``.
     """
-    n_t = time_basis.shape[1]
-    n_v = basis.shape[0]
-    var = np.zeros((len(time_basis), n_v, 3))
+    lin = linearization
+    if time_basis is not None:
+        lin = Linearization((SeparableTerm(np.asarray(linearization, dtype=float), np.atleast_2d(time_basis)),))
+    n_t, n_v = lin.n_time, lin.n_vertices
+    n_times = lin.terms[0].temporal.shape[0]
+    var = np.zeros((n_times, n_v, 3))
     for idx, cov in zip(covariance.indices, covariance.blocks):
         order = np.argsort(idx)                                       # the block in x order: spatial-major
         spatial = idx[order].reshape(-1, n_t)[:, 0] // n_t           # the block's spatial indices
         s = len(spatial)
         c4 = cov[np.ix_(order, order)].reshape(s, n_t, s, n_t)
-        rb = np.ascontiguousarray(basis[:, :, spatial]).reshape(n_v * 3, s)
-        for f, b in enumerate(time_basis):
-            w = np.einsum("itjb,t,b->ij", c4, b, b)                   # (s, s) covariance of C b
-            var[f] += np.sum((rb @ w) * rb, axis=1).reshape(n_v, 3)
+        rb = [np.ascontiguousarray(t.spatial[:, :, spatial]).reshape(n_v * 3, s) for t in lin.terms]
+        for f in range(n_times):
+            for j, tj in enumerate(lin.terms):
+                for k, tk in enumerate(lin.terms):
+                    w = np.einsum("itjb,t,b->ij", c4, tj.temporal[f], tk.temporal[f])   # (s, s) Cov(C b_j, C b_k)
+                    var[f] += np.sum((rb[j] @ w) * rb[k], axis=1).reshape(n_v, 3)
     return np.sqrt(np.maximum(var, 0.0))
 
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.errors import ConfigError
 
 #: mass-matrix scale: rho [kg/m^3] -> internal units (see the vfcli.model.fem docstring)
 MASS_SCALE = 1e-6
@@ -72,7 +71,7 @@ def stiffness_matrix(mesh, element, lam: float, mu: float, volumetric: str = "fu
     from skfem import Basis
 
     if volumetric not in ("full", "reduced"):
-        raise ConfigError(f"volumetric must be 'full' or 'reduced', got {volumetric!r}")
+        raise ValueError(f"volumetric must be 'full' or 'reduced', got {volumetric!r}")
     order = max(2 * (element.maxdeg - 1), 1)
     basis = Basis(mesh, element, intorder=order)
     d = _gradient_products(basis)

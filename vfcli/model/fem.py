@@ -40,7 +40,6 @@ from vfcli.model.elasticity import (
     mass_matrix,
     stiffness_matrix,
 )
-from vfcli.errors import ConfigError
 from vfcli.model.mesh import SIDE_NONE, TAG_FIXTURE, FoldMesh
 from vfcli.model.solver import Factorization, factorize, resolve_backend
 
@@ -113,7 +112,7 @@ class _Fold:
         keys = (local_faces[:, 0] * n + local_faces[:, 1]) * n + local_faces[:, 2]
         pos = np.searchsorted(sk_keys[order], keys)
         if np.any(pos >= len(order)) or np.any(sk_keys[order][np.minimum(pos, len(order) - 1)] != keys):
-            raise ConfigError("FoldMesh.faces are not faces of the tetrahedra")
+            raise ValueError("FoldMesh.faces are not faces of the tetrahedra")
         facets = order[pos]
         self.face_ids = face_ids
         fixture = facets[mesh.face_tag[face_ids] == TAG_FIXTURE]
@@ -186,14 +185,14 @@ class ElasticModel:
         if e_arr.size == 1:
             e_arr = np.repeat(e_arr, 2)
         if e_arr.size != 2 or np.any(~np.isfinite(e_arr)) or np.any(e_arr <= 0):
-            raise ConfigError(f"youngs_pa must be one positive value or two (per fold), got {youngs_pa!r}")
+            raise ValueError(f"youngs_pa must be one positive value or two (per fold), got {youngs_pa!r}")
         if not (-1.0 < poisson < 0.5):
-            raise ConfigError(f"poisson must be in (-1, 0.5), got {poisson!r}")
+            raise ValueError(f"poisson must be in (-1, 0.5), got {poisson!r}")
         if not density_kg_m3 > 0:
-            raise ConfigError(f"density_kg_m3 must be positive, got {density_kg_m3!r}")
+            raise ValueError(f"density_kg_m3 must be positive, got {density_kg_m3!r}")
         elements = {"P2": ElementTetP2, "P1": ElementTetP1}
         if element not in elements:
-            raise ConfigError(f"element must be 'P2' or 'P1', got {element!r}")
+            raise ValueError(f"element must be 'P2' or 'P1', got {element!r}")
         self.mesh = mesh
         self.youngs_pa = e_arr
         self.poisson = float(poisson)
@@ -308,7 +307,7 @@ class ElasticModel:
         self.factorize()
         f = np.asarray(load, dtype=np.float64)
         if f.shape[0] != self.n_dofs or f.ndim not in (1, 2):
-            raise ConfigError(f"load must have shape ({self.n_dofs},) or ({self.n_dofs}, k), got {f.shape}")
+            raise ValueError(f"load must have shape ({self.n_dofs},) or ({self.n_dofs}, k), got {f.shape}")
         f2 = f.reshape(self.n_dofs, -1)
         out = np.concatenate([self._solve_fold(k, np.ascontiguousarray(f2[self.offsets[k]:self.offsets[k + 1]]))
                               for k in (0, 1)])

@@ -5,7 +5,7 @@ The coronal (y-z) profile of one fold is built in a *profile frame*
 (``s = 0`` on the medial surface, ``s = depth_mm`` on the lateral wall) and ``z``
 is the vertical coordinate of docs/conventions.md (flat superior surface at
 ``z = 0``, body below).  Going round the free contour from the superior-lateral
-corner (see /work/shared/reference/physical-setup.md):
+corner (see the project reference note "The physical set-up: numbers to build with"):
 
 1. superior surface, flat, ``z = 0``, from ``s = D`` to ``s = R_O``;
 2. exit arc, radius ``R_O``, centre ``(R_O, -R_O)``, turning 90 degrees;
@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vfcli.errors import ConfigError
 
 #: Names of the contour segments, in contour order (superior-lateral corner first).
 #: largest angle (degrees) spanned by one chord of a discretised arc
@@ -46,7 +45,7 @@ def _pair(value: object, name: str) -> tuple[float, float]:
     if arr.size == 1:
         arr = np.repeat(arr, 2)
     if arr.size != 2 or not np.all(np.isfinite(arr)):
-        raise ConfigError(f"M5 {name} must be one finite number or two (fold 0, fold 1), got {value!r}")
+        raise ValueError(f"M5 {name} must be one finite number or two (fold 0, fold 1), got {value!r}")
     return float(arr[0]), float(arr[1])
 
 
@@ -90,20 +89,20 @@ class M5Params:
         for name in ("thickness_mm", "exit_radius_mm", "entrance_radius_mm", "depth_mm", "length_mm"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
-                raise ConfigError(f"M5 {name} must be a positive number of mm, got {v!r}")
+                raise ValueError(f"M5 {name} must be a positive number of mm, got {v!r}")
         if not (math.isfinite(self.gap_mm) and self.gap_mm >= 0):
-            raise ConfigError(f"M5 gap_mm must be >= 0, got {self.gap_mm!r}")
+            raise ValueError(f"M5 gap_mm must be >= 0, got {self.gap_mm!r}")
         if not 0 < self.entrance_sweep_deg <= 90:
-            raise ConfigError(f"M5 entrance_sweep_deg must be in (0, 90], got {self.entrance_sweep_deg!r}")
+            raise ValueError(f"M5 entrance_sweep_deg must be in (0, 90], got {self.entrance_sweep_deg!r}")
         if not 0 <= self.inferior_angle_deg < 90:
-            raise ConfigError(f"M5 inferior_angle_deg must be in [0, 90), got {self.inferior_angle_deg!r}")
+            raise ValueError(f"M5 inferior_angle_deg must be in [0, 90), got {self.inferior_angle_deg!r}")
         if self.exit_radius_mm >= self.thickness_mm:
-            raise ConfigError(
+            raise ValueError(
                 f"M5 exit_radius_mm ({self.exit_radius_mm}) must be smaller than thickness_mm ({self.thickness_mm})"
             )
         run = self.depth_mm - self.entrance_radius_mm * (1 - math.cos(math.radians(self.entrance_sweep_deg)))
         if self.exit_radius_mm >= self.depth_mm or run <= 0:
-            raise ConfigError(
+            raise ValueError(
                 f"M5 depth_mm ({self.depth_mm}) is too small for the exit and entrance arcs"
             )
 

@@ -108,19 +108,19 @@ class FoldMesh:
         for name, (dtype, ncol) in spec.items():
             arr = np.ascontiguousarray(getattr(self, name), dtype=dtype)
             if ncol is not None and (arr.ndim != 2 or arr.shape[1] != ncol):
-                raise ConfigError(f"FoldMesh.{name} must have shape (n, {ncol}), got {arr.shape}")
+                raise ValueError(f"FoldMesh.{name} must have shape (n, {ncol}), got {arr.shape}")
             if ncol is None and arr.ndim != 1:
-                raise ConfigError(f"FoldMesh.{name} must be one-dimensional, got {arr.shape}")
+                raise ValueError(f"FoldMesh.{name} must be one-dimensional, got {arr.shape}")
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
         n = len(self.nodes)
         if len(self.uv) != n or len(self.node_side) != n:
-            raise ConfigError("FoldMesh.uv and node_side must have one row per node")
+            raise ValueError("FoldMesh.uv and node_side must have one row per node")
         if len(self.tet_fold) != len(self.tets) or len(self.face_tag) != len(self.faces) \
                 or len(self.face_fold) != len(self.faces):
-            raise ConfigError("FoldMesh per-tet / per-face arrays do not match tets / faces")
+            raise ValueError("FoldMesh per-tet / per-face arrays do not match tets / faces")
         if self.tets.size and (self.tets.min() < 0 or self.tets.max() >= n):
-            raise ConfigError("FoldMesh.tets refers to nodes that do not exist")
+            raise ValueError("FoldMesh.tets refers to nodes that do not exist")
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """The eight arrays by name (what the store saves under /mesh)."""
@@ -337,18 +337,19 @@ def build_mesh(params: M5Params | None = None, target_edge_mm: float = DEFAULT_E
 
     Raises
     ------
-    ConfigError : bad sizes or tetgen failure.
+    ValueError : sizes out of range (the config validates them first).
+    ConfigError : tetgen fails on these switches (change mesh.min_ratio or mesh.min_dihedral_deg).
     """
     import tetgen
 
     params = M5Params() if params is None else params
     h = float(target_edge_mm)
     if not (math.isfinite(h) and 0.05 <= h <= 5.0):
-        raise ConfigError(f"mesh target_edge_mm must be in [0.05, 5] mm, got {target_edge_mm!r}")
+        raise ValueError(f"mesh target_edge_mm must be in [0.05, 5] mm, got {target_edge_mm!r}")
     if not (min_ratio > 1.0):
-        raise ConfigError(f"mesh min_ratio must be > 1, got {min_ratio!r}")
+        raise ValueError(f"mesh min_ratio must be > 1, got {min_ratio!r}")
     if not (0.0 <= min_dihedral_deg < 35.0):
-        raise ConfigError(f"mesh min_dihedral_deg must be in [0, 35), got {min_dihedral_deg!r}")
+        raise ValueError(f"mesh min_dihedral_deg must be in [0, 35), got {min_dihedral_deg!r}")
 
     pts, tris, contour, seg = _prism_surface(params, h)
     max_vol = h ** 3 / (6 * math.sqrt(2))

@@ -1,11 +1,12 @@
 """Off-screen PNG preview of the two folds with their boundary tags in colour.
 
-pyvista (VTK) renders in a subprocess, so a missing EGL/OSMesa library that
-makes VTK segfault cannot take the caller down; if that subprocess fails, a
-matplotlib 3-D rendering is drawn instead.
+pyvista (VTK, the optional extra ``viz``) renders in a subprocess, so a missing
+EGL/OSMesa library that makes VTK segfault cannot take the caller down; if pyvista
+is not installed or that subprocess fails, a matplotlib 3-D rendering is drawn instead.
 """
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
 import subprocess
@@ -72,6 +73,9 @@ def _title(mesh: FoldMesh) -> str:
 
 
 def _render_pyvista(mesh: FoldMesh, path: Path, timeout_s: float) -> bool:
+    if importlib.util.find_spec("pyvista") is None:  # an optional dependency (extra `viz`)
+        log.warning("mesh preview: pyvista is not installed (pip install 'vfcli[viz]'); drawing it with matplotlib")
+        return False
     tags = sorted(TAG_STYLE)
     with tempfile.TemporaryDirectory() as tmp:
         npz = Path(tmp) / "mesh.npz"

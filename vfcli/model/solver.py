@@ -20,7 +20,6 @@ from typing import Protocol
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -53,9 +52,9 @@ def resolve_backend(backend: str) -> str:
     if backend == "auto":
         return next(b for b in AUTO_ORDER if b in avail)
     if backend not in BACKENDS:
-        raise ConfigError(f"unknown solver backend {backend!r}; choose one of auto, {', '.join(BACKENDS)}")
+        raise ValueError(f"unknown solver backend {backend!r}; choose one of auto, {', '.join(BACKENDS)}")
     if backend not in avail:
-        raise ConfigError(f"solver backend {backend!r} is not installed (pip install {backend}); use 'auto' or 'splu'")
+        raise ValueError(f"solver backend {backend!r} is not installed (pip install {backend}); use 'auto' or 'splu'")
     return backend
 
 

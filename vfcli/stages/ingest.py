@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from vfcli.config import calibration_warnings
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
 from vfcli.io.ldv.read import LdvChannels, read_ldv
@@ -129,7 +130,10 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             summary["pressure_samples"] = int(rec.samples.size)
         return summary
 
-    return run_stage(ctx, "hsc", config_json=config_json, body=body, input_paths=inputs)
+    result = run_stage(ctx, "hsc", config_json=config_json, body=body, input_paths=inputs)
+    for line in calibration_warnings(ctx.stored_config, ctx.config, ctx.store.path):
+        log.warning(line)  # after the write: a failed ingest prints its error alone
+    return result
 
 
 def _to_camera_frame(coords_mm: np.ndarray, affine: np.ndarray) -> np.ndarray:

@@ -151,7 +151,7 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndar
     model = gauss_newton_model(problem, x, frames, u)
     corr = effective_sample_size(problem.motion_residuals(x, frames))
     post = posterior(model, corr)
-    noise = displacement_std(post.covariance, problem.response.basis_, problem.response.time_basis(problem.sim_times))
+    noise = displacement_std(post.covariance, model.linearization)
     systematic = instrument_std({k: problem.displacements(v) for k, v in instrument_fits(problem, x, frames, u).items()})
     std = np.sqrt(noise ** 2 + systematic[None] ** 2)
     inferior = problem.mesh.node_side == SIDE_INFERIOR

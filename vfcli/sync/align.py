@@ -61,7 +61,7 @@ import logging
 
 import numpy as np
 
-from vfcli.errors import ConfigError, InputDataError
+from vfcli.errors import InputDataError
 from vfcli.sync.average import invert_monotonic, matched_times, phase_average_at
 from vfcli.sync.f0 import check_signal, coarse_f0, estimate_f0
 from vfcli.sync.phase import (
@@ -426,15 +426,15 @@ def _align_all(
 
 def _check_settings(f_range, knot_cycles, max_f0_deviation, min_quality, min_cycles, smooth,
                     phase_reference) -> None:
-    """Raise ConfigError for out-of-range synchronisation settings."""
+    """Raise ValueError for out-of-range synchronisation settings (the config validates them first)."""
     if phase_reference not in ("fundamental", "template"):
-        raise ConfigError(f"sync phase_reference must be 'fundamental' or 'template', "
+        raise ValueError(f"sync phase_reference must be 'fundamental' or 'template', "
                           f"got {phase_reference!r}")
     if not (0 < f_range[0] < f_range[1]):
-        raise ConfigError(f"sync f_range must be 0 < low < high Hz, got {f_range}")
+        raise ValueError(f"sync f_range must be 0 < low < high Hz, got {f_range}")
     if not knot_cycles > 0 or not max_f0_deviation > 0 or not min_cycles > 0 or smooth < 0:
-        raise ConfigError(
+        raise ValueError(
             f"sync knot_cycles ({knot_cycles}), max_f0_deviation ({max_f0_deviation}) and "
             f"min_cycles ({min_cycles}) must be > 0, smooth ({smooth}) >= 0")
     if not 0.0 <= min_quality <= 1.0:
-        raise ConfigError(f"sync min_quality must lie in [0, 1], got {min_quality}")
+        raise ValueError(f"sync min_quality must lie in [0, 1], got {min_quality}")

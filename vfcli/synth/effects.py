@@ -238,25 +238,6 @@ def inertia(model: ElasticModel, patterns: LoadPatterns, c: np.ndarray, f0_hz: f
     return harmonic_response(model, patterns, c, f0_hz)
 
 
-def direct_harmonic_response(model: ElasticModel, patterns: LoadPatterns, c: np.ndarray, f0_hz: float,
-                             loss: float = STRUCTURAL_LOSS) -> np.ndarray:
-    """Reference for :func:`harmonic_response`: a sparse LU of the full system per harmonic (slow)."""
-    from scipy.sparse.linalg import splu
-
-    p = c.shape[0]
-    spec = _harmonics(c)
-    free = model.free_dofs
-    k_ff, m_ff = model.reduced_matrices()
-    out = np.zeros((spec.shape[0], model.mesh.n_nodes, 3), dtype=complex)
-    for k in range(spec.shape[0]):
-        omega = 2 * np.pi * f0_hz * k
-        a = (k_ff * (1 + 1j * loss) - omega**2 * m_ff).tocsc()
-        x = np.zeros(model.n_dofs, dtype=complex)
-        x[free] = splu(a, permc_spec="COLAMD").solve((patterns.loads[free] @ spec[k]).astype(complex))
-        out[k] = model.vertex_displacements(x.real) + 1j * model.vertex_displacements(x.imag)
-    return np.fft.irfft(out, n=p, axis=0)
-
-
 def contact(model: ElasticModel, patterns: LoadPatterns, c: np.ndarray, rest_nodes: np.ndarray) -> np.ndarray:
     """Quasi-static response with unilateral contact at the midplane y = 0 (P, N, 3), mm.
 

@@ -18,8 +18,7 @@ from typing import Callable
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from vfcli.camera.camera import raycast_points
-from vfcli.errors import ConfigError
+from vfcli.camera.raster import raycast_points
 
 #: a function giving the true vertical surface velocity (mm/s, NaN where no
 #: surface) at scan points ``(P, 2)`` mm for cycle phases ``(P, S)``: returns (P, S)
@@ -47,11 +46,11 @@ class PressureWaveform:
 
     def __post_init__(self) -> None:
         if len(self.harmonics) != len(self.phases_rad) or not self.harmonics:
-            raise ConfigError("pressure harmonics and phases_rad must be non-empty and of equal length")
+            raise ValueError("pressure harmonics and phases_rad must be non-empty and of equal length")
         if not (np.all(np.isfinite(self.harmonics)) and np.any(np.asarray(self.harmonics) != 0)):
-            raise ConfigError(f"pressure harmonics must be finite and not all zero, got {self.harmonics}")
+            raise ValueError(f"pressure harmonics must be finite and not all zero, got {self.harmonics}")
         if self.amplitude_rel < 0 or not np.isfinite(self.mean_pa):
-            raise ConfigError("pressure amplitude_rel must be >= 0 and mean_pa finite")
+            raise ValueError("pressure amplitude_rel must be >= 0 and mean_pa finite")
         grid = np.arange(8192) / 8192
         g = self._raw(grid)
         object.__setattr__(self, "_scale", 0.5 * (g.max() - g.min()))
@@ -143,7 +142,7 @@ def video_pressure(duration_s: float, fs_hz: float, f0_hz: float | Callable[[np.
     """
     n = int(round(duration_s * fs_hz))
     if n < 2:
-        raise ConfigError(f"video pressure needs at least 2 samples, got duration {duration_s} s at {fs_hz} Hz")
+        raise ValueError(f"video pressure needs at least 2 samples, got duration {duration_s} s at {fs_hz} Hz")
     t = np.arange(n) / fs_hz
     f0 = f0_hz(t) if callable(f0_hz) else f0_hz
     phase = cycle_phase(t, f0, phase0)
@@ -162,7 +161,7 @@ def ldv_scan_grid(bounds_mm: tuple[float, float, float, float], n_x: int, n_y: i
     """
     x0, x1, y0, y1 = map(float, bounds_mm)
     if n_x < 2 or n_y < 2 or x1 <= x0 or y1 <= y0:
-        raise ConfigError(f"LDV grid needs n_x, n_y >= 2 and non-empty bounds, got {n_x} x {n_y} over {bounds_mm}")
+        raise ValueError(f"LDV grid needs n_x, n_y >= 2 and non-empty bounds, got {n_x} x {n_y} over {bounds_mm}")
     gx, gy = np.meshgrid(np.linspace(x0, x1, n_x), np.linspace(y0, y1, n_y), indexing="ij")
     pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
     spacing = np.array([(x1 - x0) / (n_x - 1), (y1 - y0) / (n_y - 1)])
@@ -203,9 +202,9 @@ class LdvSettings:
 
     def __post_init__(self) -> None:
         if self.fs_hz <= 0 or self.epoch_s * self.fs_hz < 2:
-            raise ConfigError("LDV fs_hz must be > 0 and an epoch must hold at least 2 samples")
+            raise ValueError("LDV fs_hz must be > 0 and an epoch must hold at least 2 samples")
         if not 0 <= self.dropout_fraction <= 1 or self.noise_rel < 0 or self.f0_drift_rel < 0:
-            raise ConfigError("LDV dropout_fraction must be in [0, 1], noise_rel and f0_drift_rel >= 0")
+            raise ValueError("LDV dropout_fraction must be in [0, 1], noise_rel and f0_drift_rel >= 0")
 
     @property
     def n_samples(self) -> int:

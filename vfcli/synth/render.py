@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from vfcli.camera.camera import Camera, Raster, gap_mask, interpolate, rasterize
-from vfcli.errors import ConfigError
+from vfcli.camera.camera import Camera
+from vfcli.camera.raster import Raster, gap_mask, interpolate, rasterize
 
 
 @dataclass(frozen=True)
@@ -76,15 +76,15 @@ class RenderSettings:
 
     def __post_init__(self) -> None:
         if int(self.supersample) < 1:
-            raise ConfigError(f"render supersample must be >= 1, got {self.supersample}")
+            raise ValueError(f"render supersample must be >= 1, got {self.supersample}")
         if not 8 <= int(self.bit_depth) <= 16:
-            raise ConfigError(f"render bit_depth must be 8..16, got {self.bit_depth}")
+            raise ValueError(f"render bit_depth must be 8..16, got {self.bit_depth}")
         if not 0 <= self.black_level_dn < self.full_scale_dn / 2:
-            raise ConfigError(f"render black_level_dn must be in [0, half the range), got {self.black_level_dn}")
+            raise ValueError(f"render black_level_dn must be in [0, half the range), got {self.black_level_dn}")
         if self.snr <= 0 or self.read_noise_dn < 0:
-            raise ConfigError("render snr must be > 0 and read_noise_dn >= 0")
+            raise ValueError("render snr must be > 0 and read_noise_dn >= 0")
         if self.read_noise_dn * self.snr >= self.surface_level * self.full_scale_dn:
-            raise ConfigError(f"render snr {self.snr} is unreachable with read noise {self.read_noise_dn} DN")
+            raise ValueError(f"render snr {self.snr} is unreachable with read noise {self.read_noise_dn} DN")
 
     @property
     def max_dn(self) -> int:

@@ -22,7 +22,6 @@ import logging
 
 import numpy as np
 
-from vfcli.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -132,9 +131,9 @@ def gap_threshold(
     if frames.ndim == 2:
         frames = frames[None]
     if frames.ndim != 3 or frames.shape[0] == 0:
-        raise ConfigError(f"gap threshold: expected (k, H, W) frames, got shape {frames.shape}")
+        raise ValueError(f"gap threshold: expected (k, H, W) frames, got shape {frames.shape}")
     if not 0 < open_fraction <= 1:
-        raise ConfigError(f"gap threshold: open_fraction must lie in (0, 1], got {open_fraction}")
+        raise ValueError(f"gap threshold: open_fraction must lie in (0, 1], got {open_fraction}")
     flat = frames.reshape(len(frames), -1)
     score = np.percentile(flat, dark_percentile, axis=1)
     n_open = max(1, int(round(open_fraction * len(frames))))
@@ -236,11 +235,11 @@ def gap_mask(
     import cv2
 
     if median_px < 1 or median_px % 2 == 0:
-        raise ConfigError(f"gap mask: median_px must be odd and >= 1, got {median_px}")
+        raise ValueError(f"gap mask: median_px must be odd and >= 1, got {median_px}")
     if not 0 < core_fraction <= 1:
-        raise ConfigError(f"gap mask: core_fraction must lie in (0, 1], got {core_fraction}")
+        raise ValueError(f"gap mask: core_fraction must lie in (0, 1], got {core_fraction}")
     if lateral_axis not in (0, 1):
-        raise ConfigError(f"gap mask: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
+        raise ValueError(f"gap mask: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
     dark = (np.asarray(frame) < threshold).astype(np.uint8) * 255
     if median_px > 1 and median_along_slit:
         dark = binary_median_1d(dark > 0, median_px, axis=1 - lateral_axis).astype(np.uint8) * 255
@@ -308,7 +307,7 @@ def glottal_area(mask: np.ndarray, px_per_mm: float) -> np.ndarray | float:
     float, or (T,) float array for a stack of masks.
     """
     if px_per_mm <= 0:
-        raise ConfigError(f"glottal area: px_per_mm must be positive, got {px_per_mm}")
+        raise ValueError(f"glottal area: px_per_mm must be positive, got {px_per_mm}")
     m = np.asarray(mask, dtype=bool)
     count = m.sum(axis=(-2, -1))
     area = count / float(px_per_mm) ** 2

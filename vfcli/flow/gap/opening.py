@@ -11,7 +11,7 @@ Definitions used here (units: px):
   column; ``lateral_axis=1``: one ray per row).
 * The silhouette on a ray is the set of boundaries between a gap and a non-gap pixel,
   at half-integer positions (between pixel centres ``r`` and ``r + 1`` lies the edge
-  ``r + 0.5``). The image border is not a silhouette.
+  ``r + 0.5``). The image border is not a silhouette (:mod:`vfcli.flow.gap.rays`).
 * The opening location of an open ray is the centre between its outermost silhouette
   points (for a single gap run: the centre of the gap). :class:`OpeningTracker`
   remembers it per ray as the *last known opening location*.
@@ -22,22 +22,15 @@ Definitions used here (units: px):
 
 :func:`opening_distance` is the pure per-frame function; it serves the measured masks
 and, equally, simulated gap masks (pass the measured tracker's fallback centres so
-both use the same last known locations).
+both use the same last known locations). :func:`measured_silhouettes` gives the gap
+term of the objective the outermost silhouette points of every frame and ray, with the
+same last known locations on closed rays.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from vfcli.errors import ConfigError
-
-
-def _as_rays(mask: np.ndarray, lateral_axis: int) -> np.ndarray:
-    if lateral_axis not in (0, 1):
-        raise ConfigError(f"opening: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
-    m = np.asarray(mask, dtype=bool)
-    if m.ndim != 2:
-        raise ConfigError(f"opening: expected a (H, W) mask, got shape {m.shape}")
-    return m if lateral_axis == 0 else m.T
+from vfcli.flow.gap.rays import as_rays, outermost_silhouette, silhouette_points
 
 
 def gap_centers(mask: np.ndarray, lateral_axis: int = 0) -> np.ndarray:
@@ -55,13 +48,8 @@ def gap_centers(mask: np.ndarray, lateral_axis: int = 0) -> np.ndarray:
     (n_rays,) float
         Centre between the outermost silhouette points of each ray.
     """
-    m = _as_rays(mask, lateral_axis)
-    trans = m[1:] != m[:-1]  # (n-1, n_rays): edge at i + 0.5
-    has = trans.any(axis=0)
-    first = np.argmax(trans, axis=0)
-    last = trans.shape[0] - 1 - np.argmax(trans[::-1], axis=0)
-    centre = 0.5 * (first + last) + 0.5
-    return np.where(has, centre, np.nan)
+    lo, hi = outermost_silhouette(mask, lateral_axis)
+    return 0.5 * (lo + hi)
 
 
 def opening_distance(mask: np.ndarray, fallback_center: np.ndarray | float, lateral_axis: int = 0) -> np.ndarray:
@@ -83,12 +71,12 @@ def opening_distance(mask: np.ndarray, fallback_center: np.ndarray | float, late
         Unsigned lateral distance from each pixel centre to the nearest silhouette point
         on its ray (inside the gap too), else to the fallback centre.
     """
-    m = _as_rays(mask, lateral_axis)
+    m = as_rays(mask, lateral_axis)
     n, n_rays = m.shape
     fallback = np.broadcast_to(np.asarray(fallback_center, dtype=float), (n_rays,))
     if not np.all(np.isfinite(fallback)):
-        raise ConfigError("opening: fallback_center must be finite on every ray")
-    trans = m[1:] != m[:-1]  # edge at i + 0.5 between pixels i and i + 1
+        raise ValueError("opening: fallback_center must be finite on every ray")
+    trans, _ = silhouette_points(m)  # edge at i + 0.5 between pixels i and i + 1
     pos = np.arange(n - 1, dtype=np.float32)[:, None] + np.float32(0.5)
     inf = np.float32(np.inf)
     up = np.empty((n, n_rays), np.float32)  # for pixel r: the last edge before r
@@ -138,7 +126,7 @@ class OpeningTracker:
 
     def __init__(self, shape: tuple[int, int], lateral_axis: int = 0, initial_center: np.ndarray | float | None = None) -> None:
         if lateral_axis not in (0, 1):
-            raise ConfigError(f"opening: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
+            raise ValueError(f"opening: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
         self.shape = tuple(int(s) for s in shape)
         self.lateral_axis = lateral_axis
         self.n_lateral = self.shape[lateral_axis]
@@ -159,7 +147,7 @@ class OpeningTracker:
     def observe(self, mask: np.ndarray) -> None:
         """Record the frame's opening locations (rays open in it), without distances."""
         if tuple(np.shape(mask)) != self.shape:
-            raise ConfigError(f"opening: mask shape {np.shape(mask)} differs from the tracker's {self.shape}")
+            raise ValueError(f"opening: mask shape {np.shape(mask)} differs from the tracker's {self.shape}")
         centres = gap_centers(mask, self.lateral_axis)
         seen = np.isfinite(centres)
         self.center_[seen] = centres[seen]
@@ -168,3 +156,34 @@ class OpeningTracker:
         """Record the frame's opening locations and return its o(y), (H, W) float32 px."""
         self.observe(mask)
         return opening_distance(mask, self.fallback_center(), self.lateral_axis)
+
+
+def measured_silhouettes(gap_masks: np.ndarray, lateral_axis: int = 0,
+                         initial_center: np.ndarray | float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Measured gap silhouettes per frame and ray from gap masks.
+
+    Parameters
+    ----------
+    gap_masks : (F, H, W) bool.
+    lateral_axis : 0 (rows lateral, one ray per column) or 1.
+    initial_center : fallback opening location before a ray is seen open (see
+        :class:`OpeningTracker`).
+
+    Returns
+    -------
+    lo, hi : (F, n_rays) float64 lateral px of the outermost silhouette points (edges at
+        half-integers, :func:`vfcli.flow.gap.rays.outermost_silhouette`); on closed rays both
+        are the last known opening location.
+    """
+    masks = np.asarray(gap_masks, dtype=bool)
+    tracker = OpeningTracker(masks.shape[1:], lateral_axis, initial_center)
+    lo = np.empty((len(masks), tracker.n_rays))
+    hi = np.empty_like(lo)
+    for f, mask in enumerate(masks):
+        first, last = outermost_silhouette(mask, lateral_axis)
+        tracker.observe(mask)
+        fb = tracker.fallback_center()
+        has = np.isfinite(first)
+        lo[f] = np.where(has, first, fb)
+        hi[f] = np.where(has, last, fb)
+    return lo, hi

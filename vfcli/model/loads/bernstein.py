@@ -26,12 +26,11 @@ from math import comb
 
 import numpy as np
 
-from vfcli.errors import ConfigError
 
 
 def _check_degree(n: int) -> int:
     if int(n) != n or n < 0:
-        raise ConfigError(f"Bernstein degree must be an integer >= 0, got {n!r}")
+        raise ValueError(f"Bernstein degree must be an integer >= 0, got {n!r}")
     return int(n)
 
 
@@ -71,7 +70,7 @@ def bernstein_derivative(n: int, t: np.ndarray, order: int = 1) -> np.ndarray:
     """
     n = _check_degree(n)
     if order < 0:
-        raise ConfigError(f"derivative order must be >= 0, got {order!r}")
+        raise ValueError(f"derivative order must be >= 0, got {order!r}")
     t = np.asarray(t, dtype=float).ravel()
     if order == 0:
         return bernstein(n, t)
@@ -120,7 +119,7 @@ def piecewise_bernstein(n: int, t: np.ndarray, split: float = 0.5, order: int = 
     """
     n = _check_degree(n)
     if not 0.0 < split < 1.0:
-        raise ConfigError(f"split must be in (0, 1), got {split!r}")
+        raise ValueError(f"split must be in (0, 1), got {split!r}")
     t = np.asarray(t, dtype=float).ravel()
     first = t <= split
     out = np.zeros((t.size, 2 * n + 1))
@@ -143,12 +142,12 @@ def tensor_basis(bases: list[np.ndarray]) -> np.ndarray:
     ``bases[0][:, i] * bases[1][:, j] * ...``.
     """
     if not bases:
-        raise ConfigError("tensor_basis needs at least one basis")
+        raise ValueError("tensor_basis needs at least one basis")
     out = np.asarray(bases[0], dtype=float)
     for b in bases[1:]:
         b = np.asarray(b, dtype=float)
         if b.shape[0] != out.shape[0]:
-            raise ConfigError(f"tensor_basis: bases evaluated at {out.shape[0]} and {b.shape[0]} points")
+            raise ValueError(f"tensor_basis: bases evaluated at {out.shape[0]} and {b.shape[0]} points")
         out = (out[:, :, None] * b[:, None, :]).reshape(out.shape[0], -1)
     return out
 
@@ -161,5 +160,5 @@ def evaluate_tensor(control: np.ndarray, degrees: tuple[int, ...], coords: list[
     """
     c = np.asarray(control, dtype=float)
     if c.shape != tuple(d + 1 for d in degrees) or len(coords) != len(degrees):
-        raise ConfigError(f"control shape {c.shape} does not match degrees {degrees}")
+        raise ValueError(f"control shape {c.shape} does not match degrees {degrees}")
     return tensor_basis([bernstein(d, x) for d, x in zip(degrees, coords)]) @ c.ravel()

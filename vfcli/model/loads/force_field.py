@@ -42,7 +42,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from vfcli.model.loads.bernstein import bernstein, piecewise_bernstein, tensor_basis
-from vfcli.errors import ConfigError
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
 
 SIDES = {"inferior": SIDE_INFERIOR, "superior": SIDE_SUPERIOR}
@@ -90,7 +89,7 @@ class LoadModel:
         """(n_spatial, n_time) view of a parameter vector (n_params,)."""
         x = np.asarray(x, dtype=float)
         if x.shape != (self.n_params,):
-            raise ConfigError(f"control vector must have shape ({self.n_params},), got {x.shape}")
+            raise ValueError(f"control vector must have shape ({self.n_params},), got {x.shape}")
         return x.reshape(self.n_spatial, self.n_time)
 
 
@@ -112,11 +111,11 @@ class ForceFieldSpec:
     def __post_init__(self) -> None:
         res = tuple(int(r) for r in self.resolution)
         if len(res) != 3 or any(r < 1 for r in res) or any(r != rr for r, rr in zip(res, self.resolution)):
-            raise ConfigError(f"force field resolution must be three integers >= 1, got {self.resolution!r}")
+            raise ValueError(f"force field resolution must be three integers >= 1, got {self.resolution!r}")
         object.__setattr__(self, "resolution", res)
         sides = tuple(self.sides)
         if not sides or any(s not in SIDES for s in sides) or len(set(sides)) != len(sides):
-            raise ConfigError(f"force field sides must be a non-empty subset of {tuple(SIDES)}, got {self.sides!r}")
+            raise ValueError(f"force field sides must be a non-empty subset of {tuple(SIDES)}, got {self.sides!r}")
         object.__setattr__(self, "sides", tuple(s for s in SIDES if s in sides))
 
     @classmethod
@@ -124,7 +123,7 @@ class ForceFieldSpec:
         """Parse ``"<n_u>x<n_v>x<n_t>-one-sided"`` (inferior only) or ``"...-two-sided"``."""
         m = re.fullmatch(r"(\d+)x(\d+)x(\d+)-(one|two)-sided", str(name).strip())
         if m is None:
-            raise ConfigError(f"force field setup must look like '3x3x10-two-sided', got {name!r}")
+            raise ValueError(f"force field setup must look like '3x3x10-two-sided', got {name!r}")
         sides = ("inferior",) if m.group(4) == "one" else ("inferior", "superior")
         return cls(tuple(int(m.group(k)) for k in (1, 2, 3)), sides, tie_folds)
 
@@ -141,7 +140,7 @@ class ForceField(LoadModel):
     def __init__(self, spec: ForceFieldSpec, t_range: tuple[float, float]) -> None:
         t1, t2 = (float(v) for v in t_range)
         if not (np.isfinite(t1) and np.isfinite(t2) and t2 > t1):
-            raise ConfigError(f"force field time range must be t1 < t2, got {t_range!r}")
+            raise ValueError(f"force field time range must be t1 < t2, got {t_range!r}")
         self.spec = spec
         self.t_range = (t1, t2)
         n_u, n_v, n_t = spec.resolution

@@ -3,7 +3,8 @@
 :class:`PressureLoad` is a :class:`vfcli.model.loads.force_field.LoadModel` (plug it into
 :class:`vfcli.model.response.quasi_static.QuasiStaticResponse`).  Unlike the paper's free force field
 (:class:`vfcli.model.loads.force_field.ForceField`, independent per fold, per time and per
-component), it encodes what the rig fixes (/work/shared/reference/identifiability.md):
+component), it encodes what the rig fixes (the project reference note "What superior-surface data
+can and cannot reveal (a numerical study)"):
 
 Space (``n_spatial`` shapes, Pa per unit control value, normal, pushing into the body)
 -------------------------------------------------------------------------------------
@@ -46,7 +47,7 @@ import scipy.sparse as sp
 from numpy.polynomial import legendre
 
 from vfcli.model.loads.bernstein import bernstein
-from vfcli.errors import ConfigError
+from vfcli.errors import ConfigError, InputDataError
 from vfcli.model.loads.force_field import LoadModel
 from vfcli.model.mesh import TAG_INFERIOR, TAG_MEDIAL
 
@@ -79,23 +80,23 @@ class PressureLoad(LoadModel):
         p = np.asarray(pressure_pa, dtype=float).ravel()
         if t.shape != p.shape or len(t) < 2 or not np.all(np.isfinite(t)) or not np.all(np.isfinite(p)) \
                 or not np.all(np.diff(t) > 0):
-            raise ConfigError("pressure load: the pressure record must be finite samples at increasing times")
+            raise ValueError("pressure load: the pressure record must be finite samples at increasing times")
         t1, t2 = (float(v) for v in t_range)
         if not (np.isfinite(t1) and np.isfinite(t2) and t2 > t1):
-            raise ConfigError(f"pressure load time range must be t1 < t2, got {t_range!r}")
+            raise ValueError(f"pressure load time range must be t1 < t2, got {t_range!r}")
         tol = 0.5 * float(np.median(np.diff(t)))
         if t1 < t[0] - tol or t2 > t[-1] + tol:
             raise ConfigError(f"pressure load: the pressure record covers {t[0]:.5f}..{t[-1]:.5f} s, "
-                              f"the fitted window {t1:.5f}..{t2:.5f} s")
+                              f"the fitted window {t1:.5f}..{t2:.5f} s (optimize.first_frame, optimize.n_frames)")
         for name, v, lo in (("time_degree", time_degree, 0), ("medial_z", medial_z, 1), ("medial_x", medial_x, 1)):
             if int(v) != v or v < lo:
-                raise ConfigError(f"pressure load: {name} must be an integer >= {lo}, got {v!r}")
+                raise ValueError(f"pressure load: {name} must be an integer >= {lo}, got {v!r}")
         self.pressure_time, self.pressure_pa = t, p
         self.t_range = (t1, t2)
         inside = (t >= t1 - tol) & (t <= t2 + tol)
         self.p_ref = float(np.sqrt(np.mean(p[inside] ** 2)))
         if not self.p_ref > 0:
-            raise ConfigError("pressure load: the recorded pressure is zero over the fitted window")
+            raise InputDataError("pressure load: the recorded pressure is zero over the fitted window")
         self.time_degree, self.medial_z, self.medial_x = int(time_degree), int(medial_z), int(medial_x)
         self.inferior_linear_x = bool(inferior_linear_x)
         self.n_spatial = 1 + int(self.inferior_linear_x) + self.medial_z * self.medial_x

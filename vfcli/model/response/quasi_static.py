@@ -10,11 +10,10 @@ computed once (all right-hand sides at once, in chunks); afterwards a whole
 trajectory is a small dense product, and its adjoint (needed for exact
 gradients) is the transposed product.
 
-Anything that maps ``x`` linearly to vertex displacements at the frame times
-can replace :class:`QuasiStaticResponse` in :class:`vfcli.inverse.problem.Problem`:
-it needs ``n_params``, ``n_vertices``, ``displacements(x, times)`` and
-``adjoint(g, times)`` (e.g. a modal response with inertia and damping, which is
-still linear in the loads).
+It implements :class:`vfcli.model.response.base.Response`; its linearisation is
+exact and has one separable term (R, b(t)).  Any other implementation of that
+protocol (a response with inertia and damping, a contact response) can replace it
+in :class:`vfcli.inverse.problem.Problem`.
 """
 from __future__ import annotations
 
@@ -23,8 +22,8 @@ import logging
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.errors import ConfigError
 from vfcli.model.loads.force_field import LoadModel
+from vfcli.model.response.base import Linearization, SeparableTerm
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +49,7 @@ class QuasiStaticResponse:
         loads = load_model.spatial_loads(model)
         loads = loads.tocsc() if sp.issparse(loads) else np.asarray(loads, dtype=float)
         if loads.shape != (model.n_dofs, load_model.n_spatial):
-            raise ConfigError(f"load model gave loads of shape {loads.shape}, expected "
+            raise ValueError(f"load model gave loads of shape {loads.shape}, expected "
                               f"({model.n_dofs}, {load_model.n_spatial})")
         vop = model.vertex_operator()
         out = np.empty((3 * self.n_vertices, load_model.n_spatial))
@@ -88,13 +87,14 @@ class QuasiStaticResponse:
         u = self._flat @ (c @ b.T)  # (3N, T)
         return u.T.reshape(len(b), self.n_vertices, 3)
 
-    def adjoint(self, g: np.ndarray, times: np.ndarray) -> np.ndarray:
+    def adjoint(self, g: np.ndarray, times: np.ndarray, x: np.ndarray | None = None) -> np.ndarray:
         """Gradient with respect to x of ``sum(g * displacements(x, times))``.
 
         Parameters
         ----------
         g : (T, N, 3) sensitivities dE/dU, per mm.
         times : (T,) s.
+        x : ignored (the response is linear).
 
         Returns
         -------
@@ -103,3 +103,13 @@ class QuasiStaticResponse:
         b = self.load_model.time_basis(times)  # (T, n_time)
         g2 = np.asarray(g, dtype=float).reshape(len(b), -1)  # (T, 3N)
         return (self._flat.T @ (g2.T @ b)).ravel()
+
+    def linearize(self, x: np.ndarray | None, times: np.ndarray) -> Linearization:
+        """dU/dx (exact, independent of x): one term, R = :attr:`basis_` and B = :meth:`time_basis`."""
+        return Linearization((SeparableTerm(self.basis_, self.time_basis(times)),))
+
+    def penalty_operator(self):
+        """(n_params, n_params) sparse Omega of the ridge term: the load model's, identity if it has none."""
+        if hasattr(self.load_model, "penalty_operator"):
+            return self.load_model.penalty_operator()
+        return sp.identity(self.n_params, format="csr")

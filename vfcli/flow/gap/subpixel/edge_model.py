@@ -1,0 +1,111 @@
+"""The recording's edge model: gap level and PSF width, measured once on sampled frames."""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from vfcli.flow.gap.rays import outermost_silhouette
+from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_slit_profiles, ray_windows
+
+log = logging.getLogger(__name__)
+
+#: Half-width of the PSF search's window beyond each edge, in PSF standard deviations: the
+#: blur itself is fitted, so the window holds the step's tails too (to 0.13 %; the edge fit's
+#: :data:`vfcli.flow.gap.subpixel.profile.WINDOW_SIGMAS` is 2).
+PSF_WINDOW_SIGMAS = 3.0
+
+#: Range and resolution of the PSF search (:func:`estimate_edge_model`), px.
+PSF_SIGMA_RANGE_PX = (0.2, 3.0)
+
+
+def estimate_edge_model(
+    frames_sample: np.ndarray, masks: np.ndarray, lateral_axis: int = 0, *, min_width_px: float = 3.0, max_rays: int = 1000
+) -> EdgeModel | None:
+    """Gap level and PSF width of a recording, measured on sampled frames and their rough masks.
+
+    * Gap level: median intensity of the mask pixels whose two lateral neighbours are in
+      the mask too (the gap's interior, away from the blurred edges).
+    * PSF width: the sigma that minimises the pooled residual of :func:`fit_slit_profiles`
+      over the rays where the rough gap is at least ``min_width_px`` wide (on narrower
+      slits blur and width cannot be told apart); a log-spaced search over
+      :data:`PSF_SIGMA_RANGE_PX` refined by a parabola, with a window of 3 px beyond each
+      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider.
+
+    Parameters
+    ----------
+    frames_sample : (k, H, W) array of counts
+    masks : (k, H, W) bool
+        Rough gap masks of those frames (e.g. :func:`gap_mask`).
+    lateral_axis : {0, 1}
+    min_width_px : float
+        Narrowest rough gap used for the PSF, px.
+    max_rays : int
+        At most this many rays (spread evenly) enter the PSF search.
+
+    Returns
+    -------
+    EdgeModel, or None when the sample shows no gap at least ``min_width_px`` wide
+    (nothing to measure the blur on).
+    """
+    frames = np.asarray(frames_sample)
+    m = np.asarray(masks, dtype=bool)
+    if frames.ndim == 2:
+        frames, m = frames[None], m[None]
+    if frames.shape != m.shape:
+        raise ValueError(f"edge model: frames {frames.shape} and masks {m.shape} differ")
+    if not m.any():
+        return None
+    lat = 1 + lateral_axis  # lateral axis of the (k, H, W) stack
+    interior = m & np.roll(m, 1, axis=lat) & np.roll(m, -1, axis=lat)
+    pixels = frames[interior] if interior.sum() >= 16 else frames[m]
+    gap_counts = float(np.median(pixels))
+    rays = []
+    for f, mk in zip(frames, m):
+        e0, e1 = outermost_silhouette(mk, lateral_axis, border_is_edge=True)
+        wide = np.isfinite(e0) & (e1 - e0 >= min_width_px)
+        if wide.any():
+            rays.append((f, np.where(wide, e0, np.nan), np.where(wide, e1, np.nan)))
+    if not rays:
+        log.warning("edge model: the sampled gap is never %.0f px wide, too narrow to measure the blur on; "
+                    "no sub-pixel edges", min_width_px)
+        return None
+
+    def collect(margin: int):
+        windows = [ray_windows(f, e0, e1, margin, lateral_axis) + (e0, e1) for f, e0, e1 in rays]
+        width = max(p.shape[1] for p, *_ in windows)
+        prof, rows, a, b = [], [], [], []
+        for p, r, e0, e1 in windows:
+            sel = np.isfinite(e0)
+            pad = ((0, 0), (0, width - p.shape[1]))
+            prof.append(np.pad(p[sel], pad, constant_values=np.nan))
+            rows.append(np.pad(r[sel], pad, constant_values=0.0))
+            a.append(e0[sel])
+            b.append(e1[sel])
+        prof, rows, a, b = (np.concatenate(v) for v in (prof, rows, a, b))
+        take = np.unique(np.linspace(0, len(prof) - 1, min(len(prof), max_rays)).astype(int))
+        return prof[take], rows[take], a[take], b[take]
+
+    def search(margin: int) -> float:
+        prof, rows, a, b = collect(margin)
+
+        def cost(s: float) -> float:
+            fit = fit_slit_profiles(prof, rows, a, b, s, gap_counts, inner=(a + 0.5, b - 0.5))
+            return float(np.sum(fit.rms**2))
+
+        grid = np.geomspace(*PSF_SIGMA_RANGE_PX, 13)  # steps of 25 %
+        k = int(np.argmin([cost(s) for s in grid]))
+        fine = np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 9)  # steps of about 5 %
+        values = np.array([cost(s) for s in fine])
+        k = int(np.argmin(values))
+        if 0 < k < len(fine) - 1:  # parabola through the three lowest points, in log sigma
+            x = np.log(fine[k - 1 : k + 2])
+            c = np.polyfit(x, values[k - 1 : k + 2], 2)
+            if c[0] > 0:
+                return float(np.exp(np.clip(-c[1] / (2 * c[0]), x[0], x[2])))
+        return float(fine[k])
+
+    sigma = search(3)
+    if np.ceil(PSF_WINDOW_SIGMAS * sigma) > 3:
+        sigma = search(int(np.ceil(PSF_WINDOW_SIGMAS * sigma)))
+    return EdgeModel(gap_counts, sigma)

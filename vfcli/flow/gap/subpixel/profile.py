@@ -1,0 +1,332 @@
+"""The blurred-slit model of one ray across the glottis and its least-squares fit.
+
+Across the glottis (along one ray, :mod:`vfcli.flow.gap.rays`) the image is the blurred
+profile of "tissue - gap - tissue": a gap level between two edges, tissue levels that ramp
+away from each edge, all convolved with a Gaussian PSF. :func:`fit_slit_profiles` fits the
+edges of many rays at once; :func:`fit_ray_edges` does it for every open ray of a frame,
+starting from a threshold mask's edges. Units: lateral px (pixel centres at integers), counts.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vfcli.flow.gap.rays import as_rays
+
+# A binary mask can only be as good as the pixels it is cut from: on a slit a few pixels wide,
+# a threshold that misplaces each edge by a fraction of a pixel costs a large share of the gap.
+# The image itself holds the edges to a fraction of a pixel: across the glottis (along one
+# ray) it is the blurred profile of "tissue - gap - tissue". The functions below fit that
+# profile per ray (the other modules of this package smooth the edges and cut the mask).
+
+#: Prior weight of the recording's gap level in each ray's fit, in pixels' worth of data:
+#: one observation. It pins the gap level on a slit too narrow to show it (a 1 px slit
+#: blurred by the optics never reaches the gap level) and is outweighed on a wide one.
+GAP_LEVEL_WEIGHT = 1.0
+
+#: Half-width of the fit window outside each edge, in PSF standard deviations. The tissue
+#: model (a straight ramp) is a first-order expansion of the tissue's brightness about the
+#: edge, so the window should be as short as still shows the whole blurred step: at 2 sigma
+#: the step is within 2.3 % of its height (1 - Phi(2)), below the noise of a high-speed camera
+#: at SNR 40 (60 counts on a 12-bit surface level of 2400) for any step the image can hold;
+#: beyond, the tissue's own shading and texture, not the edge, would shape the fit.
+WINDOW_SIGMAS = 2.0
+
+
+@dataclass(frozen=True)
+class EdgeModel:
+    """What the sub-pixel edge fit needs to know about a recording's images.
+
+    Attributes
+    ----------
+    gap_counts : float
+        Intensity of the open gap (the channel seen through it), counts.
+    psf_sigma_px : float
+        Standard deviation of the Gaussian that models the blur of optics and pixel, px.
+    """
+
+    gap_counts: float
+    psf_sigma_px: float
+
+
+@dataclass(frozen=True)
+class SlitFit:
+    """Per-ray result of :func:`fit_slit_profiles` (n rays).
+
+    Attributes
+    ----------
+    e0, e1 : (n,) float
+        Sub-pixel edges, lateral px (pixel centres at integers): the gap is ``e0 < r < e1``.
+    levels : (n, 5) float
+        Linear parameters ``[G, T0, s0, T1, s1]``: gap level (counts), tissue level at
+        each edge (counts) and the tissue's brightening away from the edge (counts/px).
+    rms : (n,) float
+        RMS residual of the fit, counts.
+    cost : (n,) float
+        Sum of squared residuals plus the gap-level prior term, counts^2.
+    """
+
+    e0: np.ndarray
+    e1: np.ndarray
+    levels: np.ndarray
+    rms: np.ndarray
+    cost: np.ndarray
+
+
+def _phi(z: np.ndarray) -> np.ndarray:
+    return np.exp(-0.5 * z * z) / np.sqrt(2.0 * np.pi)
+
+
+def _slit_basis(rows: np.ndarray, e0: np.ndarray, e1: np.ndarray, sigma: float):
+    """Basis (n, L, 5) of the blurred slit model and the normalised distances to the edges."""
+    from scipy.special import ndtr
+
+    za = (e0[:, None] - rows) / sigma
+    zb = (rows - e1[:, None]) / sigma
+    pa, pb = ndtr(za), ndtr(zb)
+    ra = za * pa + _phi(za)
+    rb = zb * pb + _phi(zb)
+    basis = np.stack([1.0 - pa - pb, pa, sigma * ra, pb, sigma * rb], axis=-1)
+    return basis, za, zb, pa, pb
+
+
+def slit_profile_model(rows: np.ndarray, e0: float, e1: float, levels, sigma: float) -> np.ndarray:
+    """Intensity of the blurred slit model at lateral positions ``rows`` (see :func:`fit_slit_profiles`).
+
+    Parameters
+    ----------
+    rows : (L,) float
+        Lateral positions, px.
+    e0, e1 : float
+        Edges, px (``e0 < e1``).
+    levels : (5,) float
+        ``[G, T0, s0, T1, s1]`` (counts, counts, counts/px, counts, counts/px).
+    sigma : float
+        PSF standard deviation, px.
+
+    Returns
+    -------
+    (L,) float, counts.
+    """
+    basis, *_ = _slit_basis(np.asarray(rows, float)[None], np.array([e0], float), np.array([e1], float), sigma)
+    return basis[0] @ np.asarray(levels, float)
+
+
+def _slit_levels(data: tuple, e0: np.ndarray, e1: np.ndarray):
+    """Linear levels of the slit model for fixed edges: (levels (n, 5), weighted residuals (n, L),
+    cost (n,), (z0, z1, P0, P1, weighted basis (n, L, 5), normal matrix (n, 5, 5)))."""
+    r, y, w, sw, sigma, gap_counts, gap_weight, ridge = data
+    basis, za, zb, pa, pb = _slit_basis(r, e0, e1, sigma)
+    bt = (basis * w[..., None]).transpose(0, 2, 1)
+    lhs = bt @ basis
+    rhs = (bt @ y[..., None])[..., 0]
+    lhs[:, 0, 0] += gap_weight
+    rhs[:, 0] += gap_weight * gap_counts
+    lhs += (ridge * np.einsum("nii->n", lhs))[:, None, None] * np.eye(5)  # numerical safety only
+    x = np.linalg.solve(lhs, rhs[..., None])[..., 0]
+    res = ((basis @ x[..., None])[..., 0] - y) * sw
+    cost = (res**2).sum(axis=1) + gap_weight * (x[:, 0] - gap_counts) ** 2
+    return x, res, cost, (za, zb, pa, pb, basis * sw[..., None], lhs)
+
+
+def fit_slit_profiles(
+    profiles: np.ndarray,
+    rows: np.ndarray,
+    e0: np.ndarray,
+    e1: np.ndarray,
+    sigma: float,
+    gap_counts: float,
+    *,
+    gap_weight: float = GAP_LEVEL_WEIGHT,
+    iterations: int = 20,
+    closed: bool = False,
+    inner: tuple[np.ndarray, np.ndarray] | None = None,
+) -> SlitFit:
+    """Sub-pixel edges of the gap on many rays at once: least squares fit of a blurred slit.
+
+    Along a ray (lateral position r, px) the scene is tissue of fold 0 up to the edge
+    ``e0``, the gap (level G) up to ``e1``, then tissue of fold 1. Next to the gap the
+    tissue is the fold's medial surface seen at a slant, darker than the top surface and
+    brightening away from the edge, so each side is a ramp ``T + s * distance``. The
+    camera blurs this with its point spread function, modelled as a Gaussian of standard
+    deviation ``sigma`` (optics and pixel integration together)::
+
+        I(r) = G (1 - P0 - P1) + T0 P0 + s0 sigma rho(z0) + T1 P1 + s1 sigma rho(z1)
+        z0 = (e0 - r) / sigma, z1 = (r - e1) / sigma, P = Phi(z), rho(z) = z Phi(z) + phi(z)
+
+    (Phi, phi: standard normal CDF and density). At a blurred step the edge is where the
+    intensity is half-way between the levels on either side; the fit finds that point
+    for each edge while accounting for the other edge's blur (narrow slits), the ramps and
+    noise. The model is linear in ``[G, T0, s0, T1, s1]``, which are eliminated (variable
+    projection); the two edges are found by Levenberg-Marquardt. G has a Gaussian prior
+    at ``gap_counts`` worth ``gap_weight`` pixels.
+
+    Parameters
+    ----------
+    profiles : (n, L) float
+        Intensities, counts; NaN where a ray's window has no sample.
+    rows : (n, L) float
+        Lateral position of each sample, px.
+    e0, e1 : (n,) float
+        Initial edges, px (within a pixel or so of the answer).
+    sigma : float
+        PSF standard deviation, px.
+    gap_counts : float
+        Prior gap level, counts.
+    gap_weight : float
+        Weight of that prior, in samples.
+    iterations : int
+        Levenberg-Marquardt iterations.
+    closed : bool
+        Fit the model without a gap instead: ``e0 = e1`` (the two folds' tissue meeting
+        at one line, e.g. a closed glottis's contact line), starting from ``(e0 + e1) / 2``.
+    inner : ((n,) float, (n,) float), optional
+        Bounds ``e0 <= inner[0]`` and ``e1 >= inner[1]``, px: positions known to lie in
+        the gap (e.g. the outermost pixel centres darker than the threshold).
+
+    Returns
+    -------
+    SlitFit
+        Edges are kept inside the window of each ray; ``e1 <= e0`` means no gap.
+    """
+    y = np.asarray(profiles, dtype=float)
+    r = np.asarray(rows, dtype=float)
+    ok = np.isfinite(y)
+    w = ok.astype(float)
+    sw = np.sqrt(w)
+    y = np.where(ok, y, 0.0)
+    n = len(y)
+    e0 = np.asarray(e0, dtype=float).copy()
+    e1 = np.asarray(e1, dtype=float).copy()
+    if n == 0:
+        return SlitFit(e0, e1, np.zeros((0, 5)), np.zeros(0), np.zeros(0))
+    if closed:
+        e0 = e1 = 0.5 * (e0 + e1)
+    lo = np.where(ok, r, np.inf).min(axis=1)
+    hi = np.where(ok, r, -np.inf).max(axis=1)
+    hi0, lo1 = hi, lo  # bounds of e0 from above and of e1 from below
+    if inner is not None and not closed:
+        hi0 = np.minimum(hi, np.asarray(inner[0], float))
+        lo1 = np.maximum(lo, np.asarray(inner[1], float))
+        e0, e1 = np.minimum(e0, hi0), np.maximum(e1, lo1)
+    ridge = 1e-12
+
+    x, res, cost, aux = _slit_levels((r, y, w, sw, sigma, gap_counts, gap_weight, ridge), e0, e1)
+    aux = list(aux)
+    damping = np.full(n, 1e-3)
+    act = np.arange(n)  # rays still moving
+    for _ in range(iterations):
+        if act.size == 0:
+            break
+        za, zb, pa, pb, bw, lhs = (v[act] for v in aux)
+        swa, xa = sw[act], x[act]
+        g_lvl, t0, s0, t1, s1 = xa.T
+        d0 = ((t0 - g_lvl)[:, None] * _phi(za) / sigma + s0[:, None] * pa) * swa
+        d1 = (-(t1 - g_lvl)[:, None] * _phi(zb) / sigma - s1[:, None] * pb) * swa
+        jac = (d0 + d1)[..., None] if closed else np.stack([d0, d1], axis=-1)
+        # variable projection (Kaufman): the Jacobian of the residual with the levels re-solved
+        # is the edge derivative projected off the basis (the prior on G is one more row)
+        c = np.linalg.solve(lhs, bw.transpose(0, 2, 1) @ jac)          # (m, 5, k)
+        jac = jac - bw @ c
+        prior_row = -np.sqrt(gap_weight) * c[:, :1, :]                  # (m, 1, k)
+        prior_res = (np.sqrt(gap_weight) * (xa[:, 0] - gap_counts))[:, None]
+        jt = jac.transpose(0, 2, 1)
+        jtj = jt @ jac + prior_row.transpose(0, 2, 1) @ prior_row
+        grad = (jt @ res[act][..., None])[..., 0] + (prior_row.transpose(0, 2, 1) @ prior_res[..., None])[..., 0]
+        diag = np.einsum("nii->ni", jtj) + 1e-12
+        eye = np.eye(jac.shape[-1])
+        damp = damping[act]
+        step = -np.linalg.solve(jtj + damp[:, None, None] * (diag[:, :, None] * eye), grad[..., None])[..., 0]
+        step = np.clip(step, -0.5, 0.5)
+        a = np.clip(e0[act] + step[:, 0], lo[act], hi0[act])
+        b = a if closed else np.clip(e1[act] + step[:, 1], lo1[act], hi[act])
+        sub = (r[act], y[act], w[act], swa, sigma, gap_counts, gap_weight, ridge)
+        nx, nres, ncost, naux = _slit_levels(sub, a, b)
+        better = ncost < cost[act]
+        damping[act] = np.where(better, damp * 0.3, damp * 10.0)
+        upd = act[better]
+        e0[upd], e1[upd], x[upd], res[upd], cost[upd] = a[better], b[better], nx[better], nres[better], ncost[better]
+        for v, nv in zip(aux, naux):
+            v[upd] = nv[better]
+        done = (better & (np.abs(step).max(axis=1) < 1e-3)) | (damping[act] > 1e6)
+        act = act[~done]
+    rms = np.sqrt((res**2).sum(axis=1) / np.maximum(ok.sum(axis=1), 1.0))
+    return SlitFit(e0, e1, x, rms, cost)
+
+
+def ray_windows(
+    frame: np.ndarray, e0: np.ndarray, e1: np.ndarray, margin_px: int, lateral_axis: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Intensity profiles across the gap, one per ray: from ``margin_px`` before ``e0`` to after ``e1``.
+
+    Parameters
+    ----------
+    frame : (H, W) array of counts
+    e0, e1 : (n_rays,) float
+        Edges per ray, lateral px; NaN on rays without a gap (their profile is all NaN).
+    margin_px : int
+        Pixels taken beyond each edge.
+    lateral_axis : {0, 1}
+
+    Returns
+    -------
+    profiles : (n_rays, L) float, counts (NaN outside the window or the image)
+    rows : (n_rays, L) float, lateral position of each sample, px
+    """
+    img = as_rays(frame, lateral_axis)
+    n_lat, n_rays = img.shape
+    open_ = np.isfinite(e0) & np.isfinite(e1)
+    a, b = np.nan_to_num(np.minimum(e0, e1)), np.nan_to_num(np.maximum(e0, e1))
+    lo = np.where(open_, np.floor(a) - margin_px, 0).astype(int)
+    hi = np.where(open_, np.ceil(b) + margin_px, -1).astype(int)
+    length = int(max((hi - lo + 1).max(initial=1), 1))
+    rows = lo[:, None] + np.arange(length)[None, :]
+    inside = (rows <= hi[:, None]) & (rows >= 0) & (rows < n_lat)
+    vals = img[np.clip(rows, 0, n_lat - 1), np.arange(n_rays)[:, None]].astype(float)
+    return np.where(inside, vals, np.nan), rows.astype(float)
+
+
+def fit_ray_edges(
+    frame: np.ndarray, e0: np.ndarray, e1: np.ndarray, model: EdgeModel, lateral_axis: int = 0, passes: int = 2
+) -> SlitFit:
+    """Sub-pixel edges of every open ray of one frame, starting from a threshold mask's edges.
+
+    The window of each ray reaches :data:`WINDOW_SIGMAS` PSF widths beyond its edges;
+    after each pass it is re-centred on the edges found. The edges are kept at or beyond
+    the outermost pixel centres of the rough run: those pixels are darker than the
+    threshold, which lies at most half-way between gap and tissue (as the automatic one
+    does), so their centres are in the gap.
+
+    Parameters
+    ----------
+    frame : (H, W) array of counts
+    e0, e1 : (n_rays,) float
+        Pixel boundaries of the threshold mask's run on each ray (:func:`vfcli.flow.gap.rays.outermost_silhouette`),
+        lateral px; NaN on closed rays.
+    model : EdgeModel
+    lateral_axis : {0, 1}
+    passes : int
+        Window placements.
+
+    Returns
+    -------
+    SlitFit over all rays (NaN edges on rays that were NaN on input).
+    """
+    margin = int(np.ceil(WINDOW_SIGMAS * model.psf_sigma_px))
+    e0 = np.asarray(e0, float).copy()
+    e1 = np.asarray(e1, float).copy()
+    sel = np.flatnonzero(np.isfinite(e0) & np.isfinite(e1))
+    # the rough run's outermost pixels are darker than the threshold, which lies at most half-way
+    # between gap and tissue: their centres are in the gap, so the edges lie at or beyond them
+    inner = (e0[sel] + 0.5, e1[sel] - 0.5)
+    levels = np.full((len(e0), 5), np.nan)
+    rms = np.full(len(e0), np.nan)
+    cost = np.full(len(e0), np.nan)
+    for _ in range(max(1, passes)):
+        prof, rows = ray_windows(frame, e0, e1, margin, lateral_axis)
+        fit = fit_slit_profiles(prof[sel], rows[sel], e0[sel], e1[sel], model.psf_sigma_px, model.gap_counts,
+                                inner=inner)
+        e0[sel], e1[sel] = fit.e0, fit.e1
+        levels[sel], rms[sel], cost[sel] = fit.levels, fit.rms, fit.cost
+    return SlitFit(e0, e1, levels, rms, cost)

@@ -1,0 +1,185 @@
+"""Sub-pixel gap segmentation of frames and of a streamed video (detection, fit, smoothing, mask)."""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from vfcli.flow.gap.detect import gap_mask
+from vfcli.flow.gap.rays import as_rays, outermost_silhouette
+from vfcli.flow.gap.subpixel.area import GapSegmentation, mask_from_edges
+from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges
+from vfcli.flow.gap.subpixel.smoothing import robustness_weights, smooth_edges
+
+
+@dataclass(frozen=True)
+class SubpixelGap:
+    """Settings of the sub-pixel gap segmentation of one recording.
+
+    Attributes
+    ----------
+    threshold : float
+        Gap threshold, counts (:func:`gap_threshold` or ``flow.threshold``).
+    model : EdgeModel or None
+        Gap level and PSF (:func:`estimate_edge_model`); None: the detection mask alone.
+    median_px : int
+        Median window of the detection, px (odd).
+    midline : float, optional
+        Lateral coordinate of the glottal midline, px.
+    lateral_axis : {0, 1}
+    half_window_px : float
+        Half-window of the edge smoothing along the glottis, px (0: none).
+    half_window_frames : int
+        Half-window of the edge smoothing in time, frames (0: none).
+    """
+
+    threshold: float
+    model: EdgeModel | None
+    median_px: int = 5
+    midline: float | None = None
+    lateral_axis: int = 0
+    half_window_px: float = 0.0
+    half_window_frames: int = 0
+
+
+def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray]:
+    """Detection and per-ray sub-pixel edges of one frame, before smoothing.
+
+    1. Detection, the paper's intensity segmentation (:func:`gap_mask`): pixels darker
+       than the threshold, median-filtered along the glottis (``median_along_slit``, so
+       a one-pixel slit survives), dark components on the midline of at least
+       ``median_px`` pixels.
+    2. Sub-pixel edges on every ray the detection crosses (:func:`fit_ray_edges`); a ray
+       whose fitted edges cross (width <= 0) is closed. Without a model, the detection's
+       pixel boundaries.
+    3. A detected component is kept only if (a) at least ``median_px`` of its rays hold a
+       slit of one pixel or more: a narrower blurred dip cannot be told from a dark line
+       of tissue (the contact line of a closed glottis), and a slit under a pixel wide
+       holds a pixel centre only by chance; (b) its fitted gap level (median over its
+       rays) is nearer the recording's gap level than the threshold: a dark patch of
+       tissue below the threshold is fitted with its own, brighter level. This replaces
+       the dark-core hysteresis of :func:`gap_mask`, whose core a narrow, blurred slit
+       never reaches.
+
+    Parameters
+    ----------
+    frame : (H, W) array of counts
+    gap : SubpixelGap
+
+    Returns
+    -------
+    e0, e1 : (n_rays,) float
+        Lateral px; NaN on closed rays.
+    """
+    rough = gap_mask(frame, gap.threshold, gap.median_px, core_fraction=1.0, midline=gap.midline,
+                     min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True)
+    e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
+    if gap.model is None or not np.isfinite(e0).any():
+        return e0, e1
+    fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis)
+    e0, e1 = fit.e0.copy(), fit.e1.copy()
+    closed = ~(e1 > e0)
+    # step 3: whole components (a) surely open somewhere and (b) at the gap's level
+    component = _ray_components(rough, gap.lateral_axis)
+    n_comp = int(component.max()) + 1
+    wide = np.bincount(component, weights=(e1 - e0 >= 1.0) & ~closed, minlength=n_comp)
+    level = np.full(n_comp, np.inf)
+    for c in np.unique(component[~closed & (component > 0)]):
+        level[c] = np.median(fit.levels[(component == c) & ~closed, 0])
+    dark = level < 0.5 * (gap.model.gap_counts + gap.threshold)
+    closed |= (component == 0) | (wide[component] < gap.median_px) | ~dark[component]
+    e0[closed] = np.nan
+    e1[closed] = np.nan
+    return e0, e1
+
+
+def _ray_components(mask: np.ndarray, lateral_axis: int) -> np.ndarray:
+    """(n_rays,) int: the 8-connected component of ``mask`` met first along each ray, 0 if none."""
+    import cv2
+
+    _, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
+    lab = as_rays(labels, lateral_axis)
+    first = np.argmax(lab > 0, axis=0)
+    return lab[first, np.arange(lab.shape[1])]
+
+
+def _segmentation(shape, e0, e1, lateral_axis) -> GapSegmentation:
+    return GapSegmentation(mask_from_edges(e0, e1, shape, lateral_axis), e0, e1)
+
+
+def segment_gap(frame: np.ndarray, gap: SubpixelGap) -> GapSegmentation:
+    """The glottal gap of one frame with sub-pixel edges, smoothed along the glottis only.
+
+    :func:`raw_edges`, then :func:`smooth_edges` with robustness weights
+    (:func:`robustness_weights`), then the mask of the pixel centres strictly between the
+    edges (the way a pixel-centre truth is defined); the area is the sum of the edge
+    distances (:meth:`GapSegmentation.area_mm2`). :func:`segment_stream` adds the
+    smoothing in time.
+
+    Parameters
+    ----------
+    frame : (H, W) array of counts
+    gap : SubpixelGap
+
+    Returns
+    -------
+    GapSegmentation
+    """
+    e0, e1 = raw_edges(frame, gap)
+    if gap.model is not None:
+        h = gap.half_window_px
+        e0 = smooth_edges(e0, h, weights=robustness_weights(e0, h))
+        e1 = smooth_edges(e1, h, weights=robustness_weights(e1, h))
+    return _segmentation(np.shape(frame), e0, e1, gap.lateral_axis)
+
+
+def segment_stream(frames: Iterable[np.ndarray], gap: SubpixelGap) -> Iterator[tuple[np.ndarray, GapSegmentation]]:
+    """Stream the sub-pixel gap over a video: (frame, its GapSegmentation), in order.
+
+    Each frame's raw edges (:func:`raw_edges`) and robustness weights are kept for
+    ``2 * half_window_frames + 1`` frames, so a frame is yielded once the
+    ``half_window_frames`` frames after it have been read (at the end of the video the
+    window is one-sided); memory does not grow with the number of frames.
+
+    Parameters
+    ----------
+    frames : iterable of (H, W) arrays of counts
+    gap : SubpixelGap
+
+    Yields
+    ------
+    (frame, GapSegmentation)
+    """
+    ht = max(0, int(gap.half_window_frames)) if gap.model is not None else 0
+    h = gap.half_window_px
+    window: deque = deque()  # (frame, e0, e1, w0, w1) of the frames not yet yielded and the ht before
+
+    def emit(j: int):
+        stack = list(window)
+        f = stack[j][0]
+        if gap.model is None:
+            return f, _segmentation(np.shape(f), stack[j][1], stack[j][2], gap.lateral_axis)
+        e0 = smooth_edges(np.stack([x[1] for x in stack]), h, centre=j, half_window_frames=ht,
+                          weights=np.stack([x[3] for x in stack]))
+        e1 = smooth_edges(np.stack([x[2] for x in stack]), h, centre=j, half_window_frames=ht,
+                          weights=np.stack([x[4] for x in stack]))
+        return f, _segmentation(np.shape(f), e0, e1, gap.lateral_axis)
+
+    pending = 0  # frames read but not yet yielded (the last `pending` entries of the window)
+    for frame in frames:
+        frame = np.array(frame)  # a copy: a view would keep the caller's whole batch of frames alive
+        e0, e1 = raw_edges(frame, gap)
+        w0 = robustness_weights(e0, h) if gap.model is not None else None
+        w1 = robustness_weights(e1, h) if gap.model is not None else None
+        window.append((frame, e0, e1, w0, w1))
+        pending += 1
+        if pending > ht:
+            yield emit(len(window) - pending)
+            pending -= 1
+        while len(window) > 2 * ht + 1:
+            window.popleft()
+    while pending:
+        yield emit(len(window) - pending)
+        pending -= 1

@@ -1,0 +1,123 @@
+"""The gap term of E: simulated against measured silhouettes on the lateral rays.
+
+With the frozen silhouette edge of each ray and fold (:meth:`vfcli.inverse.problem.Problem.freeze`),
+the crossing s (lateral px) of the edge with the ray, its target m, ``d = (s - m) / px_per_mm``
+(mm) and the length scale l (``gap_length_mm``)::
+
+    E_gap = gap_weight / F * sum_f (1 / (2 n_rays)) sum_rays sum_folds arctan((d / l)^2)
+
+Gauss-Newton
+------------
+``arctan(q)``, ``q = (d / l)^2``, is concave in q, so
+``arctan(q) <= arctan(q0) + (q - q0) / (1 + q0^2)``: a quadratic majoriser in d whose
+curvature ``2 / ((1 + q0^2) l^2)`` is used, with d linearised in the control values
+(rows ``dd/dC`` per linearisation term j, :func:`gap_rows`)::
+
+    H_f = sum_{j,k} (Q_j,f^T diag(curv) Q_k,f) (x) (B_j(t_f) B_k(t_f)^T)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from vfcli.camera.silhouette import crossing_with_gradient
+from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, term_pairs
+
+
+def gap_rows(problem, positions: np.ndarray, sil: list, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Linearised silhouette residuals of one frame.
+
+    Parameters
+    ----------
+    problem : the :class:`vfcli.inverse.problem.Problem` (camera, fold edges, ray axis).
+    positions : (N, 3) deformed vertices at the frame, mm.
+    sil : the frame's frozen silhouettes (``Problem.freeze(x)[f].sil``).
+    basis : (N, 3, S) vertex displacement per unit spatial control value, mm.
+
+    Returns
+    -------
+    q_rows : (n_rows, S) d(silhouette px)/d(spatial control).
+    dist : (n_rows,) simulated minus measured silhouette, px.
+    """
+    scr = problem.camera.project(positions)
+    p = problem.camera.matrix
+    rows, dists = [], []
+    for side, (rays, edge, tgt) in enumerate(sil):
+        if rays.size == 0:
+            continue
+        ee = problem.fold_edges[problem.fold_order[side]][edge]
+        s, d0, d1 = crossing_with_gradient(scr, ee, rays, problem.ray_comp)
+        dists.append(s - tgt)
+        # screen px per mm of (x, y) displacement of each end vertex; z does not move the silhouette
+        rows.append(np.einsum("rc,rcs->rs", d0 @ p, basis[ee[:, 0], :2, :])
+                    + np.einsum("rc,rcs->rs", d1 @ p, basis[ee[:, 1], :2, :]))
+    s = basis.shape[2]
+    if not rows:
+        return np.zeros((0, s)), np.zeros(0)
+    return np.concatenate(rows), np.concatenate(dists)
+
+
+class GapTerm(FrameTerm):
+    """``gap_weight * E_gap`` (module docstring), dimensionless times the weight."""
+
+    name = "gap"
+
+    @staticmethod
+    def _n_sil(problem) -> float:
+        return 2.0 * max(len(problem.rays), 1)
+
+    def value(self, ev: Evaluation) -> float:
+        p = ev.problem
+        st = p.settings
+        weight = self.weight(st)
+        if not weight:
+            return 0.0
+        n_f, n_sil, ell = p.n_frames, self._n_sil(p), st.gap_length_mm
+        gap = 0.0
+        for f, fr in enumerate(ev.frames):
+            scr = p.camera.project(p.mesh.nodes + ev.disp[f])
+            for side, (rays, edge, tgt) in enumerate(fr.sil):
+                if rays.size == 0:
+                    continue
+                ee = p.fold_edges[p.fold_order[side]][edge]
+                s, d0, d1 = crossing_with_gradient(scr, ee, rays, p.ray_comp)
+                q = ((s - tgt) / (p.camera.px_per_mm * ell)) ** 2
+                gap += np.sum(np.arctan(q)) / n_sil
+                if ev.wants_grad:
+                    # d arctan(q)/ds, q = ((s - m) / (k l))^2
+                    dphi = (2.0 * (s - tgt) / (p.camera.px_per_mm * ell) ** 2) / (1.0 + q * q)
+                    dphi *= weight / (n_f * n_sil)
+                    gs = np.zeros((len(scr), 2))
+                    np.add.at(gs, ee[:, 0], dphi[:, None] * d0)
+                    np.add.at(gs, ee[:, 1], dphi[:, None] * d1)
+                    ev.grad_disp[f, :, :2] += gs @ p.camera.matrix
+        return weight * gap / n_f
+
+    def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
+                    out: KronBlocks) -> None:
+        p = ev.problem
+        st = p.settings
+        weight = self.weight(st)
+        if not weight:
+            return
+        scale_px = p.camera.px_per_mm * st.gap_length_mm
+        pairs = term_pairs(lin.n_terms)
+        for f, fr in enumerate(ev.frames):
+            pos = p.mesh.nodes + ev.disp[f]
+            q_rows = []
+            for r in lin.full:
+                q_r, dist = gap_rows(p, pos, fr.sil, r)
+                q_rows.append(q_r)
+            if not len(dist):
+                continue
+            q = (dist / scale_px) ** 2
+            curv = (weight / (p.n_frames * self._n_sil(p))) * 2.0 / ((1.0 + q * q) * scale_px ** 2)
+            for stack, g in zip(out.blocks, groups):
+                qg = [qr[:, g] for qr in q_rows]
+                # the silhouettes of the group's folds
+                rows = np.flatnonzero(np.any(np.any([qj != 0.0 for qj in qg], axis=0), axis=1)) if len(qg) > 1 \
+                    else np.flatnonzero(np.any(qg[0] != 0.0, axis=1))
+                qg = [qj[rows] for qj in qg]
+                for i, (j, k) in enumerate(pairs):
+                    stack[f * len(pairs) + i] = qg[j].T @ (curv[rows, None] * qg[k])
+            for i, (j, k) in enumerate(pairs):
+                out.outers[f * len(pairs) + i] = np.outer(lin.temporal[j][f], lin.temporal[k][f])
