@@ -35,7 +35,7 @@ def _within(values, key, rel=1.0):
 
 
 @pytest.mark.parametrize("key", [
-    "rotation_deg", "psf_sigma_px", "thickness_mm", "exit_radius_mm", "entrance_sweep_deg",
+    "rotation_deg", "psf_sigma_px", "thickness_mm", "exit_radius_mm",
     "inferior_angle_deg", "depth_mm", "length_mm", "gap_mm", "ldv_dropout_fraction",
     "ldv_spike_window_s", "ldv_gap_noise_rel",
 ])
@@ -47,6 +47,8 @@ def test_material_lies_within_its_batch_tolerance_around_the_nominal(draws):
     _within([d.youngs_modulus_pa for d in draws], "youngs_rel", NOMINAL.youngs_modulus_pa)
     _within([d.density_kg_m3 for d in draws], "density_rel", NOMINAL.density_kg_m3)
     _within([d.entrance_radius_mm / (d.thickness_mm / 2) for d in draws], "entrance_radius_rel")
+    sweep = np.array([d.entrance_sweep_deg for d in draws])
+    assert sweep.min() >= 40.0 - 1e-9 and sweep.max() <= 60.0 and sweep.max() > 58.0
 
 
 def test_load_distribution_parameters_fill_their_ranges(draws):
@@ -78,9 +80,19 @@ def test_yes_no_draws_are_about_half(draws, flag):
     assert 0.4 < share < 0.6, f"{flag} true in {share:.2f} of the seeds"
 
 
-def test_every_drawn_geometry_is_a_valid_m5(draws):
+def test_every_drawn_geometry_is_a_valid_convex_m5(draws):
     for d in draws[:100]:
         m5_params_from(d.true_mesh(NOMINAL))  # raises ConfigError on an impossible profile
+    assert max(d.entrance_sweep_deg + d.inferior_angle_deg for d in draws) <= 90.0 + 1e-9
+
+
+@pytest.mark.parametrize("seed", [201, 0, 1])   # 201 drew a concave profile the mesher refused
+def test_drawn_geometries_mesh(seed):
+    from vfcli.model.mesh import build_mesh
+
+    d = draw_widened(seed, 256, 256, NOMINAL)
+    mesh = build_mesh(m5_params_from(d.true_mesh(NOMINAL)), 2.0)
+    assert mesh.nodes[:, 0].max() == pytest.approx(d.length_mm)
 
 
 def test_same_seed_same_draw_other_seed_other_draw():

@@ -38,7 +38,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "thickness_mm": (2.5, 3.5),              # T, Scherer 3.0 [est range]
     "exit_radius_mm": (0.8, 1.2),            # R_O, Scherer 0.987 [est range]
     "entrance_radius_rel": (0.9, 1.1),       # R_L / (T / 2), Scherer 1 [est range]
-    "entrance_sweep_deg": (40.0, 60.0),      # Scherer 50 [est range]
+    "entrance_sweep_deg": (40.0, 60.0),      # Scherer 50 [est range]; at most 90 - inferior angle
     "inferior_angle_deg": (30.0, 50.0),      # Scherer 40 [est range]
     "depth_mm": (5.0, 10.0),                 # D: CAD 5-6, default 8 [pub + est]
     "length_mm": (15.0, 17.0),               # L [pub: 15 common, 15-17]
@@ -163,6 +163,9 @@ def draw_widened(seed: int, width_px: int, height_px: int, nominal: MeshConfig) 
     entrance_r = _u(rng, "entrance_radius_rel") * thickness / 2
     sweep = _u(rng, "entrance_sweep_deg")
     inf_angle = _u(rng, "inferior_angle_deg")
+    # the entrance arc may not turn past the inferior surface's direction: that would be a concave
+    # corner (Scherer's M5 is tangent there, sweep + angle = 90), which the mesher refuses
+    sweep = min(sweep, 90.0 - inf_angle)
     depth = _u(rng, "depth_mm")
     length = _u(rng, "length_mm")
     gap = _u(rng, "gap_mm")
