@@ -57,7 +57,8 @@ from vfcli.camera.camera import Camera  # noqa: E402
 from vfcli.camera.pose import camera_to_model  # noqa: E402
 from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.stages.mesh import read_mesh  # noqa: E402
-from vfcli.store.transaction import Store, read_truth  # noqa: E402
+from vfcli.store.transaction import Store  # noqa: E402
+from vfcli.store.truth import read_truth  # noqa: E402
 from vfcli.synth.scoring import interval_coverage, iou, relative_rms_error, rms, side_truth  # noqa: E402
 
 STAGES = ["synth", "ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize"]

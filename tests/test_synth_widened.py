@@ -10,7 +10,7 @@ import pytest
 
 from vfcli.config import MeshConfig
 from vfcli.model.m5 import m5_params_from
-from vfcli.store.transaction import read_truth
+from vfcli.store.truth import read_truth
 from vfcli.synth.instruments import (
     DROPOUT_SPIKES, LdvSettings, PressureWaveform, simulate_ldv_scan,
 )

@@ -97,8 +97,9 @@ class IngestLdvConfig(_Section):
     velocity_id1: str = Field("Response Time Trace", description="UFF id1 of the vibrometer channel")
     reference_id1: str = Field("Reference Time Trace", description="UFF id1 of the pressure reference channel")
     length_unit: Literal["m", "cm", "mm", "um", "in"] | None = Field(
-        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: such a "
-        "file is refused (the UFF standard has no default unit; files with 164 and CSV/MAT state their own)")
+        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: the one of "
+        "m and mm that gives a plausible scan extent, with a warning (refused when neither does); files with 164 "
+        "and CSV/MAT state their own")
 
 
 class SyncConfig(_Section):
