@@ -23,7 +23,6 @@ import errno
 import fcntl
 import json
 import os
-import secrets
 import shutil
 from collections import deque
 from contextlib import contextmanager
@@ -38,7 +37,7 @@ from vfcli.errors import ConfigError, StoreAccessError, StoreLockedError
 from vfcli.store import layout
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
-from vfcli.store.provenance import stage_digest
+from vfcli.store.provenance import content_digest
 from vfcli.store.reader import StoreReader, check_format, open_h5
 
 if TYPE_CHECKING:
@@ -308,7 +307,7 @@ class StoreWriter:
             "inputs_json": json.dumps(dict(inputs or {}), sort_keys=True),
             "upstream_json": json.dumps(upstream_digests, sort_keys=True),
         }
-        record["digest"] = stage_digest({**record, "nonce": secrets.token_hex(8)})
+        record["digest"] = content_digest(g)
         for k, v in record.items():
             g.attrs[k] = v
         g.attrs["complete"] = True
@@ -344,6 +343,25 @@ class Store:
     def interrupted_writes(self) -> list[Path]:
         """Leftovers of writers that died (cleaned up by the next writer)."""
         return _leftover_tmp_files(self.path)
+
+    def writer_active(self) -> bool:
+        """Whether a live process holds the write lock now (its temporary file is work in
+        progress, not the leftover of an interrupted write). Probes with a shared lock,
+        released at once."""
+        try:
+            fd = os.open(_lock_path(self.path), os.O_RDONLY)
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            return False
+        except OSError as exc:
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return True
+            raise
+        finally:
+            os.close(fd)
 
     @contextmanager
     def _lock(self) -> Iterator[None]:
