@@ -70,8 +70,11 @@ def _update_attrs(h: "hashlib._Hash", attrs: Any) -> None:
     for k in sorted(attrs):
         if k not in _NOT_CONTENT:
             v = attrs[k]
-            h.update(k.encode() + b"=" + (np.asarray(v).tobytes() if isinstance(v, (np.ndarray, np.generic))
-                                          else repr(v).encode()) + b";")
+            if isinstance(v, (np.ndarray, np.generic)) and np.asarray(v).dtype.kind != "O":
+                blob = np.asarray(v).dtype.str.encode() + np.asarray(v).tobytes()
+            else:  # text and object arrays by value (their bytes are pointers)
+                blob = repr(v.tolist() if isinstance(v, np.ndarray) else v).encode()
+            h.update(k.encode() + b"=" + blob + b";")
 
 
 def content_digest(group: h5py.Group) -> str:

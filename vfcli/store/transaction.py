@@ -241,7 +241,15 @@ class StageWriter:
             {"figures": dict(figures), "warnings": list(warnings)}, sort_keys=True, default=_jsonable)
 
     def attach_scales(self) -> None:
-        """Attach every axis named after a dataset of this stage as an HDF5 dimension scale."""
+        """Make every axis an HDF5 dimension scale (:data:`vfcli.store.layout.AXES`): an axis
+        named after a dataset of this stage is that dataset; any other is stored beside the
+        datasets under its own name (text labels or the 0-based index).
+
+        Raises
+        ------
+        ValueError
+            Two datasets disagree on an axis' length (a broken invariant of the stage).
+        """
         if not self._stage.datasets:
             return
         for key, spec in self._stage.datasets.items():
@@ -250,11 +258,28 @@ class StageWriter:
             ds = self._g[key]
             for axis, dim in enumerate(spec.dims[: ds.ndim]):
                 ds.dims[axis].label = dim
-                if dim != key and dim in self._g and self._g[dim].ndim == 1 and self._g[dim].shape[0] == ds.shape[axis]:
-                    scale = self._g[dim]
-                    if not scale.is_scale:
-                        scale.make_scale(dim)
-                    ds.dims[axis].attach_scale(scale)
+                if dim == key:
+                    if not ds.is_scale:
+                        ds.make_scale(dim)
+                    continue
+                ds.dims[axis].attach_scale(self._axis(dim, ds.shape[axis], key))
+
+    def _axis(self, dim: str, n: int, used_by: str) -> h5py.Dataset:
+        """The dimension scale of axis ``dim`` (length ``n``), created when missing."""
+        if dim not in self._g:
+            ax = layout.AXES[dim]
+            if ax.labels and len(ax.labels) != n:
+                raise ValueError(f"{self._g.name}/{used_by}: axis {dim!r} has {n} entries, its labels are {ax.labels}")
+            data = np.array(ax.labels, dtype=object) if ax.labels else np.arange(n, dtype=np.int64)
+            scale = self._g.create_dataset(dim, data=data, dtype=h5py.string_dtype() if ax.labels else None)
+            scale.attrs["units"] = "1" if ax.labels else "index"
+            scale.attrs["description"] = ax.description
+        scale = self._g[dim]
+        if scale.ndim != 1 or scale.shape[0] != n:
+            raise ValueError(f"{self._g.name}/{used_by}: axis {dim!r} has {n} entries, {scale.name} has {scale.shape}")
+        if not scale.is_scale:
+            scale.make_scale(dim)
+        return scale
 
 
 class StoreWriter:
