@@ -172,3 +172,24 @@ def test_info_shows_figures_and_warnings_takes_several_stores_and_gives_the_conf
     assert dict(zip(lines[0].split(), lines[1].split()))["flow"] == "ok"
     both = json.loads(run_vfcli("info", demo, copy, "--json").stdout)
     assert [d["path"] for d in both] == [str(demo), str(copy)]
+
+
+def test_share_writes_a_gzip_copy_with_the_same_values_and_nothing_stale(demo, tmp_path):
+    out = tmp_path / "shared.h5"
+    res = run_vfcli("share", demo, out)
+    assert res.returncode == 0, res.stderr
+    with h5py.File(out, "r") as f, h5py.File(demo, "r") as g:
+        assert f["hsc/frames"].compression == "gzip" and f["hsc/frames"].attrs["compression"] == "gzip"
+        assert g["hsc/frames"].id.get_create_plist().get_filter(0)[0] == h5py.h5z.FILTER_NBIT  # source unchanged
+        assert np.array_equal(f["hsc/frames"][()], g["hsc/frames"][()])   # both through libhdf5's filters
+        assert np.array_equal(f["fields/velocity"][()], g["fields/velocity"][()], equal_nan=True)
+    theirs, ours = _info(out), _info(demo)
+    assert theirs.keys() == ours.keys()
+    for path, st in ours.items():
+        assert theirs[path]["stale_because"] == st["stale_because"], path
+        assert theirs[path]["provenance"]["digest"] == st["provenance"]["digest"], path
+    for group in _groups(out):
+        with xr.open_dataset(out, group=group, engine="h5netcdf") as ds:
+            assert not [d for d in ds.dims if str(d).startswith("phony_dim")], group
+    again = run_vfcli("share", demo, out)
+    assert again.returncode != 0 and "exists" in again.stderr and len(again.stderr.strip().splitlines()) == 1
