@@ -193,3 +193,13 @@ def test_share_writes_a_gzip_copy_with_the_same_values_and_nothing_stale(demo, t
             assert not [d for d in ds.dims if str(d).startswith("phony_dim")], group
     again = run_vfcli("share", demo, out)
     assert again.returncode != 0 and "exists" in again.stderr and len(again.stderr.strip().splitlines()) == 1
+
+
+def test_every_axis_of_the_layout_is_a_dataset_of_its_stage_or_a_declared_axis():
+    for stage in layout.STAGES.values():
+        for key, spec in stage.datasets.items():
+            for axis, dim in enumerate(spec.dims):
+                if dim in stage.datasets:   # a time axis: a 1-D dataset whose own axis it is
+                    assert stage.datasets[dim].dims == (dim,), (stage.name, key, dim)
+                else:
+                    assert dim in layout.AXES, (stage.name, key, dim)

@@ -243,13 +243,9 @@ class StageWriter:
     def attach_scales(self) -> None:
         """Make every axis an HDF5 dimension scale (:data:`vfcli.store.layout.AXES`): an axis
         named after a dataset of this stage is that dataset; any other is stored beside the
-        datasets under its own name (text labels or the 0-based index).
-
-        Raises
-        ------
-        ValueError
-            Two datasets disagree on an axis' length (a broken invariant of the stage).
-        """
+        datasets under its own name (text labels or the 0-based index). An axis that cannot
+        be (a time axis whose dataset was not written, a length that disagrees with the
+        labels or with another dataset's) keeps its name only."""
         if not self._stage.datasets:
             return
         for key, spec in self._stage.datasets.items():
@@ -259,24 +255,27 @@ class StageWriter:
             for axis, dim in enumerate(spec.dims[: ds.ndim]):
                 ds.dims[axis].label = dim
                 if dim == key:
-                    if not ds.is_scale:
+                    if ds.ndim == 1 and not ds.is_scale:
                         ds.make_scale(dim)
                     continue
-                ds.dims[axis].attach_scale(self._axis(dim, ds.shape[axis], key))
+                scale = self._axis(dim, ds.shape[axis])
+                if scale is not None:
+                    ds.dims[axis].attach_scale(scale)
 
-    def _axis(self, dim: str, n: int, used_by: str) -> h5py.Dataset:
-        """The dimension scale of axis ``dim`` (length ``n``), created when missing."""
+    def _axis(self, dim: str, n: int) -> h5py.Dataset | None:
+        """The dimension scale of axis ``dim`` (length ``n``), created when missing; None
+        when there is none of that length."""
         if dim not in self._g:
-            ax = layout.AXES[dim]
-            if ax.labels and len(ax.labels) != n:
-                raise ValueError(f"{self._g.name}/{used_by}: axis {dim!r} has {n} entries, its labels are {ax.labels}")
+            ax = layout.AXES.get(dim)
+            if ax is None or (ax.labels and len(ax.labels) != n):
+                return None
             data = np.array(ax.labels, dtype=object) if ax.labels else np.arange(n, dtype=np.int64)
             scale = self._g.create_dataset(dim, data=data, dtype=h5py.string_dtype() if ax.labels else None)
             scale.attrs["units"] = "1" if ax.labels else "index"
             scale.attrs["description"] = ax.description
         scale = self._g[dim]
-        if scale.ndim != 1 or scale.shape[0] != n:
-            raise ValueError(f"{self._g.name}/{used_by}: axis {dim!r} has {n} entries, {scale.name} has {scale.shape}")
+        if not isinstance(scale, h5py.Dataset) or scale.ndim != 1 or scale.shape[0] != n:
+            return None
         if not scale.is_scale:
             scale.make_scale(dim)
         return scale
