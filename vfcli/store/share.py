@@ -9,12 +9,12 @@ stale. The source store is only read.
 """
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any, Iterator
 
 import h5py
-import numpy as np
 
 from vfcli.errors import ConfigError
 from vfcli.store import layout
@@ -66,6 +66,11 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
             hsc_in, hsc = f["hsc"], out.create_group("hsc")
             for k, v in hsc_in.attrs.items():
                 hsc.attrs[k] = v
+            if layout.SUMMARY_ATTR in hsc.attrs:  # what `vfcli info` shows of the frames' filter
+                summary = json.loads(str(hsc.attrs[layout.SUMMARY_ATTR]))
+                if "compression" in summary.get("figures", {}):
+                    summary["figures"]["compression"] = compression
+                    hsc.attrs[layout.SUMMARY_ATTR] = json.dumps(summary, sort_keys=True)
             for k in hsc_in:
                 if k != "frames":
                     f.copy(hsc_in[k], hsc, name=k)
