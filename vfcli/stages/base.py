@@ -1,14 +1,13 @@
 """What every stage runner shares: the run context and the idempotent, atomic write."""
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Literal
-
-import json
 
 from vfcli.config import FlowConfig, RecordingConfig, fields_shaping, load_config
 from vfcli.errors import MissingStageError

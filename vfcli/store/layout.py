@@ -2,7 +2,7 @@
 
 This module is the one place that names HDF5 paths. Stage modules refer to datasets
 by the keys declared here; :mod:`vfcli.store.transaction` turns them into paths, attaches the
-units and attaches the time axes as HDF5 dimension scales. ``docs/store-layout.md``
+units and makes every axis an HDF5 dimension scale (:data:`AXES`). ``docs/store-layout.md``
 is generated from this table (``vfcli schemas`` writes it), so the documentation
 cannot drift from the code.
 
