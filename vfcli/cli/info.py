@@ -1,30 +1,31 @@
-"""`vfcli info FILE`: stages present, provenance, sizes, stale and interrupted writes."""
+"""`vfcli info FILE...`: stages present, provenance, sizes, staleness, writers at work."""
 from __future__ import annotations
 
 import json
+from typing import Any
 
 import click
 
 from vfcli.errors import StoreDamagedError
+from vfcli.stages.base import expected_configs
+from vfcli.store import layout
 from vfcli.store.info import store_info
 
 
-@click.command("info")
-@click.argument("file", type=click.Path(dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print the same as JSON.")
-@click.option("--verify", is_flag=True, help="Check every dataset against its stored SHA-256 too (reads the whole store).")
-def info_cmd(file: str, as_json: bool, verify: bool) -> None:
-    """Show the stages in FILE with their provenance, sizes, staleness, figures and warnings.
+def _flag(st: dict[str, Any]) -> str:
+    if st.get("damaged"):
+        return "DAMAGED"
+    if not st["complete"]:
+        return "incomplete"
+    return "STALE: " + "; ".join(st["stale_because"]) if st["stale"] else "ok"
 
-    Reads every group; writes nothing. Exit 4 when a stage is damaged (its structure, or with
-    --verify its data, differs from what vfcli wrote).
-    """
-    info = store_info(file, verify=verify)
-    if as_json:
-        click.echo(json.dumps(info, indent=2, default=str))
-        _refuse_damaged(info)
-        return
+
+def _details(info: dict[str, Any]) -> None:
     click.echo(f"{info['path']}  ({info['size_bytes'] / 1e6:.1f} MB, format {info['format']} v{info['format_version']}, created {info['created_utc']})")
+    for tmp in info["write_in_progress"]:
+        click.echo(f"  ~ a vfcli process is writing now (lock held): {tmp} is its work in progress")
+    if info["writer_active"] and not info["write_in_progress"]:
+        click.echo("  ~ a vfcli process is writing now (lock held)")
     for leftover in info["interrupted_writes"]:
         click.echo(f"  ! interrupted write left {leftover} (the store itself is intact; the next write removes it)")
     if not info["stages"]:
@@ -34,8 +35,7 @@ def info_cmd(file: str, as_json: bool, verify: bool) -> None:
         if st.get("damaged"):
             click.echo(f"  {st['path']:<22} DAMAGED: " + "; ".join(st["damaged"]))
             continue
-        flag = "incomplete" if not st["complete"] else ("STALE: " + "; ".join(st["stale_because"]) if st["stale"] else "ok")
-        click.echo(f"  {st['path']:<22} {st['size_bytes'] / 1e6:9.2f} MB  {flag}")
+        click.echo(f"  {st['path']:<22} {st['size_bytes'] / 1e6:9.2f} MB  {_flag(st)}")
         click.echo(f"      written {prov.get('created_utc', '?')} by vfcli {prov.get('vfcli_version', '?')}: {prov.get('command', '?')}")
         for path, meta in prov.get("inputs", {}).items():
             click.echo(f"      input {path}  sha256 {meta['sha256'][:16]}...")
@@ -50,12 +50,47 @@ def info_cmd(file: str, as_json: bool, verify: bool) -> None:
     missing = info["missing_stages"]
     if missing:
         click.echo("  not yet written: " + ", ".join(missing))
-    _refuse_damaged(info)
 
 
-def _refuse_damaged(info: dict) -> None:
-    """Exit 4 (one line on stderr) after showing the store when a stage is damaged."""
-    damaged = [st["damaged"][0] for st in info["stages"] if st.get("damaged")]
+def _table(infos: list[dict[str, Any]]) -> None:
+    """One row per store, one column per stage: ok, STALE, incomplete, or - (absent)."""
+    names = list(layout.STAGES)
+    rows = []
+    for info in infos:
+        by_stage: dict[str, list[str]] = {}
+        for st in info["stages"]:
+            word = _flag(st).split(":")[0]
+            by_stage.setdefault(st["path"].split("/")[1], []).append(word)
+        cells = [",".join(sorted(set(by_stage[n]))) if n in by_stage else "-" for n in names]
+        state = "writing" if info["writer_active"] else ("interrupted" if info["interrupted_writes"] else "")
+        rows.append([info["path"], f"{info['size_bytes'] / 1e6:.1f}", *cells, state])
+    header = ["store", "MB", *names, "writer"]
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    for r in [header, *rows]:
+        click.echo("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+
+
+@click.command("info")
+@click.argument("files", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the same as JSON (a list for several stores).")
+@click.option("--verify", is_flag=True, help="Check every dataset against its stored SHA-256 too (reads the whole store).")
+def info_cmd(files: tuple[str, ...], as_json: bool, verify: bool) -> None:
+    """Show the stages in FILE with their provenance, sizes, staleness, figures and warnings;
+    several FILEs: one row per store, one column per stage.
+
+    A stage is STALE when a stage it used was rewritten or is stale itself, or when the
+    recording config now gives it other settings. Reads every group; writes nothing. Exit 4
+    when a stage is damaged (its structure, or with --verify its data, differs from what vfcli
+    wrote), after showing them all.
+    """
+    infos = [store_info(f, expected_configs, verify=verify) for f in files]
+    if as_json:
+        click.echo(json.dumps(infos[0] if len(infos) == 1 else infos, indent=2, default=str))
+    elif len(infos) == 1:
+        _details(infos[0])
+    else:
+        _table(infos)
+    damaged = [(info["path"], st["damaged"][0]) for info in infos for st in info["stages"] if st.get("damaged")]
     if damaged:
         more = f" (and {len(damaged) - 1} more damaged stages)" if len(damaged) > 1 else ""
-        raise StoreDamagedError(f"damaged store: {damaged[0]}{more}", info["path"])
+        raise StoreDamagedError(f"damaged store: {damaged[0][1]}{more}", damaged[0][0])

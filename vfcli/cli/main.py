@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str | None, str]] = {
     "batch": (None, "Run the pipeline over many recordings (cluster)."),
     "config": ("vfcli.cli.config:config_cmd", "Store, update (--set) or show a recording's config."),
     "info": ("vfcli.cli.info:info_cmd", "Show a store's stages, provenance, sizes and staleness."),
+    "share": ("vfcli.cli.share:share_cmd", "Copy a store with its video re-encoded (gzip) for HDFView/MATLAB users."),
     "schemas": ("vfcli.cli.schemas:schemas_cmd", "Write the config JSON Schemas (and, asked, the docs pages)."),
 }
 

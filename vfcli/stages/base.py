@@ -1,6 +1,7 @@
 """What every stage runner shares: the run context and the idempotent, atomic write."""
 from __future__ import annotations
 
+import json
 import logging
 import threading
 from contextlib import contextmanager
@@ -8,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator, Literal
 
-from vfcli.config import RecordingConfig, load_config
+from vfcli.config import FlowConfig, RecordingConfig, fields_shaping, load_config
 from vfcli.errors import MissingStageError
 from vfcli.progress import Progress, no_progress
 from vfcli.store.provenance import describe_inputs
@@ -44,6 +45,32 @@ class RunContext:
                 stored_json = r.recording_config_json()
         stored, effective = load_config(config_path, stored_json, overrides)
         return cls(store=store, stored_config=stored, config=effective, **kwargs)
+
+
+def stage_config_json(name: str, config: RecordingConfig) -> str | None:
+    """The settings stage ``name`` records (and compares to decide it is current), as JSON; None
+    for a stage whose settings are its run's own (``optimize``, ``diagnose``: command-line
+    options, not the recording config). ``vfcli info`` compares them with the recording config."""
+    dump = lambda section: getattr(config, section).model_dump(mode="json")  # noqa: E731
+    if name == "hsc":  # the pose is optimize's, not /hsc's
+        return json.dumps({"ingest_hsc": dump("ingest_hsc"),
+                           "camera": config.camera.model_dump(mode="json", exclude={"pose"})}, sort_keys=True)
+    if name == "ldv":
+        return json.dumps({"ingest_ldv": dump("ingest_ldv"), "ldv_frame": dump("ldv_frame")}, sort_keys=True)
+    if name == "sync":
+        return json.dumps({"sync": dump("sync")}, sort_keys=True)
+    if name in ("flow", "fields"):
+        return json.dumps({"flow": config.flow.model_dump(mode="json", include=set(fields_shaping(FlowConfig, name)))},
+                          sort_keys=True)
+    if name == "mesh":
+        return config.mesh.model_dump_json()
+    return None
+
+
+def expected_configs(recording_config_json: str | None) -> Callable[[str, str | None], str | None]:
+    """``(stage name, run) -> settings JSON`` each stage would record under the stored recording config."""
+    _, config = load_config(None, recording_config_json, None)
+    return lambda name, run: stage_config_json(name, config)
 
 
 @dataclass

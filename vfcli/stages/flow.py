@@ -12,25 +12,18 @@ Which ``[flow]`` settings decide that each stage is up to date comes from the co
 """
 from __future__ import annotations
 
-import json
 import logging
 from typing import Any, Iterator
 
 import numpy as np
 
-from vfcli.config import FlowConfig, fields_shaping
+from vfcli.config import FlowConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
 from vfcli.flow.pipeline import CHUNK_FRAMES, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
-from vfcli.stages.base import RunContext, StageResult, run_stage
+from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
 log = logging.getLogger(__name__)
-
-
-def _config_json(cfg: FlowConfig, stage: str) -> str:
-    """The ``[flow]`` settings that shape ``stage`` (/flow or /fields), as the stage records them."""
-    return json.dumps({"flow": cfg.model_dump(mode="json", include=set(fields_shaping(FlowConfig, stage)))},
-                      sort_keys=True)
 
 
 def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
@@ -178,9 +171,9 @@ def run_flow(ctx: RunContext) -> list[StageResult]:
     if ctx.store.exists():  # fail before the long flow step when /fields could not be written
         with ctx.store.read() as r:
             r.upstream_digests([("hsc", None), ("sync", None), ("ldv", None)])
-    flow = run_stage(ctx, "flow", config_json=_config_json(cfg, "flow"),
+    flow = run_stage(ctx, "flow", config_json=stage_config_json("flow", ctx.config),
                      body=lambda r, s: _write_flow(ctx, cfg, r, s), upstream=[("hsc", None)])
-    fields = run_stage(ctx, "fields", config_json=_config_json(cfg, "fields"),
+    fields = run_stage(ctx, "fields", config_json=stage_config_json("fields", ctx.config),
                        body=lambda r, s: _write_fields(ctx, cfg, r, s),
                        upstream=[("flow", None), ("sync", None), ("ldv", None)])
     return [flow, fields]

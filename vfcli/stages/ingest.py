@@ -15,7 +15,7 @@ from vfcli.io.ldv.read import LdvChannels, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
 from vfcli.io.video.base import VideoMeta, open_video
 from vfcli.store import StageWriter, StoreReader
-from vfcli.stages.base import RunContext, StageResult, run_stage
+from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
 log = logging.getLogger(__name__)
 
@@ -71,8 +71,7 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
     cfg, cam = ctx.config.ingest_hsc, ctx.config.camera
     video = Path(video)
     inputs = _video_files(video) + ([Path(pressure)] if pressure else [])
-    config_json = json.dumps({"ingest_hsc": cfg.model_dump(mode="json"), "camera": cam.model_dump(mode="json", exclude={"pose"})},
-                             sort_keys=True)  # the pose is optimize's, not /hsc's
+    config_json = stage_config_json("hsc", ctx.config)
 
     def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         with open_video(video) as src:
@@ -146,7 +145,7 @@ def _to_camera_frame(coords_mm: np.ndarray, affine: np.ndarray) -> np.ndarray:
 def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
     """Read a vibrometer scan into /ldv, points by node number, dropouts flagged."""
     cfg, frame = ctx.config.ingest_ldv, ctx.config.ldv_frame
-    config_json = json.dumps({"ingest_ldv": cfg.model_dump(mode="json"), "ldv_frame": frame.model_dump(mode="json")}, sort_keys=True)
+    config_json = stage_config_json("ldv", ctx.config)
 
     def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         channels = LdvChannels(velocity_id1=cfg.velocity_id1, reference_id1=cfg.reference_id1)

@@ -10,7 +10,7 @@ from vfcli.model.m5 import m5_params_from
 from vfcli.model.mesh import build_mesh
 from vfcli.store import StageWriter, StoreReader
 from vfcli.store.mesh import read_mesh
-from vfcli.stages.base import RunContext, StageResult, run_stage
+from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
 
 def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:
@@ -36,7 +36,7 @@ def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:
             "min_dihedral_deg": round(float(mesh.min_dihedral_deg()), 1),
         }
 
-    result = run_stage(ctx, "mesh", config_json=cfg.model_dump_json(), body=body)
+    result = run_stage(ctx, "mesh", config_json=stage_config_json("mesh", ctx.config), body=body)
     if preview is not None:
         from vfcli.model.preview import render_mesh_png
 

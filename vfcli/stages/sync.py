@@ -1,7 +1,6 @@
 """`vfcli sync`: map every LDV epoch onto the video's time base through the pressure."""
 from __future__ import annotations
 
-import json
 import logging
 from collections import Counter
 from typing import Any
@@ -11,7 +10,7 @@ import numpy as np
 from vfcli.errors import InputDataError
 from vfcli.store import StageWriter, StoreReader
 from vfcli.sync.align import sync_scan
-from vfcli.stages.base import RunContext, StageResult, run_stage
+from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
 log = logging.getLogger(__name__)
 
@@ -53,5 +52,5 @@ def run_sync(ctx: RunContext) -> StageResult:
             "not_aligned": dict(reasons),
         }
 
-    config_json = json.dumps({"sync": cfg.model_dump(mode="json")}, sort_keys=True)
+    config_json = stage_config_json("sync", ctx.config)
     return run_stage(ctx, "sync", config_json=config_json, body=body, upstream=[("hsc", None), ("ldv", None)])

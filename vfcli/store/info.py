@@ -1,33 +1,46 @@
 """What a store holds: the library behind `vfcli info`."""
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from vfcli.store import layout
 from vfcli.store.transaction import Store
 
+#: ``(stage name, run) -> settings JSON`` the stage would record now (None: not compared).
+ExpectedConfig = Callable[[str, "str | None"], "str | None"]
 
-def store_info(path: str | Path, verify: bool = False) -> dict[str, Any]:
-    """Stages with provenance, sizes, staleness, damage; leftovers of interrupted writes.
-    ``verify``: check every dataset's SHA-256 too (reads the whole store)."""
+
+def store_info(path: str | Path, expected_config: Callable[[str | None], ExpectedConfig] | None = None,
+               verify: bool = False) -> dict[str, Any]:
+    """Stages with provenance, sizes, staleness (transitive; config changes count when
+    ``expected_config(recording config JSON)`` is given), damage (``verify``: every dataset's
+    SHA-256 too, reading the whole store), figures and warnings; whether a writer is at work
+    now, or the leftovers of interrupted writes."""
     store = Store(path)
     with store.read() as r:
-        if verify:
-            for p in r.stage_paths():
-                r.problems(p, contents=True)
+        for p in r.stage_paths() if verify else []:
+            r.problems(p, contents=True)
         root = r.root_attrs()
-        stages = [r.status(p).to_json() for p in r.stage_paths()]
+        config_json = r.recording_config_json()
+        # a store without a recording config was not written by the stages: nothing to compare
+        expected = expected_config(config_json) if expected_config and config_json is not None else None
+        stages = [st.to_json() for st in r.statuses(expected)]
         present = {p.split("/")[1] for p in r.stage_paths()}
-        return {
-            "path": str(store.path),
-            "size_bytes": os.path.getsize(store.path),
-            "format": str(root.get("format")),
-            "format_version": int(root.get("format_version")),
-            "created_utc": str(root.get("created_utc", "")),
-            "stages": stages,
-            "missing_stages": [n for n in layout.STAGES if n not in present],
-            "interrupted_writes": [str(p) for p in store.interrupted_writes()],
-            "recording_config": r.recording_config_json(),
-        }
+    writing = store.writer_active()
+    leftovers = [str(p) for p in store.interrupted_writes()]
+    return {
+        "path": str(store.path),
+        "size_bytes": os.path.getsize(store.path),
+        "format": str(root.get("format")),
+        "format_version": int(root.get("format_version")),
+        "created_utc": str(root.get("created_utc", "")),
+        "stages": stages,
+        "missing_stages": [n for n in layout.STAGES if n not in present],
+        "writer_active": writing,
+        "write_in_progress": leftovers if writing else [],
+        "interrupted_writes": [] if writing else leftovers,
+        "recording_config": None if config_json is None else json.loads(config_json),
+    }

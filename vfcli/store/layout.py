@@ -2,7 +2,7 @@
 
 This module is the one place that names HDF5 paths. Stage modules refer to datasets
 by the keys declared here; :mod:`vfcli.store.transaction` turns them into paths, attaches the
-units and attaches the time axes as HDF5 dimension scales. ``docs/store-layout.md``
+units and makes every axis an HDF5 dimension scale (:data:`AXES`). ``docs/store-layout.md``
 is generated from this table (``vfcli schemas`` writes it), so the documentation
 cannot drift from the code.
 
@@ -86,6 +86,44 @@ class Stage:
 
 D = Dataset
 
+
+@dataclass(frozen=True)
+class Axis:
+    """An axis that is not a dataset of its stage (time axes are): stored beside the
+    datasets under its own name as an HDF5 dimension scale, so that netCDF readers
+    (xarray) see named dimensions. Its values are ``labels`` (text) when given, else the
+    0-based index along the axis."""
+
+    description: str
+    labels: tuple[str, ...] = ()
+
+
+#: Every axis name used in :data:`STAGES` that is not a dataset of its stage. Pixel axes
+#: are (row, col) everywhere: frames are (frame, row, col), 0-based from the top-left
+#: pixel; only ``/fields/ldv_px`` stores screen positions as (col, row), as its axis says.
+AXES: dict[str, Axis] = {
+    "row": Axis("Pixel row from the top of the frame (0-based index)"),
+    "col": Axis("Pixel column from the left of the frame (0-based index)"),
+    "point": Axis("LDV scan point (0-based index, in the order of /ldv)"),
+    "sample": Axis("LDV sample within a point's record (0-based index; /ldv attribute fs_hz gives the rate)"),
+    "rc": Axis("Component: grid row, grid column", ("row", "col")),
+    "colrow": Axis("Component: screen column, screen row", ("col", "row")),
+    "xyz": Axis("Component: x, y, z", ("x", "y", "z")),
+    "xy": Axis("Component: x, y", ("x", "y")),
+    "uv": Axis("Component: u, v", ("u", "v")),
+    "surface_uv": Axis("Surface coordinate: u, v", ("u", "v")),
+    "uvw": Axis("Component: u, v, w", ("u", "v", "w")),
+    "node": Axis("Mesh node (0-based index)"),
+    "tet": Axis("Tetrahedron (0-based index)"),
+    "tet_corner": Axis("Corner of a tetrahedron (0-based index)"),
+    "face": Axis("Boundary triangle (0-based index)"),
+    "face_corner": Axis("Corner of a boundary triangle (0-based index)"),
+    "param": Axis("Control value (0-based index; parameter_names names them)"),
+    "kept": Axis("Kept iteration (0-based index; kept_iterations gives the iteration)"),
+    "iteration": Axis("Entry of the history (0-based index; history_iteration gives the iteration)"),
+    "lcurve": Axis("Weight of the L-curve scan (0-based index)"),
+}
+
 STAGES: dict[str, Stage] = {
     s.name: s
     for s in [
@@ -166,12 +204,12 @@ STAGES: dict[str, Stage] = {
             "Tetrahedral M5 model of both folds with tagged boundary and (u, v) surface maps.",
             datasets={
                 "nodes": D("mm", "Node coordinates (x, y, z)", ("node", "xyz")),
-                "tets": D("index", "Tetrahedra (node indices)", ("tet", "corner")),
+                "tets": D("index", "Tetrahedra (node indices)", ("tet", "tet_corner")),
                 "tet_fold": D("index", "Fold of each tetrahedron (0 left, 1 right)", ("tet",)),
-                "faces": D("index", "Boundary triangles (node indices, outward)", ("face", "corner")),
+                "faces": D("index", "Boundary triangles (node indices, outward)", ("face", "face_corner")),
                 "face_tag": D("index", "1 inferior, 2 superior, 3 medial, 4 fixture", ("face",)),
                 "face_fold": D("index", "Fold of each boundary triangle", ("face",)),
-                "uv": D("1", "(u, v) surface coordinates, NaN off the parameterised sides", ("node", "uv")),
+                "uv": D("1", "(u, v) surface coordinates, NaN off the parameterised sides", ("node", "surface_uv")),
                 "node_side": D("index", "0 none, 1 inferior side, 2 superior side", ("node",)),
             },
         ),
@@ -282,7 +320,9 @@ def layout_markdown() -> str:
         + ", ".join(f"`{a}`" for a in PROVENANCE_ATTRS)
         + f". A complete stage also carries `{SUMMARY_ATTR}`: the figures its command printed and the warnings "
         "it logged (JSON `{\"figures\": {...}, \"warnings\": [...]}`, shown by `vfcli info`). "
-        "Every dataset carries `units` and `description`; time axes are HDF5 dimension scales.",
+        "Every dataset carries `units` and `description`, and every axis is an HDF5 dimension scale: time "
+        "axes are the stage's time datasets, the other axes are stored beside the datasets under their own "
+        "name (below), so netCDF readers (xarray with engine h5netcdf) see named dimensions.",
         "",
     ]
     for st in STAGES.values():
@@ -297,6 +337,11 @@ def layout_markdown() -> str:
                 axes = ", ".join(ds.dims)
                 lines.append(f"| `{key}` | {ds.units} | {axes} | {ds.description} |")
             lines.append("")
+    lines += ["## Axes", "", "Stored in each stage group that uses them: text labels, or the 0-based index.", "",
+              "| axis | values | description |", "| --- | --- | --- |"]
+    for name, ax in AXES.items():
+        lines.append(f"| `{name}` | {', '.join(ax.labels) if ax.labels else 'index'} | {ax.description} |")
+    lines.append("")
     lines += ["## Phantom `truth.h5` (`vfcli synth`; read by tests and benchmarks only)", "",
               "| dataset | units | axes | description |", "| --- | --- | --- | --- |"]
     for key, ds in TRUTH.items():

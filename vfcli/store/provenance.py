@@ -1,4 +1,4 @@
-"""Provenance of a stage: hashes of raw input files and the digest of a stage.
+"""Provenance of a stage: hashes of raw input files and the digest of a stage's content.
 
 File hashes are cached by (size, mtime_ns, ctime_ns): a file whose size, modification time
 and status-change time are unchanged since the last run is not hashed again, so re-running a
@@ -15,6 +15,9 @@ import json
 import os
 from pathlib import Path
 from typing import Any, Mapping
+
+import h5py
+import numpy as np
 
 _CHUNK = 8 << 20
 
@@ -55,11 +58,53 @@ def describe_inputs(
 
 
 def same_inputs(a: Mapping[str, Mapping[str, Any]], b: Mapping[str, Mapping[str, Any]]) -> bool:
-    """True when two input descriptions name the same files with the same content."""
-    return {k: v["sha256"] for k, v in a.items()} == {k: v["sha256"] for k, v in b.items()}
+    """True when two input descriptions hold files of the same content, wherever they are: the
+    files are matched by SHA-256, not by path (a recording moved to another disk is the same)."""
+    return sorted(v["sha256"] for v in a.values()) == sorted(v["sha256"] for v in b.values())
 
 
-def stage_digest(record: Mapping[str, Any]) -> str:
-    """Digest identifying one write of a stage (changes whenever the stage is rewritten)."""
-    blob = json.dumps(record, sort_keys=True, default=str).encode()
-    return hashlib.sha256(blob).hexdigest()[:16]
+#: Attributes left out of a stage's content digest: the dimension-scale bookkeeping (object
+#: references, which depend on where the file put things) and the provenance itself.
+_NOT_CONTENT = {"DIMENSION_LIST", "REFERENCE_LIST", "CLASS", "NAME", "complete", "summary_json",
+                "stage", "vfcli_version", "command", "created_utc", "config_json", "inputs_json",
+                "upstream_json", "digest"}
+
+
+def _update_attrs(h: "hashlib._Hash", attrs: Any) -> None:
+    for k in sorted(attrs):
+        if k not in _NOT_CONTENT:
+            v = attrs[k]
+            if isinstance(v, (np.ndarray, np.generic)) and np.asarray(v).dtype.kind != "O":
+                blob = np.asarray(v).dtype.str.encode() + np.asarray(v).tobytes()
+            else:  # text and object arrays by value (their bytes are pointers)
+                blob = repr(v.tolist() if isinstance(v, np.ndarray) else v).encode()
+            h.update(k.encode() + b"=" + blob + b";")
+
+
+def content_digest(group: h5py.Group) -> str:
+    """Digest of what a stage group holds: every dataset's name, type, shape, attributes and
+    stored bytes (chunks as stored, so no decompression), and the group's own attributes
+    except its provenance. Rewriting a stage with the same content gives the same digest, so
+    the stages that use it stay current (it costs one read of the stage's stored bytes)."""
+    h = hashlib.sha256()
+    _update_attrs(h, group.attrs)
+    names: list[str] = []
+    group.visit(names.append)
+    for name in sorted(names):
+        obj = group[name]
+        h.update(b"\0" + name.encode())
+        _update_attrs(h, obj.attrs)
+        if not isinstance(obj, h5py.Dataset):
+            continue
+        h.update(f"{obj.dtype.str}|{h5py.check_string_dtype(obj.dtype)}|{obj.shape}|{obj.chunks}".encode())
+        if obj.chunks is not None:
+            for i in range(obj.id.get_num_chunks()):
+                info = obj.id.get_chunk_info(i)
+                mask, chunk = obj.id.read_direct_chunk(info.chunk_offset)
+                h.update(f"{info.chunk_offset}|{mask}|".encode())
+                h.update(chunk)
+        elif h5py.check_string_dtype(obj.dtype):
+            h.update(json.dumps(np.asarray(obj.asstr()[()]).tolist()).encode())
+        elif obj.size:
+            h.update(np.ascontiguousarray(obj[()]).tobytes())
+    return h.hexdigest()[:16]

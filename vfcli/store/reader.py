@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import h5py
 import numpy as np
@@ -113,6 +113,15 @@ def _group_size(g: h5py.Group) -> int:
 
     g.visititems(visit)
     return total
+
+
+def _config_diff(had: Any, want: Any, prefix: str = "") -> str:
+    """The settings that differ between two config dicts, as ``key: old -> new``."""
+    if isinstance(had, dict) and isinstance(want, dict):
+        parts = [_config_diff(had.get(k), want.get(k), f"{prefix}{k}.") for k in sorted(set(had) | set(want))
+                 if had.get(k) != want.get(k)]
+        return ", ".join(parts)
+    return f"{prefix.rstrip('.')} {had!r} -> {want!r}"
 
 
 class StoreReader:
@@ -251,6 +260,25 @@ class StoreReader:
                 stale.append(f"{up_path} was rewritten")
         summary = json.loads(str(g.attrs[layout.SUMMARY_ATTR])) if layout.SUMMARY_ATTR in g.attrs else None
         return StageStatus(path, bool(g.attrs.get("complete", False)), prov, _group_size(g), stale, summary)
+
+    def statuses(self, expected_config: Callable[[str, str | None], str | None] | None = None) -> list[StageStatus]:
+        """:meth:`status` of every stage, with staleness made honest: a stage is also stale when
+        the settings it would record under the stored recording config differ from those it
+        recorded (``expected_config(name, run)``, None: not compared), and when a stage it used
+        is stale (transitively; stages are listed upstream first)."""
+        out: dict[str, StageStatus] = {}
+        for path in self.stage_paths():
+            st = self.status(path)
+            name, _, run = path[1:].partition("/")
+            want = expected_config(name, run or None) if expected_config else None
+            had = st.provenance.get("config_json")
+            if want is not None and had is not None and json.loads(want) != json.loads(had):
+                st.stale_because.append("config changed: " + _config_diff(json.loads(had), json.loads(want)))
+            for up in json.loads(st.provenance.get("upstream_json", "{}")):
+                if up in out and out[up].stale and not any(r.startswith(up + " ") for r in st.stale_because):
+                    st.stale_because.append(f"{up} is stale")
+            out[path] = st
+        return list(out.values())
 
     def summary(self, name: str, run: str | None = None) -> dict[str, Any] | None:
         """What the stage's run reported, ``{"figures": {...}, "warnings": [...]}``; None for a

@@ -23,7 +23,6 @@ import errno
 import fcntl
 import json
 import os
-import secrets
 import shutil
 from collections import deque
 from contextlib import contextmanager
@@ -38,7 +37,7 @@ from vfcli.errors import ConfigError, StoreAccessError, StoreDamagedError, Store
 from vfcli.store import integrity, layout
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
-from vfcli.store.provenance import stage_digest
+from vfcli.store.provenance import content_digest
 from vfcli.store.reader import StoreReader, check_format, open_h5
 
 if TYPE_CHECKING:
@@ -254,7 +253,11 @@ class StageWriter:
             {"figures": dict(figures), "warnings": list(warnings)}, sort_keys=True, default=_jsonable)
 
     def attach_scales(self) -> None:
-        """Attach every axis named after a dataset of this stage as an HDF5 dimension scale."""
+        """Make every axis an HDF5 dimension scale (:data:`vfcli.store.layout.AXES`): an axis
+        named after a dataset of this stage is that dataset; any other is stored beside the
+        datasets under its own name (text labels or the 0-based index). An axis that cannot
+        be (a time axis whose dataset was not written, a length that disagrees with the
+        labels or with another dataset's) keeps its name only."""
         if not self._stage.datasets:
             return
         for key, spec in self._stage.datasets.items():
@@ -263,11 +266,31 @@ class StageWriter:
             ds = self._g[key]
             for axis, dim in enumerate(spec.dims[: ds.ndim]):
                 ds.dims[axis].label = dim
-                if dim != key and dim in self._g and self._g[dim].ndim == 1 and self._g[dim].shape[0] == ds.shape[axis]:
-                    scale = self._g[dim]
-                    if not scale.is_scale:
-                        scale.make_scale(dim)
+                if dim == key:
+                    if ds.ndim == 1 and not ds.is_scale:
+                        ds.make_scale(dim)
+                    continue
+                scale = self._axis(dim, ds.shape[axis])
+                if scale is not None:
                     ds.dims[axis].attach_scale(scale)
+
+    def _axis(self, dim: str, n: int) -> h5py.Dataset | None:
+        """The dimension scale of axis ``dim`` (length ``n``), created when missing; None
+        when there is none of that length."""
+        if dim not in self._g:
+            ax = layout.AXES.get(dim)
+            if ax is None or (ax.labels and len(ax.labels) != n):
+                return None
+            data = np.array(ax.labels, dtype=object) if ax.labels else np.arange(n, dtype=np.int64)
+            scale = self._g.create_dataset(dim, data=data, dtype=h5py.string_dtype() if ax.labels else None)
+            scale.attrs["units"] = "1" if ax.labels else "index"
+            scale.attrs["description"] = ax.description
+        scale = self._g[dim]
+        if not isinstance(scale, h5py.Dataset) or scale.ndim != 1 or scale.shape[0] != n:
+            return None
+        if not scale.is_scale:
+            scale.make_scale(dim)
+        return scale
 
 
 class StoreWriter:
@@ -322,7 +345,7 @@ class StoreWriter:
             "inputs_json": json.dumps(dict(inputs or {}), sort_keys=True),
             "upstream_json": json.dumps(upstream_digests, sort_keys=True),
         }
-        record["digest"] = stage_digest({**record, "nonce": secrets.token_hex(8)})
+        record["digest"] = content_digest(g)
         for k, v in record.items():
             g.attrs[k] = v
         g.attrs["complete"] = True
@@ -360,6 +383,25 @@ class Store:
     def interrupted_writes(self) -> list[Path]:
         """Leftovers of writers that died (cleaned up by the next writer)."""
         return _leftover_tmp_files(self.path)
+
+    def writer_active(self) -> bool:
+        """Whether a live process holds the write lock now (its temporary file is work in
+        progress, not the leftover of an interrupted write). Probes with a shared lock,
+        released at once."""
+        try:
+            fd = os.open(_lock_path(self.path), os.O_RDONLY)
+        except OSError:
+            return False
+        try:
+            fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            return False
+        except OSError as exc:
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return True
+            raise
+        finally:
+            os.close(fd)
 
     @contextmanager
     def _lock(self) -> Iterator[None]:
