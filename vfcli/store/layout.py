@@ -319,7 +319,9 @@ def layout_markdown() -> str:
         "Every stage group carries its provenance as attributes: "
         + ", ".join(f"`{a}`" for a in PROVENANCE_ATTRS)
         + f". A complete stage also carries `{SUMMARY_ATTR}`: the figures its command printed and the warnings "
-        "it logged (JSON `{\"figures\": {...}, \"warnings\": [...]}`, shown by `vfcli info`). "
+        "it logged (JSON `{\"figures\": {...}, \"warnings\": [...]}`, shown by `vfcli info`), and "
+        f"`{MANIFEST_ATTR}`: each dataset's shape, dtype and SHA-256 and the checksum of the group's other "
+        "attributes, which vfcli checks (docs/input-checks.md, \"Store integrity\"). "
         "Every dataset carries `units` and `description`, and every axis is an HDF5 dimension scale: time "
         "axes are the stage's time datasets, the other axes are stored beside the datasets under their own "
         "name (below), so netCDF readers (xarray with engine h5netcdf) see named dimensions.",
