@@ -147,6 +147,10 @@ class StoreReader:
                if stage in layout.STAGES else "")
         return StoreDamagedError(f"damaged store: {problem}{fix}", self.path)
 
+    def forget(self, path: str) -> None:
+        """Drop what :meth:`problems` found of ``path`` (the stage was rewritten)."""
+        self._checked.pop(path, None)
+
     def refuse_damaged(self, keep: str | None = None) -> None:
         """:class:`StoreDamagedError` naming the first damaged stage other than ``keep``."""
         try:

@@ -349,6 +349,7 @@ class StoreWriter:
         for k, v in record.items():
             g.attrs[k] = v
         g.attrs["complete"] = True
+        self.reader.forget(path)
 
 
 class Store:
