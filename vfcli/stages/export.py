@@ -27,7 +27,7 @@ import numpy as np
 
 from vfcli import __version__
 from vfcli.camera.camera import Camera
-from vfcli.camera.pose import camera_to_model
+from vfcli.camera.pose import model_axes_velocity
 from vfcli.errors import ConfigError, MissingStageError, VfcliError
 from vfcli.export import figures, paraview, sampling, tables, video
 from vfcli.report.html import esc, figure, fmt, kv_table, page, pretty_json, table, video_tag
@@ -207,7 +207,9 @@ class _Export:
         px = np.round(pts).astype(int)
         meas = vel[:, px[:, 1], px[:, 0]]                                       # (F, P, 3)
         meas[~valid[:, px[:, 1], px[:, 0]]] = np.nan
-        meas[..., :2] = camera_to_model(meas[..., :2], cam0.rotation_deg)
+        # /fields' (u, v) are already model axes for /flow's rotation: turn only by what the run's pose adds
+        flow_rotation = float(self.r.attrs("flow").get("rotation_deg", 0.0))
+        meas[..., :2] = model_axes_velocity(meas[..., :2], flow_rotation, cam0.rotation_deg)
         sim = {r.name: (r.sim_time, sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements,
                                                                r.sim_time, pts)) for r in self.runs}
         return figures.velocities(ft[sel], meas, sim, labels, d / "fig8_velocities")

@@ -20,7 +20,7 @@ import numpy as np
 
 from vfcli.config import FlowConfig, fields_shaping
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.pipeline import CHUNK_FRAMES, flow_pipeline, good_ldv_points, velocity_fields
+from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.stages.base import RunContext, StageResult, run_stage
 
@@ -61,6 +61,10 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         area[k] = fr.area_mm2
         bar.update(1)
     bar.close()
+    try:
+        check_flow_product(area, calib)
+    except InputDataError as exc:
+        raise InputDataError(str(exc), reader.path) from None
     s.put("glottal_area", area)
     s.put("frame_time", frame_time)
     model, gap = calib.edge_model, calib.gap

@@ -95,7 +95,8 @@ def read_inputs(reader: StoreReader, config: RecordingConfig) -> OptimizeInputs:
         velocity=reader.dataset("fields", "velocity")[sl], valid=reader.dataset("fields", "valid")[sl],
         gap_masks=reader.dataset("flow", "gap_mask")[sl], px_per_mm=float(flow_attrs["px_per_mm"]),
         roi_origin_px=np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float),
-        gap_counts=gap_counts, pressure_time=pressure_time, pressure=pressure)
+        gap_counts=gap_counts, velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
+        lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure)
 
 
 def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:

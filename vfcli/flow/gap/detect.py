@@ -191,9 +191,10 @@ def gap_mask(
        are lateral): it removes noise pixels and specks shorter than ``median_px / 2``
        along the glottis but keeps a slit of any width, down to one pixel (a square
        window erases the glottis just after it opens and just before it closes).
-    3. Keep the gap component(s), rejecting components that touch the image border (the
-       fixture; the glottis lies inside the field of view), the dark specks of the texture and of a
-       closed glottis's contact line: an 8-connected dark component is kept when
+    3. Keep the gap component(s), rejecting the fixture (:func:`fixture_components`: a dark
+       region that reaches the image border across the lateral direction or is far wider than a
+       glottis; a gap that runs off the image along the glottis is kept), the dark specks of the
+       texture and of a closed glottis's contact line: an 8-connected dark component is kept when
 
        * it holds at least ``median_px`` *core* pixels, darker than
          ``core_fraction * threshold`` (hysteresis: the open gap is black, much darker
@@ -257,11 +258,7 @@ def gap_mask(
     if band_px is None:
         band_px = 0.15 * dark.shape[lateral_axis]
     keep = (area >= min_area_px) & (n_core >= median_px)
-    # the glottis lies inside the field of view (the folds are clamped at both ends): a dark
-    # component touching the image border is the fixture or the channel wall, not the gap
-    left, top = stats[1:, cv2.CC_STAT_LEFT], stats[1:, cv2.CC_STAT_TOP]
-    right, bottom = left + stats[1:, cv2.CC_STAT_WIDTH], top + stats[1:, cv2.CC_STAT_HEIGHT]
-    keep &= (left > 0) & (top > 0) & (right < dark.shape[1]) & (bottom < dark.shape[0])
+    keep &= ~fixture_components(stats[1:], dark.shape, lateral_axis)
     if not keep.any():
         return np.zeros(dark.shape, dtype=bool)
     if midline is None:
@@ -269,6 +266,45 @@ def gap_mask(
     keep &= np.abs(lateral - midline) <= band_px
     lut = np.concatenate([[False], keep])
     return lut[labels]
+
+
+#: A dark component wider than this fraction of the lateral image size is not a glottal gap.
+MAX_GAP_LATERAL_FRACTION = 0.4
+
+
+def fixture_components(stats: np.ndarray, shape: tuple[int, int], lateral_axis: int = 0) -> np.ndarray:
+    """Which dark components (cv2 connected-component stats rows, (n, 5)) are fixture, not gap.
+
+    The glottis is a slit along the longitudinal image axis; it may run past the image at
+    either end (a field of view shorter than the glottis), so touching the image border
+    *along* the glottis is allowed. A component is the fixture, a channel wall or a shadow
+    when it touches an image border *across* the lateral direction (the first or last row
+    when rows are lateral: the glottal gap is bounded by both folds there) or when it is
+    wider than :data:`MAX_GAP_LATERAL_FRACTION` of the lateral image size.
+
+    Parameters
+    ----------
+    stats : (n, 5) int
+        ``cv2.connectedComponentsWithStats`` rows (left, top, width, height, area), px.
+    shape : (H, W)
+        Image shape, px.
+    lateral_axis : {0, 1}
+        0: rows are lateral (the gap runs along the columns), 1: columns are lateral.
+
+    Returns
+    -------
+    (n,) bool
+        True for the fixture.
+    """
+    import cv2
+
+    st = np.asarray(stats).reshape(-1, 5)
+    if lateral_axis == 0:
+        start, size, n_lat = st[:, cv2.CC_STAT_TOP], st[:, cv2.CC_STAT_HEIGHT], shape[0]
+    else:
+        start, size, n_lat = st[:, cv2.CC_STAT_LEFT], st[:, cv2.CC_STAT_WIDTH], shape[1]
+    touches_lateral_border = (start <= 0) | (start + size >= n_lat)
+    return touches_lateral_border | (size > MAX_GAP_LATERAL_FRACTION * n_lat)
 
 
 def binary_median_1d(mask: np.ndarray, size: int, axis: int) -> np.ndarray:
