@@ -75,12 +75,13 @@ def test_the_measured_velocity_is_in_model_axes_and_the_gap_term_has_rays(turned
     true_v = truth["screen/velocity"][f0:f0 + len(m.times), ..., :2]
     sel = m.valid & truth["screen/visible"][f0:f0 + len(m.times)] & np.isfinite(true_v).all(axis=-1)
     est, ref = m.velocity[..., :2][sel], true_v[sel]
-    # lateral (y) motion dominates; the measured y must follow the true y, not x or -y
+    # the error of the (x, y) velocity over the fold surface, and the lateral (y) motion, which dominates:
+    # the measured y must follow the true y, not x or -y
+    rel_err = np.sqrt(np.mean(np.sum((est - ref) ** 2, axis=-1)) / np.mean(np.sum(ref ** 2, axis=-1)))
     corr_y = np.corrcoef(est[:, 1], ref[:, 1])[0, 1]
-    ratio = np.sqrt(np.mean(est[:, 1] ** 2)) / np.sqrt(np.mean(ref[:, 1] ** 2))
-    print(f"rotation {angle:+.0f} deg: corr(v, y) {corr_y:.3f}, RMS v / RMS true y {ratio:.2f}, "
+    print(f"rotation {angle:+.0f} deg: (x, y) error {rel_err:.2f} of the RMS, corr(v, y) {corr_y:.3f}, "
           f"{len(problem.rays)} gap rays, {np.isfinite(m.gap_lo).sum()} measured silhouettes")
-    assert corr_y > 0.6
-    assert 0.5 < ratio < 1.5
+    assert corr_y > 0.9          # measured 0.95 at every angle (before the fix: 0.0 at -90 deg, -0.95 at 180 deg)
+    assert rel_err < 0.45       # measured 0.33 at 30 deg (rotated twice: 0.58)
     assert len(problem.rays) > 20
     assert np.isfinite(m.gap_lo[:, problem.rays]).any()
