@@ -85,3 +85,20 @@ def test_the_measured_velocity_is_in_model_axes_and_the_gap_term_has_rays(turned
     assert rel_err < 0.45       # measured 0.33 at 30 deg (rotated twice: 0.58)
     assert len(problem.rays) > 20
     assert np.isfinite(m.gap_lo[:, problem.rays]).any()
+
+
+def test_a_fit_whose_gap_term_is_empty_says_so(turned):
+    """A configured pose that puts the model beside the glottis (offset 30 mm off): the gap term has
+    no rays, and the stored summary of the run says the fit ignored the gap (with the settings to check)."""
+    angle, store, _, _ = turned
+    if angle != 0:
+        pytest.skip("one angle is enough")
+    res = run_vfcli("optimize", store, "--setup", "3x3x10-one-sided", "--set", "optimize.first_frame=20",
+                    "--set", "optimize.n_frames=6", "--set", "optimize.max_iterations=1", "--set",
+                    "optimize.uncertainty=false", "--set", "camera.pose='config'", "--set", "camera.offset_px=[-200, -200]",
+                    "--run", "beside")
+    assert res.returncode == 0, res.stderr
+    with Store(store).read() as r:
+        warnings = r.summary("optimize", "beside")["warnings"]
+    hit = [w for w in warnings if "the gap term has no rays" in w]
+    assert len(hit) == 1 and "camera.rotation_deg" in hit[0]
