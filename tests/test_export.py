@@ -139,7 +139,7 @@ def test_overlay_video_is_h264_yuv420p_and_shows_the_model_where_the_camera_sees
     # fitted camera pose and grey elsewhere (mask drawn here from the store, not from the export)
     import cv2
 
-    from vfcli.stages.export import run_camera
+    from vfcli.stages.export_job import run_camera
 
     with Store(store).read() as r:
         mesh = read_mesh(r)

@@ -272,29 +272,37 @@ def test_uff_sampling_rate_of_1_khz_is_refused(tmp_path):
         read_ldv(path, expected_grid=(3, 4))
 
 
-def test_uff_without_units_record_needs_the_length_unit_from_the_config(tmp_path):
-    scan = _scan()
-    path = _pyuff(tmp_path / "nounits.uff", scan, length_m_per_unit=None)
+def test_uff_without_units_record_reads_the_one_plausible_unit_and_says_so(tmp_path, caplog):
+    scan = _scan()                                                   # spans about 3 mm
+    in_m = _pyuff(tmp_path / "nounits.uff", scan, length_m_per_unit=None)         # numbers in m
+    with caplog.at_level("WARNING", logger="vfcli.io.ldv.read"):
+        back = read_ldv(in_m, expected_grid=(3, 4))
+    assert np.allclose(back.coords_mm, scan.coords_mm, rtol=1e-12, atol=1e-12)
+    assert "read as m" in caplog.text and "ingest_ldv.length_unit" in caplog.text
+    in_mm = _pyuff(tmp_path / "mm.uff", _scan(scale=1e3), length_m_per_unit=None)  # numbers in mm
+    assert np.allclose(read_ldv(in_mm, expected_grid=(3, 4)).coords_mm, scan.coords_mm, atol=1e-9)
+    # a stated unit wins over the inference: the mm file read as m is 1000 times too large
+    with pytest.raises(InputDataError, match="span 3025 mm.*ingest_ldv.length_unit = 'm'"):
+        read_ldv(in_mm, expected_grid=(3, 4), length_unit="m")
+
+
+def test_uff_without_units_record_and_no_plausible_unit_needs_the_config(tmp_path):
+    path = _pyuff(tmp_path / "tiny.uff", _scan(scale=1e-4), length_m_per_unit=None)   # 3e-7 file units
     with pytest.raises(InputDataError, match="no units dataset \\(164\\).*set ingest_ldv.length_unit"):
         read_ldv(path, expected_grid=(3, 4))
-    back = read_ldv(path, expected_grid=(3, 4), length_unit="m")
-    assert np.allclose(back.coords_mm, scan.coords_mm, rtol=1e-12, atol=1e-12)
-    # a file in mm without 164 (the file's numbers are mm) read with length_unit = "m": 1000 times too large
-    mm = _pyuff(tmp_path / "mm.uff", _scan(scale=1e3), length_m_per_unit=None)
-    with pytest.raises(InputDataError, match="span 3025 mm.*ingest_ldv.length_unit = 'm'"):
-        read_ldv(mm, expected_grid=(3, 4), length_unit="m")
-    assert np.allclose(read_ldv(mm, expected_grid=(3, 4), length_unit="mm").coords_mm, scan.coords_mm, atol=1e-9)
 
 
 def test_uff_without_units_record_via_the_cli(tmp_path):
-    path = _pyuff(tmp_path / "nounits.uff", _scan(), length_m_per_unit=None)
     store = tmp_path / "rec.h5"
     grid = ["--set", "ingest_ldv.grid_rows=3", "--set", "ingest_ldv.grid_cols=4"]
-    r = run_vfcli("ingest-ldv", "-q", store, path, *grid)
-    _assert_refused(r, 3, "nounits.uff", "set ingest_ldv.length_unit")
+    tiny = _pyuff(tmp_path / "tiny.uff", _scan(scale=1e-4), length_m_per_unit=None)
+    r = run_vfcli("ingest-ldv", "-q", store, tiny, *grid)
+    _assert_refused(r, 3, "tiny.uff", "set ingest_ldv.length_unit")
     assert not store.exists()
-    r = run_vfcli("ingest-ldv", "-q", store, path, *grid, "--set", "ingest_ldv.length_unit=m")
+    path = _pyuff(tmp_path / "nounits.uff", _scan(), length_m_per_unit=None)
+    r = run_vfcli("ingest-ldv", store, path, *grid)
     assert r.returncode == 0, r.stderr
+    assert "read as m" in r.stderr and "ingest_ldv.length_unit" in r.stderr
 
 
 def test_scan_with_an_absurd_pressure_reference_is_refused(tmp_path):

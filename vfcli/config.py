@@ -97,8 +97,9 @@ class IngestLdvConfig(_Section):
     velocity_id1: str = Field("Response Time Trace", description="UFF id1 of the vibrometer channel")
     reference_id1: str = Field("Reference Time Trace", description="UFF id1 of the pressure reference channel")
     length_unit: Literal["m", "cm", "mm", "um", "in"] | None = Field(
-        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: such a "
-        "file is refused (the UFF standard has no default unit; files with 164 and CSV/MAT state their own)")
+        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: the one of "
+        "m and mm that gives a plausible scan extent, with a warning (refused when neither does); files with 164 "
+        "and CSV/MAT state their own")
 
 
 class SyncConfig(_Section):
@@ -283,6 +284,18 @@ class SynthConfig(_Section):
         None, ge=0, le=2,
         description="Effect strength; null: the effect's default (inertia: density factor 1; damping: loss factor 0.2 "
         "at f0; contact: adduction factor 1; asymmetry: left-fold softening 0.2)",
+    )
+    panel: Literal["default", "widened"] = Field(
+        "default", description="'default': the fixed phantom of the demo; 'widened': per seed, draws (docs/synth.md) "
+        "the camera in-plane angle (-180..180 deg), the zoom (field of view 0.65 x the glottis length .. 1.3 x the "
+        "folds' extent; replaces px_per_mm, camera_rotation_max_deg, camera_offset_max_px; glottis centre within "
+        "+-15 % of the frame), the optics blur (Gaussian sigma 0.3-3 px), fixture in view or not, the M5 geometry "
+        "(T 2.5-3.5, R_O 0.8-1.2, R_L 0.9-1.1 x T/2 mm, entrance sweep 40-60 (<= 90 - inferior angle), inferior angle 30-50 deg, D 5-10, "
+        "L 15-17, rest gap 0-0.3 mm), E and density within +-15 % / +-3 % of [mesh]'s nominal values, an "
+        "intraglottal drive with its own lag (0-0.1 cycle), 2nd harmonic (0-30 %) and drop with the opening "
+        "(0-50 %), vibrometer artefacts (2-10 % of points with spike bursts of 1-5 ms or frozen segments, replaces "
+        "ldv_dropout_fraction; noise of 0.3-2 x the signal RMS through the gap) and a UFF with or without its "
+        "units record (164); all drawn values go to truth.h5 only",
     )
     seed: int = Field(1, ge=0, le=2**31 - 1, description="Random seed (same seed, same bytes)")
     f0_hz: float = Field(120.0, ge=50, le=400, description="Fundamental frequency of the phonation, Hz")

@@ -4,7 +4,8 @@ from __future__ import annotations
 import click
 
 from vfcli.cli.common import report, setup_logging
-from vfcli.stages.export import WHAT, export_store, parse_point, parse_what
+from vfcli.stages.export import export_store
+from vfcli.stages.export_job import WHAT, parse_point, parse_what
 
 
 @click.command("export")

@@ -22,7 +22,7 @@ def report_cmd(file, out, index_dir, quiet, as_json, verbose):  # type: ignore[n
     overlay video (no network, no script): metadata and calibration, each stage's summary and
     warnings, sync quality, glottal gap and flow, the mesh, every optimisation run.
     """
-    from vfcli.stages.export import write_index, write_report
+    from vfcli.stages.report import write_index, write_report
 
     setup_logging(verbose, quiet)
     if bool(file) == bool(index_dir):

@@ -8,7 +8,8 @@ OUTDIR receives what a lab would copy off its instruments, plus the truth:
   (50 kHz, from the first frame);
 - ``scan.uff`` (Polytec PSV layout) and ``scan.csv``: the vibrometer scan, one epoch per point
   with its pressure reference channel; coordinates in camera-frame mm (pixel / px_per_mm);
-- ``recording.toml``: what the lab knows (frame scale, fold geometry and mounting);
+- ``recording.toml``: what the lab knows (frame scale, fold geometry and mounting; with
+  ``synth.panel = "widened"`` also the camera rotation in the seeds that state it, docs/synth.md);
 - ``truth.h5``: the true motion, the hidden effect and every generator parameter (read by
   tests and benchmarks only; no other command opens it);
 - ``phantom.json``: the settings that made the folder (so an unchanged rerun does nothing).
@@ -48,12 +49,16 @@ MANIFEST = "phantom.json"
 
 def _lab_config(rec: Recording, cfg: RecordingConfig) -> dict[str, Any]:
     """What the lab knows: frame scale, fold geometry and mounting; not the camera pose or the effect."""
-    mesh = cfg.mesh.model_dump(mode="json")
+    wide = rec.widened
+    mesh = (cfg.mesh if wide is None else wide.lab_mesh(cfg.mesh)).model_dump(mode="json")
     add = rec.truth.adduction_mm
     mesh["offset_y_mm"] = [mesh["offset_y_mm"][0] + add, mesh["offset_y_mm"][1] - add]
+    camera: dict[str, Any] = {"px_per_mm": cfg.synth.px_per_mm if wide is None else wide.px_per_mm}
+    if wide is not None and wide.rotation_stated:   # measured by the lab in half of the widened seeds
+        camera["rotation_deg"] = wide.rotation_deg
     return {
         "name": f"phantom seed {cfg.synth.seed}",
-        "camera": {"px_per_mm": cfg.synth.px_per_mm},
+        "camera": camera,
         "mesh": mesh,
     }
 
@@ -113,6 +118,8 @@ def _write_truth_rest(rec: Recording, tw: Any) -> None:
         camera_offset_px=np.asarray(rec.camera.offset_px), f0_hz=float(np.mean(rec.frame_f0)),
         ldv_noise_std_mm_s=rec.ldv.truth.noise_std,
     )
+    if rec.widened is not None:
+        tw.set_attrs(panel="widened", **rec.widened.truth_attrs())
 
 
 def _write_instruments(rec: Recording, out: Path) -> None:
@@ -127,7 +134,10 @@ def _write_instruments(rec: Recording, out: Path) -> None:
         velocity_mm_s=rec.ldv.velocity, fs=rec.ldv.fs_hz, reference=rec.ldv.pressure, reference_unit="Pa",
         t0=np.zeros(n), source="vfcli phantom",
     )
-    write_ldv_uff(out / "scan.uff", scan)
+    if rec.widened is None or rec.widened.uff_units_record:
+        write_ldv_uff(out / "scan.uff", scan)
+    else:   # as some exports do: coordinates in mm and no units record (dataset 164)
+        write_ldv_uff(out / "scan.uff", scan, length_unit="mm", units_record=False)
     write_ldv_csv(out / "scan.csv", scan)
 
 

@@ -32,6 +32,7 @@ All effects but asymmetry are symmetric, so fold 1 is solved and fold 0 is its m
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -96,6 +97,7 @@ def aerodynamic_coefficients(
     p_sub: np.ndarray,
     closed_fraction: float,
     n_iter: int = 30,
+    medial_drive: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, float]:
     """Load coefficients over one cycle, consistent with the glottal shape they produce.
 
@@ -107,6 +109,9 @@ def aerodynamic_coefficients(
     p_sub : (P,) subglottal pressure over one cycle, Pa.
     closed_fraction : fraction of the cycle in which the glottis is fully closed; sets the
         medial adduction (how far each fold is pressed past the midplane at rest).
+    medial_drive : None (the Bernoulli profile scales p_sub), or ``f(p_sub (P,), opening (P,) mm)
+        -> (P,) Pa``, the pressure the profile scales (the widened panel's own intraglottal
+        waveform, :class:`vfcli.synth.widened.LoadDistribution`).
 
     Returns
     -------
@@ -122,7 +127,8 @@ def aerodynamic_coefficients(
         opening = half.reshape(-1, n_x, n_z).min(axis=2)[:, 1:-1].max(axis=1)  # widest slice's narrowest point
         adduction = float(np.quantile(opening, closed_fraction))
         prof = aero.bernoulli_profile(2 * (half - adduction).reshape(-1, n_x, n_z)).reshape(len(p_sub), -1)
-        c_new = np.column_stack([p_sub, p_sub[:, None] * prof])
+        drive = p_sub if medial_drive is None else medial_drive(p_sub, opening - adduction)
+        c_new = np.column_stack([p_sub, drive[:, None] * prof])
         if np.max(np.abs(c_new - c)) < 1e-3 * np.max(np.abs(p_sub)):
             c = c_new
             break

@@ -183,6 +183,10 @@ class LdvSettings:
     noise_rel : white noise std relative to the RMS of the true signal over all points.
     dropout_fraction : fraction of points with a dropout (spikes or flat runs).
     pressure_noise_pa : white noise of the pressure reference, Pa RMS.
+    spike_window_s : 0, spikes anywhere in the epoch; > 0, a burst: all of a point's spikes
+        within one window of this length, s.
+    gap_noise_rel : 0, the signal through the gap is the noise floor; > 0, signal loss there:
+        white noise of this std relative to the true signal's RMS (the widened panel).
     """
 
     fs_hz: float = 50_000.0
@@ -193,6 +197,8 @@ class LdvSettings:
     noise_rel: float = 0.01
     dropout_fraction: float = 0.02
     pressure_noise_pa: float = 2.0
+    spike_window_s: float = 0.0
+    gap_noise_rel: float = 0.0
 
     def __post_init__(self) -> None:
         if self.fs_hz <= 0 or self.epoch_s * self.fs_hz < 2:
@@ -291,9 +297,11 @@ def _apply_dropouts(meas: np.ndarray, rms: float, settings: LdvSettings,
     for p in rng.choice(n_pts, size=n_drop, replace=False):
         if rng.uniform() < 0.5:
             kind[p] = DROPOUT_SPIKES
+            window = min(n_s - 6, int(settings.spike_window_s * settings.fs_hz))
+            w0 = int(rng.integers(0, n_s - window)) if window > 5 else 0
             for _ in range(int(rng.integers(3, 11))):
                 width = int(rng.integers(1, 6))
-                s0 = int(rng.integers(0, n_s - width))
+                s0 = w0 + int(rng.integers(0, window - width)) if window > 5 else int(rng.integers(0, n_s - width))
                 meas[p, s0:s0 + width] += rng.choice([-1.0, 1.0]) * rng.uniform(5, 20) * rms
                 mask[p, s0:s0 + width] = True
         else:
@@ -340,6 +348,10 @@ def simulate_ldv_scan(points_mm: np.ndarray, true_velocity: TrueVelocity, f0_hz:
     noise_std = settings.noise_rel * rms
     meas = np.where(surface, truth_v, 0.0) + noise_std * rng.standard_normal(phase.shape)
     kind, mask = _apply_dropouts(meas, rms, settings, rng)
+    if settings.gap_noise_rel > 0:      # the beam looks through the gap: no return, the demodulator wanders
+        lost = ~surface
+        meas[lost] += settings.gap_noise_rel * rms * rng.standard_normal(int(lost.sum()))
+        mask |= lost
     p_true = waveform.at_phase(phase)
     p_meas = p_true + settings.pressure_noise_pa * rng.standard_normal(phase.shape)
     truth = LdvTruth(phase0, start, f0, truth_v, p_true, noise_std, kind, mask)

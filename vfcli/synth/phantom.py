@@ -12,11 +12,15 @@ Steps
 4. The video's pressure (drifting f0, sensor noise); every frame rendered at its cycle
    phase through a camera with a small unknown rotation and offset.
 5. The vibrometer: a jittered 17 x 22 grid, one epoch per point at its own phase and f0.
+
+``synth.panel = "widened"`` first draws the conditions of :mod:`vfcli.synth.widened` (camera
+angle and zoom, blur, fixture, geometry, material, load distribution, vibrometer artefacts)
+and builds the same steps on them; the default panel is unchanged (same bytes).
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterator
 
 import numpy as np
@@ -34,6 +38,7 @@ from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh, build_mesh
 from vfcli.synth.render import FrameTruth, RenderSettings, make_scene_textures, render_frame
 from vfcli.synth import aero, effects
 from vfcli.synth.motion import PeriodicMotion
+from vfcli.synth.widened import LoadDistribution, WidenedDraw, draw_widened
 
 log = logging.getLogger(__name__)
 
@@ -64,8 +69,13 @@ class TrueMotion:
     strength: float
 
 
-def true_motion(cfg: SynthConfig, mesh_cfg: MeshConfig, waveform: PressureWaveform, effect: str, strength: float) -> TrueMotion:
-    """Solve the phantom's physics over one cycle (see the module docstring)."""
+def true_motion(cfg: SynthConfig, mesh_cfg: MeshConfig, waveform: PressureWaveform, effect: str, strength: float,
+                load: LoadDistribution | None = None) -> TrueMotion:
+    """Solve the phantom's physics over one cycle (see the module docstring).
+
+    load : None, the medial Bernoulli profile scales p_sub; else the widened panel's own
+        intraglottal drive.
+    """
     params = m5_params_from(mesh_cfg)
     mesh = build_mesh(params, cfg.target_edge_mm, mesh_cfg.min_ratio, mesh_cfg.min_dihedral_deg)
     density = mesh_cfg.density_kg_m3 * (strength if effect == "inertia" else 1.0)
@@ -75,7 +85,8 @@ def true_motion(cfg: SynthConfig, mesh_cfg: MeshConfig, waveform: PressureWavefo
     phase = np.arange(cfg.n_phase) / cfg.n_phase
     p_sub = waveform.at_phase(phase)
     half0, width_op = aero.width_operator(mesh.nodes, effects.right_medial_nodes(model), grid)
-    c, adduction = effects.aerodynamic_coefficients(patterns, half0, width_op, p_sub, cfg.closed_fraction)
+    c, adduction = effects.aerodynamic_coefficients(patterns, half0, width_op, p_sub, cfg.closed_fraction,
+                                                    medial_drive=load)
     c = effects.band_limit(c, cfg.load_harmonics)
     if effect == "contact":
         adduction *= strength
@@ -104,11 +115,17 @@ def phantom_camera(cfg: SynthConfig, mesh_cfg: MeshConfig, rng: np.random.Genera
     """The camera: the folds centred in the frame, with a small unknown rotation and offset."""
     rot = float(rng.uniform(-1, 1) * cfg.camera_rotation_max_deg)
     jitter = rng.uniform(-1, 1, size=2) * cfg.camera_offset_max_px
-    centre_px = np.array([(cfg.width_px - 1) / 2, (cfg.height_px - 1) / 2])
+    return centred_camera(cfg.px_per_mm, rot, jitter, cfg.width_px, cfg.height_px, mesh_cfg.length_mm)
+
+
+def centred_camera(px_per_mm: float, rot: float, jitter_px: np.ndarray, width: int, height: int,
+                   length_mm: float) -> Camera:
+    """A camera with the glottis centre (L/2, 0) at the image centre plus ``jitter_px`` (col, row)."""
+    centre_px = np.array([(width - 1) / 2, (height - 1) / 2])
     c, s = np.cos(np.radians(rot)), np.sin(np.radians(rot))
-    centre_mm = np.array([mesh_cfg.length_mm / 2, 0.0])
-    offset = centre_px + jitter - cfg.px_per_mm * np.array([c * centre_mm[0] - s * centre_mm[1], s * centre_mm[0] + c * centre_mm[1]])
-    return Camera(cfg.px_per_mm, rot, (float(offset[0]), float(offset[1])), cfg.width_px, cfg.height_px)
+    centre_mm = np.array([length_mm / 2, 0.0])
+    offset = centre_px + jitter_px - px_per_mm * np.array([c * centre_mm[0] - s * centre_mm[1], s * centre_mm[0] + c * centre_mm[1]])
+    return Camera(px_per_mm, rot, (float(offset[0]), float(offset[1])), width, height)
 
 
 def view_surface(mesh: FoldMesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -135,6 +152,7 @@ class Recording:
     render_settings: RenderSettings
     waveform: PressureWaveform
     rng: np.random.Generator
+    widened: WidenedDraw | None = None
 
     def ldv_points_camera_mm(self) -> np.ndarray:
         """LDV points in camera-frame mm (pixel coordinates / px_per_mm), as the lab registers them."""
@@ -161,12 +179,19 @@ class Recording:
 def make_recording(cfg: SynthConfig, mesh_cfg: MeshConfig, progress: Callable[..., Any] | None = None) -> Recording:
     """Simulate a phantom recording (the video is rendered lazily by :meth:`Recording.frames`)."""
     rng = np.random.default_rng(cfg.seed)
+    wide = draw_widened(cfg.seed, cfg.width_px, cfg.height_px, mesh_cfg) if cfg.panel == "widened" else None
+    if wide is not None:
+        mesh_cfg = wide.true_mesh(mesh_cfg)
     effect, strength = resolve_effect(cfg, rng)
     waveform = PressureWaveform(mean_pa=cfg.mean_pressure_pa, amplitude_rel=cfg.pressure_amplitude_rel,
                                 phases_rad=tuple(np.round(rng.uniform(-np.pi, np.pi, 4), 3)))
     log.info("phantom: solving the true motion")
-    truth = true_motion(cfg, mesh_cfg, waveform, effect, strength)
-    camera = phantom_camera(cfg, mesh_cfg, rng)
+    truth = true_motion(cfg, mesh_cfg, waveform, effect, strength, None if wide is None else wide.load)
+    if wide is None:
+        camera = phantom_camera(cfg, mesh_cfg, rng)
+    else:
+        camera = centred_camera(wide.px_per_mm, wide.rotation_deg, np.asarray(wide.centre_offset_px),
+                                cfg.width_px, cfg.height_px, mesh_cfg.length_mm)
     f0_fn = (lambda t: slow_f0_drift(t, cfg.f0_hz, 0.002, 0.3, rng)) if cfg.f0_drift_rel > 0 else cfg.f0_hz
     pressure = video_pressure(cfg.duration_s, cfg.ldv_fs_hz, f0_fn, waveform, float(rng.uniform()), cfg.pressure_noise_pa, rng)
     n_frames = int(round(cfg.duration_s * cfg.fps_hz))
@@ -187,6 +212,11 @@ def make_recording(cfg: SynthConfig, mesh_cfg: MeshConfig, progress: Callable[..
     settings = LdvSettings(fs_hz=cfg.ldv_fs_hz, epoch_s=cfg.ldv_epoch_s, noise_rel=cfg.ldv_noise_rel,
                            dropout_fraction=cfg.ldv_dropout_fraction, f0_drift_rel=cfg.f0_drift_rel,
                            pressure_noise_pa=cfg.pressure_noise_pa)
-    scan = simulate_ldv_scan(points, PeriodicTable(table), cfg.f0_hz, waveform, settings, rng)
     render = RenderSettings(supersample=cfg.supersample, snr=cfg.snr)
-    return Recording(truth, camera, cfg.fps_hz, pressure, frame_times, frame_phase, frame_f0, points, scan, render, waveform, rng)
+    if wide is not None:
+        settings = replace(settings, dropout_fraction=wide.ldv_dropout_fraction,
+                           spike_window_s=wide.ldv_spike_window_s, gap_noise_rel=wide.ldv_gap_noise_rel)
+        render = replace(render, psf_sigma_px=wide.psf_sigma_px, fixture_in_view=wide.fixture_in_view)
+    scan = simulate_ldv_scan(points, PeriodicTable(table), cfg.f0_hz, waveform, settings, rng)
+    return Recording(truth, camera, cfg.fps_hz, pressure, frame_times, frame_phase, frame_f0, points, scan, render,
+                     waveform, rng, wide)

@@ -51,6 +51,9 @@ class RenderSettings:
     psf_sigma_px : Gaussian optics blur, camera pixels (0: none).
     snr : signal-to-noise ratio (mean / std) at ``surface_level``.
     read_noise_dn : read noise, counts RMS.
+    fixture_in_view : True, uncovered pixels outside the gap show the fixture (``fixture_level``);
+        False, they show the flat top of the silicone block the folds are cast in (static, at
+        ``surface_level`` with the texture contrast), so nothing but silicone and gap is in view.
     """
 
     supersample: int = 2
@@ -69,6 +72,7 @@ class RenderSettings:
     psf_sigma_px: float = 0.7
     snr: float = 40.0
     read_noise_dn: float = 2.0
+    fixture_in_view: bool = True
 
     def __post_init__(self) -> None:
         if int(self.supersample) < 1:
@@ -189,7 +193,11 @@ def make_scene_textures(camera: Camera, settings: RenderSettings, rng: np.random
     surface = silicone_texture(settings, rng)
     # the channel is far below: blurred, faint, fixed in the image
     channel = settings.gap_level * (1.0 + 0.3 * smooth_noise(shape, 6.0 * f, rng))
-    fixture = settings.fixture_level * (1.0 + 0.1 * smooth_noise(shape, 2.0 * f, rng))
+    noise = smooth_noise(shape, 2.0 * f, rng)
+    if settings.fixture_in_view:
+        fixture = settings.fixture_level * (1.0 + 0.1 * noise)
+    else:
+        fixture = settings.surface_level * (1.0 + settings.texture_contrast * noise)
     return SceneTextures(surface, np.clip(channel, 0, None), np.clip(fixture, 0, None))
 
 

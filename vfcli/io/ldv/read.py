@@ -49,7 +49,7 @@ from vfcli.errors import InputDataError
 from vfcli.io._common import check_finite, require_file
 from vfcli.io.ldv.dropouts import detect_dropouts
 from vfcli.io.ldv.grid import infer_grid
-from vfcli.io.limits import (LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S, MAX_ABS_PRESSURE_PA,
+from vfcli.io.limits import (LDV_EXTENT_MM, LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S, MAX_ABS_PRESSURE_PA,
                              MAX_ABS_REFERENCE, check_abs_max, check_ldv_extent, check_range)
 from vfcli.io.pressure import PA_PER_UNIT
 
@@ -60,6 +60,18 @@ MM_S_PER_UNIT = {"m/s": 1e3, "mm/s": 1.0, "um/s": 1e-3, "µm/s": 1e-3, "μm/s": 
                  "nm/s": 1e-6, "in/s": 25.4}
 #: mm per unit of each length unit understood.
 MM_PER_UNIT = {"m": 1e3, "cm": 10.0, "mm": 1.0, "um": 1e-3, "µm": 1e-3, "in": 25.4}
+
+#: The units a PSV export without a units dataset is found in (metres and millimetres); 1000
+#: apart, so at most one of them gives a plausible scan extent (vfcli.io.limits.LDV_EXTENT_MM).
+UNSTATED_UNITS = ("m", "mm")
+
+
+def infer_length_unit(span: float) -> str | None:
+    """The one unit of :data:`UNSTATED_UNITS` in which a scan ``span`` (file units, the larger
+    of the x and y extents) is a plausible extent for the folds, else None."""
+    lo, hi = LDV_EXTENT_MM
+    fits = [u for u in UNSTATED_UNITS if lo <= span * MM_PER_UNIT[u] <= hi]
+    return fits[0] if len(fits) == 1 else None
 
 DEFAULT_GRID = (17, 22)
 
@@ -293,9 +305,16 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
         unit_hint = " (dataset 164 states the unit)"
     elif length_unit is None:
         span = float(np.max(np.ptp(g_xyz[:, :2], axis=0))) if len(g_xyz) else 0.0
-        raise InputDataError(
-            f"no units dataset (164): the length unit of the point coordinates (spanning {span:.4g} "
-            "file units) is unknown; set ingest_ldv.length_unit (m, mm, ...)", p)
+        unit = infer_length_unit(span)
+        if unit is None:
+            raise InputDataError(
+                f"no units dataset (164): the length unit of the point coordinates (spanning {span:.4g} "
+                "file units) is unknown; set ingest_ldv.length_unit (m, mm, ...)", p)
+        logger.warning("%s: no units dataset (164); the points span %.4g file units, which only %s makes a "
+                       "plausible scan of the folds: read as %s (set ingest_ldv.length_unit to say otherwise)",
+                       p.name, span, unit, unit)
+        mm_per = MM_PER_UNIT[unit]
+        unit_hint = f" (no dataset 164; inferred {unit}: set ingest_ldv.length_unit)"
     else:
         mm_per = _unit_factor(MM_PER_UNIT, length_unit, "length", p)
         unit_hint = f" (ingest_ldv.length_unit = {length_unit!r})"

@@ -61,6 +61,7 @@ def write_ldv_uff(
     binary: bool = True,
     velocity_id2: str = "Vib  Velocity",
     reference_id2: str = "Ref1  Pressure",
+    units_record: bool = True,
 ) -> Path:
     """Write a scan as a PSV-style UFF file (overwrites ``path``).
 
@@ -75,6 +76,9 @@ def write_ldv_uff(
         Unit of the stored coordinates; recorded in dataset 164.
     binary : bool
         Binary 58 records (exact doubles, default) or ASCII (12 significant digits).
+    units_record : bool
+        False omits dataset 164, as some exports do: the file then does not state
+        ``length_unit`` (the coordinates are still stored in it).
 
     Returns
     -------
@@ -97,9 +101,10 @@ def write_ldv_uff(
     with open(p, "at", encoding="utf-8") as fh:
         _write151(fh, {"type": 151, "model_name": p.stem, "description": "vfcli LDV scan",
                        "db_app": "vfcli", "program": "vfcli"})
-        _write164(fh, {"type": 164, "units_code": 1, "units_description": "SI",
-                       "length": 1e3 / MM_PER_UNIT[length_unit],  # SI = file / length
-                       "force": 1.0, "temp": 1.0, "temp_offset": 273.15})
+        if units_record:
+            _write164(fh, {"type": 164, "units_code": 1, "units_description": "SI",
+                           "length": 1e3 / MM_PER_UNIT[length_unit],  # SI = file / length
+                           "force": 1.0, "temp": 1.0, "temp_offset": 273.15})
         _write2411(fh, {"type": 2411, "node_nums": nodes, "def_cs": np.zeros(n_pts, int),
                         "disp_cs": np.zeros(n_pts, int), "color": np.ones(n_pts, int),
                         "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]})

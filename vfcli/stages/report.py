@@ -1,0 +1,276 @@
+"""`vfcli report`: one self-contained HTML page per recording, and an index of many.
+
+Every picture and the overlay video are inline as ``data:`` URIs (no script, no network). The
+pictures come from the export's code (:class:`vfcli.stages.export_job.ExportJob`, rendered into a
+temporary folder, then inlined).
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vfcli import __version__
+from vfcli.errors import ConfigError, VfcliError
+from vfcli.export import figures, video
+from vfcli.report.html import esc, figure, fmt, kv_table, page, pretty_json, table, video_tag
+from vfcli.store import layout
+from vfcli.store.runs import read_run, run_names, stage_runs
+from vfcli.store.transaction import Store, StoreReader
+
+from vfcli.stages.export_job import ExportJob, ExportResult
+
+log = logging.getLogger(__name__)
+
+_HIDDEN = set(layout.PROVENANCE_ATTRS) | {"complete", "template_real", "template_imag"}
+
+
+def _stage_attrs(reader: StoreReader, path: str) -> tuple[dict[str, Any], list[str], dict[str, Any]]:
+    """(plain attributes, warnings/notes, stored summary) of a stage group."""
+    parts = path.strip("/").split("/")
+    attrs = reader.attrs(parts[0], parts[1] if len(parts) > 1 else None)
+    notes: list[str] = []
+    summary: dict[str, Any] = {}
+    for key in ("notes", "warnings", "warnings_json"):
+        if key in attrs:
+            try:
+                v = json.loads(str(attrs[key]))
+                notes += [str(x) for x in (v if isinstance(v, list) else [v])]
+            except ValueError:
+                notes.append(str(attrs[key]))
+    if layout.SUMMARY_ATTR in attrs:
+        try:
+            summary = json.loads(str(attrs[layout.SUMMARY_ATTR]))
+        except ValueError:
+            pass
+        if isinstance(summary, dict):
+            notes += [str(w) for w in summary.pop("warnings", []) or []]
+    plain = {k: v for k, v in attrs.items()
+             if k not in _HIDDEN and k not in ("notes", "warnings", "warnings_json", layout.SUMMARY_ATTR)}
+    return plain, notes, summary
+
+
+def _gap_frames(job: ExportJob, d: Path) -> list[Path]:
+    """Four frames over one cycle with the detected glottal gap outlined (PNG)."""
+    import cv2
+
+    masks = job.r.frames("flow", "gap_mask")
+    n = len(masks)
+    period = 20
+    if job.r.has_stage("sync"):
+        f0 = float(job.r.attrs("sync").get("f0_video_hz", 0) or 0)
+        fps = float(job.r.attrs("hsc").get("fps_hz", 0) or 0)
+        if f0 > 0 and fps > 0:
+            period = max(4, int(round(fps / f0)))
+    idx = np.unique(np.clip(np.round(np.linspace(0, period, 4, endpoint=False)).astype(int), 0, n - 1))
+    frames = job.frames[idx].astype(float)
+    lo, hi = np.percentile(frames, [0.5, 99.5])
+    out = []
+    scale = 2
+    for i, k in enumerate(idx):
+        img = video.gray_to_rgb(frames[i], lo, hi, scale)
+        m = cv2.resize(masks[int(k)].astype(np.uint8), None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(img, contours, -1, (255, 40, 40), 1, cv2.LINE_AA)
+        img = video.annotate(img, [f"frame {int(k)}", f"t = {1e3 * job.frame_time[int(k)]:.2f} ms",
+                                   f"gap {int(masks[int(k)].sum())} px"], 0.0, "")[:, :-30]
+        out.append(video.write_jpeg(d / f"gap_{int(k):05d}.jpg", img))
+    return out
+
+
+def _runs_section(job: ExportJob, d: Path) -> str:
+    if not job.runs:
+        return '<h2>Optimisation runs</h2><p class="muted">No optimisation run yet (`vfcli optimize`).</p>'
+    rows = []
+    for r in job.runs:
+        h, a = r.history, r.attrs
+        rows.append([r.name, a.get("setup", ""), a.get("loads", ""), a.get("method", ""),
+                     int(h["iteration"][-1]) if len(h.get("iteration", [])) else 0,
+                     f"{float(h['total'][0]):.4g}", f"{float(h['total'][-1]):.4g}",
+                     f"{float(h['wall_time'][-1]):.1f}" if "wall_time" in h else "", a.get("converged", ""),
+                     f"{1e3 * r.sim_time[0]:.2f}-{1e3 * r.sim_time[-1]:.2f}",
+                     fmt(a.get("inferior_uncertainty_rel", "not stated")), fmt(a.get("superior_uncertainty_rel", "not stated"))])
+    parts = ["<h2>Optimisation runs</h2>",
+             table(rows, ["run", "setup", "loads", "method", "iterations", "E start", "E final", "time (s)",
+                          "converged", "window (ms)", "inferior uncertainty (rel.)", "superior uncertainty (rel.)"]),
+             '<p class="muted">Uncertainty: RMS stated standard deviation / RMS reconstructed displacement of the surface.</p>']
+    fig_dir = d / "figures"
+    fig_dir.mkdir(exist_ok=True)
+    try:
+        job.video()
+        mp4 = d / "video" / "overlay.mp4"
+        parts.append("<h3>The model over the video</h3>" + video_tag(
+            mp4, "Projected superior surface of each run (colour: |displacement|, mm) over the high-speed frames, "
+                 "camera pose of the fit; one panel per run."))
+    except ConfigError as exc:
+        parts.append(f'<p class="warn">Overlay video not made: {esc(exc)}</p>')
+    parts.append(figure(figures.convergence({r.name: r.history for r in job.runs}, fig_dir / "fig7")[0],
+                        "Convergence of E per run (paper, fig. 7)", 700))
+    fig8 = job._fig8(fig_dir)
+    if fig8:
+        parts.append(figure(fig8[0], "Surface velocity at a point of each fold: measurement and runs (paper, fig. 8)"))
+    for r in job.runs:
+        if r.displacement_std is not None:
+            f = figures.uncertainty_on_folds(job.mesh, r.displacement_std, r.name, fig_dir / f"unc_{r.name}")[0]
+            parts.append(figure(f, f"Stated uncertainty of run {r.name} on the fold geometry (mm)"))
+        else:
+            parts.append(f'<p class="muted">Run {esc(r.name)} states no uncertainty (optimize.uncertainty = false).</p>')
+    return "\n".join(parts)
+
+
+def build_report(reader: StoreReader, work: Path) -> str:
+    """The report page (HTML text) of an open store; pictures are rendered into ``work``."""
+    names = run_names(reader)
+    runs = [read_run(reader, n) for n in names]
+    title = reader.path.name
+    parts = [f"<h1>Recording {esc(title)}</h1>",
+             f'<p class="muted">{esc(reader.path.resolve())} &middot; report by vfcli {esc(__version__)}, '
+             f'{_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}</p>']
+    # -- metadata and calibration
+    parts.append("<h2>Recording and calibration</h2>")
+    meta: dict[str, Any] = {"store format": f"{reader.root_attrs().get('format')} v{reader.root_attrs().get('format_version')}"}
+    for name, keys in (("hsc", ("source", "fps_hz", "n_frames", "bit_depth", "px_per_mm", "rotation_deg", "offset_px", "roi_px",
+                                "pressure_fs_hz")),
+                       ("ldv", ("source", "grid_shape", "fs_hz"))):
+        if reader.has_stage(name):
+            a = reader.attrs(name)
+            meta.update({f"{name}: {k}": a[k] for k in keys if k in a})
+    parts.append(kv_table(meta))
+    parts.append("<details><summary>Recording configuration (as stored)</summary>"
+                 + pretty_json(reader.recording_config_json()) + "</details>")
+    # -- stages
+    parts.append("<h2>Stages</h2>")
+    rows = []
+    details = []
+    for path in reader.stage_paths():
+        st = reader.status(path)
+        plain, notes, summary = _stage_attrs(reader, path) if st.complete else ({}, [], {})
+        rows.append([path, "yes" if st.complete else "NO (interrupted)", st.provenance.get("created_utc", ""),
+                     st.provenance.get("command", ""), "; ".join(st.stale_because) or "current",
+                     f"{st.size_bytes / 1e6:.2f} MB", len(notes)])
+        body = kv_table({**summary, **plain}) if (summary or plain) else ""
+        warn = "".join(f'<li class="warn">{esc(n)}</li>' for n in notes)
+        details.append(f"<details><summary>{esc(path)}{' &middot; ' + str(len(notes)) + ' warning(s)' if notes else ''}"
+                       f"</summary>{body}{'<ul>' + warn + '</ul>' if warn else ''}</details>")
+    missing = [n for n in layout.STAGES if not any(p.split("/")[1] == n for p in reader.stage_paths())]
+    parts.append(table(rows, ["group", "complete", "written (UTC)", "command", "upstream", "size", "warnings"]))
+    parts += details
+    if missing:
+        parts.append(f'<p class="muted">Not in this store: {esc(", ".join("/" + m for m in missing))}.</p>')
+    job = ExportJob(reader, runs, work, None, 10.0)
+    d = work / "figures"
+    d.mkdir(parents=True, exist_ok=True)
+    # -- sync
+    parts.append("<h2>Synchronisation of the vibrometer</h2>")
+    if reader.has_stage("sync") and reader.has_stage("ldv"):
+        ok = np.asarray(reader.read("sync", "ok"), bool)
+        q = np.asarray(reader.read("sync", "quality"), float)
+        parts.append(f"<p>{int(ok.sum())} of {len(ok)} points aligned; median quality {np.median(q):.3f}; "
+                     f"video f0 {fmt(reader.attrs('sync').get('f0_video_hz', ''))} Hz.</p>")
+        parts.append(figure(figures.sync_quality_map(reader.read("ldv", "grid_index"), q, ok, reader.read("ldv", "dropout"),
+                                                     d / "sync")[0], "Alignment quality of every scan point", 650))
+    else:
+        parts.append('<p class="muted">No /sync yet (`vfcli sync`).</p>')
+    # -- flow and gap
+    parts.append("<h2>Glottal gap and flow</h2>")
+    if reader.has_stage("flow"):
+        t = np.asarray(reader.read("flow", "frame_time"), float)
+        area = np.asarray(reader.read("flow", "glottal_area"), float)
+        windows = {r.name: (float(r.sim_time[0]), float(r.sim_time[-1])) for r in runs}
+        parts.append(f"<p>Glottal area {area.min():.3f}-{area.max():.3f} mm²; gap open in {int((area > 0).sum())} "
+                     f"of {len(area)} frames.</p>")
+        parts.append(figure(figures.glottal_area(t, area, windows, d / "area")[0], "Glottal area waveform", 800))
+        parts.append('<div class="grid">' + "".join(figure(p, p.stem.replace("_", " ") + ": detected gap in red", 400)
+                                                    for p in _gap_frames(job, d)) + "</div>")
+        ky = job._kymogram(d)
+        if ky:
+            parts.append(figure(ky[0], "Kymogram across the glottis at three positions along it", 800))
+    else:
+        parts.append('<p class="muted">No /flow yet (`vfcli flow`).</p>')
+    # -- mesh
+    parts.append("<h2>Model mesh</h2>")
+    if job.mesh is not None:
+        from vfcli.model.preview import render_mesh_png
+
+        m = job.mesh
+        parts.append(f"<p>{m.n_nodes} nodes, {len(m.tets)} tetrahedra, volume left {m.fold_volume(0):.1f} mm³, "
+                     f"right {m.fold_volume(1):.1f} mm³.</p>")
+        try:
+            import cv2
+
+            render_mesh_png(m, d / "mesh.png")
+            video.write_jpeg(d / "mesh.jpg", cv2.imread(str(d / "mesh.png"))[..., ::-1], 88)
+            parts.append(figure(d / "mesh.jpg", "The M5 model of both folds, boundary tags in colour", 800))
+        except (OSError, RuntimeError) as exc:
+            parts.append(f'<p class="warn">Mesh picture not rendered: {esc(exc)}</p>')
+    else:
+        parts.append('<p class="muted">No /mesh yet (`vfcli mesh`).</p>')
+    # -- runs
+    parts.append(_runs_section(job, work))
+    # -- diagnosis
+    parts.append("<h2>Diagnosis</h2>")
+    diag = [layout.stage("diagnose").group_path(n) for n in stage_runs(reader, "diagnose")]
+    if diag:
+        for p in diag:
+            plain, notes, summary = _stage_attrs(reader, p)
+            parts.append(f"<h3>{esc(p)}</h3>" + kv_table({**summary, **plain}))
+    else:
+        parts.append('<p class="muted">No diagnosis in this store (`vfcli diagnose` has not run on it).</p>')
+    for note in job.notes:
+        log.info("report: %s", note)
+    return page(f"vfcli report: {title}", "\n".join(parts))
+
+
+def write_report(path: str | Path, out: str | Path | None = None) -> ExportResult:
+    """Write the report of the store ``path`` to ``out`` (default: ``<store stem>.html`` beside it)."""
+    store = Store(path)
+    out = Path(out) if out else store.path.with_suffix(".html")
+    with tempfile.TemporaryDirectory(prefix="vfcli-report-") as tmp, store.read() as reader:
+        text = build_report(reader, Path(tmp))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    part = out.with_name(out.name + f".tmp-{os.getpid()}")
+    part.write_text(text, encoding="utf-8")
+    part.replace(out)
+    return ExportResult(str(out), "written", {"size_kb": round(out.stat().st_size / 1024)}, [out])
+
+
+def _report_of(store_path: Path) -> Path | None:
+    for cand in (store_path.with_suffix(".html"), store_path.parent / "report.html"):
+        if cand.exists():
+            return cand
+    return None
+
+
+def write_index(folder: str | Path, out: str | Path | None = None) -> ExportResult:
+    """An overview page of every vfcli store under ``folder``: one line each, linked to its report."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise ConfigError("--index: not a folder", folder)
+    out = Path(out) if out else folder / "index.html"
+    rows = []
+    for p in sorted(folder.rglob("*.h5")):
+        try:
+            with Store(p).read() as r:
+                paths = r.stage_paths()
+                best = []
+                for n in run_names(r):
+                    e = r.read("optimize", "history_total", n)
+                    best.append(f"{n}: E {float(e[-1]):.3g}")
+                created = r.root_attrs().get("created_utc", "")
+        except VfcliError:
+            continue
+        rep = _report_of(p)
+        link = (f'<a href="{esc(os.path.relpath(rep, out.parent))}">{esc(p.relative_to(folder))}</a>' if rep
+                else f"{esc(p.relative_to(folder))} <span class=\"muted\">(no report: vfcli report {esc(p.name)})</span>")
+        rows.append([link, esc(created), esc(", ".join(s.strip("/") for s in paths)), esc("; ".join(best) or "no run")])
+    body = (f"<h1>Recordings under {esc(folder.resolve())}</h1><p class=\"muted\">{len(rows)} store(s); "
+            f"index by vfcli {esc(__version__)}</p>"
+            + table(rows, ["recording", "created (UTC)", "stages", "runs"], raw=True))
+    out.write_text(page(f"vfcli recordings: {folder.name}", body), encoding="utf-8")
+    return ExportResult(str(out), "written", {"recordings": len(rows)}, [out])
