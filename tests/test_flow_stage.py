@@ -413,3 +413,24 @@ def test_a_gap_that_runs_off_the_image_along_the_glottis_is_found(tmp_path, tran
     assert iou > 0.75  # measured 0.83 (a 5 px slit at 64 x 64 px; the old border rule: no gap at all)
     closed = ~truth.any(axis=(1, 2))
     assert closed.any() and not masks[closed].any()
+
+
+def test_with_an_estimated_pose_the_lateral_axis_follows_the_gap(tmp_path):
+    """The glottis along the image rows (the video turned 90 deg) but no rotation stated: with
+    camera.pose = 'estimate' the rotation is only a prior, and flow segments the gap across the
+    columns (lateral axis 1) instead of rejecting it; with 'config' it keeps the stated axis."""
+    ph = SlitPhantom(height=64, width=64, midline_row=31.3, glottis_cols=(-40.0, 104.0), lam_px=11.0,
+                     delta_max_px=(5.0, 4.0))
+    ks = [8 * k for k in range(10)]
+    frames = np.swapaxes(np.stack([ph.render(ph.frame_time(k)) for k in ks]), 1, 2).copy()
+    truth = np.swapaxes(np.stack([ph.gap_mask(ph.frame_time(k)) for k in ks]), 1, 2)
+    path = tmp_path / "r.h5"
+    write_store(path, frames, ph.fps, ph.px_per_mm, rotation_deg=0.0)
+    run_flow(RunContext.open(path, overrides=["camera.pose='estimate'"]))
+    with Store(path).read() as r:
+        masks, attrs = r.read("flow", "gap_mask"), r.attrs("flow")
+    assert attrs["lateral_axis"] == 1
+    iou = (masks & truth).sum() / (masks | truth).sum()
+    assert iou > 0.75  # as with the rotation stated (test_a_gap_that_runs_off_the_image_along_the_glottis_is_found)
+    res = run_flow_cli(str(path), "--set", "camera.pose='config'")
+    assert res.returncode == 3 and "camera.rotation_deg" in res.stderr

@@ -160,9 +160,19 @@ class FlowCalibration:
     gap: SubpixelGap | None
 
 
-def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float, rotation_deg: float) -> FlowCalibration:
-    """Threshold, intensity range, midline and edge model from sampled frames (k, H, W) counts.
+def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
+    """The sampled gap masks (k, H, W) show a gap whose principal axis makes ``lateral`` the lateral axis."""
+    counts = masks.sum(axis=0)
+    return bool((counts > 0).sum() >= 3 and lateral_axis_for(gap_axis(counts).rotation_deg) == lateral)
 
+
+def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float, rotation_deg: float,
+              axis_from_gap: bool = False) -> FlowCalibration:
+    """Threshold, intensity range, lateral axis, midline and edge model from sampled frames (k, H, W) counts.
+
+    The lateral image axis is the rotation's (:func:`lateral_axis_for`); with ``axis_from_gap``
+    (the pose is estimated, the rotation only a prior) the other axis is taken when the gap
+    segmented along it runs across it and the rotation's does not.
     Logs a warning when the sampled gap does not look like a glottis (:func:`check_sampled_gap`)
     or when sub-pixel edges are asked for but no gap is wide enough to measure them on.
     """
@@ -171,6 +181,12 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
     threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
     counts_range = intensity_range(sample)
     masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample])
+    if axis_from_gap and not _gap_agrees(masks, lateral):
+        other = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=1 - lateral) for f in sample])
+        if _gap_agrees(other, 1 - lateral):
+            log.info("flow: the gap runs along image %s; taking image %s as lateral (camera.pose = 'estimate')",
+                     _ALONG[1 - lateral], _LATERAL[1 - lateral])
+            lateral, masks = 1 - lateral, other
     check_sampled_gap(masks, threshold, auto, lateral)
     centre = midline_from_masks(masks, lateral)
     seen = np.isfinite(centre)
@@ -189,7 +205,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
 
 
 def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: float, rotation_deg: float,
-                  t0_s: float) -> tuple[FlowCalibration, Iterator[FlowFrame]]:
+                  t0_s: float, axis_from_gap: bool = False) -> tuple[FlowCalibration, Iterator[FlowFrame]]:
     """The flow step of a video: its calibration and the stream of its frames' results.
 
     Parameters
@@ -206,6 +222,9 @@ def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: flo
         Camera rotation, degrees.
     t0_s : float
         Time of frame 0, s.
+    axis_from_gap : bool
+        The rotation is a prior only (camera.pose = 'estimate'): the lateral axis may follow the gap
+        (:func:`calibrate`).
 
     Returns
     -------
@@ -214,7 +233,7 @@ def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: flo
         velocity in mm/s, area in mm^2); memory does not grow with the number of frames.
     """
     n = len(frames)
-    calib = calibrate(frames[sample_indices(n, cfg.sample_frames)], cfg, fps, px_per_mm, rotation_deg)
+    calib = calibrate(frames[sample_indices(n, cfg.sample_frames)], cfg, fps, px_per_mm, rotation_deg, axis_from_gap)
     estimator = FlowEstimator(cfg.method, grid_step=cfg.grid_step, dis_preset=cfg.dis_preset)
     stream = flow_stream(
         batches(frames, n), fps=fps, px_per_mm=px_per_mm, threshold=calib.threshold, counts_range=calib.counts_range,

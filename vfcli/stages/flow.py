@@ -48,7 +48,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     rotation = float(hsc.get("rotation_deg", 0.0))
     frame_time = reader.read("hsc", "frame_time")
     calib, stream = flow_pipeline(frames, cfg, fps=fps, px_per_mm=px_per_mm, rotation_deg=rotation,
-                                  t0_s=float(frame_time[0]))
+                                  t0_s=float(frame_time[0]), axis_from_gap=ctx.config.camera.pose == "estimate")
     ds_mask = s.create("gap_mask", (n, h, w), bool)
     ds_open = s.create("opening", (n, h, w), np.float32)
     ds_flow = s.create("flow", (n, h, w, 2), np.float32)
@@ -207,7 +207,10 @@ def run_flow(ctx: RunContext) -> list[StageResult]:
     if ctx.store.exists():  # fail before the long flow step when /fields could not be written
         with ctx.store.read() as r:
             r.upstream_digests([("hsc", None), ("sync", None), ("ldv", None)])
-    flow = run_stage(ctx, "flow", config_json=_config_json(cfg, "flow"),
+    # camera.pose decides whether the lateral axis may follow the gap (flow_pipeline's axis_from_gap)
+    flow_json = json.dumps({**json.loads(_config_json(cfg, "flow")), "camera": {"pose": ctx.config.camera.pose}},
+                           sort_keys=True)
+    flow = run_stage(ctx, "flow", config_json=flow_json,
                      body=lambda r, s: _write_flow(ctx, cfg, r, s), upstream=[("hsc", None)])
     fields = run_stage(ctx, "fields", config_json=_config_json(cfg, "fields"),
                        body=lambda r, s: _write_fields(ctx, cfg, r, s),
