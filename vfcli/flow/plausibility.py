@@ -17,6 +17,9 @@ import numpy as np
 TISSUE_DENSITY_KG_M3 = 1000.0
 #: Slowest mucosal wave speed, m/s (excised larynges: 0.5-2 m/s).
 SLOWEST_WAVE_M_S = 0.5
+#: "Far beyond": speeds over this multiple of :func:`pressure_velocity_bound` are flagged (a widened
+#: phantom's flow reached 1.06 x the bound at its 99th percentile, a mis-scaled vibrometer 10-1000 x).
+FAR_BEYOND = 2.0
 
 
 def points_on_image(points_px: np.ndarray, shape: tuple[int, int], margin_px: float = 0.5) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from vfcli.config import FlowConfig, fields_shaping
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.plausibility import points_on_image, pressure_velocity_bound
+from vfcli.flow.plausibility import FAR_BEYOND, points_on_image, pressure_velocity_bound
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.stages.base import RunContext, StageResult, run_stage
@@ -137,9 +137,9 @@ def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, 
                     "there is extrapolated); %s", int((~on).sum()), len(on), advice)
     if reader.has_stage("hsc") and "pressure" in reader.group("hsc"):
         bound = pressure_velocity_bound(reader.read("hsc", "pressure"))
-        if np.isfinite(bound) and speed_p99 > bound:
-            log.warning("fields: surface speeds reach %.0f mm/s (99th percentile), beyond the %.0f mm/s the recorded "
-                        "pressure can drive; check ingest_ldv.length_unit and the vibrometer's velocity unit, "
+        if np.isfinite(bound) and speed_p99 > FAR_BEYOND * bound:
+            log.warning("fields: surface speeds reach %.0f mm/s (99th percentile), far beyond the %.0f mm/s the "
+                        "recorded pressure can drive; check ingest_ldv.length_unit and the vibrometer's velocity unit, "
                         "camera.px_per_mm and camera.fps_hz", speed_p99, bound)
 
 
