@@ -27,7 +27,7 @@ need it. Afterwards, and only then, truth.h5 is read and the products are scored
 * optimize's pose (from the config or estimated from the gap): rotation error (deg, wrapped) and
   model-origin error (mm), against the true pose or its 180-degree turn about the glottis centre
   (the same reconstruction of symmetric folds), whichever is nearer; the relative error of the motion data as optimize uses them
-  (``/fields`` (u, v) turned by ``camera_to_model`` with the rotation it used) against the true
+  (``/fields`` (u, v) turned by ``model_axes_velocity`` from /flow's rotation to the one it used) against the true
   (x, y) velocity; the final gap term (0: no gap rays).
 
 Reproduce::
@@ -54,7 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vfcli.camera.camera import Camera  # noqa: E402
-from vfcli.camera.pose import camera_to_model  # noqa: E402
+from vfcli.camera.pose import model_axes_velocity  # noqa: E402
 from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.stages.mesh import read_mesh  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
@@ -197,7 +197,8 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             s["pose_flipped"] = flipped
             s["pose_rot_err_deg"] = rot_err
             s["pose_origin_err_mm"] = float(np.linalg.norm(off_used - true_off) / cam.px_per_mm)
-            # the motion data as optimize uses them: /fields (u, v) turned by camera_to_model(rotation used)
+            # the motion data as optimize uses them: /fields (u, v), model axes of /flow's rotation, turned by
+            # the difference to the rotation used (vfcli.camera.pose.model_axes_velocity)
             fi = np.searchsorted(r.read("fields", "frame_time"), sim_time - 1e-9)
             fv = r.read("fields", "velocity")[fi].astype(float)
             valid = r.read("fields", "valid")[fi]
@@ -205,7 +206,7 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             true_w = tv["screen/velocity"][np.searchsorted(t["frames/time"], sim_time - 1e-9)]
             ok = valid & np.isfinite(true_w).all(axis=-1)
             sign = -1.0 if flipped else 1.0     # model (x, y) reversed in the flipped pose
-            s["motion_data_err"] = relative_rms_error(camera_to_model(fv[..., :2], rot_used)[ok], sign * true_w[ok][:, :2])
+            s["motion_data_err"] = relative_rms_error(model_axes_velocity(fv[..., :2], float(r.attrs("flow").get("rotation_deg", 0.0)), rot_used)[ok], sign * true_w[ok][:, :2])
             del tv, true_w, fv
     if stages["optimize"][0] == 0:
         truth_mesh = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})

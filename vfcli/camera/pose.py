@@ -2,45 +2,153 @@
 
 The camera's scale (px/mm) comes from a calibration target, but its in-plane rotation and
 the position of the model origin are usually unknown. The glottal midline (model y = 0) is
-the line the gap opens along, and the glottis opens symmetrically about mid-length
-(model x = L/2, the folds are clamped at both ends), so both follow from the gap masks.
+the principal axis of the gap pixels over the recording (any in-plane angle; the sign of the
+axis is the one nearest a prior rotation). Along it, the folds are clamped at both ends
+(x = 0 and x = L): when both ends of the gap are in view the gap opens symmetrically about
+mid-length (the count-weighted centre is x = L/2); when the image cuts one end, the other,
+visible end is that end of the glottis; when it cuts both, the longitudinal position is not
+in the data, the visible centre is used and a warning says so.
 """
 from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
 
 import numpy as np
 
 from vfcli.errors import InputDataError
 
+log = logging.getLogger(__name__)
 
-def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float) -> tuple[float, tuple[float, float]]:
+
+@dataclass(frozen=True)
+class GapAxis:
+    """Where the gap lies in the image, from the gap counts.
+
+    Attributes
+    ----------
+    rotation_deg : float
+        In-plane angle of the model x axis (the gap's principal axis), degrees, in
+        (prior - 90, prior + 90].
+    centre_px : (2,) float
+        Count-weighted centre (col, row) of the gap pixels, px.
+    extent_px : (float, float)
+        Smallest and largest position of a gap pixel along the axis from ``centre_px``, px.
+    cut : (bool, bool)
+        The image border cuts the gap at that (low, high) end.
+    """
+
+    rotation_deg: float
+    centre_px: np.ndarray
+    extent_px: tuple[float, float]
+    cut: tuple[bool, bool]
+
+
+def gap_axis(gap_counts: np.ndarray, prior_deg: float = 0.0, end_px: float = 2.0) -> GapAxis:
+    """The principal axis of the gap pixels (H, W) counts and whether the border cuts its ends.
+
+    Parameters
+    ----------
+    gap_counts : (H, W) float
+        Number of frames in which each pixel is gap.
+    prior_deg : float
+        Rotation the axis's sign is chosen nearest to, degrees.
+    end_px : float
+        A border pixel of the gap within this distance (px, along the axis) of an end cuts it.
+    """
+    counts = np.asarray(gap_counts, float)
+    rows, cols = np.nonzero(counts > 0)
+    if rows.size < 3:
+        raise InputDataError("the glottal gap never opens in the selected frames: cannot locate the folds; "
+                             "set camera.pose = 'config' with camera.rotation_deg and camera.offset_px")
+    wgt = counts[rows, cols]
+    pts = np.stack([cols, rows], axis=1).astype(float)
+    centre = (pts * wgt[:, None]).sum(axis=0) / wgt.sum()
+    d = pts - centre
+    cov = (d * wgt[:, None]).T @ d / wgt.sum()
+    evals, evecs = np.linalg.eigh(cov)
+    e = evecs[:, int(np.argmax(evals))]
+    angle = np.degrees(np.arctan2(e[1], e[0]))
+    angle = prior_deg + ((angle - prior_deg + 90.0) % 180.0) - 90.0   # in [prior - 90, prior + 90)
+    th = np.radians(angle)
+    e = np.array([np.cos(th), np.sin(th)])
+    s = d @ e
+    lo, hi = float(s.min()), float(s.max())
+    h, w = counts.shape
+    on_border = (rows == 0) | (rows == h - 1) | (cols == 0) | (cols == w - 1)
+    sb = s[on_border]
+    cut = (bool((sb <= lo + end_px).any()), bool((sb >= hi - end_px).any()))
+    return GapAxis(float(angle), centre, (lo, hi), cut)
+
+
+def envelope_start(gap_counts: np.ndarray, ax: GapAxis, length_px: float) -> float:
+    """Position s0 (px along the axis, from ``ax.centre_px``) of the clamped end x = 0 of a glottis of
+    ``length_px`` from the width of the gap seen over the recording.
+
+    The folds are clamped at both ends, so the widest opening along the glottis follows
+    ``A sin(pi (s - s0) / length_px)``; its thin ends are below the threshold, so the visible
+    gap ends short of the glottis (about 2 mm on a 16 mm glottis at 22 px/mm). The width of
+    the gap pixels' union in each 1 px bin along the axis is fitted by least squares (A
+    eliminated) over s0 with the glottis covering the whole visible gap.
+    """
+    rows, cols = np.nonzero(np.asarray(gap_counts) > 0)
+    th = np.radians(ax.rotation_deg)
+    s = (np.stack([cols, rows], axis=1) - ax.centre_px) @ np.array([np.cos(th), np.sin(th)])
+    lo, hi = ax.extent_px
+    edges = np.arange(np.floor(lo), np.ceil(hi) + 1.0)
+    width, _ = np.histogram(s, edges)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    seen = width > 0
+    sc, wd = centres[seen], width[seen].astype(float)
+    candidates = np.arange(hi - length_px, lo + 0.25, 0.25)
+    if candidates.size == 0:          # the visible gap is longer than the glottis: centre it
+        return 0.5 * (lo + hi) - length_px / 2
+    best, s0 = np.inf, float(candidates[0])
+    for c in candidates:
+        phi = np.sin(np.pi * np.clip((sc - c) / length_px, 0.0, 1.0))
+        a = phi @ wd / max(phi @ phi, 1e-12)
+        r = float(np.sum((wd - a * phi) ** 2))
+        if r < best:
+            best, s0 = r, float(c)
+    return s0
+
+
+def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float,
+                  prior_deg: float = 0.0) -> tuple[float, tuple[float, float]]:
     """(rotation_deg, offset_px) of the model frame in the image (see docs/conventions.md).
 
     Parameters
     ----------
-    gap_counts : (H, W) number of frames in which each pixel is gap (rows lateral, columns
-        longitudinal): the sum of the gap masks, accumulated by the caller frame by frame.
+    gap_counts : (H, W) number of frames in which each pixel is gap: the sum of the gap
+        masks, accumulated by the caller frame by frame.
     px_per_mm : image scale.
     length_mm : anterior-posterior length L of the folds.
+    prior_deg : rotation the principal axis's direction is chosen nearest to, degrees (the
+        gap fixes the axis, not which way along it x grows).
 
     Returns
     -------
     rotation_deg, (offset_col_px, offset_row_px): ``[col, row] = s R(rot) [x, y] + offset``.
+    Logs a warning when the image cuts both ends of the gap (the longitudinal offset is then
+    the visible gap's centre, not a measurement).
     """
-    counts = np.asarray(gap_counts, float)
-    count = counts.sum(axis=0)  # gap pixels per column over the recording
-    cols = np.flatnonzero(count > 0)
-    if cols.size < 3:
-        raise InputDataError("the glottal gap never opens in the selected frames: cannot locate the folds; "
-                             "set camera.rotation_deg and camera.offset_px in the config")
-    rows = np.arange(counts.shape[0], dtype=float)
-    mean_row = (counts * rows[:, None]).sum(axis=0)[cols] / count[cols]
-    slope, intercept = np.polyfit(cols.astype(float), mean_row, 1, w=np.sqrt(count[cols]))
-    rot = np.arctan(slope)
-    weights = count[cols]
-    c_mid = float(np.sum(cols * weights) / np.sum(weights))  # where x = L/2
-    o_col = c_mid - px_per_mm * (length_mm / 2) * np.cos(rot)
-    o_row = intercept + slope * c_mid - px_per_mm * (length_mm / 2) * np.sin(rot)
-    return float(np.degrees(rot)), (float(o_col), float(o_row))
+    ax = gap_axis(gap_counts, prior_deg)
+    th = np.radians(ax.rotation_deg)
+    e = np.array([np.cos(th), np.sin(th)])
+    half = px_per_mm * length_mm / 2
+    lo, hi = ax.extent_px
+    if not ax.cut[0] and not ax.cut[1]:
+        mid = 0.0                    # symmetric opening about mid-length: the weighted centre
+    elif not ax.cut[0] or not ax.cut[1]:
+        # one end in view: the opening's envelope, A sin(pi (s - s0) / L), placed on the visible gap
+        mid = envelope_start(gap_counts, ax, 2 * half) + half
+    else:
+        mid = 0.0
+        log.warning("pose: the image cuts the glottal gap at both ends, so its position along the glottis is not "
+                    "measured; mid-length is taken at the visible gap's centre. Set camera.pose = 'config' with "
+                    "camera.offset_px (and camera.rotation_deg) if the model origin is known")
+    origin = ax.centre_px + (mid - half) * e
+    return float(ax.rotation_deg), (float(origin[0]), float(origin[1]))
 
 
 def camera_to_model(vectors: np.ndarray, rotation_deg: float) -> np.ndarray:
@@ -49,3 +157,42 @@ def camera_to_model(vectors: np.ndarray, rotation_deg: float) -> np.ndarray:
     c, s = np.cos(r), np.sin(r)
     v = np.asarray(vectors)
     return np.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+def lateral_axis_for(rotation_deg: float) -> int:
+    """Image axis that is lateral for a camera rotation: 0 (rows) or 1 (columns).
+
+    Parameters
+    ----------
+    rotation_deg : float
+        Camera model rotation, degrees (``docs/conventions.md``).
+
+    Returns
+    -------
+    int
+        0 when the model's y axis is closer to the row axis (``|cos| >= |sin|``), else 1.
+    """
+    th = np.deg2rad(rotation_deg)
+    return 0 if abs(np.cos(th)) >= abs(np.sin(th)) - 1e-12 else 1
+
+
+def model_axes_velocity(velocity_uv: np.ndarray, velocity_rotation_deg: float, rotation_deg: float) -> np.ndarray:
+    """(u, v) of the model axes for ``rotation_deg``, from (u, v) /flow turned by ``velocity_rotation_deg``.
+
+    The one rotation convention (docs/conventions.md): the image velocity is
+    ``R(velocity_rotation_deg) @ uv``, so the model axes of the pose ``rotation_deg`` see
+    ``R(rotation_deg - velocity_rotation_deg)^T @ uv`` (nothing turns twice; identical poses
+    leave the velocity unchanged).
+
+    Parameters
+    ----------
+    velocity_uv : (..., 2) float, mm/s
+    velocity_rotation_deg, rotation_deg : float, degrees
+
+    Returns
+    -------
+    (..., 2) float64, mm/s
+    """
+    v = np.asarray(velocity_uv, dtype=np.float64)
+    delta = float(rotation_deg) - float(velocity_rotation_deg)
+    return v.copy() if delta == 0 else camera_to_model(v, delta)

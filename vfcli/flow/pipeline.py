@@ -27,6 +27,7 @@ from typing import Any, Iterable, Iterator, Protocol
 
 import numpy as np
 
+from vfcli.camera.pose import gap_axis, lateral_axis_for
 from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import gap_mask, gap_threshold, midline_from_masks
@@ -54,23 +55,6 @@ class Frames(Protocol):
     def __getitem__(self, key: Any) -> np.ndarray: ...
 
 
-def lateral_axis_for(rotation_deg: float) -> int:
-    """Image axis that is lateral for a camera rotation: 0 (rows) or 1 (columns).
-
-    Parameters
-    ----------
-    rotation_deg : float
-        Camera model rotation, degrees (``docs/conventions.md``).
-
-    Returns
-    -------
-    int
-        0 when the model's y axis is closer to the row axis (``|cos| >= |sin|``), else 1.
-    """
-    th = np.deg2rad(rotation_deg)
-    return 0 if abs(np.cos(th)) >= abs(np.sin(th)) - 1e-12 else 1
-
-
 def sample_indices(n_frames: int, n_sample: int) -> np.ndarray:
     """Up to ``n_sample`` frame indices spread evenly over ``n_frames``, increasing, unique."""
     k = max(1, min(int(n_sample), int(n_frames)))
@@ -83,24 +67,63 @@ def batches(frames: Frames, n_frames: int, size: int = CHUNK_FRAMES) -> Iterator
         yield frames[i : i + size]
 
 
-def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool) -> None:
+def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool, lateral_axis: int = 0) -> None:
     """Warn when the gap masks of the sampled frames (k, H, W) bool do not look like a glottis.
 
     The folds close in every cycle and the gap is a slit: a "gap" in every sampled frame
     or one covering more than :data:`MAX_GAP_FRACTION` of the image is more likely a dark
-    fixture, shadow or texture below the threshold.
+    fixture, shadow or texture below the threshold. A gap whose principal axis runs along
+    the lateral image axis means the configured camera rotation is a quarter turn off.
     """
     how = "automatic" if auto else "configured"
     open_share = float(masks.any(axis=(1, 2)).mean())
     area_share = float(masks.mean())
     if open_share == 0:
-        log.warning("flow: no glottal gap in the %d sampled frames (%s threshold %.1f counts); "
-                    "set flow.threshold if the glottis opens", len(masks), how, threshold)
-    elif len(masks) >= 8 and (open_share == 1 or area_share > MAX_GAP_FRACTION):
+        log.warning("flow: no glottal gap in the %d sampled frames (%s threshold %.1f counts); check that the "
+                    "glottis opens in view, camera.rotation_deg (the gap must run along image %s) and "
+                    "flow.threshold (counts)", len(masks), how, threshold, _ALONG[lateral_axis])
+        return
+    if len(masks) >= 8 and (open_share == 1 or area_share > MAX_GAP_FRACTION):
         log.warning("flow: the %s threshold %.1f counts finds a gap in %.0f%% of the %d sampled frames, covering "
                     "%.1f%% of the image on average; the folds close every cycle and the gap is a slit, so it "
                     "probably segments a dark fixture, shadow or texture: set flow.threshold (counts) by hand",
                     how, threshold, 100 * open_share, len(masks), 100 * area_share)
+    counts = masks.sum(axis=0)
+    if (counts > 0).sum() >= 3:
+        angle = gap_axis(counts).rotation_deg
+        if lateral_axis_for(angle) != lateral_axis:
+            log.warning("flow: the sampled gap runs at %.0f deg in the image (along image %s) but the camera rotation "
+                        "makes image %s lateral; set camera.rotation_deg (about %.0f or %.0f deg) and camera.pose, "
+                        "then rerun ingest-hsc and flow", angle, _ALONG[lateral_axis_for(angle)],
+                        _LATERAL[lateral_axis], angle, angle - 180 if angle > 0 else angle + 180)
+
+
+#: The image axis the glottis runs along, and the lateral one, for lateral_axis 0 and 1.
+_ALONG = {0: "columns (left-right)", 1: "rows (top-bottom)"}
+_LATERAL = {0: "rows", 1: "columns"}
+
+
+def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration") -> None:
+    """Check the glottal area of every frame (n,) mm^2: fail on no gap at all, warn on a gap in every frame.
+
+    Raises
+    ------
+    InputDataError
+        No gap in any frame: the opening, the gap term and the pose have nothing to work on.
+    """
+    n = len(area_mm2)
+    open_frames = int((np.asarray(area_mm2) > 0).sum())
+    how = "automatic" if calib.auto else "configured"
+    if open_frames == 0:
+        raise InputDataError(
+            f"flow: no glottal gap in any of the {n} frames ({how} threshold {calib.threshold:.1f} counts, gap "
+            f"searched along image {_ALONG[calib.lateral_axis]}); check that the glottis opens in view, "
+            "camera.rotation_deg with camera.pose (a glottis along the other image axis needs a rotation near "
+            "+-90 deg) and flow.threshold (counts between the gap's and the folds' brightness)")
+    if n >= 8 and open_frames == n:
+        log.warning("flow: a glottal gap in all %d frames; the folds close every cycle, so either they never close "
+                    "in this recording or the %s threshold %.1f counts segments a dark fixture or shadow: check "
+                    "flow.threshold (counts)", n, how, calib.threshold)
 
 
 @dataclass(frozen=True)
@@ -137,9 +160,19 @@ class FlowCalibration:
     gap: SubpixelGap | None
 
 
-def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float, rotation_deg: float) -> FlowCalibration:
-    """Threshold, intensity range, midline and edge model from sampled frames (k, H, W) counts.
+def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
+    """The sampled gap masks (k, H, W) show a gap whose principal axis makes ``lateral`` the lateral axis."""
+    counts = masks.sum(axis=0)
+    return bool((counts > 0).sum() >= 3 and lateral_axis_for(gap_axis(counts).rotation_deg) == lateral)
 
+
+def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float, rotation_deg: float,
+              axis_from_gap: bool = False) -> FlowCalibration:
+    """Threshold, intensity range, lateral axis, midline and edge model from sampled frames (k, H, W) counts.
+
+    The lateral image axis is the rotation's (:func:`lateral_axis_for`); with ``axis_from_gap``
+    (the pose is estimated, the rotation only a prior) the other axis is taken when the gap
+    segmented along it runs across it and the rotation's does not.
     Logs a warning when the sampled gap does not look like a glottis (:func:`check_sampled_gap`)
     or when sub-pixel edges are asked for but no gap is wide enough to measure them on.
     """
@@ -148,7 +181,13 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
     threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
     counts_range = intensity_range(sample)
     masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample])
-    check_sampled_gap(masks, threshold, auto)
+    if axis_from_gap and not _gap_agrees(masks, lateral):
+        other = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=1 - lateral) for f in sample])
+        if _gap_agrees(other, 1 - lateral):
+            log.info("flow: the gap runs along image %s; taking image %s as lateral (camera.pose = 'estimate')",
+                     _ALONG[1 - lateral], _LATERAL[1 - lateral])
+            lateral, masks = 1 - lateral, other
+    check_sampled_gap(masks, threshold, auto, lateral)
     centre = midline_from_masks(masks, lateral)
     seen = np.isfinite(centre)
     midline = float(np.median(centre[seen])) if seen.any() else None
@@ -166,7 +205,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
 
 
 def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: float, rotation_deg: float,
-                  t0_s: float) -> tuple[FlowCalibration, Iterator[FlowFrame]]:
+                  t0_s: float, axis_from_gap: bool = False) -> tuple[FlowCalibration, Iterator[FlowFrame]]:
     """The flow step of a video: its calibration and the stream of its frames' results.
 
     Parameters
@@ -183,6 +222,9 @@ def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: flo
         Camera rotation, degrees.
     t0_s : float
         Time of frame 0, s.
+    axis_from_gap : bool
+        The rotation is a prior only (camera.pose = 'estimate'): the lateral axis may follow the gap
+        (:func:`calibrate`).
 
     Returns
     -------
@@ -191,7 +233,7 @@ def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: flo
         velocity in mm/s, area in mm^2); memory does not grow with the number of frames.
     """
     n = len(frames)
-    calib = calibrate(frames[sample_indices(n, cfg.sample_frames)], cfg, fps, px_per_mm, rotation_deg)
+    calib = calibrate(frames[sample_indices(n, cfg.sample_frames)], cfg, fps, px_per_mm, rotation_deg, axis_from_gap)
     estimator = FlowEstimator(cfg.method, grid_step=cfg.grid_step, dis_preset=cfg.dis_preset)
     stream = flow_stream(
         batches(frames, n), fps=fps, px_per_mm=px_per_mm, threshold=calib.threshold, counts_range=calib.counts_range,

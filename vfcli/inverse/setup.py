@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from vfcli.camera.camera import Camera
-from vfcli.camera.pose import camera_to_model, estimate_pose
+from vfcli.camera.pose import estimate_pose, lateral_axis_for, model_axes_velocity
 from vfcli.config import OptimizeConfig
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
@@ -48,7 +48,8 @@ class OptimizeInputs:
     times : (F,) float64
         Uniformly spaced frame times of the window, s.
     velocity : (F, H, W, 3) float32 or float64
-        Measured surface velocity (u, v, w) in the image's axes, mm/s (used as float64).
+        Measured surface velocity (u, v, w), mm/s (used as float64): (u, v) in the model's (x, y)
+        axes for the camera rotation ``velocity_rotation_deg`` (as /fields stores it).
     valid : (F, H, W) bool
         Where the velocity is valid.
     gap_masks : (F, H, W) bool
@@ -59,6 +60,11 @@ class OptimizeInputs:
         Full-frame pixel (col, row) of the stored frames' first pixel (the ingest ROI's corner).
     gap_counts : (H, W) float64 or None
         Frames in which each pixel is gap, over the whole recording (for the pose estimate).
+    velocity_rotation_deg : float
+        Camera rotation, degrees, with which /flow already turned the image velocities into model
+        axes (``velocity[..., :2]`` is (x, y) for that rotation; :func:`model_axes_velocity`).
+    lateral_axis : int
+        Lateral image axis /flow used for the gap's rays: 0 (rows) or 1 (columns).
     pressure_time, pressure : (S,) float64 or None
         Subglottal pressure recorded with the video (s, Pa), for the pressure load model.
     """
@@ -75,6 +81,8 @@ class OptimizeInputs:
     px_per_mm: float
     roi_origin_px: np.ndarray
     gap_counts: np.ndarray | None = None
+    velocity_rotation_deg: float = 0.0
+    lateral_axis: int = 0
     pressure_time: np.ndarray | None = None
     pressure: np.ndarray | None = None
 
@@ -121,7 +129,8 @@ def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] 
         return float(rotation), (float(offset[0] - origin[0]), float(offset[1] - origin[1])), "config"
     if inputs.gap_counts is None:
         raise ValueError("estimating the camera pose needs inputs.gap_counts")
-    rotation, offset = estimate_pose(inputs.gap_counts, inputs.px_per_mm, inputs.length_mm)
+    rotation, offset = estimate_pose(inputs.gap_counts, inputs.px_per_mm, inputs.length_mm,
+                                     prior_deg=inputs.velocity_rotation_deg)
     return rotation, offset, "estimated from the glottal gap"
 
 
@@ -159,7 +168,12 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     """
     rotation, offset, pose_source = camera_pose(inputs, pose)
     velocity = np.array(inputs.velocity, dtype=np.float64)
-    velocity[..., :2] = camera_to_model(velocity[..., :2], rotation)
+    velocity[..., :2] = model_axes_velocity(velocity[..., :2], inputs.velocity_rotation_deg, rotation)
+    lateral = lateral_axis_for(rotation)
+    if lateral != inputs.lateral_axis:
+        log.warning("optimize: the camera rotation %.1f deg makes image axis %d lateral but /flow measured the gap "
+                    "along axis %d; set camera.rotation_deg (and camera.pose = 'config') and rerun ingest-hsc and flow",
+                    rotation, lateral, inputs.lateral_axis)
     h, w = inputs.gap_masks.shape[1:]
     camera = Camera(inputs.px_per_mm, rotation, offset, w, h)
     times = inputs.times
@@ -169,8 +183,9 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     response = QuasiStaticResponse(model, field)
     ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
     settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
-                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside)
-    measurement = Measurement.from_gap_masks(times, velocity, inputs.valid, inputs.gap_masks)
+                                 gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside,
+                                 lateral_axis=lateral)
+    measurement = Measurement.from_gap_masks(times, velocity, inputs.valid, inputs.gap_masks, lateral)
     problem = Problem(inputs.mesh, camera, response, measurement, settings)
     curve = None
     if ridge is None:

@@ -60,8 +60,10 @@ def stage_config_json(name: str, config: RecordingConfig) -> str | None:
     if name == "sync":
         return json.dumps({"sync": dump("sync")}, sort_keys=True)
     if name in ("flow", "fields"):
-        return json.dumps({"flow": config.flow.model_dump(mode="json", include=set(fields_shaping(FlowConfig, name)))},
-                          sort_keys=True)
+        out = {"flow": config.flow.model_dump(mode="json", include=set(fields_shaping(FlowConfig, name)))}
+        if name == "flow":  # camera.pose decides whether the lateral axis may follow the gap (flow_pipeline)
+            out["camera"] = {"pose": config.camera.pose}
+        return json.dumps(out, sort_keys=True)
     if name == "mesh":
         return config.mesh.model_dump_json()
     return None

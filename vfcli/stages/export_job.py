@@ -15,7 +15,7 @@ from typing import Any, Literal
 import numpy as np
 
 from vfcli.camera.camera import Camera
-from vfcli.camera.pose import camera_to_model
+from vfcli.camera.pose import model_axes_velocity
 from vfcli.errors import ConfigError, VfcliError
 from vfcli.export import figures, paraview, sampling, tables, video
 from vfcli.store.runs import OptimizeRun, read_mesh
@@ -188,12 +188,14 @@ class ExportJob:
         lo = min(float(r.sim_time[0]) for r in self.runs)
         hi = max(float(r.sim_time[-1]) for r in self.runs)
         sel = np.flatnonzero((ft >= lo - 1e-9) & (ft <= hi + 1e-9))
-        vel = self.r.frames("fields", "velocity")[sel].astype(float)          # (F, H, W, 3) camera frame
+        vel = self.r.frames("fields", "velocity")[sel].astype(float)          # (F, H, W, 3), model axes of /flow
         valid = self.r.frames("fields", "valid")[sel]
         px = np.round(pts).astype(int)
         meas = vel[:, px[:, 1], px[:, 0]]                                       # (F, P, 3)
         meas[~valid[:, px[:, 1], px[:, 0]]] = np.nan
-        meas[..., :2] = camera_to_model(meas[..., :2], cam0.rotation_deg)
+        # /fields' (u, v) are already model axes for /flow's rotation: turn only by what the run's pose adds
+        flow_rotation = float(self.r.attrs("flow").get("rotation_deg", 0.0))
+        meas[..., :2] = model_axes_velocity(meas[..., :2], flow_rotation, cam0.rotation_deg)
         sim = {r.name: (r.sim_time, sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements,
                                                                r.sim_time, pts)) for r in self.runs}
         return figures.velocities(ft[sel], meas, sim, labels, d / "fig8_velocities")

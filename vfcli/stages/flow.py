@@ -19,7 +19,8 @@ import numpy as np
 
 from vfcli.config import FlowConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.pipeline import CHUNK_FRAMES, flow_pipeline, good_ldv_points, velocity_fields
+from vfcli.flow.plausibility import FAR_BEYOND, points_on_image, pressure_velocity_bound
+from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
@@ -40,7 +41,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     rotation = float(hsc.get("rotation_deg", 0.0))
     frame_time = reader.read("hsc", "frame_time")
     calib, stream = flow_pipeline(frames, cfg, fps=fps, px_per_mm=px_per_mm, rotation_deg=rotation,
-                                  t0_s=float(frame_time[0]))
+                                  t0_s=float(frame_time[0]), axis_from_gap=ctx.config.camera.pose == "estimate")
     ds_mask = s.create("gap_mask", (n, h, w), bool)
     ds_open = s.create("opening", (n, h, w), np.float32)
     ds_flow = s.create("flow", (n, h, w, 2), np.float32)
@@ -54,6 +55,10 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         area[k] = fr.area_mm2
         bar.update(1)
     bar.close()
+    try:
+        check_flow_product(area, calib)
+    except InputDataError as exc:
+        raise InputDataError(str(exc), reader.path) from None
     s.put("glottal_area", area)
     s.put("frame_time", frame_time)
     model, gap = calib.edge_model, calib.gap
@@ -111,6 +116,26 @@ def _ldv_points(reader: StoreReader, n_frames: int) -> tuple[np.ndarray, np.ndar
         raise InputDataError(str(exc), reader.path) from None
 
 
+def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, shape: tuple[int, int],
+                  speed_p99: float) -> None:
+    """The LDV points the spline uses lie on the frames (none: exit 3), and the field's speeds
+    (largest chunk's 99th percentile, mm/s) are within what the recorded pressure can drive."""
+    on = points_on_image(points_px[good], shape)
+    advice = "check ingest_ldv.length_unit, ldv_frame.affine and camera.px_per_mm, then rerun ingest-ldv"
+    if not on.any():
+        raise InputDataError(f"fields: none of the {int(good.sum())} LDV points the spline uses lies on the "
+                             f"{shape[1]} x {shape[0]} px frames; {advice}", reader.path)
+    if not on.all():
+        log.warning("fields: %d of %d LDV points the spline uses lie outside the frames (the vertical velocity "
+                    "there is extrapolated); %s", int((~on).sum()), len(on), advice)
+    if reader.has_stage("hsc") and "pressure" in reader.group("hsc"):
+        bound = pressure_velocity_bound(reader.read("hsc", "pressure"))
+        if np.isfinite(bound) and speed_p99 > FAR_BEYOND * bound:
+            log.warning("fields: surface speeds reach %.0f mm/s (99th percentile), far beyond the %.0f mm/s the "
+                        "recorded pressure can drive; check ingest_ldv.length_unit and the vibrometer's velocity unit, "
+                        "camera.px_per_mm and camera.fps_hz", speed_p99, bound)
+
+
 def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
     """Body of /fields: TPS of the synced LDV velocities + the flow, chunk by chunk."""
     fl = reader.attrs("flow")
@@ -137,15 +162,19 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
     ds_vel = s.create("velocity", (n, h, w, 3), np.float32)
     ds_valid = s.create("valid", (n, h, w), bool)
     n_valid = i = 0
+    speed_p99 = 0.0
     bar = ctx.progress(total=n, desc="fields", unit="frame")
     for field, valid in velocity_fields(chunks(), points_px, good, (h, w), cfg):
         j = i + len(field)
         ds_vel[i:j] = field
         ds_valid[i:j] = valid
         n_valid += int(valid.sum())
+        if valid.any():
+            speed_p99 = max(speed_p99, float(np.percentile(np.linalg.norm(field[valid], axis=-1), 99)))
         bar.update(j - i)
         i = j
     bar.close()
+    _check_fields(reader, points_px, good, (h, w), speed_p99)
     s.put("frame_time", frame_time)
     s.put("ldv_px", points_px)
     s.put("ldv_used", good)

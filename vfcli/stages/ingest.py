@@ -10,6 +10,7 @@ import numpy as np
 
 from vfcli.config import calibration_warnings
 from vfcli.errors import ConfigError, InputDataError
+from vfcli.flow.plausibility import points_on_image
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
 from vfcli.io.ldv.read import LdvChannels, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
@@ -142,12 +143,34 @@ def _to_camera_frame(coords_mm: np.ndarray, affine: np.ndarray) -> np.ndarray:
     return np.column_stack([xy, coords_mm[:, 2]])
 
 
+def _check_on_image(reader: StoreReader, coords_mm: np.ndarray, scan_path: str | Path) -> None:
+    """Fail when no scan point lies on the ingested video's frames, warn when some do not (needs /hsc)."""
+    if not reader.has_stage("hsc"):
+        return
+    hsc = reader.attrs("hsc")
+    shape = tuple(int(v) for v in reader.dataset("hsc", "frames").shape[1:])
+    roi = np.asarray(hsc.get("roi_px", (0, 0, 0, 0)), float)[:2]
+    px = coords_mm[:, :2] * float(hsc["px_per_mm"]) - roi   # camera-frame mm -> stored pixel grid
+    on = points_on_image(px, shape)
+    if on.any() and on.all():
+        return
+    where = (f"(col, row) {np.nanmin(px[:, 0]):.0f}..{np.nanmax(px[:, 0]):.0f}, "
+             f"{np.nanmin(px[:, 1]):.0f}..{np.nanmax(px[:, 1]):.0f} px on {shape[1]} x {shape[0]} px frames")
+    advice = ("check ingest_ldv.length_unit (the unit of the file's coordinates), ldv_frame.affine (scan to camera "
+              "mm) and camera.px_per_mm")
+    if not on.any():
+        raise InputDataError(f"none of the {len(on)} scan points lies on the video's frames, {where}; {advice}",
+                             scan_path)
+    log.warning("ingest-ldv: %d of %d scan points lie outside the video's frames, %s; %s",
+                int((~on).sum()), len(on), where, advice)
+
+
 def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
     """Read a vibrometer scan into /ldv, points by node number, dropouts flagged."""
     cfg, frame = ctx.config.ingest_ldv, ctx.config.ldv_frame
     config_json = stage_config_json("ldv", ctx.config)
 
-    def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+    def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         channels = LdvChannels(velocity_id1=cfg.velocity_id1, reference_id1=cfg.reference_id1)
         scan = read_ldv(scan_path, channels, expected_grid=(cfg.grid_rows, cfg.grid_cols), length_unit=cfg.length_unit)
         if scan.reference is None:
@@ -166,6 +189,7 @@ def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
         if key in PA_PER_UNIT:
             ref, ref_units = scan.reference * PA_PER_UNIT[key], "Pa"
         coords = _to_camera_frame(scan.coords_mm, np.asarray(frame.affine))
+        _check_on_image(reader, coords, scan_path)
         s.put("node_id", scan.node_ids)
         s.put("grid_index", scan.grid_index if scan.grid_index is not None else np.full((scan.n_points, 2), -1))
         s.put("coords_mm", coords)

@@ -95,7 +95,8 @@ def read_inputs(reader: StoreReader, config: RecordingConfig) -> OptimizeInputs:
         velocity=reader.dataset("fields", "velocity")[sl], valid=reader.dataset("fields", "valid")[sl],
         gap_masks=reader.dataset("flow", "gap_mask")[sl], px_per_mm=float(flow_attrs["px_per_mm"]),
         roi_origin_px=np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float),
-        gap_counts=gap_counts, pressure_time=pressure_time, pressure=pressure)
+        gap_counts=gap_counts, velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
+        lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure)
 
 
 def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:
@@ -107,6 +108,22 @@ def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]
 def problem_of_store(reader: StoreReader, config: RecordingConfig) -> tuple[Problem, Setup]:
     """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it)."""
     return build_problem(read_inputs(reader, config), config.optimize, configured_pose(config))
+
+
+def check_gap_term(problem: Problem, gap_history: np.ndarray) -> None:
+    """Warn when the fit's gap term is empty: no rays cross both folds' silhouettes in the camera
+    pose, or E_gap was 0 at every kept iteration (no measured silhouette on the rays)."""
+    if problem.settings.gap_weight == 0:
+        return
+    advice = ("check camera.rotation_deg with camera.pose (the glottis must run across the gap's rays) and that "
+              "/flow found the gap (vfcli info)")
+    if len(problem.rays) == 0:
+        log.warning("optimize: the gap term has no rays (the model's folds do not both cross any image %s in the "
+                    "camera pose), so the fit ignores the glottal gap; %s",
+                    "column" if problem.ray_comp == 0 else "row", advice)
+    elif gap_history.size and not np.any(gap_history != 0):
+        log.warning("optimize: the gap term was 0 at every iteration (E_gap == 0: no measured silhouette on its "
+                    "%d rays), so the fit ignores the glottal gap; %s", len(problem.rays), advice)
 
 
 def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
@@ -178,6 +195,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             result = fit(problem, None, cfg.method, cfg.max_iterations, checkpoint, options=opts)
         bar.close()
         h = result.history
+        check_gap_term(problem, np.asarray(h["gap"], float))
         s.put("sim_time", problem.sim_times)
         disp = problem.displacements(result.x)
         s.put("displacements", disp.astype(np.float32))

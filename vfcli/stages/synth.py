@@ -56,6 +56,7 @@ def _lab_config(rec: Recording, cfg: RecordingConfig) -> dict[str, Any]:
     camera: dict[str, Any] = {"px_per_mm": cfg.synth.px_per_mm if wide is None else wide.px_per_mm}
     if wide is not None and wide.rotation_stated:   # measured by the lab in half of the widened seeds
         camera["rotation_deg"] = wide.rotation_deg
+        camera["pose"] = "estimate"   # the rotation is known, the origin is not: estimated from the gap
     return {
         "name": f"phantom seed {cfg.synth.seed}",
         "camera": camera,

@@ -191,9 +191,10 @@ def gap_mask(
        are lateral): it removes noise pixels and specks shorter than ``median_px / 2``
        along the glottis but keeps a slit of any width, down to one pixel (a square
        window erases the glottis just after it opens and just before it closes).
-    3. Keep the gap component(s), rejecting components that touch the image border (the
-       fixture; the glottis lies inside the field of view), the dark specks of the texture and of a
-       closed glottis's contact line: an 8-connected dark component is kept when
+    3. Keep the gap component(s), rejecting the fixture (:func:`fixture_components`: a dark
+       region that runs along a lateral image border or is far thicker than a glottis; a gap
+       that runs off the image at its ends is kept), the dark specks of the
+       texture and of a closed glottis's contact line: an 8-connected dark component is kept when
 
        * it holds at least ``median_px`` *core* pixels, darker than
          ``core_fraction * threshold`` (hysteresis: the open gap is black, much darker
@@ -257,11 +258,7 @@ def gap_mask(
     if band_px is None:
         band_px = 0.15 * dark.shape[lateral_axis]
     keep = (area >= min_area_px) & (n_core >= median_px)
-    # the glottis lies inside the field of view (the folds are clamped at both ends): a dark
-    # component touching the image border is the fixture or the channel wall, not the gap
-    left, top = stats[1:, cv2.CC_STAT_LEFT], stats[1:, cv2.CC_STAT_TOP]
-    right, bottom = left + stats[1:, cv2.CC_STAT_WIDTH], top + stats[1:, cv2.CC_STAT_HEIGHT]
-    keep &= (left > 0) & (top > 0) & (right < dark.shape[1]) & (bottom < dark.shape[0])
+    keep &= ~fixture_components(labels, stats[1:], lateral_axis)
     if not keep.any():
         return np.zeros(dark.shape, dtype=bool)
     if midline is None:
@@ -269,6 +266,49 @@ def gap_mask(
     keep &= np.abs(lateral - midline) <= band_px
     lut = np.concatenate([[False], keep])
     return lut[labels]
+
+
+#: A dark component whose mean lateral thickness exceeds this fraction of the lateral image size is not a gap.
+MAX_GAP_LATERAL_FRACTION = 0.4
+#: A dark component running along a lateral image border for more than this fraction of it is the fixture.
+MAX_BORDER_RUN_FRACTION = 0.5
+
+
+def fixture_components(labels: np.ndarray, stats: np.ndarray, lateral_axis: int = 0) -> np.ndarray:
+    """Which dark components (labels 1..n) are fixture, not gap.
+
+    The glottis is a slit along the longitudinal image axis at any angle up to 45 deg from it;
+    it may run past the image at either end (a field of view shorter than the glottis), through
+    the longitudinal borders or, turned, through the lateral ones, where it crosses the border
+    over a short run. A component is the fixture, a channel wall or a shadow when it runs along
+    a lateral image border (the first or last row when rows are lateral) for more than
+    :data:`MAX_BORDER_RUN_FRACTION` of it, or when its mean lateral thickness (area over its
+    longitudinal extent) is more than :data:`MAX_GAP_LATERAL_FRACTION` of the lateral image size.
+
+    Parameters
+    ----------
+    labels : (H, W) int
+        ``cv2.connectedComponentsWithStats`` labels (0: background).
+    stats : (n, 5) int
+        Its stats rows of components 1..n (left, top, width, height, area), px.
+    lateral_axis : {0, 1}
+        0: rows are lateral (the gap runs along the columns), 1: columns are lateral.
+
+    Returns
+    -------
+    (n,) bool
+        True for the fixture.
+    """
+    import cv2
+
+    st = np.asarray(stats).reshape(-1, 5)
+    n = len(st)
+    lab = np.asarray(labels) if lateral_axis == 0 else np.asarray(labels).T   # rows lateral
+    n_lat, n_long = lab.shape
+    run = np.maximum(np.bincount(lab[0], minlength=n + 1)[1:], np.bincount(lab[-1], minlength=n + 1)[1:])
+    extent = st[:, cv2.CC_STAT_WIDTH] if lateral_axis == 0 else st[:, cv2.CC_STAT_HEIGHT]
+    thickness = st[:, cv2.CC_STAT_AREA] / np.maximum(extent, 1)
+    return (run > MAX_BORDER_RUN_FRACTION * n_long) | (thickness > MAX_GAP_LATERAL_FRACTION * n_lat)
 
 
 def binary_median_1d(mask: np.ndarray, size: int, axis: int) -> np.ndarray:

@@ -1,0 +1,91 @@
+"""No silent failure (issue 15): each stage checks that its product is plausible, records a
+one-line warning in its stored summary, and fails with exit 3 (store unchanged) where the
+product is unusable. Real CLI runs on a small phantom."""
+from __future__ import annotations
+
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import run_vfcli
+from vfcli.flow.plausibility import points_on_image, pressure_velocity_bound
+from vfcli.io.ldv.read import read_ldv
+from vfcli.io.ldv.write import write_ldv_uff
+from vfcli.store import Store
+
+PHANTOM = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
+           "synth.width_px=112", "synth.height_px=112", "synth.px_per_mm=6", "synth.supersample=1"]
+
+
+def _sets(items):
+    return sum((["--set", s] for s in items), [])
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    """A phantom and a store with its /hsc."""
+    d = tmp_path_factory.mktemp("plaus")
+    raw, store = d / "raw", d / "hsc.h5"
+    assert run_vfcli("synth", raw, "--seed", "4", *_sets(PHANTOM)).returncode == 0
+    res = run_vfcli("ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
+                    "--config", raw / "recording.toml")
+    assert res.returncode == 0, res.stderr
+    return raw, store
+
+
+def _copy(store, tmp_path):
+    out = tmp_path / "rec.h5"
+    shutil.copy(store, out)
+    return out
+
+
+def test_points_on_image_and_the_velocity_bound_by_hand():
+    px = np.array([[0.0, 0.0], [-0.6, 3.0], [9.4, 4.0], [9.6, 4.0], [np.nan, 1.0]])
+    np.testing.assert_array_equal(points_on_image(px, (5, 10)), [True, False, True, False, False])
+    # 1 kPa peak, rho c = 1000 kg/m^3 x 0.5 m/s = 500 kg/m^2/s: 2 m/s
+    assert pressure_velocity_bound(np.array([800.0, -1000.0, np.nan])) == pytest.approx(2000.0)
+
+
+def test_scan_points_off_the_video_fail_ingest_ldv_with_advice(video, tmp_path):
+    raw, hsc = video
+    store = _copy(hsc, tmp_path)
+    before = store.read_bytes()
+    # a scan 1 m to the side (coordinates read in the wrong unit land as far off)
+    res = run_vfcli("ingest-ldv", store, raw / "scan.uff", "--set", "ldv_frame.affine=[[1, 0, 1000], [0, 1, 0]]")
+    assert res.returncode == 3, res.stderr
+    lines = [x for x in res.stderr.splitlines() if "error" in x]
+    assert len(lines) == 1 and "none of the 374 scan points lies on the video's frames" in lines[0]
+    assert "ingest_ldv.length_unit" in lines[0] and "ldv_frame.affine" in lines[0]
+    assert store.read_bytes() == before
+
+
+def test_some_scan_points_off_the_video_are_a_stored_warning(video, tmp_path):
+    raw, hsc = video
+    store = _copy(hsc, tmp_path)
+    res = run_vfcli("ingest-ldv", store, raw / "scan.uff", "--set", "ldv_frame.affine=[[1, 0, 6], [0, 1, 0]]")
+    assert res.returncode == 0, res.stderr
+    with Store(store).read() as r:
+        warnings = r.summary("ldv")["warnings"]
+    hit = [w for w in warnings if "scan points lie outside the video's frames" in w]
+    assert len(hit) == 1 and "ldv_frame.affine" in hit[0]
+    info = run_vfcli("info", store)
+    assert info.returncode == 0 and "outside the video's frames" in info.stdout
+
+
+def test_velocities_beyond_what_the_pressure_drives_are_a_stored_warning(video, tmp_path):
+    """A vibrometer file whose velocities are 20 x too large (a mis-set velocity range): /fields warns.
+    (Its dropout points, with their spikes, are left as they are: ingest-ldv's own limit would refuse them.)"""
+    raw, hsc = video
+    store = _copy(hsc, tmp_path)
+    scan = read_ldv(raw / "scan.uff")
+    gain = np.where(scan.dropout, 1.0, 20.0)[:, None]
+    write_ldv_uff(tmp_path / "scan.uff", replace(scan, velocity_mm_s=scan.velocity_mm_s * gain))
+    for args in (["ingest-ldv", store, tmp_path / "scan.uff"], ["sync", store], ["flow", store]):
+        res = run_vfcli(*args)
+        assert res.returncode == 0, (args[0], res.stderr)
+    with Store(store).read() as r:
+        warnings = r.summary("fields")["warnings"]
+    hit = [w for w in warnings if "beyond the" in w and "the recorded pressure can drive" in w]
+    assert len(hit) == 1, warnings
