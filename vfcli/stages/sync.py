@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -15,31 +16,55 @@ from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_j
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class SyncInputs:
+    """What `vfcli sync` reads from the store.
+
+    pressure : (n_p,) subglottal pressure recorded with the video, Pa; sampled at ``fs_pressure``
+        Hz from ``t0_pressure`` s.  frame_time : (F,) video frame times, s.
+    reference, velocity : (P, n) the LDV epochs' reference pressure and vertical velocity (mm/s),
+        sampled at ``fs_ldv`` Hz.  source : where the pressure came from (for messages).
+    """
+
+    pressure: np.ndarray
+    fs_pressure: float
+    t0_pressure: float
+    frame_time: np.ndarray
+    reference: np.ndarray
+    velocity: np.ndarray
+    fs_ldv: float
+    source: str
+
+
+def read_inputs(reader: StoreReader) -> SyncInputs:
+    """Everything sync needs, from /hsc and /ldv (InputDataError when no pressure was recorded)."""
+    if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
+        raise InputDataError("no pressure was recorded with the video: rerun `vfcli ingest-hsc` with --pressure", reader.path)
+    p_time = reader.read("hsc", "pressure_time")
+    return SyncInputs(pressure=reader.read("hsc", "pressure"), fs_pressure=float(reader.attrs("hsc")["pressure_fs_hz"]),
+                      t0_pressure=float(p_time[0]), frame_time=reader.read("hsc", "frame_time"),
+                      reference=reader.read("ldv", "reference").astype(np.float64),
+                      velocity=reader.read("ldv", "velocity").astype(np.float64),
+                      fs_ldv=float(reader.attrs("ldv")["fs_hz"]), source=f"{reader.path}:/hsc/pressure")
+
+
 def run_sync(ctx: RunContext) -> StageResult:
     """Phase-lock every LDV point to the video (/hsc pressure) and store the aligned velocities."""
     cfg = ctx.config.sync
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
-        if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
-            raise InputDataError("no pressure was recorded with the video: rerun `vfcli ingest-hsc` with --pressure", reader.path)
-        p_time = reader.read("hsc", "pressure_time")
-        p = reader.read("hsc", "pressure")
-        fs_p = float(reader.attrs("hsc")["pressure_fs_hz"])
-        frame_time = reader.read("hsc", "frame_time")
-        ref = reader.read("ldv", "reference").astype(np.float64)
-        vel = reader.read("ldv", "velocity").astype(np.float64)
-        fs_ldv = float(reader.attrs("ldv")["fs_hz"])
+        inp = read_inputs(reader)
         res = sync_scan(
-            p, fs_p, float(p_time[0]), frame_time, ref, vel, fs_ldv,
+            inp.pressure, inp.fs_pressure, inp.t0_pressure, inp.frame_time, inp.reference, inp.velocity, inp.fs_ldv,
             f_range=(cfg.f0_min_hz, cfg.f0_max_hz), n_harmonics=cfg.n_harmonics, knot_cycles=cfg.knot_cycles,
             max_f0_deviation=cfg.max_drift, min_quality=cfg.min_quality, min_cycles=cfg.min_cycles,
-            smooth=cfg.smooth, phase_reference=cfg.phase_reference, source=f"{reader.path}:/hsc/pressure",
+            smooth=cfg.smooth, phase_reference=cfg.phase_reference, source=inp.source,
         )
         for key in ("offset_s", "f0_hz", "drift", "drift_rate_per_s", "quality", "ok", "n_cycles"):
             s.put(key, getattr(res, key))
         s.put("reason", np.asarray(res.reason, dtype=object))
         s.put("aligned_w", res.aligned_w.astype(np.float32))
-        s.put("frame_time", frame_time)
+        s.put("frame_time", inp.frame_time)
         s.put("video_phase", res.video_phase)
         s.set_attrs(f0_video_hz=res.f0_video_hz, template_real=res.template.real, template_imag=res.template.imag)
         reasons = Counter(r for r in res.reason if r)
