@@ -14,7 +14,7 @@ E = motion_weight * E_motion + gap_weight * E_gap (both means over the F frames)
 (default 0, the paper's E; Omega is the load model's ``penalty_operator()``, the
 identity unless the model says otherwise).  The superior-surface velocity fixes the displacement only up to
 a time-constant field (the gap silhouette pins the medial edge), and the
-inferior surface not at all (/work/shared/reference/identifiability.md): a
+inferior surface not at all (the reference note "What superior-surface data can and cannot reveal"): a
 reconstruction that reports them should bound its loads.
 
 Motion term (paper's three cases)

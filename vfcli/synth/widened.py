@@ -5,7 +5,7 @@ in (issue 15): the camera's in-plane angle and zoom, the optics blur, whether th
 view, the M5-family geometry of the mould, the material of this batch, the distribution of the
 aerodynamic load, the vibrometer's artefacts and whether its UFF export has a units record.
 The ranges are the constants below (see docs/synth.md for their sources; [est] marks our own
-estimates, [pub] published values from /work/shared/reference/physical-setup.md).
+estimates, [pub] published values from the reference note "The physical set-up: numbers to build with").
 
 The draw is a pure function of the seed (its own generator, ``default_rng([seed, STREAM])``),
 so it does not disturb the default phantom's random stream, and every drawn value is written to
