@@ -81,11 +81,15 @@ def _update_attrs(h: "hashlib._Hash", attrs: Any) -> None:
             h.update(k.encode() + b"=" + blob + b";")
 
 
-def content_digest(group: h5py.Group) -> str:
+def content_digest(group: h5py.Group, dataset_sha256: Mapping[str, str] | None = None) -> str:
     """Digest of what a stage group holds: every dataset's name, type, shape, attributes and
     stored bytes (chunks as stored, so no decompression), and the group's own attributes
     except its provenance. Rewriting a stage with the same content gives the same digest, so
-    the stages that use it stay current (it costs one read of the stage's stored bytes)."""
+    the stages that use it stay current (it costs one read of the stage's stored bytes).
+
+    ``dataset_sha256`` : name -> SHA-256 of the stored bytes of datasets already hashed (the stage's
+    integrity manifest, written just before), so a commit reads and hashes each chunk once."""
+    known = dataset_sha256 or {}
     h = hashlib.sha256()
     _update_attrs(h, group.attrs)
     names: list[str] = []
@@ -97,7 +101,9 @@ def content_digest(group: h5py.Group) -> str:
         if not isinstance(obj, h5py.Dataset):
             continue
         h.update(f"{obj.dtype.str}|{h5py.check_string_dtype(obj.dtype)}|{obj.shape}|{obj.chunks}".encode())
-        if obj.chunks is not None:
+        if name in known:
+            h.update(known[name].encode())
+        elif obj.chunks is not None:
             for i in range(obj.id.get_num_chunks()):
                 info = obj.id.get_chunk_info(i)
                 mask, chunk = obj.id.read_direct_chunk(info.chunk_offset)
