@@ -57,7 +57,7 @@ import numpy as np
 
 from vfcli.inverse.block_matrix import BlockMatrix
 from vfcli.inverse.linearization import QuadraticModel, gauss_newton_model
-from vfcli.model.response.base import Linearization
+from vfcli.model.response.base import Linearization, SeparableTerm
 
 #: Motion-term component weights (model x, y, z) of each instrument's own data: the
 #: camera's optical flow gives the in-plane velocity, the vibrometer the vertical one.
@@ -256,3 +256,36 @@ def instrument_std(displacements: dict[str, np.ndarray]) -> np.ndarray:
         raise ValueError(f"two instruments' reconstructions are compared, got {len(displacements)}")
     a, b = (np.asarray(d, dtype=float) for d in displacements.values())
     return np.sqrt(np.mean((a - b) ** 2, axis=0) / 2.0)
+
+
+def instrument_split(displacements: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`instrument_std` split into the static and the oscillating part over the window.
+
+    displacements : {name: (T + 1, N, 3)} the two instruments' reconstructions at the simulated
+        times (the last one, past the window, is left out), mm.
+
+    Returns
+    -------
+    static : (N, 3) ``|mean_t (d_a - d_b)| / sqrt(2)``, mm.
+    oscillating : (N, 3) ``RMS_t of (d_a - d_b) minus its mean, / sqrt(2)``, mm.
+    """
+    if len(displacements) != 2:
+        raise ValueError(f"two instruments' reconstructions are compared, got {len(displacements)}")
+    a, b = (np.asarray(d, dtype=float)[:-1] for d in displacements.values())
+    diff = a - b
+    mean = diff.mean(axis=0)
+    return np.abs(mean) / np.sqrt(2.0), np.sqrt(np.mean((diff - mean) ** 2, axis=0) / 2.0)
+
+
+def window_mean(linearization: Linearization) -> Linearization:
+    """The linearisation of the static part: the mean over the window's T frames of dU
+    (the simulated times but the last, which lies past the window); one time row."""
+    return Linearization(tuple(SeparableTerm(t.spatial, t.temporal[:-1].mean(axis=0, keepdims=True))
+                               for t in linearization.terms))
+
+
+def window_oscillation(linearization: Linearization) -> Linearization:
+    """The linearisation of the oscillating part: dU(t) minus its mean over the window (all
+    simulated times, the mean taken over the window's T frames)."""
+    return Linearization(tuple(SeparableTerm(t.spatial, t.temporal - t.temporal[:-1].mean(axis=0, keepdims=True))
+                               for t in linearization.terms))

@@ -29,8 +29,10 @@ from vfcli.inverse.setup import OptimizeInputs, Setup, build_problem, setup_summ
 from vfcli.report.plots import convergence_plot, uncertainty_map
 from vfcli.store import StageWriter, StoreReader
 from vfcli.store.mesh import read_stored_mesh
-from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_std, posterior,
-                           relative_uncertainty)
+from vfcli.inverse.sandwich import sandwich
+from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_split,
+                                       instrument_std, relative_uncertainty, window_mean, window_oscillation)
+from vfcli.model.loads.pressure import PressureLoad
 from vfcli.stages.base import RunContext, StageResult, run_stage
 
 log = logging.getLogger(__name__)
@@ -126,35 +128,67 @@ def check_gap_term(problem: Problem, gap_history: np.ndarray) -> None:
                     "%d rays), so the fit ignores the glottal gap; %s", len(problem.rays), advice)
 
 
-def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None
+                               ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
     """Standard deviation of the displacements of a fit at ``x``, and its summary.
 
-    Laplace posterior of the Gauss-Newton model at x, scaled by the motion residuals'
-    own size and correlation, plus in quadrature the systematic part the camera-only and
-    vibrometer-only reconstructions disagree by (vfcli/inverse/uncertainty.py).
+    The mean squared error of the fit (vfcli/inverse/sandwich.py: the sandwich covariance
+    from the per-frame scores, plus the ridge's expected bias), plus in quadrature the
+    systematic part the camera-only and vibrometer-only reconstructions disagree by
+    (vfcli/inverse/uncertainty.py), each split into the static part (the mean over the
+    window) and the oscillating part.
+
+    field : the load model (a :class:`vfcli.model.loads.pressure.PressureLoad` adds how much
+        of the static inferior shape the measured pressure carries).
 
     Returns
     -------
     std : (F + 1, N, 3) total standard deviation, mm.
     systematic : (N, 3) its instrument-disagreement part, mm.
-    summary : figures relative to the RMS reconstructed displacement of each surface.
+    summary : figures relative to the RMS reconstructed displacement of each surface, and the
+        inferior surface's static part (mean over the window) and oscillating part separately.
     """
     u = problem.displacements(x)
     frames = problem.freeze(x, u)
     model = gauss_newton_model(problem, x, frames, u)
     corr = effective_sample_size(problem.motion_residuals(x, frames))
-    post = posterior(model, corr)
-    noise = displacement_std(post.covariance, model.linearization)
-    systematic = instrument_std({k: problem.displacements(v) for k, v in instrument_fits(problem, x, frames, u).items()})
+    mse = sandwich(problem, x, model, frames, u)
+    lin = model.linearization
+    noise = displacement_std(mse.covariance, lin)
+    noise_static = displacement_std(mse.covariance, window_mean(lin))[0]
+    noise_osc = displacement_std(mse.covariance, window_oscillation(lin))
+    inst = {k: problem.displacements(v) for k, v in instrument_fits(problem, x, frames, u).items()}
+    systematic = instrument_std(inst)
+    sys_static, sys_osc = instrument_split(inst)
     std = np.sqrt(noise ** 2 + systematic[None] ** 2)
     inferior = problem.mesh.node_side == SIDE_INFERIOR
     superior = problem.mesh.node_side == SIDE_SUPERIOR
+    win = u[:-1]
+    static = win.mean(axis=0)
+    osc = win - static
+    static_std = np.sqrt(noise_static ** 2 + sys_static ** 2)
+    osc_std = np.sqrt(noise_osc[:-1] ** 2 + sys_osc[None] ** 2)
+    rms = lambda a: float(np.sqrt(np.mean(np.asarray(a) ** 2)))  # noqa: E731
     summary = {"inferior_uncertainty_rel": relative_uncertainty(std, u, inferior),
                "superior_uncertainty_rel": relative_uncertainty(std, u, superior),
                "inferior_posterior_rel": relative_uncertainty(noise, u, inferior),
                "inferior_instruments_rel": relative_uncertainty(np.broadcast_to(systematic, u.shape), u, inferior),
+               "inferior_oscillating_uncertainty_rel": relative_uncertainty(osc_std, osc, inferior),
+               "inferior_static_rms_mm": rms(static[inferior]),
+               "inferior_static_std_mm": rms(static_std[inferior]),
+               "inferior_static_mean_z_mm": float(static[inferior, 2].mean()),
+               "inferior_static_mean_z_std_mm": rms(static_std[inferior, 2]),
                "residual_n_eff": corr.n_eff, "residual_area_px": corr.area_px, "residual_tau_frames": corr.tau_frames,
-               "fitted_dof": post.dof}
+               "score_lag_frames": float(mse.lag), "ridge_prior_scale": float(np.sqrt(mse.tau2))}
+    if isinstance(field, PressureLoad):
+        # the static shape the measured pressure carries (gains x mean pressure) against the free correction's mean
+        carried = problem.displacements(np.where(field.free_mask(), 0.0, x))[:-1].mean(axis=0)
+        summary["inferior_static_mean_z_from_pressure_mm"] = float(carried[inferior, 2].mean())
+    if summary["inferior_static_mean_z_std_mm"] > abs(summary["inferior_static_mean_z_mm"]):
+        log.warning("optimize: the recording does not determine the static shape: the inferior surface's mean "
+                    "vertical displacement is %+.3f mm +- %.3f mm (1 sd); its oscillation is stated to %.0f %%",
+                    summary["inferior_static_mean_z_mm"], summary["inferior_static_mean_z_std_mm"],
+                    100 * summary["inferior_oscillating_uncertainty_rel"])
     return std, systematic, summary
 
 
@@ -201,7 +235,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         s.put("displacements", disp.astype(np.float32))
         unc: dict[str, float] = {}
         if cfg.uncertainty:
-            std, systematic, unc = reconstruction_uncertainty(problem, result.x)
+            std, systematic, unc = reconstruction_uncertainty(problem, result.x, setup.field)
             s.put("displacement_std", std.astype(np.float32))
             s.put("displacement_std_instruments", systematic.astype(np.float32))
             if uncertainty_plot is not None:
@@ -232,7 +266,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             "converged": bool(result.converged),
             "pose": setup.pose_source,
             "ridge_weight": problem.settings.ridge_weight,
-            **{k: round(v, 4) for k, v in unc.items() if k.endswith("_rel")},
+            **{k: round(v, 4) for k, v in unc.items() if k.endswith(("_rel", "_mm"))},
         }
 
     result = run_stage(ctx, "optimize", config_json=settings_json, body=body, run=run,
