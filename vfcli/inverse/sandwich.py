@@ -14,7 +14,8 @@ with H the Gauss-Newton Hessian of E (ridge included).  S is measured from the r
 itself: the per-frame scores g_f are the units of replication (the whole image of a frame
 is one unit, so no spatial independence is assumed), and their correlation over frames is
 taken into account by the long-run covariance (:func:`long_run_covariance`: autocovariances
-up to the scores' own correlation time, Bartlett weights, Newey and West 1987).  Model
+up to the first zero of the scores' own autocorrelation, as in Newey and West 1987 but with a flat
+kernel and a projection onto the positive semi-definite matrices).  Model
 error enters in exactly the share the loads respond to.
 
 The sandwich is the covariance of the regularised estimate around its own expectation; it
@@ -103,11 +104,14 @@ class LongRunCovariance:
 def long_run_covariance(scores: np.ndarray) -> LongRunCovariance:
     """Var(sum_f g_f) of (F, n) per-frame scores correlated over frames.
 
-    The scores are centred (their mean is the ridge's pull, a bias, not scatter); the lag L is
-    the scores' integral correlation time: the normalised autocorrelation ``rho_k = sum_f
-    g_f . g_{f+k} / sum_f |g_f|^2`` summed up to its first zero (at least 1 frame), rounded up.
-    Then ``S = F (Gamma_0 + sum_{k=1}^{L} (1 - k / (L + 1)) (Gamma_k + Gamma_k^T))`` with
-    ``Gamma_k = sum_f g_f g_{f+k}^T / F`` (Bartlett weights: positive semi-definite).
+    The scores are centred (their mean is the ridge's pull, a bias, not scatter).  With the
+    normalised autocorrelation ``rho_k = sum_f g_f . g_{f+k} / sum_f |g_f|^2``, the lag L is the
+    last before its first zero (the same truncation as the residuals' correlation time in
+    :func:`vfcli.inverse.uncertainty.effective_sample_size`), and
+
+        S = F (Gamma_0 + sum_{k=1}^{L} (Gamma_k + Gamma_k^T)),   Gamma_k = sum_f g_f g_{f+k}^T / F,
+
+    projected onto the positive semi-definite matrices (negative eigenvalues set to 0).
     """
     g = np.asarray(scores, dtype=float)
     n_f = g.shape[0]
@@ -115,18 +119,17 @@ def long_run_covariance(scores: np.ndarray) -> LongRunCovariance:
         raise ValueError("the long-run covariance needs at least 2 frames' scores")
     g = g - g.mean(axis=0)
     total = float(np.sum(g * g))
-    tau = 1.0
-    if total > 0:
-        for k in range(1, n_f // 2 + 1):
-            c = float(np.sum(g[k:] * g[:-k])) / total
-            if c <= 0:
-                break
-            tau += 2.0 * c
-    lag = int(min(np.ceil(tau), n_f - 1))
     s = g.T @ g
-    for k in range(1, lag + 1):
+    lag = 0
+    for k in range(1, n_f // 2 + 1):
+        if total <= 0 or float(np.sum(g[k:] * g[:-k])) <= 0:
+            break
         gk = g[k:].T @ g[:-k]
-        s += (1.0 - k / (lag + 1.0)) * (gk + gk.T)
+        s += gk + gk.T
+        lag = k
+    if lag:
+        w, v = np.linalg.eigh(s)
+        s = (v * np.maximum(w, 0.0)) @ v.T
     return LongRunCovariance(s, lag, n_f)
 
 

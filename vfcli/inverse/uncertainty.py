@@ -1,5 +1,13 @@
 """How well the recording determines the reconstruction: posterior covariance of a fit.
 
+The optimize stage states the fit's mean squared error by the sandwich covariance of
+:mod:`vfcli.inverse.sandwich` (calibrated on residuals that are model error rather than white
+noise), plus the instruments' disagreement below, each split into the static part and the
+oscillating part over the window (:func:`instrument_split`, :func:`window_mean`,
+:func:`window_oscillation`).  The Laplace posterior of this module is kept as a library function
+(its scale follows the residual's total size: 98.6 % coverage of 90 % intervals on the test
+phantom, where the sandwich gives 89.7 %).
+
 Around the optimum the displacements are described by the response's linearisation
 (``dU(t) = sum_j R_j dC B_j(t)``, exact for a linear response such as ``U(t) = R C b(t)``),
 and E by its Gauss-Newton model (:mod:`vfcli.inverse.linearization`).  Reading E as a scaled negative
