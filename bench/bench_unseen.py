@@ -23,7 +23,9 @@ need it. Afterwards, and only then, truth.h5 is read and the products are scored
   the window) RMS error relative to the RMS true oscillation; the static part (the mean over the
   window) RMS error, mm, and the true and reconstructed mean vertical displacement, mm; the
   total error relative to the RMS true displacement; the coverage of the 90 % intervals
-  ``displacement +- 1.645 displacement_std`` (every inferior node, component and time);
+  ``displacement +- 1.645 displacement_std`` (every inferior node, component and time), and of the
+  static part's ``mean +- 1.645 displacement_std_static`` (every inferior node and component), with
+  the stated standard deviation of the static vertical displacement (``inferior_static_mean_z_std_mm``);
 * optimize's pose (from the config or estimated from the gap): rotation error (deg, wrapped) and
   model-origin error (mm), against the true pose or its 180-degree turn about the glottis centre
   (the same reconstruction of symmetric folds), whichever is nearer; the relative error of the motion data as optimize uses them
@@ -181,6 +183,10 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             mesh = read_mesh(r)
             disp = r.read("optimize", "displacements", run_name).astype(float)[:-1]
             std = r.read("optimize", "displacement_std", run_name).astype(float)[:-1]
+            g = r.group("optimize", run_name)
+            std_static = r.read("optimize", "displacement_std_static", run_name).astype(float) \
+                if "displacement_std_static" in g else None
+            s["stated_static_mean_z_mm"] = float(r.attrs("optimize", run_name).get("inferior_static_mean_z_std_mm", np.nan))
             sim_time = r.read("optimize", "sim_time", run_name)[:-1]
             s["gap_term_final"] = float(r.read("optimize", "history_gap", run_name)[-1])
             oa = r.attrs("optimize", run_name)
@@ -223,6 +229,8 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
         s["inf_mean_z_est_mm"] = float(est_mean[:, 2].mean())
         s["inf_total_err"] = rms(est - ref) / rms(ref)
         s["coverage90"] = interval_coverage(est, std[:, nodes], ref)
+        s["coverage90_static"] = (interval_coverage(est_mean, std_static[nodes], ref_mean) if std_static is not None
+                                  else float("nan"))
         s["stated_std_rel"] = rms(std[:, nodes]) / rms(ref)
         s["inf_nodes_scored"] = int(len(nodes))
     return s
@@ -287,8 +295,8 @@ def main() -> None:
         print(f"| {seed} | " + " | ".join(cells) + f" | {', '.join(empty) or 'none'} |")
     print("\n| seed | sync RMS (us) | gap IoU | area error (total) | area error (median, open) | frames with gap | "
           "LDV on image (true) | flow error in model / image axes | inferior oscillating error | inferior static error (mm) | mean z true / est (mm) | "
-          "inferior total error | 90 % coverage | stated std / RMS true |")
-    print("| ---: |" + " ---: |" * 13)
+          "inferior total error | 90 % coverage (static part) | stated std / RMS true | stated static std of mean z (mm) |")
+    print("| ---: |" + " ---: |" * 14)
     for seed, _, _, s in results:
         print(f"| {seed} | {_fmt(s.get('sync_rms_us'))} | {_fmt(s.get('gap_iou'))} | {_fmt(s.get('area_total_err'), True, 3)} | "
               f"{_fmt(s.get('area_median_err'), True, 3)} | {s.get('frames_with_gap', '-')} | "
@@ -296,7 +304,8 @@ def main() -> None:
               f"{_fmt(s.get('flow_err_model_axes'), True, 2)} / {_fmt(s.get('flow_err_image_axes'), True, 2)} | {_fmt(s.get('inf_osc_err'), True, 2)} | "
               f"{_fmt(s.get('inf_static_err_mm'), digits=3)} | {_fmt(s.get('inf_mean_z_true_mm'), digits=3)} / "
               f"{_fmt(s.get('inf_mean_z_est_mm'), digits=3)} | {_fmt(s.get('inf_total_err'), True, 2)} | "
-              f"{_fmt(s.get('coverage90'), True, 2)} | {_fmt(s.get('stated_std_rel'), True, 2)} |")
+              f"{_fmt(s.get('coverage90'), True, 2)} ({_fmt(s.get('coverage90_static'), True, 2)}) | "
+              f"{_fmt(s.get('stated_std_rel'), True, 2)} | {_fmt(s.get('stated_static_mean_z_mm'), digits=3)} |")
     print("\n| seed | pose source | rotation error (deg) | model origin error (mm) | optimize's (x, y) motion data error "
           "| final gap term | inferior nodes scored |")
     print("| ---: | --- | ---: | ---: | ---: | ---: | ---: |")

@@ -145,6 +145,7 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None
     -------
     std : (F + 1, N, 3) total standard deviation, mm.
     systematic : (N, 3) its instrument-disagreement part, mm.
+    static_std : (N, 3) standard deviation of the static part (the mean over the window), mm.
     summary : figures relative to the RMS reconstructed displacement of each surface, and the
         inferior surface's static part (mean over the window) and oscillating part separately.
     """
@@ -189,7 +190,7 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None
                     "vertical displacement is %+.3f mm +- %.3f mm (1 sd); its oscillation is stated to %.0f %%",
                     summary["inferior_static_mean_z_mm"], summary["inferior_static_mean_z_std_mm"],
                     100 * summary["inferior_oscillating_uncertainty_rel"])
-    return std, systematic, summary
+    return std, systematic, static_std, summary
 
 
 def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None,
@@ -235,9 +236,10 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         s.put("displacements", disp.astype(np.float32))
         unc: dict[str, float] = {}
         if cfg.uncertainty:
-            std, systematic, unc = reconstruction_uncertainty(problem, result.x, setup.field)
+            std, systematic, static_std, unc = reconstruction_uncertainty(problem, result.x, setup.field)
             s.put("displacement_std", std.astype(np.float32))
             s.put("displacement_std_instruments", systematic.astype(np.float32))
+            s.put("displacement_std_static", static_std.astype(np.float32))
             if uncertainty_plot is not None:
                 uncertainty_map(problem.mesh, std, disp, uncertainty_plot, f"run {run} ({label})")
         if setup.lcurve is not None:

@@ -235,11 +235,15 @@ STAGES: dict[str, Stage] = {
                 "history_n_evals": D("1", "Objective evaluations so far", ("iteration",)),
                 "history_ridge": D("1", "Ridge (Tikhonov) term of E", ("iteration",)),
                 "displacement_std": D("mm", "Standard deviation of each reconstructed displacement component: "
-                                      "Laplace posterior and instrument disagreement in quadrature (vfcli/inverse/uncertainty.py)",
+                                      "the fit's mean squared error (sandwich covariance and the ridge's expected bias, "
+                                      "vfcli/inverse/sandwich.py) and instrument disagreement in quadrature",
                                       ("sim_time", "node", "xyz"), True),
                 "displacement_std_instruments": D("mm", "Systematic part of displacement_std: RMS over time of the "
                                                   "difference between the camera-only and the vibrometer-only "
                                                   "reconstructions, / sqrt 2", ("node", "xyz")),
+                "displacement_std_static": D("mm", "Standard deviation of the static part of each displacement "
+                                             "component (its mean over the window): the fit's and the instruments' "
+                                             "parts in quadrature", ("node", "xyz")),
                 "lcurve_weight": D("1/Pa^2", "Tikhonov weights scanned by the L-curve (free-regularised)", ("lcurve",)),
                 "lcurve_misfit": D("1", "Predicted data misfit E_data at each weight", ("lcurve",)),
                 "lcurve_penalty": D("Pa^2", "Penalty x^T Omega x at each weight", ("lcurve",)),
