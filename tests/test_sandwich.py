@@ -2,7 +2,6 @@
 linear Gaussian model, calibrated when its noise and prior scale are measured from the data,
 and the per-frame scores are the frozen gradient split by frame."""
 import numpy as np
-import pytest
 import scipy.sparse as sp
 
 from vfcli.inverse.block_matrix import BlockMatrix

@@ -55,9 +55,10 @@ def linearization_adjoint(lin: Linearization, grad_disp: np.ndarray) -> np.ndarr
     Returns (n_spatial * n_time,) with x = C.ravel() (spatial index major).
     """
     g = np.asarray(grad_disp, dtype=float).reshape(grad_disp.shape[0], -1)           # (T, 3N)
+    rows = np.flatnonzero(np.any(g != 0.0, axis=1))                                   # a frame's score: 2 times
     out = np.zeros((lin.n_spatial, lin.n_time))
     for t in lin.terms:
-        out += (g @ t.spatial.reshape(-1, lin.n_spatial)).T @ t.temporal               # (S, n_time)
+        out += (g[rows] @ t.spatial.reshape(-1, lin.n_spatial)).T @ t.temporal[rows]   # (S, n_time)
     return out.ravel()
 
 
