@@ -110,3 +110,17 @@ def test_frame_scores_sum_to_the_frozen_gradient_of_the_data_terms():
     assert np.count_nonzero(np.abs(scores).max(axis=1)) == 8
     sw = sandwich(p, x, model, frames, u)
     assert sw.tau2 > 0 and np.all(np.diag(sw.covariance.dense()) >= np.diag(sw.scatter.dense()) - 1e-15)
+
+
+def test_what_nothing_determines_is_stated_as_not_determined():
+    """A control value no data and no ridge touch (H singular there): the MSE gives it a huge variance
+    (as the Laplace posterior does), the determined ones their sandwich variance."""
+    rng = np.random.default_rng(9)
+    a = rng.normal(size=(50, 4))
+    a[:, 3] = 0.0
+    h = 2 * a.T @ a
+    s = 4 * 0.1 ** 2 * a.T @ a
+    mse, scatter = mse_covariance(BlockMatrix(4, (np.arange(4),), (h,)), s)
+    d = np.diag(mse.dense())
+    assert d[3] > 1e6 * d[:3].max() and np.diag(scatter.dense())[3] == 0.0
+    np.testing.assert_allclose(mse.dense()[:3, :3], 0.1 ** 2 * np.linalg.inv(a[:, :3].T @ a[:, :3]), rtol=1e-8)

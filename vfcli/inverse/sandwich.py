@@ -164,27 +164,35 @@ class Sandwich:
     lag: int
 
 
-def _pinv(a: np.ndarray) -> np.ndarray:
+def _pinv_and_null(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(pseudo-inverse, null-space variance) of a symmetric PSD block: the null space (eigenvalues below
+    1e-12 of the largest, directions the fit does not determine) gets 1e12 x the largest variance's
+    scale, i.e. 'not determined', as :func:`vfcli.inverse.uncertainty.posterior` does."""
     w, v = np.linalg.eigh(0.5 * (a + a.T))
     top = max(float(w.max()), 1e-300)
-    return (v * np.where(w > 1e-12 * top, 1.0 / np.maximum(w, 1e-300), 0.0)) @ v.T
+    keep = w > 1e-12 * top
+    pinv = (v[:, keep] / w[keep]) @ v[:, keep].T
+    null = (v[:, ~keep] * (1e12 / top)) @ v[:, ~keep].T
+    return pinv, null
 
 
 def mse_covariance(hessian: BlockMatrix, score_cov: np.ndarray,
                    bias_cov: sp.spmatrix | np.ndarray | None = None) -> tuple[BlockMatrix, BlockMatrix]:
     """(MSE, scatter) = ``H^-1 (S + B) H^-1`` and ``H^-1 S H^-1``, per block of H.
 
-    hessian : H (ridge included; a singular block is pseudo-inverted).  score_cov : (n, n) S.
+    hessian : H (ridge included).  A singular block is pseudo-inverted, and its null space (what
+        neither the data nor the ridge determine) gets a huge variance in the MSE, none in the scatter.
+    score_cov : (n, n) S.
     bias_cov : (n, n) B, the expected ``(Lambda x)(Lambda x)^T`` of the ridge's bias
     (``tau^2 Lambda Omega^-1 Lambda``), or None.
     """
     b = sp.csr_matrix(bias_cov) if bias_cov is not None else None
     mse, scatter = [], []
     for idx, hb in zip(hessian.indices, hessian.blocks):
-        hinv = _pinv(hb)
+        hinv, null = _pinv_and_null(hb)
         part = hinv @ score_cov[np.ix_(idx, idx)] @ hinv
         scatter.append(part)
-        mse.append(part if b is None else part + hinv @ b[idx][:, idx].toarray() @ hinv)
+        mse.append(part + null if b is None else part + null + hinv @ b[idx][:, idx].toarray() @ hinv)
     return (BlockMatrix(hessian.n, hessian.indices, tuple(mse)),
             BlockMatrix(hessian.n, hessian.indices, tuple(scatter)))
 
