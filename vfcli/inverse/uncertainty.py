@@ -6,7 +6,7 @@ noise), plus the instruments' disagreement below, each split into the static par
 oscillating part over the window (:func:`instrument_split`, :func:`window_mean`,
 :func:`window_oscillation`).  The Laplace posterior of this module is kept as a library function
 (its scale follows the residual's total size: 98.6 % coverage of 90 % intervals on the test
-phantom, where the sandwich gives 89.7 %).
+phantom, where the sandwich gives 89.5 %).
 
 Around the optimum the displacements are described by the response's linearisation
 (``dU(t) = sum_j R_j dC B_j(t)``, exact for a linear response such as ``U(t) = R C b(t)``),
