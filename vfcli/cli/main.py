@@ -31,7 +31,7 @@ COMMANDS: dict[str, tuple[str | None, str]] = {
     "optimize": ("vfcli.cli.optimize:optimize_cmd", "Fit the force field so the FEM model matches the recording."),
     "export": ("vfcli.cli.export:export_cmd", "Export the motion for ParaView, the model over the video, figures and tables."),
     "synth": ("vfcli.cli.synth:synth_cmd", "Write a phantom recording (raw instrument files) with known truth."),
-    "diagnose": (None, "Locate the mismatch and name the missing physics."),
+    "diagnose": ("vfcli.cli.diagnose:diagnose_cmd", "Locate the mismatch and name the missing physics."),
     "report": ("vfcli.cli.report:report_cmd", "Write a self-contained HTML report of a recording (or an index of many)."),
     "batch": (None, "Run the pipeline over many recordings (cluster)."),
     "config": ("vfcli.cli.config:config_cmd", "Store, update (--set) or show a recording's config."),

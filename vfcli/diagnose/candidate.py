@@ -23,6 +23,8 @@ the measurement directly (a sync timing error) builds them itself in the same ro
 """
 from __future__ import annotations
 
+import importlib
+import importlib.util
 from dataclasses import dataclass, field
 from typing import Protocol, Sequence, runtime_checkable
 
@@ -167,3 +169,14 @@ def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list
     if not candidates:
         return []
     raise NotImplementedError("candidate screening is built by the Explain step (vfcli/diagnose/candidates/)")
+
+
+#: the package of candidate terms; it exposes ``CANDIDATES``: a sequence of :class:`Candidate` instances
+CANDIDATES_PACKAGE = "vfcli.diagnose.candidates"
+
+
+def available_candidates() -> list[Candidate]:
+    """The candidate terms of :data:`CANDIDATES_PACKAGE` (its ``CANDIDATES``); empty until that package exists."""
+    if importlib.util.find_spec(CANDIDATES_PACKAGE) is None:
+        return []
+    return list(getattr(importlib.import_module(CANDIDATES_PACKAGE), "CANDIDATES", ()))

@@ -147,7 +147,7 @@ class Located:
     """What Locate found.
 
     families : {"motion": Decomposition, "gap": Decomposition} (a family may be absent).
-    hotspots : every tested part, most significant first (p-value, then ratio).
+    hotspots : every tested part, ranked (:func:`rank_hotspots`).
     alpha : family-wise false-alarm rate the Holm adjustment controls.
     f0_hz, n_cycles : the window's fundamental and the whole cycles of the noise floor.
     """
@@ -182,8 +182,9 @@ def holm(p: np.ndarray) -> np.ndarray:
     return out
 
 
-def rank_hotspots(families: dict[str, Decomposition]) -> list[Hotspot]:
-    """Every part of every family as a :class:`Hotspot`, most significant first, Holm-adjusted over all."""
+def rank_hotspots(families: dict[str, Decomposition], alpha: float) -> list[Hotspot]:
+    """Every part of every family as a :class:`Hotspot`, Holm-adjusted over all: first the parts above the
+    noise floor at the family-wise level ``alpha``, largest ratio first, then the others by p-value."""
     rows = []
     for fam, d in families.items():
         br, hr = d.bin_ratio, d.harm_ratio
@@ -199,5 +200,5 @@ def rank_hotspots(families: dict[str, Decomposition]) -> list[Hotspot]:
     adj = holm(np.array([r[7] for r in rows]))
     spots = [Hotspot(r[0], r[1], int(r[2]), int(r[3]), int(r[4]), float(r[5]), float(r[6]), float(r[7]),
                      float(a), int(r[8])) for r, a in zip(rows, adj)]
-    spots.sort(key=lambda h: (h.p_value, -h.ratio))
+    spots.sort(key=lambda h: (0, -h.ratio, h.p_value) if h.p_adjusted <= alpha else (1, h.p_value, -h.ratio))
     return spots

@@ -115,3 +115,12 @@ def window_residual(baseline) -> WindowResidual:
 def medial_silhouettes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(F, n_rays, 2) measured silhouettes signed as :attr:`WindowResidual.gap` (medial positive), px."""
     return np.stack([np.asarray(lo, float), -np.asarray(hi, float)], axis=-1)
+
+
+def rms_residual(motion: np.ndarray) -> np.ndarray:
+    """(H, W, 3) RMS over the frames of the motion residual (F, H, W, 3), mm/s; NaN where never compared."""
+    m = np.asarray(motion, dtype=float)
+    n = np.sum(np.isfinite(m), axis=0)
+    ss = np.nansum(m * m, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.sqrt(ss / np.maximum(n, 1)), np.nan)

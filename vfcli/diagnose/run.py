@@ -3,7 +3,8 @@
 :func:`locate_run` takes the fitted window (a :class:`vfcli.diagnose.candidate.Baseline`) and
 the whole recording around it (:class:`Recording`, arrays or array-likes the stage hands in;
 the large per-frame ones are read here in slices of frames, so memory does not grow with the
-recording), and returns what Locate found (:class:`LocateResult`).
+recording), and returns what Locate found (:class:`LocateResult`); :func:`diagnose_run` adds the
+candidates' screening (:func:`vfcli.diagnose.candidate.screen`) and the plain-words lines.
 """
 from __future__ import annotations
 
@@ -13,12 +14,14 @@ from typing import Any
 import numpy as np
 
 from vfcli.camera.pose import model_axes_velocity
-from vfcli.diagnose.cycles import Cycles, glottal_cycles
+from vfcli.diagnose.candidate import available_candidates, screen
+from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, glottal_cycles
 from vfcli.diagnose.locate import Located, decompose, rank_hotspots
 from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
 from vfcli.diagnose.regions import (COMPONENT_NAMES, GAP_COMPONENT_NAMES, N_GAP_REGIONS, N_REGIONS,
                                     gap_region_names, region_names)
 from vfcli.diagnose.residual import WindowResidual, medial_silhouettes, region_means, window_residual
+from vfcli.diagnose.words import summary_lines
 from vfcli.flow.gap.opening import measured_silhouettes
 
 #: frames read at once from the per-frame arrays
@@ -141,5 +144,46 @@ def locate_run(baseline, rec: Recording, settings: LocateSettings | None = None)
         families["gap"] = decompose(region_means(res.gap[..., None], res.gap_region, N_GAP_REGIONS),
                                     cycles.phase[window], cycles.phase_name[window], gap_floor,
                                     gap_region_names(), GAP_COMPONENT_NAMES, "mm")
-    located = Located(families, rank_hotspots(families), settings.alpha, cycles.f0_hz, floor.n_cycles)
+    located = Located(families, rank_hotspots(families, settings.alpha), settings.alpha, cycles.f0_hz, floor.n_cycles)
     return LocateResult(located, res, cycles, window, density)
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """What `vfcli diagnose` found: Locate's result, the candidates' screening and the plain-words lines."""
+
+    locate: LocateResult
+    screening: list
+    screening_status: str
+    lines: list[str]
+
+    @property
+    def located(self) -> Located:
+        return self.locate.located
+
+    def summary(self) -> dict[str, Any]:
+        """The figures the command prints and stores (JSON-ready)."""
+        loc = self.located
+        top = []
+        for h in loc.hotspots[:10]:
+            d = loc.families[h.family]
+            top.append({"family": h.family, "kind": h.kind, "region": d.region_names[h.region],
+                        "component": d.component_names[h.component],
+                        ("harmonic" if h.kind == "harmonic" else "phase"):
+                            (h.index if h.kind == "harmonic" else PHASE_NAMES[h.index]),
+                        "size": round(h.size, 6), "units": d.units, "ratio": round(h.ratio, 3),
+                        "p": float(f"{h.p_value:.4g}"), "p_adjusted": float(f"{h.p_adjusted:.4g}")})
+        return {"f0_hz": round(loc.f0_hz, 2), "noise_cycles": loc.n_cycles, "parts_tested": len(loc.hotspots),
+                "above_noise": len(loc.significant), "alpha": loc.alpha,
+                "smallest_p_adjusted": float(f"{loc.hotspots[0].p_adjusted:.4g}") if loc.hotspots else None,
+                "screening": self.screening_status, "lines": self.lines, "hotspots": top}
+
+
+def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None) -> Diagnosis:
+    """Locate the baseline's residual (:func:`locate_run`), then screen the candidate physics terms."""
+    loc = locate_run(baseline, rec, settings)
+    cands = available_candidates()
+    results = screen(loc.located, cands, baseline)
+    status = "not built yet" if not cands else f"{len(results)} candidates screened"
+    lines = summary_lines(loc.located) + [f"candidate screening: {status}"] + [r.words for r in results if r.words]
+    return Diagnosis(loc, results, status, lines)
