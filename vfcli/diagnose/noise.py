@@ -8,7 +8,8 @@ Two sources, added as variances (:class:`NoiseFloor`):
   of the cycle; cosine and sine coefficient per harmonic of f0).  The periodic motion is the
   same in every cycle, so the scatter of these statistics across cycles is the noise a single
   cycle's statistic carries, with ``n_cycles - 1`` degrees of freedom (cosine and sine pooled:
-  ``2 (n_cycles - 1)``).  Cycles are the units of replication: correlation within a cycle
+  ``2 (n_cycles - 1)``).  The motion common to all cycles is removed first
+  (:func:`periodic_template`), so that the frames' sampling of it does not count as noise.  Cycles are the units of replication: correlation within a cycle
   is allowed for.
 * **the vibrometer's noise above the band of motion** (:func:`ldv_noise_density`,
   :func:`ldv_known_variance`): the vertical velocity of the field is the vibrometer's
@@ -29,7 +30,7 @@ import numpy as np
 from scipy.signal import welch
 
 from vfcli.diagnose.cycles import PHASE_NAMES, Cycles
-from vfcli.diagnose.harmonics import fit_harmonics
+from vfcli.diagnose.harmonics import design, fit_harmonics
 
 
 @dataclass(frozen=True)
@@ -93,6 +94,7 @@ def cycle_floor(series: np.ndarray, cycles: Cycles, n_harmonics: int,
     if len(ids) < 2:
         raise ValueError(f"{len(ids)} whole glottal cycle(s): the noise floor needs at least 2")
     nb, k = len(PHASE_NAMES), n_harmonics
+    y = y - periodic_template(y, cycles, np.isin(cycles.cycle, ids))
     means = np.full((len(ids), r, c, nb), np.nan)
     counts = np.zeros((len(ids), nb))
     cos = np.full((len(ids), k, r, c), np.nan)
@@ -125,6 +127,23 @@ def cycle_floor(series: np.ndarray, cycles: Cycles, n_harmonics: int,
     return NoiseFloor(bin_var, bin_dof, counts.mean(axis=0), np.moveaxis(harm_var, 0, -1),
                       np.moveaxis(harm_dof, 0, -1), np.nanmedian(scales, axis=0),
                       np.zeros((r, c, nb)), np.zeros((r, c, k)), int(len(ids)))
+
+
+def periodic_template(y: np.ndarray, cycles: Cycles, frames: np.ndarray) -> np.ndarray:
+    """(F, R, C) the motion common to every cycle: a Fourier series in the cycle phase fitted to ``frames``.
+
+    Removing it leaves the cycle-to-cycle variation unchanged (it is the same in every cycle) but
+    removes the scatter a strongly varying motion gives to a phase mean when the frames fall at
+    other phases in each cycle.  Harmonics up to a third of the frames per cycle (at most 30).
+    """
+    per_cycle = np.sum(frames) / max(len(np.unique(cycles.cycle[frames])), 1)
+    k = int(np.clip(per_cycle // 3, 1, 30))
+    a, b, _ = fit_harmonics(cycles.phase[frames], y[frames], k)
+    if not np.isfinite(a).any():
+        return np.zeros_like(y)
+    x = design(cycles.phase, k)[:, 1:]                                        # (F, 2K)
+    coef = np.concatenate([np.nan_to_num(a), np.nan_to_num(b)], axis=0)      # (2K, R, C)
+    return np.einsum("fk,k...->f...", x, coef)
 
 
 @contextmanager
