@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
@@ -49,7 +49,6 @@ class Baseline:
     displacements: np.ndarray
     frames: list
     f0_hz: float = float("nan")
-    _motion_sizes: list = field(default_factory=list, repr=False)
 
     @classmethod
     def at(cls, problem, x: np.ndarray, f0_hz: float = float("nan")) -> "Baseline":

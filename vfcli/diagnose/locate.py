@@ -18,7 +18,7 @@ its Holm-adjusted value over all parts (family-wise false-alarm rate ``alpha``),
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import f as f_dist
@@ -157,7 +157,6 @@ class Located:
     alpha: float
     f0_hz: float
     n_cycles: int
-    extra: dict = field(default_factory=dict)
 
     @property
     def significant(self) -> list[Hotspot]:
