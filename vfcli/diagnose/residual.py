@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vfcli.camera.silhouette import crossing_with_gradient
 from vfcli.diagnose.regions import N_REGIONS, thirds, vertex_fold, vertex_regions
+from vfcli.inverse.terms.gap import gap_rows
 
 
 @dataclass(frozen=True)
@@ -100,15 +100,15 @@ def window_residual(baseline) -> WindowResidual:
     p = baseline.problem
     motion = -p.motion_residuals(baseline.x, baseline.frames)
     gap = np.full((p.n_frames, p.n_rays_img, 2), np.nan)
+    none = np.zeros((len(p.mesh.nodes), 3, 0))
     for f, fr in enumerate(baseline.frames):
-        scr = p.camera.project(p.mesh.nodes + baseline.displacements[f])
-        for side, (rays, edge, tgt) in enumerate(fr.sil):
-            if rays.size == 0:
-                continue
-            ee = p.fold_edges[p.fold_order[side]][edge]
-            s, _, _ = crossing_with_gradient(scr, ee, rays, p.ray_comp)
-            sign = 1.0 if side == 0 else -1.0
-            gap[f, rays, side] = sign * (tgt - s) / p.camera.px_per_mm
+        # simulated minus measured px per crossing, the sides' rays in order (as the gap term has them)
+        _, dist = gap_rows(p, p.mesh.nodes + baseline.displacements[f], fr.sil, none)
+        at = 0
+        for side, (rays, _, _) in enumerate(fr.sil):
+            sign = 1.0 if side == 0 else -1.0          # medial is +px for the low side, -px for the high one
+            gap[f, rays, side] = -sign * dist[at:at + rays.size] / p.camera.px_per_mm
+            at += rays.size
     return WindowResidual(motion, gap, pixel_regions(baseline), gap_regions(p))
 
 
