@@ -23,8 +23,8 @@ from vfcli.diagnose.residual import rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.stages.base import RunContext, StageResult, run_stage
-from vfcli.stages.optimize import problem_of_store
-from vfcli.store import StageWriter, StoreReader
+from vfcli.store import StageWriter, StoreReader, layout
+from vfcli.store.fit import problem_of_store
 from vfcli.store.runs import read_run
 
 log = logging.getLogger(__name__)
@@ -65,19 +65,20 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
         (/mesh, /fields or /flow changed since the run).
     """
     stored = read_run(reader, run)
+    group = layout.stage("optimize").group_path(run)
     flow_attrs = reader.attrs("flow")
     roi = np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float)
     cfg = run_recording_config(config, stored.config, stored.attrs, roi)
     problem, _ = problem_of_store(reader, cfg)
     if problem.n_params != len(stored.controls) or not np.allclose(problem.sim_times, stored.sim_time, atol=1e-9):
-        raise InputDataError(f"/optimize/{run} does not match the model rebuilt from the store ({problem.n_params} "
+        raise InputDataError(f"{group} does not match the model rebuilt from the store ({problem.n_params} "
                              f"controls, {len(problem.sim_times)} times against {len(stored.controls)}, "
                              f"{len(stored.sim_time)}); rerun `vfcli optimize --run {run}`", reader.path)
     baseline = Baseline.at(problem, stored.controls)
     worst = float(np.max(np.abs(baseline.displacements - stored.displacements)))
     scale = float(np.max(np.abs(stored.displacements))) or 1.0
     if worst > _REBUILD_TOL_MM + 1e-5 * scale:
-        raise InputDataError(f"/optimize/{run}: its stored displacements differ from its model rebuilt from the store "
+        raise InputDataError(f"{group}: its stored displacements differ from its model rebuilt from the store "
                              f"by up to {worst:.3g} mm (/mesh, /fields or /flow changed since the run); rerun "
                              f"`vfcli optimize --run {run}`", reader.path)
     ldv = {}
