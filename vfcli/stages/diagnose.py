@@ -125,6 +125,12 @@ def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> Non
     s.put("hotspot_ratio", np.array([h.ratio for h in spots], dtype=np.float64))
     s.put("hotspot_p", np.array([h.p_value for h in spots], dtype=np.float64))
     s.put("hotspot_p_adjusted", np.array([h.p_adjusted for h in spots], dtype=np.float64))
+    if d.screening:
+        s.put("candidate_name", np.array([c.name for c in d.screening], dtype=object))
+        s.put("candidate_statistic", np.array([c.statistic for c in d.screening], dtype=np.float64))
+        s.put("candidate_p", np.array([c.p_value for c in d.screening], dtype=np.float64))
+        s.put("candidate_identifiable", np.array([bool(c.identifiable) for c in d.screening]))
+        s.put("candidate_words", np.array([c.words for c in d.screening], dtype=object))
     s.set_attrs(f0_hz=loc.f0_hz, n_cycles=loc.n_cycles, alpha=loc.alpha,
                 ldv_noise_density=d.locate.ldv_density, words_json=json.dumps(d.lines),
                 screening=d.screening_status)
