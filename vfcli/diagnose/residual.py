@@ -53,8 +53,9 @@ def region_means(values: np.ndarray, labels: np.ndarray, n_regions: int) -> np.n
     ok = np.isfinite(flat)
     onehot = np.zeros((lab.size, n_regions))
     onehot[np.arange(lab.size), lab] = 1.0
-    sums = np.einsum("fpc,pr->frc", np.where(ok, flat, 0.0), onehot)
-    counts = np.einsum("fpc,pr->frc", ok.astype(float), onehot)
+    # (F, C, P) @ (P, R): one matrix product per sum
+    sums = np.moveaxis(np.moveaxis(np.where(ok, flat, 0.0), 2, 1) @ onehot, 1, 2)
+    counts = np.moveaxis(np.moveaxis(ok.astype(float), 2, 1) @ onehot, 1, 2)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(counts > 0, sums / counts, np.nan)
 
@@ -65,14 +66,20 @@ def pixel_regions(baseline, n_regions: int = N_REGIONS) -> np.ndarray:
     mesh = p.mesh
     vreg = vertex_regions(mesh.uv, vertex_fold(len(mesh.nodes), mesh.tets, mesh.tet_fold))
     n_pix = int(np.prod(p.camera.shape))
-    counts = np.zeros((n_pix, n_regions + 1))
+    counts = np.zeros(n_pix * (n_regions + 1))
     for fr in baseline.frames:
         m = fr.m_both.tocsr()
         if m.shape[0] == 0:
             continue
-        dense_arg = np.asarray(m.argmax(axis=1)).ravel()
-        reg = vreg[dense_arg]
-        np.add.at(counts, (fr.pix_both, np.where(reg >= 0, reg, n_regions)), 1.0)
+        # the vertex of largest weight in each row: sort the entries by (row, -weight), take each row's first
+        row = np.repeat(np.arange(m.shape[0]), np.diff(m.indptr))
+        order = np.lexsort((-m.data, row))
+        first = order[m.indptr[:-1][np.diff(m.indptr) > 0]]
+        rows_with = np.flatnonzero(np.diff(m.indptr) > 0)
+        reg = vreg[m.indices[first]]
+        counts += np.bincount(fr.pix_both[rows_with] * (n_regions + 1) + np.where(reg >= 0, reg, n_regions),
+                              minlength=counts.size)
+    counts = counts.reshape(n_pix, n_regions + 1)
     best = np.argmax(counts[:, :n_regions], axis=1)
     best[counts[:, :n_regions].sum(axis=1) == 0] = -1
     return best.reshape(p.camera.shape)
