@@ -175,3 +175,16 @@ def test_vertex_regions_follow_the_surface_map():
     assert names[reg[2]] == "right fold, lateral part, posterior third"
     assert reg[3] == -1
     assert names[reg[4]] == "right fold, medial edge, middle third"
+
+
+def test_too_few_cycles_is_said_as_such():
+    from vfcli.diagnose.cycles import TooFewCycles
+
+    with pytest.raises(TooFewCycles, match="rises through half its range 1 time"):
+        glottal_cycles(area_waveform(60), DT)                  # 0.7 cycle: one upward crossing
+    with pytest.raises(TooFewCycles, match="flat"):
+        glottal_cycles(np.ones(500), DT)
+    short = glottal_cycles(area_waveform(150), DT)            # 1.8 cycles: one whole cycle
+    assert short.n_cycles == 1
+    with pytest.raises(TooFewCycles, match="1 whole glottal cycle"):
+        cycle_floor(np.zeros((150, 2, 3)), short, 3)

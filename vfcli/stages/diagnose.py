@@ -19,6 +19,7 @@ import numpy as np
 
 from vfcli.config import RecordingConfig
 from vfcli.diagnose.candidate import Baseline
+from vfcli.diagnose.cycles import TooFewCycles
 from vfcli.diagnose.residual import rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
@@ -154,7 +155,11 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         inputs = read_inputs(reader, ctx.config, run)
-        d = diagnose_run(inputs.baseline, inputs.recording, settings)
+        try:
+            d = diagnose_run(inputs.baseline, inputs.recording, settings)
+        except TooFewCycles as exc:
+            raise InputDataError(f"diagnose: {exc}; record longer (more glottal cycles around the run's window)",
+                                 reader.path) from None
         write_diagnosis(s, d, inputs.baseline.problem.meas.times)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
