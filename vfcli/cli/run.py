@@ -9,10 +9,8 @@ from typing import Any
 
 import click
 
+from vfcli.cli.choices import RUN_STEPS
 from vfcli.cli.common import run_options, setup_logging
-
-#: The steps, for --until (kept here so that `vfcli run --help` imports no stage module).
-STEP_NAMES = ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize")
 
 
 def _report_current(store: Path, out: Path) -> bool:
@@ -26,7 +24,7 @@ def _report_current(store: Path, out: Path) -> bool:
 @click.option("--raw", "raw_dir", type=click.Path(file_okay=False),
               help="The recording's raw folder (video, pressure, scan, recording.toml; see README). "
                    "Without it the ingest steps are skipped.")
-@click.option("--until", type=click.Choice(STEP_NAMES), help="Last step to run.")
+@click.option("--until", type=click.Choice(RUN_STEPS), help="Last step to run.")
 @click.option("--dry-run", is_flag=True, help="Say which steps would run and why; write nothing.")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False),
               help="Then export everything into this folder (skipped when it is up to date).")

@@ -28,17 +28,13 @@ from vfcli.store.provenance import describe_inputs, same_inputs
 
 log = logging.getLogger(__name__)
 
-#: The steps in order: command name -> the store groups it writes ``[(stage, run)]``.
-STEPS: dict[str, list[tuple[str, str | None]]] = {
-    "ingest-hsc": [("hsc", None)],
-    "ingest-ldv": [("ldv", None)],
-    "sync": [("sync", None)],
-    "flow": [("flow", None), ("fields", None)],
-    "mesh": [("mesh", None)],
-    "optimize": [("optimize", "default")],
-}
 #: The optimisation run `vfcli run` writes.
 RUN_NAME = "default"
+#: The steps in order: command name -> the store groups it writes ``[(stage, run)]`` (from the layout).
+STEPS: dict[str, list[tuple[str, str | None]]] = {
+    step: [(st.name, RUN_NAME if st.has_runs else None) for st in layout.STAGES.values() if st.written_by == step]
+    for step in ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize")
+}
 _RAW_STEPS = ("ingest-hsc", "ingest-ldv")
 
 
@@ -110,10 +106,12 @@ def _input_paths(step: str, raw: RawFiles) -> list[Path]:
 
 
 def _upstream(name: str, ctx: RunContext) -> list[str]:
-    """Group paths stage ``name`` uses (as recorded in its provenance)."""
-    ups = {"sync": ["/hsc", "/ldv"], "flow": ["/hsc"], "fields": ["/flow", "/sync", "/ldv"],
-           "optimize": ["/mesh", "/fields", "/flow"] + (["/hsc"] if ctx.config.optimize.loads == "pressure" else [])}
-    return ups.get(name, [])
+    """Group paths stage ``name`` uses (as recorded in its provenance): the layout's ``reads``;
+    optimize reads /hsc (the pressure) only with the pressure loads."""
+    reads = layout.stage(name).reads
+    if name == "optimize" and ctx.config.optimize.loads != "pressure":
+        reads = tuple(r for r in reads if r != "hsc")
+    return [layout.stage(r).group_path() for r in reads]
 
 
 def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, str | None]:
