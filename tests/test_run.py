@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import run_vfcli
+from conftest import ROOT, VFCLI, run_vfcli
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
@@ -171,3 +174,35 @@ def test_without_raw_the_ingest_steps_are_skipped_and_a_missing_stage_is_named(t
     stages = {s["name"]: s for s in json.loads(dry.stdout)["stages"]}
     assert stages["ingest-hsc"]["action"] == "skipped" and stages["sync"]["action"] == "would run"
     assert not (tmp_path / "none.h5").exists()
+
+
+def _modules_imported(*args) -> tuple[subprocess.CompletedProcess, set[str]]:
+    """Every module a `vfcli ARGS` run imports (`python -X importtime`)."""
+    res = subprocess.run([sys.executable, "-X", "importtime", *VFCLI[1:], *map(str, args)], capture_output=True,
+                         text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=600)
+    return res, {line.split("|")[-1].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
+
+
+def test_run_exports_and_reports_and_figures_redraw_without_refitting(phantom, tmp_path):
+    raw, store0, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    shutil.copy(store0, store)
+    before = _sha(store)
+    outs = ["--export", tmp_path / "export", "--report", tmp_path / "report.html"]
+    _, out = _run(store, raw, *outs)
+    assert [(o["name"], o["action"]) for o in out["outputs"]] == [("export", "ran"), ("report", "ran")]
+    assert (tmp_path / "export/figures/fig7_convergence.png").stat().st_size > 1000
+    assert (tmp_path / "report.html").read_text().startswith("<!DOCTYPE html>")
+    _, out = _run(store, raw, *outs)
+    assert [(o["name"], o["action"]) for o in out["outputs"]] == [("export", "up to date"), ("report", "up to date")]
+    # the figures again, for another screen point: drawn from the stored fit, no optimiser loaded, store unchanged
+    res, modules = _modules_imported("export", store, "--to", tmp_path / "redrawn", "--what", "figures",
+                                     "--point", "80,70")
+    assert res.returncode == 0, res.stderr
+    assert "vfcli.stages.export_job" in modules and "vfcli.inverse.optimizers.base" not in modules
+    assert not any(m.startswith(("vfcli.inverse.setup", "vfcli.stages.optimize")) for m in modules)
+    drawn = sorted(p.name for p in (tmp_path / "redrawn/figures").iterdir())
+    assert "fig7_convergence.png" in drawn and "fig8_velocities.png" in drawn
+    assert (tmp_path / "redrawn/figures/fig8_velocities.png").read_bytes() != (
+        tmp_path / "export/figures/fig8_velocities.png").read_bytes()  # redrawn for the new point
+    assert _sha(store) == before
