@@ -137,6 +137,8 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
     for path, (step, name, _run) in groups.items():
         why: list[str] = []
         st = statuses.get(path)
+        # a step writing several groups (flow: /flow and /fields) says which group a reason is about
+        named = (lambda w: f"{path}: {w}") if len(STEPS[step]) > 1 else (lambda w: w)
         if ctx.force:
             why.append("--force")
         elif st is None:
@@ -144,7 +146,7 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
         elif not st.complete or getattr(st, "damaged", None):
             why.append(f"{path} incomplete or damaged")
         else:
-            why += [f"{path}: {w}" if w.startswith("config") else w for w in st.stale_because]
+            why += [f"{path}: {w}" if w.startswith("config") else named(w) for w in st.stale_because]
             if step in _RAW_STEPS and raw is not None:
                 old = previous.get(step, {})
                 new = describe_inputs(_input_paths(step, raw), old)
@@ -153,8 +155,8 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
                     changed = [Path(p).name for p, v in new.items() if v["sha256"] not in known]
                     why.append("input changed: " + (", ".join(changed) or "a file was removed"))
             for up in _upstream(name, ctx):
-                if up in rewritten and not any(w.startswith(up + " ") for w in why):
-                    why.append(f"{up} is rewritten first")
+                if up in rewritten and not any(w.startswith(up + " ") or f": {up} " in w for w in why):
+                    why.append(named(f"{up} is rewritten first"))
         if why:
             rewritten.add(path)
             reasons[step] += why
