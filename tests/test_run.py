@@ -139,6 +139,11 @@ def test_until_stops_and_the_library_entry_point(phantom, tmp_path):
         assert sorted(r.stage_paths()) == ["/hsc", "/ldv"] and r.attrs("hsc")["px_per_mm"] == 9.5
     res = run_vfcli("run", store, "--raw", raw, "--until", "nope")
     assert res.returncode == 2 and "nope" in res.stderr
+    # --quiet: nothing but errors, although ingest-ldv warns about the phantom's dropouts
+    res = run_vfcli("run", tmp_path / "quiet.h5", "--raw", raw, "--until", "ingest-ldv", "-q")
+    assert res.returncode == 0 and res.stdout == "" and res.stderr == "", (res.stdout, res.stderr)
+    with Store(tmp_path / "quiet.h5").read() as r:
+        assert any("dropout" in w for w in r.summary("ldv")["warnings"])  # stored all the same
 
 
 def test_the_raw_files_are_found_by_extension_or_named_in_a_manifest(phantom, tmp_path):

@@ -205,6 +205,17 @@ class _Collect(logging.Handler):
         self.messages.append(f"{record.levelname} {record.name}: {record.getMessage()}")
 
 
+def _warnings(ctx: RunContext, step: str, logged: list[str]) -> list[str]:
+    """The warnings a step that ran stored with its groups (also under ``--quiet``, which keeps
+    them from being logged), then those it logged besides, each once."""
+    stored: list[str] = []
+    with ctx.store.read() as r:
+        for name, run in STEPS[step]:
+            if r.has_stage(name, run):
+                stored += (r.summary(name, run) or {}).get("warnings", [])
+    return list(dict.fromkeys([*stored, *logged]))
+
+
 def run_recording(
     store: Path,
     raw: Path | None,
@@ -277,9 +288,9 @@ def run_recording(
         ran = any(r.status == "written" for r in results)
         reason = (why[step] or "rewritten with unchanged inputs") if ran else "inputs and config unchanged"
         if not ran and why[step]:
-            reason = f"inputs and config unchanged ({why[step]}, with the same content)"
+            reason = f"unchanged after all ({why[step]}, with the same content)"
         done.append(StageOutcome(step, "ran" if ran else "up to date", reason, time.perf_counter() - t0,
-                                 collect.messages))
+                                 _warnings(ctx, step, collect.messages) if ran else collect.messages))
         log.info("%s: %s (%s)", step, done[-1].action, reason)
     by_name = {o.name: o for o in [*outcomes, *done]}
     ordered = [by_name[s] for s in STEPS]
