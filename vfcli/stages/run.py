@@ -25,6 +25,7 @@ from vfcli.progress import Progress, no_progress
 from vfcli.stages.base import RunContext, StageResult, stage_config_json
 from vfcli.store import layout
 from vfcli.store.provenance import describe_inputs, same_inputs
+from vfcli.store.reader import StageStatus
 
 log = logging.getLogger(__name__)
 
@@ -125,7 +126,7 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
     """
     groups = {layout.stage(n).group_path(r): (step, n, r) for step in steps for n, r in STEPS[step]}
     reasons: dict[str, list[str]] = {step: [] for step in steps}
-    statuses: dict[str, Any] = {}
+    statuses: dict[str, StageStatus] = {}
     previous: dict[str, dict[str, Any]] = {}
     if ctx.store.exists():
         with ctx.store.read() as r:
@@ -138,15 +139,15 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
         why: list[str] = []
         st = statuses.get(path)
         # a step writing several groups (flow: /flow and /fields) says which group a reason is about
-        named = (lambda w: f"{path}: {w}") if len(STEPS[step]) > 1 else (lambda w: w)
+        prefix = f"{path}: " if len(STEPS[step]) > 1 else ""
         if ctx.force:
             why.append("--force")
         elif st is None:
             why.append(f"{path} missing")
-        elif not st.complete or getattr(st, "damaged", None):
+        elif not st.complete or st.damaged:
             why.append(f"{path} incomplete or damaged")
         else:
-            why += [f"{path}: {w}" if w.startswith("config") else named(w) for w in st.stale_because]
+            why += [f"{path}: {w}" if w.startswith("config") else prefix + w for w in st.stale_because]
             if step in _RAW_STEPS and raw is not None:
                 old = previous.get(step, {})
                 new = describe_inputs(_input_paths(step, raw), old)
@@ -156,7 +157,7 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
                     why.append("input changed: " + (", ".join(changed) or "a file was removed"))
             for up in _upstream(name, ctx):
                 if up in rewritten and not any(w.startswith(up + " ") or f": {up} " in w for w in why):
-                    why.append(named(f"{up} is rewritten first"))
+                    why.append(f"{prefix}{up} is rewritten first")
         if why:
             rewritten.add(path)
             reasons[step] += why
