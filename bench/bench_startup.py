@@ -70,6 +70,11 @@ def make_store(tree: Path, work: Path) -> tuple[Path, Path]:
     return raw, store
 
 
+def has(tree: Path, command: str) -> bool:
+    """Whether the checkout has the command (`vfcli run` is new)."""
+    return command != "run" or (tree / "vfcli/cli/run.py").exists()
+
+
 def row(label: str, results: list[dict[str, object] | None]) -> str:
     cells = []
     for key, fmt in (("modules", "{}"), ("import_s", "{:.2f} s"), ("heavy", "{}"), ("wall_s", "{:.2f} s"),
@@ -100,8 +105,8 @@ def main() -> None:
     print("| --- | --- | --- | --- | --- | --- |")
     for args in (["--help"], ["config", "--help"], ["mesh", "--help"], ["sync", "--help"], ["optimize", "--help"],
                  ["run", "--help"]):
-        print(row("vfcli " + " ".join(args), [run(t, args, a.repeat) if (t / "vfcli/cli" / f"{args[0]}.py").exists()
-                                             or args[0] == "--help" else None for t in trees]), flush=True)
+        print(row("vfcli " + " ".join(args), [run(t, args, a.repeat) if has(t, args[0]) else None for t in trees]),
+              flush=True)
     if a.no_store:
         return
     with tempfile.TemporaryDirectory(prefix="vfcli-bench-startup-") as tmp:
@@ -110,8 +115,7 @@ def main() -> None:
                  ["mesh", store], ["optimize", store], ["run", store, "--raw", raw]]
         for args in calls:
             label = "vfcli " + " ".join(Path(x).name if isinstance(x, Path) else x for x in args) + " (up to date)"
-            results = [run(t, [str(x) for x in args], a.repeat) if (t / "vfcli/cli" / f"{args[0]}.py").exists()
-                       else None for t in trees]
+            results = [run(t, [str(x) for x in args], a.repeat) if has(t, args[0]) else None for t in trees]
             print(row(label, results), flush=True)
 
 
