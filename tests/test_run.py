@@ -167,6 +167,9 @@ def test_the_raw_files_are_found_by_extension_or_named_in_a_manifest(phantom, tm
         find_raw_files(d)
     res = run_vfcli("run", tmp_path / "x.h5", "--raw", d)
     assert res.returncode == 3 and len(res.stderr.strip().splitlines()) == 1 and "vibrometer scan" in res.stderr
+    (d / FILES_MANIFEST).write_text('vidoe = "take2.tif"\n')
+    with pytest.raises(ConfigError, match="unknown key 'vidoe' \\(did you mean 'video'\\?\\)"):
+        find_raw_files(d)
     (d / FILES_MANIFEST).write_text('video = "nothere.avi"\n')
     with pytest.raises(InputDataError, match="nothere.avi"):
         find_raw_files(d)
