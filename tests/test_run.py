@@ -44,6 +44,16 @@ def _run(store, raw, *args):
     return {s["name"]: s for s in out["stages"]}, out
 
 
+def _copy_store(src: Path, dst: Path) -> None:
+    """A copy of the store under the same file name, with the folder of part files beside it when
+    the store has one (``<name>.parts/``, whose links are relative to the store's folder)."""
+    assert src.name == dst.name
+    shutil.copy(src, dst)
+    parts = src.with_name(src.name + ".parts")
+    if parts.is_dir():
+        shutil.copytree(parts, dst.with_name(dst.name + ".parts"))
+
+
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -93,7 +103,7 @@ def test_a_changed_raw_file_reruns_exactly_what_depends_on_it(phantom, tmp_path)
     # the recording moved (another folder, same bytes): nothing to do
     raw, store = tmp_path / "raw", tmp_path / "rec.h5"
     shutil.copytree(raw0, raw)
-    shutil.copy(store0, store)
+    _copy_store(store0, store)
     stages, _ = _run(store, raw, "--dry-run")
     assert {n: s["action"] for n, s in stages.items()} == {n: "up to date" for n in STEPS}
     # new bytes in the scan: /ldv and everything that uses it, not /hsc, /flow (video only) or /mesh
@@ -120,7 +130,7 @@ def test_a_changed_raw_file_reruns_exactly_what_depends_on_it(phantom, tmp_path)
 def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
     raw, store0, _, _ = phantom
     store = tmp_path / "rec.h5"
-    shutil.copy(store0, store)
+    _copy_store(store0, store)
     stages, _ = _run(store, raw, "--dry-run", "--set", "sync.n_harmonics=4")
     assert [n for n, s in stages.items() if s["action"] == "would run"] == ["sync", "flow", "optimize"]
     assert stages["sync"]["reason"].startswith("/sync: config changed") and "n_harmonics" in stages["sync"]["reason"]
@@ -194,7 +204,7 @@ def _modules_imported(*args) -> tuple[subprocess.CompletedProcess, set[str]]:
 def test_run_exports_and_reports_and_figures_redraw_without_refitting(phantom, tmp_path):
     raw, store0, _, _ = phantom
     store = tmp_path / "rec.h5"
-    shutil.copy(store0, store)
+    _copy_store(store0, store)
     before = _sha(store)
     outs = ["--export", tmp_path / "export", "--report", tmp_path / "report.html"]
     _, out = _run(store, raw, *outs)
