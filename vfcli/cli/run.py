@@ -12,6 +12,9 @@ import click
 from vfcli.cli.choices import RUN_STEPS
 from vfcli.cli.common import run_options, setup_logging
 
+#: The steps, for --until (`vfcli batch` imports this name too).
+STEP_NAMES = RUN_STEPS
+
 
 def _report_current(store: Path, out: Path) -> bool:
     """The report is newer than the store's last write (the store's file time changes on
@@ -24,7 +27,7 @@ def _report_current(store: Path, out: Path) -> bool:
 @click.option("--raw", "raw_dir", type=click.Path(file_okay=False),
               help="The recording's raw folder (video, pressure, scan, recording.toml; see README). "
                    "Without it the ingest steps are skipped.")
-@click.option("--until", type=click.Choice(RUN_STEPS), help="Last step to run.")
+@click.option("--until", type=click.Choice(STEP_NAMES), help="Last step to run.")
 @click.option("--dry-run", is_flag=True, help="Say which steps would run and why; write nothing.")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False),
               help="Then export everything into this folder (skipped when it is up to date).")
