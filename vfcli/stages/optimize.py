@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from vfcli.config import RecordingConfig
 from vfcli.errors import ConfigError
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
