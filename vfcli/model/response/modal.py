@@ -84,7 +84,7 @@ class ModalReduction:
     fold_frequencies_hz_ : (2 n_modes,) the eigsh frequencies of the two folds (for reporting).
     """
 
-    def __init__(self, model, loads, n_modes: int = 12, n_ritz: int = 6) -> None:
+    def __init__(self, model, loads, n_modes: int = 20, n_ritz: int = 10) -> None:
         f = loads.toarray() if sp.issparse(loads) else np.asarray(loads, dtype=float)
         if f.ndim != 2 or f.shape[0] != model.n_dofs:
             raise ValueError(f"loads must be (n_dofs={model.n_dofs}, S), got {f.shape}")
