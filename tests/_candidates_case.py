@@ -11,7 +11,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from tests._forward_case import F0_HZ, elastic_model, true_controls
+from _forward_case import F0_HZ, elastic_model, true_controls
 from vfcli.camera.camera import Camera
 from vfcli.diagnose.candidate import Baseline
 from vfcli.inverse.problem import ObjectiveSettings, Problem, synthesize_measurement

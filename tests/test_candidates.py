@@ -14,10 +14,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests._candidates_case import force_field_case, pressure_case
+from _candidates_case import force_field_case, pressure_case
 from vfcli.diagnose.candidate import Baseline, Candidate
 from vfcli.diagnose.candidates import CANDIDATES, Inertia, KelvinVoigtDamping, StiffnessAsymmetry
 from vfcli.diagnose.candidates.identifiability import identifiability, load_basis
+from vfcli.diagnose.candidates.blocks import screen_run
 from vfcli.diagnose.candidates.screening import load_jacobian, screen_baseline
 from vfcli.inverse.problem import Problem, synthesize_measurement
 from vfcli.model.response.modal import ModalReduction
@@ -85,20 +86,37 @@ class _SofterLeft:
         return self.inner.penalty_operator()
 
 
-@pytest.mark.slow
-def test_score_test_finds_an_injected_asymmetry_and_estimates_it():
+def _noisy_baseline(s: float, seed: int) -> Baseline:
+    """The pressure case's baseline (its controls) against data with the left fold softened by s,
+    plus white velocity noise of 2 mm/s on every valid pixel."""
     base = pressure_case()
     p = base.problem
-    s = 0.1
     left = np.zeros(p.mesh.n_nodes, bool)
     left[p.mesh.fold_nodes(0)] = True
-    rng = np.random.default_rng(5)
-    meas = synthesize_measurement(p.mesh, p.camera, _SofterLeft(p.response, left, s), p.meas.times, base.x, p.settings)
-    noisy = meas.velocity + rng.normal(scale=2.0, size=meas.velocity.shape) * meas.valid[..., None]
-    meas = type(meas)(meas.times, noisy, meas.valid, meas.gap_lo, meas.gap_hi, meas.gap)
-    fitted = Baseline.at(Problem(p.mesh, p.camera, p.response, meas, p.settings), base.x, base.f0_hz)
-    test = screen_baseline([StiffnessAsymmetry()], fitted)[0]
+    meas = synthesize_measurement(p.mesh, p.camera, _SofterLeft(p.response, left, s), p.meas.times, base.x,
+                                  p.settings)
+    noise = np.random.default_rng(seed).normal(scale=2.0, size=meas.velocity.shape) * meas.valid[..., None]
+    meas = type(meas)(meas.times, meas.velocity + noise, meas.valid, meas.gap_lo, meas.gap_hi, meas.gap)
+    return Baseline.at(Problem(p.mesh, p.camera, p.response, meas, p.settings), base.x, base.f0_hz)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("screen", [screen_baseline, screen_run], ids=["dense", "gauss-newton-blocks"])
+def test_score_test_finds_an_injected_asymmetry_and_estimates_it(screen):
+    s = 0.1
+    test = screen([StiffnessAsymmetry()], _noisy_baseline(s, seed=5))[0]
     assert test.p_value < 1e-6
     # U = U0 + theta U0|left with theta = s / (1 - s) exactly; the raster is frozen at the baseline
     theta = s / (1 - s)
     assert abs(test.estimate[0] - theta) < 0.1 * theta, test.estimate
+
+
+@pytest.mark.slow
+def test_gauss_newton_screening_raises_no_alarm_on_noise_only_and_agrees_on_identifiability(fractions):
+    tests = screen_run(CANDIDATES, _noisy_baseline(0.0, seed=6))
+    assert all(t.p_value > 0.05 / len(CANDIDATES) for t in tests), [t.p_value for t in tests]
+    # the normal-equation shares (objective weights) against the dense projection (uniform weights):
+    # measured within 2 %
+    for c, t in zip(CANDIDATES, tests):
+        dense = fractions["pressure"][c.name]
+        assert abs(t.identifiability.residual_fraction / dense - 1) < 0.05, (c.name, t.identifiability, dense)

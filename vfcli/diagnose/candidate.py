@@ -167,9 +167,10 @@ def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list
     """
     if not candidates:
         return []
-    from vfcli.diagnose.candidates.screening import screen_baseline, words
+    from vfcli.diagnose.candidates.blocks import screen_run
+    from vfcli.diagnose.candidates.screening import words
 
-    tests = screen_baseline(candidates, baseline)
+    tests = screen_run(candidates, baseline)
     return [Screening(c.name, t.statistic, t.p_value, t.identifiability.identifiable, t.estimate,
                       np.column_stack([t.estimate - 1.96 * t.std, t.estimate + 1.96 * t.std]),
                       words(c, t, len(candidates))) for c, t in zip(candidates, tests)]
