@@ -9,7 +9,7 @@ import pytest
 
 from _forward_case import forward_case
 from vfcli.diagnose.candidate import Baseline, Candidate, available_candidates, screen
-from vfcli.diagnose.regions import N_REGIONS, region_names
+from vfcli.diagnose.regions import N_REGIONS, gap_region_names, region_names
 from vfcli.diagnose.residual import region_means, window_residual
 
 
@@ -80,3 +80,21 @@ def test_screening_seam_without_candidates(case):
     # a rigid shift moves no velocity: the motion rows are zero, the silhouettes move by 1 mm
     assert np.abs(cols[:b.n_motion_rows]).max() < 1e-9
     assert np.allclose(np.abs(cols[b.n_motion_rows:, 0]), 1.0, atol=1e-6)
+
+
+def test_gap_residual_is_medial_positive_on_the_fold_that_moved(case):
+    p = case.problem
+    u = p.displacements(case.x_true)
+    fold = np.zeros(len(p.mesh.nodes), int)
+    fold[np.unique(p.mesh.tets[p.mesh.tet_fold == 1])] = 1
+    moved = u.copy()
+    moved[:, fold == 0, 1] += 0.1     # the simulated left fold (y < 0) 0.1 mm towards the midline
+    b = Baseline(p, case.x_true, moved, p.freeze(case.x_true, moved))
+    res = window_residual(b)
+    left, right = (list(p.fold_order).index(k) for k in (0, 1))
+    # the measured edge lies 0.1 mm lateral of the simulated one: measured minus simulated, medial positive
+    assert np.nanmedian(res.gap[..., left]) == pytest.approx(-0.1, abs=0.01)
+    assert np.nanmax(np.abs(res.gap[..., right])) < 1e-9
+    # the left fold's side of every ray is one of the left fold's gap regions, all three thirds present
+    seen = {gap_region_names()[i] for i in np.unique(res.gap_region[:, left]) if i >= 0}
+    assert seen == {f"left fold, medial edge, {t} third" for t in ("anterior", "middle", "posterior")}

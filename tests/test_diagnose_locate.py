@@ -175,3 +175,34 @@ def test_vertex_regions_follow_the_surface_map():
     assert names[reg[2]] == "right fold, lateral part, posterior third"
     assert reg[3] == -1
     assert names[reg[4]] == "right fold, medial edge, middle third"
+
+
+def test_too_few_cycles_is_said_as_such():
+    from vfcli.diagnose.cycles import TooFewCycles
+
+    with pytest.raises(TooFewCycles, match="rises through half its range 1 time"):
+        glottal_cycles(area_waveform(60), DT)                  # 0.7 cycle: one upward crossing
+    with pytest.raises(TooFewCycles, match="flat"):
+        glottal_cycles(np.ones(500), DT)
+    short = glottal_cycles(area_waveform(150), DT)            # 1.8 cycles: one whole cycle
+    assert short.n_cycles == 1
+    with pytest.raises(TooFewCycles, match="1 whole glottal cycle"):
+        cycle_floor(np.zeros((150, 2, 3)), short, 3)
+
+
+def test_floor_frames_keep_whole_cycles_around_the_window():
+    from vfcli.diagnose.run import floor_frames
+
+    cyc = glottal_cycles(area_waveform(), DT)
+    window = np.arange(WINDOW.start, WINDOW.stop)
+    span = floor_frames(cyc, window, max_cycles=3)
+    assert span.start <= window[0] and span.stop > window[-1]
+    phase = cyc.phase[span]
+    # from an integer phase 3 cycles before the window's to one 4 cycles after it (window spans 2 cycles)
+    assert np.floor(phase[0]) == np.floor(cyc.phase[window[0]]) - 3 and phase[0] - np.floor(phase[0]) < 0.02
+    assert np.floor(phase[-1]) == np.floor(cyc.phase[window[-1]]) + 3
+    ids = cyc.cycle[span]
+    whole = np.unique(ids[ids >= 0])
+    for c in whole:   # every whole cycle inside keeps all its frames
+        assert np.sum(ids == c) == np.sum(cyc.cycle == c)
+    assert len(whole) >= 7

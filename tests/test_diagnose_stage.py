@@ -62,7 +62,7 @@ def test_diagnose_writes_the_run_group_and_says_what_it_located(fitted, tmp_path
         ds = r.dataset("diagnose", "motion_harmonic_amplitude", "fit")
         assert ds.attrs["units"] == "mm/s"
         assert [d.label for d in ds.dims] == ["region", "component", "harmonic"]
-    assert attrs["stage"] == "diagnose" and attrs["screening"] == "not built yet"
+    assert attrs["stage"] == "/diagnose/fit" and attrs["screening"] == "not built yet"
     assert json.loads(attrs["words_json"])[0] == lines[0]
     assert len(names) == 18 and mean.shape == (18, 3, 4) and frame_time.shape == (60,)
     assert np.all((p[np.isfinite(p)] >= 0) & (p[np.isfinite(p)] <= 1)) and np.all(adj >= p - 1e-12)

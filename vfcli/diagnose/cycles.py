@@ -24,6 +24,10 @@ PHASE_NAMES = ("opening", "open", "closing", "closed")
 CLOSED_LEVEL, OPEN_LEVEL = 0.15, 0.85
 
 
+class TooFewCycles(ValueError):
+    """The recording holds too few whole glottal cycles for what was asked (a property of the data)."""
+
+
 @dataclass(frozen=True)
 class Cycles:
     """Glottal cycles of a recording.
@@ -64,15 +68,17 @@ def glottal_cycles(area: np.ndarray, dt: float) -> Cycles:
 
     Raises
     ------
-    ValueError
+    TooFewCycles
         Fewer than two upward crossings (not even one whole cycle), or a flat area.
+    ValueError
+        ``area`` is not (F,) finite with F >= 4.
     """
     a = np.asarray(area, dtype=float)
     if a.ndim != 1 or a.size < 4 or not np.all(np.isfinite(a)):
         raise ValueError(f"the glottal area must be (F,) finite with F >= 4, got shape {a.shape}")
     lo, hi = np.percentile(a, 1), np.percentile(a, 99)
     if not hi > lo:
-        raise ValueError("the glottal area is flat: no glottal cycle")
+        raise TooFewCycles("the glottal area is flat: no glottal cycle")
     level = (a - lo) / (hi - lo)
     # upward crossings of the half level, with hysteresis (0.4 / 0.6) against noise
     ups: list[float] = []
@@ -84,7 +90,7 @@ def glottal_cycles(area: np.ndarray, dt: float) -> Cycles:
             ups.append(i - 1 + (0.5 - level[i - 1]) / (level[i] - level[i - 1]))
             armed = False
     if len(ups) < 2:
-        raise ValueError(f"the glottal area rises through half its range {len(ups)} time(s): "
+        raise TooFewCycles(f"the glottal area rises through half its range {len(ups)} time(s): "
                          "no whole glottal cycle in the recording")
     ups_arr = np.asarray(ups)
     period = float(np.median(np.diff(ups_arr)))          # frames

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import welch
 
-from vfcli.diagnose.cycles import PHASE_NAMES, Cycles
+from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles
 from vfcli.diagnose.harmonics import design, fit_harmonics
 
 
@@ -78,7 +78,7 @@ def cycle_floor(series: np.ndarray, cycles: Cycles, n_harmonics: int,
 
     Raises
     ------
-    ValueError
+    TooFewCycles
         Fewer than 2 whole cycles: no cycle-to-cycle variation can be measured.
     """
     y = np.asarray(series, dtype=float)
@@ -92,7 +92,7 @@ def cycle_floor(series: np.ndarray, cycles: Cycles, n_harmonics: int,
         if len(kept) >= 3:
             ids = kept
     if len(ids) < 2:
-        raise ValueError(f"{len(ids)} whole glottal cycle(s): the noise floor needs at least 2")
+        raise TooFewCycles(f"{len(ids)} whole glottal cycle(s) in the recording: the noise floor needs at least 2")
     nb, k = len(PHASE_NAMES), n_harmonics
     y = y - periodic_template(y, cycles, np.isin(cycles.cycle, ids))
     means = np.full((len(ids), r, c, nb), np.nan)

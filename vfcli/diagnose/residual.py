@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vfcli.camera.silhouette import crossing_with_gradient
 from vfcli.diagnose.regions import N_REGIONS, thirds, vertex_fold, vertex_regions
+from vfcli.inverse.terms.gap import gap_rows
 
 
 @dataclass(frozen=True)
@@ -53,8 +53,9 @@ def region_means(values: np.ndarray, labels: np.ndarray, n_regions: int) -> np.n
     ok = np.isfinite(flat)
     onehot = np.zeros((lab.size, n_regions))
     onehot[np.arange(lab.size), lab] = 1.0
-    sums = np.einsum("fpc,pr->frc", np.where(ok, flat, 0.0), onehot)
-    counts = np.einsum("fpc,pr->frc", ok.astype(float), onehot)
+    # (F, C, P) @ (P, R): one matrix product per sum
+    sums = np.moveaxis(np.moveaxis(np.where(ok, flat, 0.0), 2, 1) @ onehot, 1, 2)
+    counts = np.moveaxis(np.moveaxis(ok.astype(float), 2, 1) @ onehot, 1, 2)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(counts > 0, sums / counts, np.nan)
 
@@ -65,14 +66,20 @@ def pixel_regions(baseline, n_regions: int = N_REGIONS) -> np.ndarray:
     mesh = p.mesh
     vreg = vertex_regions(mesh.uv, vertex_fold(len(mesh.nodes), mesh.tets, mesh.tet_fold))
     n_pix = int(np.prod(p.camera.shape))
-    counts = np.zeros((n_pix, n_regions + 1))
+    counts = np.zeros(n_pix * (n_regions + 1))
     for fr in baseline.frames:
         m = fr.m_both.tocsr()
         if m.shape[0] == 0:
             continue
-        dense_arg = np.asarray(m.argmax(axis=1)).ravel()
-        reg = vreg[dense_arg]
-        np.add.at(counts, (fr.pix_both, np.where(reg >= 0, reg, n_regions)), 1.0)
+        # the vertex of largest weight in each row: sort the entries by (row, -weight), take each row's first
+        row = np.repeat(np.arange(m.shape[0]), np.diff(m.indptr))
+        order = np.lexsort((-m.data, row))
+        first = order[m.indptr[:-1][np.diff(m.indptr) > 0]]
+        rows_with = np.flatnonzero(np.diff(m.indptr) > 0)
+        reg = vreg[m.indices[first]]
+        counts += np.bincount(fr.pix_both[rows_with] * (n_regions + 1) + np.where(reg >= 0, reg, n_regions),
+                              minlength=counts.size)
+    counts = counts.reshape(n_pix, n_regions + 1)
     best = np.argmax(counts[:, :n_regions], axis=1)
     best[counts[:, :n_regions].sum(axis=1) == 0] = -1
     return best.reshape(p.camera.shape)
@@ -100,15 +107,15 @@ def window_residual(baseline) -> WindowResidual:
     p = baseline.problem
     motion = -p.motion_residuals(baseline.x, baseline.frames)
     gap = np.full((p.n_frames, p.n_rays_img, 2), np.nan)
+    none = np.zeros((len(p.mesh.nodes), 3, 0))
     for f, fr in enumerate(baseline.frames):
-        scr = p.camera.project(p.mesh.nodes + baseline.displacements[f])
-        for side, (rays, edge, tgt) in enumerate(fr.sil):
-            if rays.size == 0:
-                continue
-            ee = p.fold_edges[p.fold_order[side]][edge]
-            s, _, _ = crossing_with_gradient(scr, ee, rays, p.ray_comp)
-            sign = 1.0 if side == 0 else -1.0
-            gap[f, rays, side] = sign * (tgt - s) / p.camera.px_per_mm
+        # simulated minus measured px per crossing, the sides' rays in order (as the gap term has them)
+        _, dist = gap_rows(p, p.mesh.nodes + baseline.displacements[f], fr.sil, none)
+        at = 0
+        for side, (rays, _, _) in enumerate(fr.sil):
+            sign = 1.0 if side == 0 else -1.0          # medial is +px for the low side, -px for the high one
+            gap[f, rays, side] = -sign * dist[at:at + rays.size] / p.camera.px_per_mm
+            at += rays.size
     return WindowResidual(motion, gap, pixel_regions(baseline), gap_regions(p))
 
 

@@ -26,6 +26,8 @@ from vfcli.flow.gap.opening import measured_silhouettes
 
 #: frames read at once from the per-frame arrays
 CHUNK_FRAMES = 64
+#: whole glottal cycles on each side of the window the noise floor uses at most (bounds time and memory)
+MAX_FLOOR_CYCLES = 32
 
 
 @dataclass(frozen=True)
@@ -81,15 +83,27 @@ class LocateResult:
     ldv_density: float
 
 
-def measured_motion_series(rec: Recording, camera_rotation_deg: float, pixel_region: np.ndarray) -> np.ndarray:
-    """(F_all, 18, 3) measured velocity in model axes, mean over each region's valid pixels per frame, mm/s."""
-    n = len(rec.glottal_area)
+def floor_frames(cycles: Cycles, window: np.ndarray, max_cycles: int = MAX_FLOOR_CYCLES) -> slice:
+    """The frames the noise floor uses: whole cycles from ``max_cycles`` before the window's to
+    ``max_cycles`` after it (cut at integer phases, so the cycles inside stay whole)."""
+    first = np.floor(cycles.phase[window[0]]) - max_cycles
+    last = np.floor(cycles.phase[window[-1]]) + max_cycles + 1
+    inside = np.flatnonzero((cycles.phase >= first) & (cycles.phase < last))
+    return slice(int(inside[0]), int(inside[-1]) + 1)
+
+
+def measured_motion_series(rec: Recording, camera_rotation_deg: float, pixel_region: np.ndarray,
+                           frames: slice) -> np.ndarray:
+    """(F, 18, 3) measured velocity in model axes, mean over each region's valid pixels per frame, mm/s,
+    for the recording's ``frames``."""
+    n = frames.stop - frames.start
     out = np.full((n, N_REGIONS, 3), np.nan)
-    for i in range(0, n, CHUNK_FRAMES):
-        v = np.array(rec.velocity[i:i + CHUNK_FRAMES], dtype=np.float64)
+    for i in range(frames.start, frames.stop, CHUNK_FRAMES):
+        j = min(i + CHUNK_FRAMES, frames.stop)
+        v = np.array(rec.velocity[i:j], dtype=np.float64)
         v[..., :2] = model_axes_velocity(v[..., :2], rec.velocity_rotation_deg, camera_rotation_deg)
-        v[~np.asarray(rec.valid[i:i + CHUNK_FRAMES], bool)] = np.nan
-        out[i:i + len(v)] = region_means(v, pixel_region, N_REGIONS)
+        v[~np.asarray(rec.valid[i:j], bool)] = np.nan
+        out[i - frames.start:j - frames.start] = region_means(v, pixel_region, N_REGIONS)
     return out
 
 
@@ -118,11 +132,13 @@ def locate_run(baseline, rec: Recording, settings: LocateSettings | None = None)
     window = np.arange(rec.window_start, rec.window_start + p.n_frames)
     if window[-1] >= len(cycles.phase):
         raise ValueError(f"window frames {window[0]}..{window[-1]} run past the recording ({len(cycles.phase)})")
-    exclude = np.zeros(len(cycles.phase), bool)
-    exclude[window] = True
+    span = floor_frames(cycles, window)
+    around = Cycles(cycles.f0_hz, cycles.phase[span], cycles.cycle[span], cycles.phase_name[span])
+    exclude = np.zeros(span.stop - span.start, bool)
+    exclude[window - span.start] = True
 
-    motion_all = measured_motion_series(rec, p.camera.rotation_deg, res.pixel_region)
-    floor = cycle_floor(motion_all, cycles, k, exclude)
+    motion_all = measured_motion_series(rec, p.camera.rotation_deg, res.pixel_region, span)
+    floor = cycle_floor(motion_all, around, k, exclude)
     density = float("nan")
     if rec.ldv_velocity is not None and len(rec.ldv_velocity):
         density = ldv_noise_density(rec.ldv_velocity, rec.ldv_fs_hz, cycles.f0_hz, rec.ldv_used)
@@ -135,12 +151,12 @@ def locate_run(baseline, rec: Recording, settings: LocateSettings | None = None)
                                     cycles.phase_name[window], floor, region_names(), COMPONENT_NAMES, "mm/s")}
 
     if np.any(res.gap_region >= 0):
-        masks = np.concatenate([np.asarray(rec.gap_masks[i:i + CHUNK_FRAMES], bool)
-                                for i in range(0, len(cycles.phase), CHUNK_FRAMES)])
+        masks = np.concatenate([np.asarray(rec.gap_masks[i:min(i + CHUNK_FRAMES, span.stop)], bool)
+                                for i in range(span.start, span.stop, CHUNK_FRAMES)])
         lo, hi = measured_silhouettes(masks, p.settings.lateral_axis)
-        sil = medial_silhouettes(lo, hi)[..., None] / p.camera.px_per_mm             # (F_all, rays, 2, 1) mm
+        sil = medial_silhouettes(lo, hi)[..., None] / p.camera.px_per_mm             # (F, rays, 2, 1) mm
         gap_all = region_means(sil, res.gap_region, N_GAP_REGIONS)
-        gap_floor = cycle_floor(gap_all, cycles, k, exclude)
+        gap_floor = cycle_floor(gap_all, around, k, exclude)
         families["gap"] = decompose(region_means(res.gap[..., None], res.gap_region, N_GAP_REGIONS),
                                     cycles.phase[window], cycles.phase_name[window], gap_floor,
                                     gap_region_names(), GAP_COMPONENT_NAMES, "mm")

@@ -19,12 +19,13 @@ import numpy as np
 
 from vfcli.config import RecordingConfig
 from vfcli.diagnose.candidate import Baseline
+from vfcli.diagnose.cycles import TooFewCycles
 from vfcli.diagnose.residual import rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.stages.base import RunContext, StageResult, run_stage
-from vfcli.stages.optimize import problem_of_store
-from vfcli.store import StageWriter, StoreReader
+from vfcli.store import StageWriter, StoreReader, layout
+from vfcli.store.fit import problem_of_store
 from vfcli.store.runs import read_run
 
 log = logging.getLogger(__name__)
@@ -65,19 +66,20 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
         (/mesh, /fields or /flow changed since the run).
     """
     stored = read_run(reader, run)
+    group = layout.stage("optimize").group_path(run)
     flow_attrs = reader.attrs("flow")
     roi = np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float)
     cfg = run_recording_config(config, stored.config, stored.attrs, roi)
     problem, _ = problem_of_store(reader, cfg)
     if problem.n_params != len(stored.controls) or not np.allclose(problem.sim_times, stored.sim_time, atol=1e-9):
-        raise InputDataError(f"/optimize/{run} does not match the model rebuilt from the store ({problem.n_params} "
+        raise InputDataError(f"{group} does not match the model rebuilt from the store ({problem.n_params} "
                              f"controls, {len(problem.sim_times)} times against {len(stored.controls)}, "
                              f"{len(stored.sim_time)}); rerun `vfcli optimize --run {run}`", reader.path)
     baseline = Baseline.at(problem, stored.controls)
     worst = float(np.max(np.abs(baseline.displacements - stored.displacements)))
     scale = float(np.max(np.abs(stored.displacements))) or 1.0
     if worst > _REBUILD_TOL_MM + 1e-5 * scale:
-        raise InputDataError(f"/optimize/{run}: its stored displacements differ from its model rebuilt from the store "
+        raise InputDataError(f"{group}: its stored displacements differ from its model rebuilt from the store "
                              f"by up to {worst:.3g} mm (/mesh, /fields or /flow changed since the run); rerun "
                              f"`vfcli optimize --run {run}`", reader.path)
     ldv = {}
@@ -124,6 +126,12 @@ def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> Non
     s.put("hotspot_ratio", np.array([h.ratio for h in spots], dtype=np.float64))
     s.put("hotspot_p", np.array([h.p_value for h in spots], dtype=np.float64))
     s.put("hotspot_p_adjusted", np.array([h.p_adjusted for h in spots], dtype=np.float64))
+    if d.screening:
+        s.put("candidate_name", np.array([c.name for c in d.screening], dtype=object))
+        s.put("candidate_statistic", np.array([c.statistic for c in d.screening], dtype=np.float64))
+        s.put("candidate_p", np.array([c.p_value for c in d.screening], dtype=np.float64))
+        s.put("candidate_identifiable", np.array([bool(c.identifiable) for c in d.screening]))
+        s.put("candidate_words", np.array([c.words for c in d.screening], dtype=object))
     s.set_attrs(f0_hz=loc.f0_hz, n_cycles=loc.n_cycles, alpha=loc.alpha,
                 ldv_noise_density=d.locate.ldv_density, words_json=json.dumps(d.lines),
                 screening=d.screening_status)
@@ -147,7 +155,11 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         inputs = read_inputs(reader, ctx.config, run)
-        d = diagnose_run(inputs.baseline, inputs.recording, settings)
+        try:
+            d = diagnose_run(inputs.baseline, inputs.recording, settings)
+        except TooFewCycles as exc:
+            raise InputDataError(f"diagnose: {exc}; record longer (more glottal cycles around the run's window)",
+                                 reader.path) from None
         write_diagnosis(s, d, inputs.baseline.problem.meas.times)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map

@@ -129,6 +129,7 @@ AXES: dict[str, Axis] = {
     "cycle_phase": Axis("Phase of the glottal cycle", ("opening", "open", "closing", "closed")),
     "harmonic": Axis("Harmonic of f0 (0-based index: index k - 1 is the k-th harmonic)"),
     "hotspot": Axis("Tested part of the residual, most significant first (0-based index)"),
+    "candidate": Axis("Candidate physics term screened (0-based index; candidate_name names them)"),
 }
 
 STAGES: dict[str, Stage] = {
@@ -293,6 +294,11 @@ STAGES: dict[str, Stage] = {
                 "hotspot_ratio": D("1", "Size of the part in units of its noise floor (sqrt of the F statistic)", ("hotspot",)),
                 "hotspot_p": D("1", "p-value of the part", ("hotspot",)),
                 "hotspot_p_adjusted": D("1", "Holm-adjusted p-value over all parts (family-wise)", ("hotspot",)),
+                "candidate_name": D("text", "Name of each candidate physics term screened (absent: none screened)", ("candidate",)),
+                "candidate_statistic": D("1", "Screening statistic of each candidate", ("candidate",)),
+                "candidate_p": D("1", "p-value of each candidate's screening (null: the term is absent)", ("candidate",)),
+                "candidate_identifiable": D("bool", "False: the load model can absorb the term (not identifiable with it)", ("candidate",)),
+                "candidate_words": D("text", "Each candidate's finding in plain words", ("candidate",)),
             },
         ),
     ]
