@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import scipy.sparse.linalg as spl
 
 from _forward_case import elastic_model
@@ -31,17 +32,17 @@ def _full_transfer(model, loads, omega, density, tau, loss) -> np.ndarray:
     return np.moveaxis(re + 1j * im, 0, -1)
 
 
+@pytest.mark.slow
 def test_reduction_is_exact_at_zero_frequency_and_close_at_f0_with_damping():
     model = elastic_model()
     loads = _loads(model)
-    red = ModalReduction(model, loads, n_modes=6, n_ritz=10)
+    red = ModalReduction(model, loads)                              # 20 modes per fold, 10 Ritz blocks
     static = np.moveaxis(model.vertex_displacements(model.solve(loads)), 0, -1)
     assert np.linalg.norm(red.transfer(0.0, 1.0) - static) < 1e-10 * np.linalg.norm(static)
     w, tau, loss = 2 * np.pi * F0_HZ, 0.2 / (2 * np.pi * F0_HZ), 0.02
     full = _full_transfer(model, loads, w, 1.0, tau, loss)
     err = np.linalg.norm(red.transfer(w, 1.0, tau, loss) - full) / np.linalg.norm(full)
-    print("relative error at f0", err)
-    assert err < 1e-3, err                                         # measured 2.4e-4 (2 mm mesh, 20 modes, 10 blocks)
+    assert err < 1e-3, err               # measured 2.4e-4; with 6 modes per fold 4.6e-2: the modes carry it
     # the reduction's lowest frequencies are the folds' eigsh modes (a Rayleigh-Ritz space containing them)
     lowest = np.sqrt(red.eigenvalues_[:4]) / (2 * np.pi)
     assert np.allclose(lowest, np.sort(red.fold_frequencies_hz_)[:4], rtol=1e-8)

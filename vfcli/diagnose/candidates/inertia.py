@@ -48,11 +48,15 @@ class Inertia(DisplacementTerm):
     def __init__(self, model=None) -> None:
         self.model = model
         self._cache: tuple = (None, None)            # (response, its mass responses)
+        self._own: tuple = (None, None)              # (mesh, the model built for it)
 
     def _model(self, baseline):
-        if self.model is None:
-            self.model = elastic_model_of(baseline)
-        return self.model
+        """The given model, else the baseline's (built once per mesh: CANDIDATES' instances are shared)."""
+        if self.model is not None:
+            return self.model
+        if self._own[0] is not baseline.problem.mesh:
+            self._own = (baseline.problem.mesh, elastic_model_of(baseline))
+        return self._own[1]
 
     def mass_responses(self, baseline) -> np.ndarray:
         """(N, 3, S) vertex displacement of ``K^-1 M K^-1 L_s`` per spatial load pattern s, mm s^2."""
