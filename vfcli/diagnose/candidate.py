@@ -167,7 +167,13 @@ def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list
     """
     if not candidates:
         return []
-    raise NotImplementedError("candidate screening is built by the Explain step (vfcli/diagnose/candidates/)")
+    from vfcli.diagnose.candidates.blocks import screen_run
+    from vfcli.diagnose.candidates.screening import words
+
+    tests = screen_run(candidates, baseline)
+    return [Screening(c.name, t.statistic, t.p_value, t.identifiability.identifiable, t.estimate,
+                      np.column_stack([t.estimate - 1.96 * t.std, t.estimate + 1.96 * t.std]),
+                      words(c, t, len(candidates))) for c, t in zip(candidates, tests)]
 
 
 #: the package of candidate terms; it exposes ``CANDIDATES``: a sequence of :class:`Candidate` instances

@@ -1,0 +1,63 @@
+"""The modal/Ritz reduction of vfcli.model.response.modal against full sparse solves."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spl
+
+from _forward_case import elastic_model
+from vfcli.model.mesh import TAG_INFERIOR, TAG_MEDIAL
+from vfcli.model.response.modal import ModalReduction, harmonic_fit
+
+F0_HZ = 170.0
+
+
+def _loads(model) -> np.ndarray:
+    """(n_dofs, 2) uniform pressure on the inferior and on the medial surfaces, 1 Pa."""
+    cols = []
+    for tag in (TAG_INFERIOR, TAG_MEDIAL):
+        mask = model.quadrature_mask(tags=[tag])
+        cols.append(model.pressure_operator(mask) @ np.ones(int(mask.sum())))
+    return np.column_stack(cols)
+
+
+def _full_transfer(model, loads, omega, density, tau, loss) -> np.ndarray:
+    """(N, 3, S) complex: ((1 + i loss)(1 + i omega tau) K - density omega^2 M)^-1 F by sparse LU."""
+    free = model.free_dofs
+    k, m = model.reduced_matrices()
+    c = (1 + 1j * loss) * (1 + 1j * omega * tau)
+    u = np.zeros(loads.shape, complex)
+    u[free] = spl.splu((c * k - density * omega ** 2 * m).tocsc()).solve(loads[free].astype(complex))
+    re, im = model.vertex_displacements(u.real), model.vertex_displacements(u.imag)
+    return np.moveaxis(re + 1j * im, 0, -1)
+
+
+@pytest.mark.slow
+def test_reduction_is_exact_at_zero_frequency_and_close_at_f0_with_damping():
+    model = elastic_model()
+    loads = _loads(model)
+    red = ModalReduction(model, loads)                              # 20 modes per fold, 10 Ritz blocks
+    static = np.moveaxis(model.vertex_displacements(model.solve(loads)), 0, -1)
+    assert np.linalg.norm(red.transfer(0.0, 1.0) - static) < 1e-10 * np.linalg.norm(static)
+    w, tau, loss = 2 * np.pi * F0_HZ, 0.2 / (2 * np.pi * F0_HZ), 0.02
+    full = _full_transfer(model, loads, w, 1.0, tau, loss)
+    err = np.linalg.norm(red.transfer(w, 1.0, tau, loss) - full) / np.linalg.norm(full)
+    assert err < 1e-3, err               # measured 2.4e-4; with 6 modes per fold 4.6e-2: the modes carry it
+    # the reduction's lowest frequencies are the folds' eigsh modes (a Rayleigh-Ritz space containing them)
+    lowest = np.sqrt(red.eigenvalues_[:4]) / (2 * np.pi)
+    assert np.allclose(lowest, np.sort(red.fold_frequencies_hz_)[:4], rtol=1e-8)
+
+
+def test_harmonic_fit_recovers_harmonics_and_steady_state_is_quasi_static_without_mass():
+    t = 0.001 + np.arange(24) / (24 * F0_HZ)
+    w = 2 * np.pi * F0_HZ
+    y = np.column_stack([3.0 + 2.0 * np.cos(w * t - 0.4), np.sin(2 * w * t)])
+    spec = harmonic_fit(y, t, F0_HZ, 3)
+    assert np.allclose(spec[:, 0], [3.0, 2.0 * np.exp(-0.4j), 0.0, 0.0], atol=1e-12)
+    assert np.allclose(spec[:, 1], [0.0, 0.0, -1j, 0.0], atol=1e-12)
+    model = elastic_model()
+    loads = _loads(model)
+    red = ModalReduction(model, loads, n_modes=2, n_ritz=2)
+    static = model.vertex_displacements(model.solve(loads))        # (2, N, 3)
+    u = red.steady_state(spec, F0_HZ, t, density=0.0)
+    assert np.allclose(u, np.einsum("ts,snc->tnc", y, static), atol=1e-9 * np.abs(static).max())

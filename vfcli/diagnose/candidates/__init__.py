@@ -1,0 +1,21 @@
+"""Candidate physics terms the baseline left out (issue 16, Explain), one small class per term.
+
+Each class follows :class:`vfcli.diagnose.candidate.Candidate` (name, parameters, signature,
+Jacobian of the predicted measurement at the baseline fit):
+
+- :class:`~vfcli.diagnose.candidates.inertia.Inertia`: density factor;
+- :class:`~vfcli.diagnose.candidates.damping.KelvinVoigtDamping`: retardation time;
+- :class:`~vfcli.diagnose.candidates.asymmetry.StiffnessAsymmetry`: left/right stiffness ratio;
+- :class:`~vfcli.diagnose.candidates.asymmetry.MountingOffset`: lateral offset per fold.
+
+:mod:`~vfcli.diagnose.candidates.identifiability` says whether the load model can absorb a term,
+:mod:`~vfcli.diagnose.candidates.screening` tests each term with a score test (no refit).
+"""
+from vfcli.diagnose.candidates.asymmetry import MountingOffset, StiffnessAsymmetry
+from vfcli.diagnose.candidates.damping import KelvinVoigtDamping
+from vfcli.diagnose.candidates.inertia import Inertia
+
+#: the candidate terms screened by ``vfcli diagnose`` (instances; :func:`vfcli.diagnose.candidate.available_candidates`)
+CANDIDATES = (Inertia(), KelvinVoigtDamping(), StiffnessAsymmetry(), MountingOffset())
+
+__all__ = ["CANDIDATES", "Inertia", "KelvinVoigtDamping", "MountingOffset", "StiffnessAsymmetry"]

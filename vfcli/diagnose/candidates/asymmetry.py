@@ -1,0 +1,48 @@
+"""Left-right asymmetry: a stiffness ratio between the folds and a mounting offset per fold.
+
+Stiffness (:class:`StiffnessAsymmetry`)
+    The left fold (fold 0) is softer by a fraction s, ``E_left = (1 - s) E_right``, under the
+    same load: its displacement scales by ``1 / (1 - s)``, so ``dU/ds = U0`` on fold 0 and 0 on
+    fold 1.  (A common stiffness factor of both folds is a load scale that any load model
+    absorbs; the ratio is what can be told.)  Signature: a left-right antisymmetric residual in
+    phase with the motion, the left fold moving more (s > 0) than the shared load explains.
+    A load model with free per-fold loads absorbs it exactly (a per-fold load scale).
+Mounting offset (:class:`MountingOffset`)
+    Each fold shifted laterally (y) by a constant: ``dU/d(offset_k) = e_y`` on fold k at all
+    times.  The velocity does not see a constant shift; the gap silhouettes do (the medial
+    edges sit off their fitted places in every frame, also when the glottis is closed).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from vfcli.diagnose.candidates.base import DisplacementTerm, fold_vertices
+
+
+class StiffnessAsymmetry(DisplacementTerm):
+    """Softening s of the left fold relative to the right, ``E_left = (1 - s) E_right``; one parameter."""
+
+    name = "asymmetry"
+    parameter_names = ("left_softening",)
+    signature = ("a left-right antisymmetric residual in phase with the motion: one fold moves more "
+                 "than the load shared by both folds explains")
+
+    def displacement_jacobian(self, baseline) -> np.ndarray:
+        left = fold_vertices(baseline, 0)
+        return np.where(left[None, :, None], baseline.displacements, 0.0)[..., None]
+
+
+class MountingOffset(DisplacementTerm):
+    """Lateral (y) mounting offset of each fold, mm; two parameters (left, right)."""
+
+    name = "offset"
+    parameter_names = ("offset_y_left_mm", "offset_y_right_mm")
+    signature = ("the medial edges sit off their fitted places by a constant in every frame "
+                 "(gap silhouettes), with no trace in the velocity")
+
+    def displacement_jacobian(self, baseline) -> np.ndarray:
+        u = baseline.displacements
+        out = np.zeros(u.shape + (2,))
+        for k in (0, 1):
+            out[:, fold_vertices(baseline, k), 1, k] = 1.0
+        return out

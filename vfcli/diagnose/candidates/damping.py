@@ -1,0 +1,37 @@
+"""Kelvin-Voigt damping: a retardation time tau of the tissue, ``K (u + tau u') = F``.
+
+Switched on from the quasi-static baseline ``K u0 = F``, the displacement is
+``u = u0 - tau u0' + O(tau^2)`` for any load history, so
+
+    dU/dtau = -U0'(t)        (the baseline's own velocity, per ms of tau)
+
+per harmonic k of f0 a factor ``1 / (1 + i k w0 tau)``: a phase lag growing with frequency and
+an amplitude loss growing with it (:class:`vfcli.model.response.modal.ModalReduction` gives the
+full steady state at any tau).  A load model whose time profile is free (a Bernstein basis,
+closed under d/dt) absorbs it exactly; only a load tied in time to the measured subglottal
+pressure leaves the lag visible (the reference note "What superior-surface data can and cannot
+reveal").
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from vfcli.diagnose.candidates.base import DisplacementTerm, derivative_step, time_derivative
+
+#: parameter unit: the column is per millisecond of retardation time
+MS = 1e-3
+
+
+class KelvinVoigtDamping(DisplacementTerm):
+    """Kelvin-Voigt retardation time tau (ms), one parameter."""
+
+    name = "damping"
+    parameter_names = ("retardation_time_ms",)
+    signature = ("a phase lag of the motion behind the load that grows with frequency "
+                 "(harmonic k delayed by atan(k w0 tau)), and amplitude lost at the higher harmonics")
+
+    def displacement_jacobian(self, baseline) -> np.ndarray:
+        p = baseline.problem
+        vel = time_derivative(lambda t: p.response.displacements(baseline.x, t), p.sim_times, 1,
+                              derivative_step(baseline))
+        return (-MS * vel)[..., None]

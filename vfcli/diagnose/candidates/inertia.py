@@ -1,0 +1,97 @@
+"""Inertia: the mass of the folds, a density factor rho (1 = the model's tissue density).
+
+The baseline is quasi-static, ``K u0 = F``: massless.  With the mass switched on,
+``rho M u'' + K u = F``, so ``u = u0 - rho K^-1 M u0'' + O(rho^2)`` for any load history and
+
+    dU/drho = -K^-1 M K^-1 L C b''(t)      (L the load model's spatial loads, C its controls,
+                                             b its time basis)
+
+per harmonic k of f0 a factor ``(k w0)^2 K^-1 M K^-1``: content rising with the square of
+frequency.  For a finite density (the refit) the periodic steady state per harmonic comes from a
+modal/Ritz reduction computed once (:class:`vfcli.model.response.modal.ModalReduction`,
+:meth:`Inertia.steady_state`), which also carries the phase flip above a resonance.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from vfcli.diagnose.candidates.base import DisplacementTerm, derivative_step, time_derivative
+from vfcli.model.response.modal import ModalReduction, harmonic_fit
+
+
+def elastic_model_of(baseline):
+    """The baseline's :class:`vfcli.model.fem.ElasticModel`: ``baseline.model`` when the baseline
+    carries one, else a default-material model of its mesh (E = 4.4 kPa, nu = 0.499, 1070 kg/m^3)."""
+    model = getattr(baseline, "model", None)
+    if model is None:
+        from vfcli.model.fem import ElasticModel
+
+        model = ElasticModel(baseline.problem.mesh)
+    return model
+
+
+class Inertia(DisplacementTerm):
+    """Density factor rho of the folds (1 = tissue density of the elastic model), one parameter.
+
+    Parameters
+    ----------
+    model : the :class:`vfcli.model.fem.ElasticModel` of the baseline (default: ``baseline.model``
+        or a default-material model of the baseline's mesh).
+    """
+
+    name = "inertia"
+    parameter_names = ("density_factor",)
+    signature = ("residual content rising with the square of frequency (the higher harmonics of f0 "
+                 "under-predicted), with the phase flipping above a resonance of the folds")
+
+    def __init__(self, model=None) -> None:
+        self.model = model
+        self._cache: tuple = (None, None)            # (response, its mass responses)
+        self._own: tuple = (None, None)              # (mesh, the model built for it)
+
+    def _model(self, baseline):
+        """The given model, else the baseline's (built once per mesh: CANDIDATES' instances are shared)."""
+        if self.model is not None:
+            return self.model
+        if self._own[0] is not baseline.problem.mesh:
+            self._own = (baseline.problem.mesh, elastic_model_of(baseline))
+        return self._own[1]
+
+    def mass_responses(self, baseline) -> np.ndarray:
+        """(N, 3, S) vertex displacement of ``K^-1 M K^-1 L_s`` per spatial load pattern s, mm s^2."""
+        response = baseline.problem.response
+        if self._cache[0] is not response:
+            model = self._model(baseline)
+            loads = response.load_model.spatial_loads(model)
+            loads = loads.toarray() if sp.issparse(loads) else np.asarray(loads, dtype=float)
+            z = model.solve(model.mass @ model.solve(loads))
+            self._cache = (response, np.moveaxis(model.vertex_displacements(z), 0, -1))   # (N, 3, S)
+        return self._cache[1]
+
+    def displacement_jacobian(self, baseline) -> np.ndarray:
+        p = baseline.problem
+        load_model = p.response.load_model
+        c = load_model.control_matrix(baseline.x)                                  # (S, n_time)
+        b2 = time_derivative(load_model.time_basis, p.sim_times, 2, derivative_step(baseline))   # (T, n_time)
+        z = self.mass_responses(baseline)
+        return -np.einsum("ncs,st->tnc", z, c @ b2.T)[..., None]
+
+    def steady_state(self, baseline, density: float, reduction: ModalReduction | None = None,
+                     n_harmonics: int = 6, retardation_s: float = 0.0) -> np.ndarray:
+        """(F + 1, N, 3) periodic steady state of the baseline's load with density factor ``density``, mm.
+
+        The load amplitudes ``C b(t)`` are fitted by ``n_harmonics`` harmonics of ``baseline.f0_hz``
+        over the window (:func:`vfcli.model.response.modal.harmonic_fit`); ``density = 0`` is the
+        quasi-static response of that periodic load.
+        """
+        p = baseline.problem
+        if not np.isfinite(baseline.f0_hz) or baseline.f0_hz <= 0:
+            raise ValueError(f"the inertia steady state needs the baseline's f0, got {baseline.f0_hz!r}")
+        load_model = p.response.load_model
+        if reduction is None:
+            model = self._model(baseline)
+            reduction = ModalReduction(model, load_model.spatial_loads(model))
+        amp = load_model.time_basis(p.sim_times) @ load_model.control_matrix(baseline.x).T   # (T, S)
+        spec = harmonic_fit(amp, p.sim_times, baseline.f0_hz, n_harmonics)
+        return reduction.steady_state(spec, baseline.f0_hz, p.sim_times, density, retardation_s)

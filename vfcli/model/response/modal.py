@@ -1,0 +1,196 @@
+"""Periodic steady state of the folds per harmonic of f0, through a modal/Ritz reduction computed once.
+
+The dynamic model of the folds under a load ``F(t)`` (n_dofs, Pa mm^2), units as in
+:mod:`vfcli.model.fem` (mm, Pa, s)::
+
+    rho M u'' + K (1 + i eta) (u + tau u') = F
+
+with ``rho`` a density factor (1: the model's own density, ``ElasticModel.density_kg_m3``),
+``tau`` a Kelvin-Voigt retardation time (s) and ``eta`` a structural loss factor.  For one
+harmonic ``F e^{i w t}`` the steady state is ``u = H(w) F`` with
+
+    H(w) = (c K - rho w^2 M)^-1,        c = (1 + i eta) (1 + i w tau).
+
+Reduction (computed once, then every (rho, tau, eta, w) costs a few small products)
+-----------------------------------------------------------------------------------
+The basis is the union of the lowest ``n_modes`` eigenmodes of each fold (``K phi = w^2 M phi``,
+scipy's ``eigsh`` in shift-invert mode through the model's factorisation,
+:meth:`vfcli.model.fem.ElasticModel.modes`) and the load-dependent Ritz vectors of the loads
+(the block Krylov space ``K^-1 F, (K^-1 M) K^-1 F, ...``, ``n_ritz`` blocks; Wilson, Yuan and
+Dickens 1982).  The Ritz vectors contain the static response ``K^-1 F`` exactly, so the reduced
+model is exact at ``w = 0`` and matches the first ``2 n_ritz`` moments of ``H(w) F`` in ``w^2``;
+the modes carry the resonances.  The basis V (n_dofs, r) is diagonalised once by the small dense
+eigenproblem ``V^T K V z = mu V^T M V z``; with the M-orthonormal reduced modes ``psi_j``::
+
+    H(w) F ~= sum_j psi_j (psi_j^T F) / (c mu_j - rho w^2)
+
+(tests/test_modal.py compares it with a full sparse complex solve).  The quasi-static response is
+``rho = 0, tau = 0, eta = 0``.
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+
+log = logging.getLogger(__name__)
+
+
+def ritz_vectors(model, loads: np.ndarray, n_blocks: int) -> np.ndarray:
+    """Orthonormal basis (n_dofs, <= n_blocks * S) of ``span{K^-1 F, (K^-1 M) K^-1 F, ...}``.
+
+    Parameters
+    ----------
+    model : :class:`vfcli.model.fem.ElasticModel`.
+    loads : (n_dofs, S) load vectors, Pa mm^2.
+    n_blocks : number of Krylov blocks (>= 1).
+    """
+    mass = model.mass
+    block = model.solve(np.asarray(loads, dtype=float))
+    out: list[np.ndarray] = []
+    for _ in range(int(n_blocks)):
+        for _two_passes in range(2):
+            for b in out:
+                block = block - b @ (b.T @ block)
+        q, r = np.linalg.qr(block)
+        d = np.abs(np.diag(r))
+        keep = d > 1e-10 * max(float(d.max(initial=0.0)), 1e-300)
+        if not keep.any():
+            break
+        q = q[:, keep]
+        out.append(q)
+        block = model.solve(mass @ q)
+    return np.hstack(out)
+
+
+class ModalReduction:
+    """Diagonalised modal/Ritz reduction of the folds for a set of load patterns (module docstring).
+
+    Parameters
+    ----------
+    model : :class:`vfcli.model.fem.ElasticModel` (its mass matrix is at ``rho = 1``).
+    loads : (n_dofs, S) spatial load patterns, Pa mm^2 per unit control value (a load model's
+        ``spatial_loads(model)``).
+    n_modes : lowest eigenmodes per fold put into the basis (0: Ritz vectors only).
+    n_ritz : Krylov blocks of load-dependent Ritz vectors (>= 1).
+
+    Attributes
+    ----------
+    eigenvalues_ : (r,) mu_j = w_j^2 of the reduced modes, (rad/s)^2, ascending.
+    vertex_modes_ : (r, N, 3) vertex displacement of each M-orthonormal reduced mode, mm.
+    modal_loads_ : (r, S) ``psi_j^T F_s``.
+    fold_frequencies_hz_ : (2 n_modes,) the eigsh frequencies of the two folds (for reporting).
+    """
+
+    def __init__(self, model, loads, n_modes: int = 20, n_ritz: int = 10) -> None:
+        f = loads.toarray() if sp.issparse(loads) else np.asarray(loads, dtype=float)
+        if f.ndim != 2 or f.shape[0] != model.n_dofs:
+            raise ValueError(f"loads must be (n_dofs={model.n_dofs}, S), got {f.shape}")
+        if n_ritz < 1 or n_modes < 0:
+            raise ValueError(f"need n_ritz >= 1 and n_modes >= 0, got {n_ritz}, {n_modes}")
+        # Krylov blocks per fold (the folds are separate bodies): twice the columns, a richer space
+        per_fold = np.zeros((model.n_dofs, 2 * f.shape[1]))
+        for k in (0, 1):
+            rows = slice(model.offsets[k], model.offsets[k + 1])
+            per_fold[rows, k * f.shape[1]:(k + 1) * f.shape[1]] = f[rows]
+        parts = [ritz_vectors(model, per_fold, n_ritz)]
+        freqs = []
+        if n_modes:
+            for fold in (0, 1):
+                fr, shapes = model.modes(n_modes, fold=fold)
+                freqs.append(fr)
+                parts.append(shapes)
+        self.fold_frequencies_hz_ = np.concatenate(freqs) if freqs else np.zeros(0)
+        basis, _ = np.linalg.qr(np.hstack(parts))
+        free = np.zeros(model.n_dofs, bool)
+        free[model.free_dofs] = True
+        basis[~free] = 0.0
+        k_r = basis.T @ (model.stiffness @ basis)
+        m_r = basis.T @ (model.mass @ basis)
+        k_r, m_r = 0.5 * (k_r + k_r.T), 0.5 * (m_r + m_r.T)
+        # drop directions the clamping removed (zero mass) before the dense eigenproblem
+        w, v = np.linalg.eigh(m_r)
+        keep = w > 1e-10 * w.max()
+        t = v[:, keep] / np.sqrt(w[keep])
+        mu, z = sla.eigh(t.T @ k_r @ t)
+        psi = basis @ (t @ z)                                        # (n_dofs, r) M-orthonormal
+        self.eigenvalues_ = mu
+        self.vertex_modes_ = model.vertex_displacements(psi)          # (r, N, 3)
+        self.modal_loads_ = psi.T @ f                                 # (r, S)
+        self.n_vertices = int(model.mesh.n_nodes)
+        self.n_spatial = int(f.shape[1])
+        log.debug("modal reduction: %d reduced modes, %.1f..%.1f Hz", len(mu),
+                  np.sqrt(max(mu[0], 0)) / (2 * np.pi), np.sqrt(max(mu[-1], 0)) / (2 * np.pi))
+
+    def modal_factors(self, omega: float, density: float = 1.0, retardation_s: float = 0.0,
+                      loss: float = 0.0) -> np.ndarray:
+        """(r,) complex ``1 / (c mu_j - rho w^2)`` at angular frequency ``omega`` (rad/s)."""
+        c = (1.0 + 1j * loss) * (1.0 + 1j * omega * retardation_s)
+        return 1.0 / (c * self.eigenvalues_ - density * omega ** 2)
+
+    def transfer(self, omega: float, density: float = 1.0, retardation_s: float = 0.0,
+                 loss: float = 0.0) -> np.ndarray:
+        """(N, 3, S) complex vertex displacement (mm) per unit load pattern at ``omega`` (rad/s)."""
+        d = self.modal_factors(omega, density, retardation_s, loss)
+        return np.einsum("jnc,j,js->ncs", self.vertex_modes_, d, self.modal_loads_)
+
+    def steady_state(self, amplitudes: np.ndarray, f0_hz: float, times: np.ndarray, density: float = 1.0,
+                     retardation_s: float = 0.0, loss: float = 0.0) -> np.ndarray:
+        """Periodic steady state of periodic pattern amplitudes.
+
+        Parameters
+        ----------
+        amplitudes : (n_harmonics + 1, S) complex one-sided harmonic amplitudes of the load pattern
+            amplitudes (:func:`harmonic_fit`): ``a_s(t) = Re sum_k amplitudes[k, s] e^{i k w0 t}``.
+        f0_hz : fundamental frequency, Hz.
+        times : (T,) s.
+
+        Returns
+        -------
+        (T, N, 3) float64 displacements, mm.
+        """
+        a = np.asarray(amplitudes)
+        times = np.asarray(times, dtype=float)
+        w0 = 2 * np.pi * float(f0_hz)
+        out = np.zeros((len(times), self.n_vertices, 3))
+        for k in range(a.shape[0]):
+            d = self.modal_factors(k * w0, density, retardation_s, loss)
+            q = d * (self.modal_loads_ @ a[k])                       # (r,) modal amplitudes
+            u_k = np.tensordot(q, self.vertex_modes_, axes=(0, 0))     # (N, 3) complex
+            phase = np.exp(1j * k * w0 * times)                        # (T,)
+            out += np.real(phase[:, None, None] * u_k[None])
+        return out
+
+
+def harmonic_fit(samples: np.ndarray, times: np.ndarray, f0_hz: float, n_harmonics: int) -> np.ndarray:
+    """Least-squares harmonics of f0 of sampled signals.
+
+    Parameters
+    ----------
+    samples : (T,) or (T, S) signal values at ``times``.
+    times : (T,) s; they should span at least one period.
+    f0_hz : fundamental, Hz.
+    n_harmonics : highest harmonic (>= 0); needs ``T >= 2 n_harmonics + 1``.
+
+    Returns
+    -------
+    (n_harmonics + 1, S) complex one-sided amplitudes A with ``y(t) ~= Re sum_k A_k e^{i k w0 t}``
+    (A_0 real: the mean).
+    """
+    y = np.asarray(samples, dtype=float)
+    y2 = y.reshape(len(y), -1)
+    t = np.asarray(times, dtype=float)
+    if len(t) < 2 * n_harmonics + 1:
+        raise ValueError(f"{len(t)} samples cannot fit {n_harmonics} harmonics")
+    w0 = 2 * np.pi * float(f0_hz)
+    cols = [np.ones_like(t)]
+    for k in range(1, n_harmonics + 1):
+        cols += [np.cos(k * w0 * t), np.sin(k * w0 * t)]
+    coef, *_ = np.linalg.lstsq(np.column_stack(cols), y2, rcond=None)
+    out = np.zeros((n_harmonics + 1, y2.shape[1]), complex)
+    out[0] = coef[0]
+    for k in range(1, n_harmonics + 1):
+        out[k] = coef[2 * k - 1] - 1j * coef[2 * k]                  # a cos + b sin = Re((a - i b) e^{i w t})
+    return out
