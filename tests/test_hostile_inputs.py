@@ -305,6 +305,20 @@ def test_uff_without_units_record_via_the_cli(tmp_path):
     assert "read as m" in r.stderr and "ingest_ldv.length_unit" in r.stderr
 
 
+@pytest.mark.parametrize("name, scale, fs, says", [
+    ("big.uff", 1e6, FS_P, "the scan points span 3"),
+    ("slow.uff", 1.0, 1000.0, "vibrometer sampling rate 1000 Hz is impossible"),
+])
+def test_scaled_or_slow_uff_via_the_cli_is_exit_3_with_the_store_unchanged(tmp_path, hsc_store, name, scale, fs,
+                                                                           says):
+    # before: ingest-ldv, sync and flow all exited 0 on these (valid fraction 0, 0 points aligned)
+    store, _, before = hsc_store
+    path = _pyuff(tmp_path / name, _scan(scale=scale), fs=fs)
+    r = run_vfcli("ingest-ldv", "-q", store, path, "--set", "ingest_ldv.grid_rows=3", "--set", "ingest_ldv.grid_cols=4")
+    _assert_refused(r, 3, name, says)
+    assert store.read_bytes() == before
+
+
 def test_scan_with_an_absurd_pressure_reference_is_refused(tmp_path):
     scan = _scan()
     scan.reference *= 1e305
