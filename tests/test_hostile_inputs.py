@@ -486,3 +486,15 @@ def test_video_that_is_a_fifo_is_refused(tmp_path):
     os.mkfifo(fifo)
     with pytest.raises(InputDataError, match="not a regular file"):
         open_video(fifo)
+
+
+def test_a_newline_in_a_file_name_or_a_set_key_still_gives_one_line(tmp_path):
+    # found by the --set fuzzer: the message quoted the key with its newline (two lines on stderr)
+    bad = tmp_path / "bad\nname.tif"
+    bad.write_text("not a TIFF")
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "a.h5", bad)
+    assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "bad\\nname.tif" in r.stderr
+    r = run_vfcli("config", tmp_path / "b.h5", "--set", "camera\n.x=1")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "camera\\n" in r.stderr

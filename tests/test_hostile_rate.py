@@ -54,6 +54,11 @@ def test_epochs_too_short_or_without_a_common_f0_are_left_to_sync():
     rng = np.random.default_rng(3)
     mixed = np.vstack([_reference(n_points=1, f0=f) for f in rng.uniform(60, 400, 20)])   # no common f0
     check_ldv_rate(F0, mixed, FS, f_range=F_RANGE, max_drift=0.05, source="scan.uff")
+    # 12 of 20 epochs at another f0, 8 at the video's: the rate explains those 8; sync rejects the rest
+    part = np.vstack([_reference(n_points=12, f0=F0 * 0.7), _reference(n_points=8, seed=1)])
+    check_ldv_rate(F0, part, FS, f_range=F_RANGE, max_drift=0.05, source="scan.uff")
+    with pytest.raises(InputDataError):       # the same 12 alone: refused, so the 8 are what saves it
+        check_ldv_rate(F0, part[:12], FS, f_range=F_RANGE, max_drift=0.05, source="scan.uff")
 
 
 # --------------------------------------------------------------------------- a phantom, real subprocesses

@@ -33,6 +33,9 @@ WIDEN = 4.0
 MIN_CYCLES = 2.0
 #: Fraction of the probed epochs that must agree (within ``max_drift``) on the apparent f0.
 MIN_AGREEING = 0.5
+#: Largest fraction of the probed epochs whose f0 may match the video's for the rate to be called
+#: wrong: when more match, the stated rate explains them and the others are sync's to reject.
+MAX_MATCHING = 0.1
 
 
 def apparent_reference_f0(reference: np.ndarray, fs: float, f_range: tuple[float, float]) -> np.ndarray:
@@ -85,10 +88,10 @@ def check_ldv_rate(f0_video_hz: float, reference: np.ndarray, fs: float, *, f_ra
     Raises
     ------
     InputDataError
-        When the epochs hold at least :data:`MIN_CYCLES` cycles and at least :data:`MIN_AGREEING`
-        of the probed epochs agree (within ``max_drift`` of
-        their median) on an apparent f0 more than ``max_drift`` away from ``f0_video_hz``; the
-        message names the stated rate and the rate the data imply.
+        When the epochs hold at least :data:`MIN_CYCLES` cycles, at least :data:`MIN_AGREEING`
+        of the probed epochs agree (within ``max_drift`` of their median) on an apparent f0 more
+        than ``max_drift`` away from ``f0_video_hz``, and at most :data:`MAX_MATCHING` of them
+        match the video's f0; the message names the stated rate and the rate the data imply.
     """
     if not (np.isfinite(f0_video_hz) and f0_video_hz > 0):
         return
@@ -98,8 +101,10 @@ def check_ldv_rate(f0_video_hz: float, reference: np.ndarray, fs: float, *, f_ra
     med = float(np.median(f0s))
     agree = np.abs(f0s / med - 1.0) <= max_drift
     ratio = med / f0_video_hz
+    matching = np.abs(f0s / f0_video_hz - 1.0) <= max_drift
     n_cycles = np.asarray(reference).shape[-1] / fs * med
-    if abs(ratio - 1.0) <= max_drift or agree.mean() < MIN_AGREEING or n_cycles < MIN_CYCLES:
+    if (abs(ratio - 1.0) <= max_drift or agree.mean() < MIN_AGREEING or matching.mean() > MAX_MATCHING
+            or n_cycles < MIN_CYCLES):
         return
     implied = fs / ratio
     raise InputDataError(
