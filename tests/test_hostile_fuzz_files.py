@@ -67,6 +67,17 @@ def edit_numbers(data: bytes, edits: list[tuple[int, str]], head: int | None = N
     return b"".join(out) + data[last:]
 
 
+def put_words(data: bytes, edits: list[tuple[int, int]], start: int = 0, end: int | None = None) -> bytes:
+    """Overwrite aligned little-endian 32-bit words of ``data[start:end]``: edit ``(k, value)`` writes
+    ``value`` into word ``k mod count``."""
+    b = bytearray(data)
+    n = max(1, ((len(b) if end is None else end) - start) // 4)
+    for k, v in edits:
+        off = start + 4 * (k % n)
+        b[off:off + 4] = struct.pack("<I", v)
+    return bytes(b)
+
+
 NUMBER_EDITS = st.lists(st.tuples(st.integers(0, 10**6), HOSTILE_TEXT), min_size=1, max_size=3)
 
 
@@ -166,22 +177,33 @@ def work(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("cases")
 
 
+def _text_case(seed: bytes, path: Path, edits, cut: int, flips, read, check) -> None:
+    """``seed`` with numbers edited, cut and flipped, written to ``path`` and read with ``read(path)``."""
+    path.write_bytes(mutate(edit_numbers(seed, edits), cut, flips))
+    user_error_or(lambda: read(path), check)
+
+
 # --------------------------------------------------------------------------- video
+
+def _photron_case(seeds, work: Path, meta: str, edits, cut: int, flips, mraw_cut: int, open_as: str) -> None:
+    """The ``meta`` (cih/cihx) seed with numbers edited, cut and flipped, beside its MRAW cut by ``mraw_cut``;
+    opened through the ``open_as`` file of the pair."""
+    (work / f"p.{meta}").write_bytes(mutate(edit_numbers(seeds[meta], edits), cut, flips))
+    (work / "p.mraw").write_bytes(mutate(seeds[f"{meta}.mraw"], mraw_cut, []))
+    user_error_or(_read_video(work / f"p.{open_as}"), _plausible_video)
+    (work / f"p.{meta}").unlink()
+
 
 @fuzz(2500)
 @given(edits=NUMBER_EDITS, cut=st.integers(-20, 60), flips=FLIPS, mraw_cut=st.integers(-64, 64))
 def test_legacy_cih_numbers_sizes_and_bits(seeds, work, edits, cut, flips, mraw_cut):
-    (work / "c.cih").write_bytes(mutate(edit_numbers(seeds["cih"], edits), cut, flips))
-    (work / "c.mraw").write_bytes(mutate(seeds["cih.mraw"], mraw_cut, []))
-    user_error_or(_read_video(work / "c.cih"), _plausible_video)
+    _photron_case(seeds, work, "cih", edits, cut, flips, mraw_cut, open_as="cih")
 
 
 @fuzz(1500)
 @given(edits=NUMBER_EDITS, cut=st.integers(-20, 200), flips=FLIPS, mraw_cut=st.integers(-64, 64))
 def test_cihx_numbers_sizes_and_bits(seeds, work, edits, cut, flips, mraw_cut):
-    (work / "x.cihx").write_bytes(mutate(edit_numbers(seeds["cihx"], edits), cut, flips))
-    (work / "x.mraw").write_bytes(mutate(seeds["cihx.mraw"], mraw_cut, []))
-    user_error_or(_read_video(work / "x.mraw"), _plausible_video)
+    _photron_case(seeds, work, "cihx", edits, cut, flips, mraw_cut, open_as="mraw")
 
 
 @fuzz(2000)
@@ -246,19 +268,16 @@ def test_uff_numbers_sizes_and_bits(seeds, work, which, edits, cut, flips):
 @given(which=st.sampled_from(["mat", "mat_z"]), cut=st.integers(0, 400), flips=FLIPS,
        edits=st.lists(st.tuples(st.integers(0, 10**6), HOSTILE_U32), max_size=2))
 def test_mat_tags_sizes_and_bits(seeds, work, which, cut, flips, edits):
-    b = bytearray(seeds[which])
-    for k, v in edits:   # an aligned 32-bit word after the 128-byte header: element tags and sizes
-        off = 128 + 4 * (k % max(1, (len(b) - 132) // 4))
-        b[off:off + 4] = struct.pack("<I", v)
-    (work / "s.mat").write_bytes(mutate(bytes(b), cut, flips))
+    data = put_words(seeds[which], edits, 128)   # after the 128-byte header: element tags and sizes
+    (work / "s.mat").write_bytes(mutate(data, cut, flips))
     user_error_or(lambda: read_ldv(work / "s.mat", expected_grid=None), _plausible_scan)
 
 
 @fuzz(1500)
 @given(edits=NUMBER_EDITS, cut=st.integers(0, 200), flips=FLIPS)
 def test_ldv_csv_numbers_sizes_and_bits(seeds, work, edits, cut, flips):
-    (work / "s.csv").write_bytes(mutate(edit_numbers(seeds["ldv_csv"], edits), cut, flips))
-    user_error_or(lambda: read_ldv(work / "s.csv", expected_grid=None), _plausible_scan)
+    _text_case(seeds["ldv_csv"], work / "s.csv", edits, cut, flips,
+               lambda p: read_ldv(p, expected_grid=None), _plausible_scan)
 
 
 # --------------------------------------------------------------------------- pressure
@@ -267,11 +286,9 @@ def test_ldv_csv_numbers_sizes_and_bits(seeds, work, edits, cut, flips):
 @given(cut=st.integers(0, 600), flips=FLIPS, edits=st.lists(st.tuples(st.integers(0, 10**6), HOSTILE_U32),
                                                                  max_size=3))
 def test_tdms_words_sizes_and_bits(seeds, work, cut, flips, edits):
-    b = bytearray(seeds["tdms"])
-    for k, v in edits:   # lead-in and metadata: table of contents, lengths, property types and values
-        off = 4 * (k % max(1, (len(b) - 1600) // 4))
-        b[off:off + 4] = struct.pack("<I", v)
-    (work / "p.tdms").write_bytes(mutate(bytes(b), cut, flips))
+    # lead-in and metadata (before the 1,600 data bytes): table of contents, lengths, property types and values
+    data = put_words(seeds["tdms"], edits, 0, len(seeds["tdms"]) - 1600)
+    (work / "p.tdms").write_bytes(mutate(data, cut, flips))
     user_error_or(lambda: read_pressure(work / "p.tdms"), _plausible_pressure)
 
 
@@ -290,5 +307,4 @@ def test_wav_header_words_sizes_and_bits(seeds, work, cut, flips, edits, channel
 @fuzz(1500)
 @given(edits=NUMBER_EDITS, cut=st.integers(0, 300), flips=FLIPS)
 def test_pressure_csv_numbers_sizes_and_bits(seeds, work, edits, cut, flips):
-    (work / "p.csv").write_bytes(mutate(edit_numbers(seeds["p_csv"], edits), cut, flips))
-    user_error_or(lambda: read_pressure(work / "p.csv"), _plausible_pressure)
+    _text_case(seeds["p_csv"], work / "p.csv", edits, cut, flips, read_pressure, _plausible_pressure)

@@ -85,24 +85,29 @@ def _rewrite_rate(raw: Path, fs: float, name: str) -> Path:
     return write_ldv_uff(raw.parent / name, dataclasses.replace(scan, fs=fs))
 
 
-def _last_line(r) -> str:
-    assert "Traceback" not in r.stderr, r.stderr
-    return r.stderr.strip().splitlines()[-1]
+def _ingest_video(raw: Path, store: Path) -> bytes:
+    """ingest-hsc of the phantom's video and pressure into ``store``; the store's bytes after it."""
+    r = run_vfcli("ingest-hsc", "-q", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
+                  "--config", raw / "recording.toml")
+    assert r.returncode == 0, r.stderr
+    return store.read_bytes()
+
+
+def _assert_rate_refused(r, name: str, stated: int) -> None:
+    """Exit 3, one line naming the file, the stated rate and an implied rate within 1 % of the truth."""
+    assert r.returncode == 3 and "Traceback" not in r.stderr, r.stderr
+    line = r.stderr.strip().splitlines()[-1]
+    assert name in line and f"stated vibrometer sampling rate {stated} Hz" in line, line
+    implied = float(line.split("the data imply ")[1].split(" Hz")[0])
+    assert 49_500 < implied < 50_500, line
 
 
 def test_phantom_uff_claiming_25_khz_is_refused_at_ingest_ldv(phantom, tmp_path):
     store = tmp_path / "rec.h5"
-    r = run_vfcli("ingest-hsc", "-q", store, phantom / "video.cihx", "--pressure", phantom / "video_pressure.tdms",
-                  "--config", phantom / "recording.toml")
-    assert r.returncode == 0, r.stderr
-    before = store.read_bytes()
+    before = _ingest_video(phantom, store)
     bad = _rewrite_rate(phantom, 25_000.0, "scan25k.uff")
     r = run_vfcli("ingest-ldv", "-q", store, bad)
-    assert r.returncode == 3, r.stderr
-    line = _last_line(r)
-    assert "scan25k.uff" in line and "stated vibrometer sampling rate 25000 Hz" in line, line
-    implied = float(line.split("the data imply ")[1].split(" Hz")[0])
-    assert 49_500 < implied < 50_500, line
+    _assert_rate_refused(r, "scan25k.uff", 25_000)
     assert store.read_bytes() == before
     # the phantom's own file (50 kHz) passes, and sync aligns its points: the check does not misfire
     r = run_vfcli("ingest-ldv", "-q", store, phantom / "scan.uff")
@@ -117,14 +122,7 @@ def test_phantom_uff_ingested_before_the_video_is_refused_by_sync(phantom, tmp_p
     store = tmp_path / "rec.h5"
     bad = _rewrite_rate(phantom, 100_000.0, "scan100k.uff")
     assert run_vfcli("ingest-ldv", "-q", store, bad).returncode == 0        # no video yet: nothing to check against
-    r = run_vfcli("ingest-hsc", "-q", store, phantom / "video.cihx", "--pressure", phantom / "video_pressure.tdms",
-                  "--config", phantom / "recording.toml")
-    assert r.returncode == 0, r.stderr
-    before = store.read_bytes()
+    before = _ingest_video(phantom, store)
     r = run_vfcli("sync", "-q", store)
-    assert r.returncode == 3, r.stderr
-    line = _last_line(r)
-    assert "scan100k.uff" in line and "stated vibrometer sampling rate 100000 Hz" in line, line
-    implied = float(line.split("the data imply ")[1].split(" Hz")[0])
-    assert 49_500 < implied < 50_500, line
+    _assert_rate_refused(r, "scan100k.uff", 100_000)
     assert store.read_bytes() == before
