@@ -14,7 +14,9 @@ fuzzer's case count (a nightly or a hunt; the counts in docs/input-checks.md are
 Hypothesis's own ``deadline`` is off: it measures wall time after the fact, which a shared
 machine under load exceeds by chance, and it cannot stop a hang. Instead every case runs
 under :func:`per_case_deadline`, a SIGALRM that interrupts a reader stuck for
-:data:`CASE_DEADLINE_S` seconds (a few milliseconds is typical) and fails the test.
+:data:`CASE_DEADLINE_S` seconds (a few milliseconds is typical) and fails the test. A hang inside
+a library's C code, which a Python signal handler cannot interrupt, is stopped by the fuzz
+modules' :data:`BACKSTOP` (pytest-timeout's thread method: stacks dumped, the run ended).
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ import signal
 from contextlib import contextmanager
 from typing import Any, Callable
 
+import pytest
 from hypothesis import HealthCheck, settings
 
 from vfcli.errors import VfcliError
@@ -37,6 +40,10 @@ PROFILE = os.environ.get("VFCLI_FUZZ_PROFILE", "vfcli-ci")
 SCALE = float(os.environ.get("VFCLI_FUZZ_SCALE", "1"))
 #: Longest a single case may take, s (typical: 1-5 ms; generous for a loaded machine).
 CASE_DEADLINE_S = 20.0
+
+
+#: Module mark of the fuzz files: a whole fuzz test past this many seconds is a hang in C code.
+BACKSTOP = pytest.mark.timeout(900, method="thread")
 
 
 def fuzz(n: int) -> settings:

@@ -21,7 +21,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests._fuzz import fuzz, user_error_or
+from tests._fuzz import BACKSTOP, fuzz, user_error_or
 from vfcli.config import RecordingConfig, load_config
 from vfcli.io.ldv.read import LdvScan, read_ldv
 from vfcli.io.ldv.write import write_ldv_csv, write_ldv_uff
@@ -31,6 +31,8 @@ from vfcli.io.pressure import read_pressure
 from vfcli.io.video.base import open_video
 from vfcli.io.video.photron import write_mraw
 
+
+pytestmark = BACKSTOP
 
 #: Numbers as the text of a file would hold them, hostile ones first.
 _NUM_TEXT = st.one_of(

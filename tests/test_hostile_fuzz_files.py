@@ -26,7 +26,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests._fuzz import fuzz, mutate, user_error_or
+from tests._fuzz import BACKSTOP, fuzz, mutate, user_error_or
 from vfcli.io.ldv.read import LdvScan, read_ldv
 from vfcli.io.ldv.write import write_ldv_csv, write_ldv_uff
 from vfcli.io.limits import (FPS_RANGE, LDV_EXTENT_MM, LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S,
@@ -34,6 +34,8 @@ from vfcli.io.limits import (FPS_RANGE, LDV_EXTENT_MM, LDV_FS_RANGE, LDV_MAX_ABS
 from vfcli.io.pressure import read_pressure, write_pressure_csv
 from vfcli.io.video.base import open_video
 from vfcli.io.video.photron import write_mraw
+
+pytestmark = BACKSTOP
 
 #: Hostile numbers as text.
 HOSTILE_TEXT = st.one_of(
@@ -293,8 +295,8 @@ def test_tdms_words_sizes_and_bits(seeds, work, cut, flips, edits):
 
 
 @fuzz(1500)
-@given(cut=st.integers(-16, 800), flips=FLIPS, edits=st.lists(st.tuples(st.sampled_from([4, 16, 20, 24, 28, 32, 34, 40]),
-                                                                        HOSTILE_U32), max_size=3),
+@given(cut=st.integers(-16, 800), flips=FLIPS,
+       edits=st.lists(st.tuples(st.sampled_from([4, 16, 20, 24, 28, 32, 34, 40]), HOSTILE_U32), max_size=3),
        channel=st.one_of(st.none(), st.integers(-2, 3)))
 def test_wav_header_words_sizes_and_bits(seeds, work, cut, flips, edits, channel):
     b = bytearray(seeds["wav"])

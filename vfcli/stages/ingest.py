@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.config import calibration_warnings
+from vfcli.config import SyncConfig, calibration_warnings
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.flow.plausibility import points_on_image
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
-from vfcli.io.ldv.read import LdvChannels, read_ldv
+from vfcli.io.ldv.read import LdvChannels, LdvScan, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
 from vfcli.io.video.base import VideoMeta, open_video
 from vfcli.store import StageWriter, StoreReader
@@ -167,7 +167,8 @@ def _check_on_image(reader: StoreReader, coords_mm: np.ndarray, scan_path: str |
                 int((~on).sum()), len(on), where, advice)
 
 
-def _check_rate_against_video(reader: StoreReader, scan, sync_cfg, scan_path: str | Path) -> None:
+def _check_rate_against_video(reader: StoreReader, scan: LdvScan, sync_cfg: SyncConfig,
+                              scan_path: str | Path) -> None:
     """Refuse a scan whose stated sampling rate the video's pressure contradicts (needs /hsc/pressure).
 
     The video's f0 comes from /hsc/pressure; a video pressure that gives none is left for `vfcli sync`
