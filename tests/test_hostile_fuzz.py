@@ -276,6 +276,7 @@ def _scan(p=4, n_s=16, coord_scale=1.0, vel_scale=1.0, fs=50_000.0) -> LdvScan:
 
 def _plausible_scan(scan) -> None:
     assert LDV_FS_RANGE[0] <= scan.fs <= LDV_FS_RANGE[1]
+    assert np.unique(scan.node_ids).size == scan.n_points      # whole, distinct node numbers
     assert np.isfinite(scan.coords_mm).all() and np.isfinite(scan.velocity_mm_s).all()
     span = float(np.max(np.ptp(scan.coords_mm[:, :2], axis=0))) if scan.n_points > 1 else 1.0
     assert LDV_EXTENT_MM[0] <= span <= LDV_EXTENT_MM[1]

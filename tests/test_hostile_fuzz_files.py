@@ -107,6 +107,7 @@ def _plausible_pressure(rec) -> None:
 
 def _plausible_scan(scan) -> None:
     assert LDV_FS_RANGE[0] <= scan.fs <= LDV_FS_RANGE[1]
+    assert np.unique(scan.node_ids).size == scan.n_points      # whole, distinct node numbers
     assert np.isfinite(scan.coords_mm).all() and np.isfinite(scan.velocity_mm_s).all()
     if scan.n_points > 1:
         span = float(np.max(np.ptp(scan.coords_mm[:, :2], axis=0)))

@@ -349,6 +349,20 @@ def test_mat_with_text_node_ids_is_an_input_error(tmp_path):
         read_ldv(path, expected_grid=(3, 4))
 
 
+@pytest.mark.parametrize("bad", [2.5, np.nan, 1e300])
+def test_node_numbers_that_are_not_whole_are_refused_not_truncated(tmp_path, bad):
+    # found by the fuzzers: 2.5 was read as node 2 (a duplicate), NaN and 1e300 as -2**63 with a numpy warning
+    from scipy.io import savemat
+
+    s = _scan()
+    ids = s.node_ids.astype(float)
+    ids[1] = bad
+    path = tmp_path / "frac.mat"
+    savemat(path, {"coords": s.coords_mm, "velocity": s.velocity_mm_s, "fs": FS_P, "node_ids": ids})
+    with pytest.raises(InputDataError, match="frac.mat: node numbers are not integers: \\[ *(2.5|nan|1.e\\+300)\\]"):
+        read_ldv(path, expected_grid=(3, 4))
+
+
 def _mat_bomb(path: Path, n_bytes: int) -> Path:
     """A MAT v5 file with one compressed double matrix of ``n_bytes`` zeros (deflates ~1000:1)."""
     n = n_bytes // 8
