@@ -51,8 +51,11 @@ def fuzz(n: int) -> settings:
     return settings(settings.get_profile(PROFILE), max_examples=max(1, int(round(n * SCALE))))
 
 
-class CaseHang(AssertionError):
-    """A fuzz case ran past :data:`CASE_DEADLINE_S` (a hang or a runaway computation)."""
+class CaseHang(BaseException):
+    """A fuzz case ran past :data:`CASE_DEADLINE_S` (a hang or a runaway computation).
+
+    A BaseException, like KeyboardInterrupt, so that a reader's ``except Exception`` (which turns a
+    library's error into a user error) cannot swallow it."""
 
 
 @contextmanager
@@ -82,6 +85,8 @@ def user_error_or(fn: Callable[[], Any], check: Callable[[Any], Any] | None = No
     except VfcliError as exc:
         assert "\n" not in str(exc), repr(str(exc))
         return
+    except CaseHang as exc:
+        raise AssertionError(str(exc)) from None
     if check is not None:
         check(out)
 
