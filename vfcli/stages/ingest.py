@@ -16,8 +16,6 @@ from vfcli.io.ldv.read import LdvChannels, LdvScan, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
 from vfcli.io.video.base import VideoMeta, open_video
 from vfcli.store import StageWriter, StoreReader
-from vfcli.sync.f0 import estimate_f0
-from vfcli.sync.rate import check_ldv_rate
 from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
 log = logging.getLogger(__name__)
@@ -176,6 +174,9 @@ def _check_rate_against_video(reader: StoreReader, scan: LdvScan, sync_cfg: Sync
     """
     if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
         return
+    from vfcli.sync.f0 import estimate_f0        # scipy: imported only when there is a rate to check
+    from vfcli.sync.rate import check_ldv_rate
+
     f_range = (sync_cfg.f0_min_hz, sync_cfg.f0_max_hz)
     try:
         f0_video = estimate_f0(reader.read("hsc", "pressure"), float(reader.attrs("hsc")["pressure_fs_hz"]), f_range,
