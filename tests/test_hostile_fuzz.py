@@ -6,7 +6,8 @@ text where a number belongs, sizes that lie), the way an attacker or a clumsy ex
 Every reader must then either return plausible values (vfcli/io/limits.py) or raise one of
 vfcli's user errors (ConfigError or InputDataError); anything else is a bug.
 
-Examples per fuzzer are set so that the whole file runs in well under a minute.
+Profiles, the per-case deadline and the one-line check: tests/_fuzz.py. Mutation fuzzers of
+valid seed files: tests/test_hostile_fuzz_files.py. Case counts: docs/input-checks.md.
 """
 from __future__ import annotations
 
@@ -17,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
+from tests._fuzz import BACKSTOP, fuzz, user_error_or
 from vfcli.config import RecordingConfig, load_config
-from vfcli.errors import VfcliError
 from vfcli.io.ldv.read import LdvScan, read_ldv
 from vfcli.io.ldv.write import write_ldv_csv, write_ldv_uff
 from vfcli.io.limits import (FPS_RANGE, LDV_EXTENT_MM, LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S,
@@ -31,10 +32,7 @@ from vfcli.io.video.base import open_video
 from vfcli.io.video.photron import write_mraw
 
 
-def _fuzz(n: int):
-    return settings(max_examples=n, deadline=None, database=None,
-                    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-
+pytestmark = BACKSTOP
 
 #: Numbers as the text of a file would hold them, hostile ones first.
 _NUM_TEXT = st.one_of(
@@ -48,15 +46,6 @@ _NUM_TEXT = st.one_of(
 #: Numbers as a library would store them (floats, ints, NaN, inf).
 _NUM = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**20, 10**20),
                  st.sampled_from([0.0, -1.0, 1e300, 1e-300, 1e6, 5e4, 1e3]))
-
-
-def _user_error_or(fn, check) -> None:
-    """Call ``fn``; a user error is fine, a result must pass ``check``, anything else fails."""
-    try:
-        out = fn()
-    except VfcliError:
-        return
-    check(out)
 
 
 # --------------------------------------------------------------------------- config loader
@@ -120,28 +109,28 @@ def workdir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("fuzz")
 
 
-@_fuzz(2000)
+@fuzz(1500)
 @given(doc=_config_doc())
 def test_config_files_with_hostile_values_load_or_give_a_config_error(workdir, doc):
     path = workdir / "c.toml"
     path.write_text(_toml(doc))
-    _user_error_or(lambda: load_config(path), lambda out: [_finite_everywhere(c) for c in out])
+    user_error_or(lambda: load_config(path), lambda out: [_finite_everywhere(c) for c in out])
 
 
-@_fuzz(1000)
+@fuzz(1000)
 @given(key=st.one_of(st.sampled_from([f"{s}.{f}" for s, fs in _FIELDS.items() for f in fs]), st.text(max_size=12)),
        value=st.one_of(_NUM_TEXT, st.text(max_size=30), st.just("[" * 3000), st.just("9" * 5000)))
 def test_set_overrides_with_hostile_values_load_or_give_a_config_error(key, value):
-    _user_error_or(lambda: load_config(overrides=[f"{key}={value}"]),
+    user_error_or(lambda: load_config(overrides=[f"{key}={value}"]),
                    lambda out: [_finite_everywhere(c) for c in out])
 
 
-@_fuzz(600)
+@fuzz(600)
 @given(text=st.text(alphabet=st.sampled_from(list("[]{}=.\"' \nabc01-+e_,#")), max_size=200))
 def test_random_toml_text_loads_or_gives_a_config_error(workdir, text):
     path = workdir / "r.toml"
     path.write_text(text)
-    _user_error_or(lambda: load_config(path), lambda out: None)
+    user_error_or(lambda: load_config(path), lambda out: None)
 
 
 # --------------------------------------------------------------------------- video
@@ -171,7 +160,7 @@ def _plausible_meta(meta) -> None:
     assert abs(meta.start_frame) <= 10**9 and meta.n_frames >= 1
 
 
-@_fuzz(2000)
+@fuzz(1000)
 @given(edits=st.lists(st.tuples(st.sampled_from(_CIHX_FIELDS), _NUM_TEXT), min_size=1, max_size=3))
 def test_cihx_with_hostile_field_values(workdir, cihx_text, edits):
     import re
@@ -185,10 +174,10 @@ def test_cihx_with_hostile_field_values(workdir, cihx_text, edits):
     d.mkdir(exist_ok=True)
     (d / "v.mraw").write_bytes(mraw_bytes)
     (d / "v.cihx").write_bytes(text)
-    _user_error_or(_video_ok(d / "v.cihx"), _plausible_meta)
+    user_error_or(_video_ok(d / "v.cihx"), _plausible_meta)
 
 
-@_fuzz(1500)
+@fuzz(1000)
 @given(how=st.sampled_from(["json", "imagej", "text"]), value=_NUM,
        text=st.text(alphabet=st.characters(min_codepoint=1, max_codepoint=127), max_size=20),
        n=st.integers(1, 3), dtype=st.sampled_from([np.uint8, np.uint16, np.float32, np.int16]))
@@ -204,12 +193,12 @@ def test_tiff_with_hostile_frame_rate_metadata(workdir, how, value, text, n, dty
         tifffile.imwrite(path, frames, imagej=True, metadata={"finterval": fin})
     else:
         tifffile.imwrite(path, frames, description=text)
-    _user_error_or(_video_ok(path), _plausible_meta)
+    user_error_or(_video_ok(path), _plausible_meta)
 
 
 # --------------------------------------------------------------------------- pressure
 
-@_fuzz(1500)
+@fuzz(1000)
 @given(fs=_NUM_TEXT, header=st.sampled_from(["p_sub [Pa]", "time [s],p_sub [Pa]", "p [kPa]", "x,y", ""]),
        values=st.lists(st.one_of(_NUM, _NUM_TEXT), min_size=0, max_size=12))
 def test_pressure_csv_with_hostile_values(workdir, fs, header, values):
@@ -222,7 +211,7 @@ def test_pressure_csv_with_hostile_values(workdir, fs, header, values):
     def check(rec):
         assert np.isfinite(rec.samples).all() and np.abs(rec.samples).max() <= MAX_ABS_PRESSURE_PA
         assert PRESSURE_FS_RANGE[0] <= rec.fs <= PRESSURE_FS_RANGE[1]
-    _user_error_or(lambda: read_pressure(path), check)
+    user_error_or(lambda: read_pressure(path), check)
 
 
 @pytest.fixture(scope="module")
@@ -234,7 +223,7 @@ def wav_bytes(workdir) -> bytes:
     return path.read_bytes()
 
 
-@_fuzz(1500)
+@fuzz(1000)
 @given(riff_size=st.integers(0, 2**32 - 1), data_size=st.integers(0, 2**32 - 1),
        rate=st.integers(0, 2**32 - 1), channels=st.integers(0, 70000), bits=st.sampled_from([0, 8, 16, 24, 32, 64, 7]),
        channel=st.one_of(st.none(), st.integers(-3, 3), st.text(max_size=3)), keep=st.integers(0, 500))
@@ -252,10 +241,10 @@ def test_wav_with_hostile_header_fields(workdir, wav_bytes, riff_size, data_size
 
     def check(rec):
         assert np.isfinite(rec.samples).all() and PRESSURE_FS_RANGE[0] <= rec.fs <= PRESSURE_FS_RANGE[1]
-    _user_error_or(lambda: read_pressure(path, channel=channel), check)
+    user_error_or(lambda: read_pressure(path, channel=channel), check)
 
 
-@_fuzz(1500)
+@fuzz(1000)
 @given(inc=_NUM, offset=_NUM, n=st.integers(0, 50), scale=_NUM, cut=st.integers(0, 400),
        unit=st.sampled_from(["Pa", "kPa", "V", "", "furlong"]))
 def test_tdms_with_hostile_properties_and_truncation(workdir, inc, offset, n, scale, cut, unit):
@@ -273,7 +262,7 @@ def test_tdms_with_hostile_properties_and_truncation(workdir, inc, offset, n, sc
     def check(rec):
         assert np.isfinite(rec.samples).all() and np.abs(rec.samples).max() <= MAX_ABS_PRESSURE_PA
         assert PRESSURE_FS_RANGE[0] <= rec.fs <= PRESSURE_FS_RANGE[1]
-    _user_error_or(lambda: read_pressure(path), check)
+    user_error_or(lambda: read_pressure(path), check)
 
 
 # --------------------------------------------------------------------------- vibrometer
@@ -287,6 +276,7 @@ def _scan(p=4, n_s=16, coord_scale=1.0, vel_scale=1.0, fs=50_000.0) -> LdvScan:
 
 def _plausible_scan(scan) -> None:
     assert LDV_FS_RANGE[0] <= scan.fs <= LDV_FS_RANGE[1]
+    assert np.unique(scan.node_ids).size == scan.n_points      # whole, distinct node numbers
     assert np.isfinite(scan.coords_mm).all() and np.isfinite(scan.velocity_mm_s).all()
     span = float(np.max(np.ptp(scan.coords_mm[:, :2], axis=0))) if scan.n_points > 1 else 1.0
     assert LDV_EXTENT_MM[0] <= span <= LDV_EXTENT_MM[1]
@@ -298,7 +288,7 @@ def csv_lines(workdir) -> list[str]:
     return write_ldv_csv(workdir / "seed.csv", _scan()).read_text().splitlines()
 
 
-@_fuzz(1500)
+@fuzz(1000)
 @given(fs=_NUM_TEXT, length=st.sampled_from(["mm", "m", "um", "km", ""]), cells=st.lists(
     st.tuples(st.integers(0, 4), st.integers(0, 30), st.one_of(_NUM_TEXT, _NUM.map(str))), max_size=5))
 def test_ldv_csv_with_hostile_values(workdir, csv_lines, fs, length, cells):
@@ -314,10 +304,10 @@ def test_ldv_csv_with_hostile_values(workdir, csv_lines, fs, length, cells):
         lines[i] = ",".join(parts)
     path = workdir / "l.csv"
     path.write_text("\n".join(lines) + "\n")
-    _user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
+    user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
 
 
-@_fuzz(1500)
+@fuzz(1000)
 @given(coords=st.one_of(_NUM, st.text(max_size=3)), vel=st.one_of(_NUM, st.text(max_size=3)),
        fs=st.one_of(_NUM, st.text(max_size=3), st.lists(_NUM, max_size=2)),
        node_ids=st.one_of(st.none(), st.text(max_size=4), st.lists(_NUM, min_size=0, max_size=5)),
@@ -337,10 +327,10 @@ def test_ldv_mat_with_hostile_variables(workdir, coords, vel, fs, node_ids, unit
         savemat(path, m)
     except (ValueError, TypeError, OverflowError):
         return   # scipy cannot write it: no such file exists in the wild
-    _user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
+    user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
 
 
-@_fuzz(800)
+@fuzz(800)
 @given(coord_scale=st.sampled_from([1.0, 1e-3, 1e3, 1e6, 0.0, -1.0]), vel_scale=st.sampled_from([1.0, 1e6, 1e-9]),
        fs=st.sampled_from([50_000.0, 1000.0, 1e9, 25_600.0]),
        length=st.sampled_from(["m", "mm", "um"]), units=st.booleans(), cut=st.integers(0, 50))
@@ -352,11 +342,11 @@ def test_ldv_uff_with_hostile_scales(workdir, coord_scale, vel_scale, fs, length
         i = raw.index(b"   164")
         raw = raw[: raw.rindex(b"    -1", 0, i)] + raw[raw.index(b"    -1", i) + 7:]
     path.write_bytes(raw[: len(raw) - cut])
-    _user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
-    _user_error_or(lambda: read_ldv(path, expected_grid=None, length_unit=length), _plausible_scan)
+    user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
+    user_error_or(lambda: read_ldv(path, expected_grid=None, length_unit=length), _plausible_scan)
 
 
-@_fuzz(1000)
+@fuzz(2000)
 @given(shapes=st.lists(st.tuples(st.integers(1, 6), st.integers(1, 6), st.sampled_from([1, 3])), min_size=1,
                        max_size=4),
        dtypes=st.lists(st.sampled_from([np.uint8, np.uint16, np.float32, np.int32]), min_size=1, max_size=4),
@@ -374,4 +364,4 @@ def test_image_folder_with_mixed_frames(workdir, shapes, dtypes, names):
         h, w, c = shapes[i % len(shapes)]
         img = np.ones((h, w) if c == 1 else (h, w, c), dtypes[i % len(dtypes)])
         tifffile.imwrite(d / name, img)
-    _user_error_or(_video_ok(d), _plausible_meta)
+    user_error_or(_video_ok(d), _plausible_meta)

@@ -305,6 +305,20 @@ def test_uff_without_units_record_via_the_cli(tmp_path):
     assert "read as m" in r.stderr and "ingest_ldv.length_unit" in r.stderr
 
 
+@pytest.mark.parametrize("name, scale, fs, says", [
+    ("big.uff", 1e6, FS_P, "the scan points span 3"),
+    ("slow.uff", 1.0, 1000.0, "vibrometer sampling rate 1000 Hz is impossible"),
+])
+def test_scaled_or_slow_uff_via_the_cli_is_exit_3_with_the_store_unchanged(tmp_path, hsc_store, name, scale, fs,
+                                                                           says):
+    # before: ingest-ldv, sync and flow all exited 0 on these (valid fraction 0, 0 points aligned)
+    store, _, before = hsc_store
+    path = _pyuff(tmp_path / name, _scan(scale=scale), fs=fs)
+    r = run_vfcli("ingest-ldv", "-q", store, path, "--set", "ingest_ldv.grid_rows=3", "--set", "ingest_ldv.grid_cols=4")
+    _assert_refused(r, 3, name, says)
+    assert store.read_bytes() == before
+
+
 def test_scan_with_an_absurd_pressure_reference_is_refused(tmp_path):
     scan = _scan()
     scan.reference *= 1e305
@@ -332,6 +346,20 @@ def test_mat_with_text_node_ids_is_an_input_error(tmp_path):
     path = tmp_path / "abc.mat"
     savemat(path, {"coords": s.coords_mm, "velocity": s.velocity_mm_s, "fs": FS_P, "node_ids": "abc"})
     with pytest.raises(InputDataError, match="abc.mat: node numbers are not integers"):
+        read_ldv(path, expected_grid=(3, 4))
+
+
+@pytest.mark.parametrize("bad", [2.5, np.nan, 1e300])
+def test_node_numbers_that_are_not_whole_are_refused_not_truncated(tmp_path, bad):
+    # found by the fuzzers: 2.5 was read as node 2 (a duplicate), NaN and 1e300 as -2**63 with a numpy warning
+    from scipy.io import savemat
+
+    s = _scan()
+    ids = s.node_ids.astype(float)
+    ids[1] = bad
+    path = tmp_path / "frac.mat"
+    savemat(path, {"coords": s.coords_mm, "velocity": s.velocity_mm_s, "fs": FS_P, "node_ids": ids})
+    with pytest.raises(InputDataError, match="frac.mat: node numbers are not integers: \\[ *(2.5|nan|1.e\\+300)\\]"):
         read_ldv(path, expected_grid=(3, 4))
 
 
@@ -472,3 +500,15 @@ def test_video_that_is_a_fifo_is_refused(tmp_path):
     os.mkfifo(fifo)
     with pytest.raises(InputDataError, match="not a regular file"):
         open_video(fifo)
+
+
+def test_a_newline_in_a_file_name_or_a_set_key_still_gives_one_line(tmp_path):
+    # found by the --set fuzzer: the message quoted the key with its newline (two lines on stderr)
+    bad = tmp_path / "bad\nname.tif"
+    bad.write_text("not a TIFF")
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "a.h5", bad)
+    assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "bad\\nname.tif" in r.stderr
+    r = run_vfcli("config", tmp_path / "b.h5", "--set", "camera\n.x=1")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "camera\\n" in r.stderr

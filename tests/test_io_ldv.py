@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
+from tests._fuzz import fuzz
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import LdvChannels, LdvScan, detect_dropouts, infer_grid, read_ldv
 from vfcli.io.ldv.write import write_ldv_csv, write_ldv_mat, write_ldv_uff
@@ -334,8 +335,7 @@ def small_files(tmp_path_factory):
     }
 
 
-_FUZZ = settings(max_examples=500, deadline=None,
-                 suppress_health_check=[HealthCheck.function_scoped_fixture])
+_FUZZ = fuzz(500)
 
 
 @_FUZZ
@@ -356,8 +356,7 @@ def test_fuzzed_ldv_files_raise_only_input_errors(tmp_path, small_files, which, 
         pass
 
 
-@settings(max_examples=300, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@fuzz(300)
 @given(data=st.binary(max_size=500), ext=st.sampled_from(["uff", "unv", "csv", "mat"]))
 def test_random_bytes_raise_only_input_errors(tmp_path, data, ext):
     path = tmp_path / f"r.{ext}"

@@ -3,9 +3,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
+from tests._fuzz import fuzz
 from vfcli.errors import InputDataError
 from vfcli.io.pressure import (WAV_PA_PER_FULL_SCALE, read_pressure, write_pressure_csv,
                                write_pressure_tdms)
@@ -191,8 +192,7 @@ def test_missing_file(tmp_path):
 
 # --------------------------------------------------------------------------- fuzz
 
-_SETTINGS = settings(max_examples=400, deadline=None,
-                     suppress_health_check=[HealthCheck.function_scoped_fixture])
+_SETTINGS = fuzz(400)
 
 
 @_SETTINGS

@@ -7,9 +7,10 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
+from tests._fuzz import fuzz
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.video.photron import pack_12bit, read_cih, unpack_12bit, write_mraw
 from vfcli.io.video.base import open_video, video_kinds
@@ -379,8 +380,7 @@ def _mutate(data: bytes, cut: int, flips: list[tuple[int, int]]) -> bytes:
 
 
 _FLIPS = st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 7)), max_size=6)
-_FUZZ = settings(max_examples=1000, deadline=None,
-                 suppress_health_check=[HealthCheck.function_scoped_fixture])
+_FUZZ = fuzz(1000)
 
 
 def _read_all_or_input_error(path):
@@ -414,8 +414,7 @@ def test_fuzzed_tiff_files_raise_only_input_errors(tmp_path, cut, flips):
     _read_all_or_input_error(path)
 
 
-@settings(max_examples=300, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@fuzz(300)
 @given(data=st.binary(max_size=600), ext=st.sampled_from([".mraw", ".cihx", ".cih", ".tif",
                                                           ".avi"]))
 def test_random_bytes_raise_only_input_errors(tmp_path, data, ext):

@@ -37,7 +37,16 @@ class VfcliError(Exception):
 
     def __init__(self, message: str, path: str | Path | None = None) -> None:
         self.path = None if path is None else str(path)
-        super().__init__(f"{self.path}: {message}" if self.path else message)
+        super().__init__(one_line(f"{self.path}: {message}" if self.path else message))
+
+
+def one_line(text: str) -> str:
+    """``text`` with line breaks and other control characters escaped as ``\\n``, ``\\x1b`` ...
+
+    A message quotes what the user gave (a file name, a ``--set`` key), which may hold a newline;
+    the CLI prints every error as one line.
+    """
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 class ConfigError(VfcliError):

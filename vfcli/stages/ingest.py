@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.config import calibration_warnings
+from vfcli.config import SyncConfig, calibration_warnings
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.flow.plausibility import points_on_image
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
-from vfcli.io.ldv.read import LdvChannels, read_ldv
+from vfcli.io.ldv.read import LdvChannels, LdvScan, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
 from vfcli.io.video.base import VideoMeta, open_video
 from vfcli.store import StageWriter, StoreReader
@@ -165,6 +165,27 @@ def _check_on_image(reader: StoreReader, coords_mm: np.ndarray, scan_path: str |
                 int((~on).sum()), len(on), where, advice)
 
 
+def _check_rate_against_video(reader: StoreReader, scan: LdvScan, sync_cfg: SyncConfig,
+                              scan_path: str | Path) -> None:
+    """Refuse a scan whose stated sampling rate the video's pressure contradicts (needs /hsc/pressure).
+
+    The video's f0 comes from /hsc/pressure; a video pressure that gives none is left for `vfcli sync`
+    to report (this is the scan's stage).
+    """
+    if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
+        return
+    from vfcli.sync.f0 import estimate_f0        # scipy: imported only when there is a rate to check
+    from vfcli.sync.rate import check_ldv_rate
+
+    f_range = (sync_cfg.f0_min_hz, sync_cfg.f0_max_hz)
+    try:
+        f0_video = estimate_f0(reader.read("hsc", "pressure"), float(reader.attrs("hsc")["pressure_fs_hz"]), f_range,
+                               source="video pressure")
+    except InputDataError:
+        return
+    check_ldv_rate(f0_video, scan.reference, scan.fs, f_range=f_range, max_drift=sync_cfg.max_drift, source=scan_path)
+
+
 def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
     """Read a vibrometer scan into /ldv, points by node number, dropouts flagged."""
     cfg, frame = ctx.config.ingest_ldv, ctx.config.ldv_frame
@@ -188,6 +209,7 @@ def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
         ref, ref_units = scan.reference, ref_unit
         if key in PA_PER_UNIT:
             ref, ref_units = scan.reference * PA_PER_UNIT[key], "Pa"
+        _check_rate_against_video(reader, scan, ctx.config.sync, scan_path)
         coords = _to_camera_frame(scan.coords_mm, np.asarray(frame.affine))
         _check_on_image(reader, coords, scan_path)
         s.put("node_id", scan.node_ids)

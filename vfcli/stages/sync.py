@@ -22,7 +22,8 @@ class SyncInputs:
     pressure : (n_p,) subglottal pressure recorded with the video, Pa; sampled at ``fs_pressure``
         Hz from ``t0_pressure`` s.  frame_time : (F,) video frame times, s.
     reference, velocity : (P, n) the LDV epochs' reference pressure and vertical velocity (mm/s),
-        sampled at ``fs_ldv`` Hz.  source : where the pressure came from (for messages).
+        sampled at ``fs_ldv`` Hz.  source : where the pressure came from, ldv_source : the scan file
+        (for messages).
     """
 
     pressure: np.ndarray
@@ -33,6 +34,7 @@ class SyncInputs:
     velocity: np.ndarray
     fs_ldv: float
     source: str
+    ldv_source: str
 
 
 def read_inputs(reader: StoreReader) -> SyncInputs:
@@ -44,7 +46,13 @@ def read_inputs(reader: StoreReader) -> SyncInputs:
                       t0_pressure=float(p_time[0]), frame_time=reader.read("hsc", "frame_time"),
                       reference=reader.read("ldv", "reference").astype(np.float64),
                       velocity=reader.read("ldv", "velocity").astype(np.float64),
-                      fs_ldv=float(reader.attrs("ldv")["fs_hz"]), source=f"{reader.path}:/hsc/pressure")
+                      fs_ldv=float(reader.attrs("ldv")["fs_hz"]), source=f"{reader.path}:/hsc/pressure",
+                      ldv_source=_ldv_file(reader))
+
+
+def _ldv_file(reader: StoreReader) -> str:
+    """The scan file /ldv was read from (its recorded input), else the store's /ldv."""
+    return next(iter(reader.previous_inputs("ldv")), f"{reader.path}:/ldv")
 
 
 def run_sync(ctx: RunContext) -> StageResult:
@@ -61,6 +69,7 @@ def run_sync(ctx: RunContext) -> StageResult:
             f_range=(cfg.f0_min_hz, cfg.f0_max_hz), n_harmonics=cfg.n_harmonics, knot_cycles=cfg.knot_cycles,
             max_f0_deviation=cfg.max_drift, min_quality=cfg.min_quality, min_cycles=cfg.min_cycles,
             smooth=cfg.smooth, phase_reference=cfg.phase_reference, source=inp.source,
+            ldv_source=inp.ldv_source,
         )
         for key in ("offset_s", "f0_hz", "drift", "drift_rate_per_s", "quality", "ok", "n_cycles"):
             s.put(key, getattr(res, key))

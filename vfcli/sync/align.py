@@ -65,6 +65,7 @@ from vfcli.config import SyncConfig
 from vfcli.errors import InputDataError
 from vfcli.sync.average import invert_monotonic, matched_times, phase_average_at
 from vfcli.sync.f0 import F_RANGE, check_signal, coarse_f0, estimate_f0
+from vfcli.sync.rate import check_ldv_rate
 from vfcli.sync.phase import (
     PhaseTracks,
     PressureTemplate,
@@ -303,7 +304,7 @@ def sync_scan(
     fs_ldv: float, *, f_range: tuple[float, float] = F_RANGE,
     n_harmonics: int = _D.n_harmonics, knot_cycles: float = _D.knot_cycles, max_f0_deviation: float = _D.max_drift,
     min_quality: float = _D.min_quality, min_cycles: float = _D.min_cycles, smooth: float = _D.smooth,
-    phase_reference: str = _D.phase_reference, source: str = "video pressure",
+    phase_reference: str = _D.phase_reference, source: str = "video pressure", ldv_source: str = "ldv",
 ) -> SyncResult:
     """Synchronise all LDV epochs of a scan onto the video's frame times.
 
@@ -340,6 +341,8 @@ def sync_scan(
         the best fit of the video's whole template waveform (see :mod:`vfcli.sync.gauss_newton`).
     source : str
         Name of the video's pressure (file) for error messages.
+    ldv_source : str
+        Name of the scan (file) for error messages.
 
     Returns
     -------
@@ -348,7 +351,9 @@ def sync_scan(
     Raises
     ------
     InputDataError
-        The video's pressure is unusable, or the LDV arrays have mismatched shapes.
+        The video's pressure is unusable, the LDV arrays have mismatched shapes, or the
+        epochs agree on an f0 that contradicts the scan's stated sampling rate
+        (:func:`vfcli.sync.rate.check_ldv_rate`).
     """
     _check_settings(f_range, knot_cycles, max_f0_deviation, min_quality, min_cycles, smooth,
                     phase_reference)
@@ -360,7 +365,8 @@ def sync_scan(
     if ref.ndim != 2 or ref.shape != vel.shape:
         raise InputDataError(
             f"LDV reference {ref.shape} and velocity {vel.shape} must both be (points, samples)",
-            "ldv")
+            ldv_source)
+    check_ldv_rate(video.f0_hz, ref, fs_ldv, f_range=f_range, max_drift=max_f0_deviation, source=ldv_source)
     return _align_all(ref, vel, fs_ldv, video, f_range=f_range, knot_cycles=knot_cycles,
                       max_f0_deviation=max_f0_deviation, min_quality=min_quality,
                       min_cycles=min_cycles, smooth=smooth, phase_reference=phase_reference)

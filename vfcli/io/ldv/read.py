@@ -157,17 +157,26 @@ def _round_rate(fs: float) -> float:
     return float(r) if r > 0 and abs(fs - r) <= 1e-5 * fs else float(fs)
 
 
+def node_numbers(values, path: Path, what: str = "node numbers") -> np.ndarray:
+    """``values`` as (N,) int64 node numbers; InputDataError unless every one is a whole number
+    below 2**53 in magnitude (a NaN, inf, fraction or text is a corrupt file, not a node)."""
+    try:
+        x = np.asarray(values, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError, OverflowError):
+        raise InputDataError(f"{what} are not integers: {np.asarray(values).reshape(-1)[:3]}", path) from None
+    bad = ~(np.isfinite(x) & (np.abs(x) < 2.0**53) & (x == np.round(x)))
+    if bad.any():
+        raise InputDataError(f"{what} are not integers: {x[bad][:3]}", path)
+    return x.astype(np.int64)
+
+
 def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_unit, t0,
                 source: str, path: Path, expected_grid: tuple[int, int] | None,
                 notes: list[str] | None = None, unit_hint: str = "") -> LdvScan:
     """Validate arrays (plausible ranges: vfcli/io/limits.py), sort by node number, infer
     the grid and flag dropouts. ``unit_hint`` ends the message of an implausible extent."""
     notes = list(notes or [])
-    try:
-        node_ids = np.asarray(node_ids).astype(np.int64).reshape(-1)
-    except (TypeError, ValueError, OverflowError):
-        raise InputDataError(f"node numbers are not integers: {np.asarray(node_ids).reshape(-1)[:3]}",
-                             path) from None
+    node_ids = node_numbers(node_ids, path)
     coords = np.asarray(coords_mm, dtype=np.float64)
     vel = np.asarray(velocity_mm_s, dtype=np.float64)
     p = node_ids.size
@@ -293,7 +302,7 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
     if not recs:
         raise InputDataError("no dataset 58 (time records)", p)
     try:
-        g_nodes = np.concatenate([np.asarray(g["node_nums"]) for g in geo]).astype(np.int64)
+        g_nodes = node_numbers(np.concatenate([np.asarray(g["node_nums"]) for g in geo]), p, "geometry node numbers")
         g_xyz = np.concatenate([np.column_stack([g["x"], g["y"], g["z"]]) for g in geo])
     except (KeyError, ValueError, TypeError) as exc:
         raise InputDataError(f"incomplete geometry dataset: {exc}", p) from None
@@ -445,7 +454,7 @@ def _read_csv(p: Path, expected_grid) -> LdvScan:
     except ValueError:
         raise InputDataError(f"'# fs = {meta['fs']}' is not a number", p) from None
     check_finite(table, p, "CSV table")
-    nodes_all = table[:, 0].astype(np.int64)
+    node_numbers(table[:, 0], p)
     is_ref = table[:, 4] == 1.0
     vel_rows, ref_rows = table[~is_ref], table[is_ref]
     v_nodes = vel_rows[:, 0].astype(np.int64)
@@ -459,7 +468,6 @@ def _read_csv(p: Path, expected_grid) -> LdvScan:
         reference = ref_rows[np.argsort(r_nodes)][:, 6:]
     order = np.argsort(v_nodes)
     vel_rows = vel_rows[order]
-    del nodes_all
     v_fac = _unit_factor(MM_S_PER_UNIT, meta.get("velocity_unit", "mm/s"), "velocity", p)
     l_fac = _unit_factor(MM_PER_UNIT, meta.get("length_unit", "mm"), "length", p)
     return finish_scan(vel_rows[:, 0], vel_rows[:, 1:4] * l_fac, vel_rows[:, 6:] * v_fac, fs,

@@ -1,0 +1,170 @@
+"""CSV pressure recordings: the reader and vfcli's own CSV writer.
+
+Optional comment lines starting with ``#``, which may set ``# fs = 50000`` (Hz; also
+``sampling_rate``/``sample_rate``), ``# t0 = 0.0`` (s) and ``# unit = Pa``. Delimiter ``,``,
+``;`` or tab. Then either
+
+* a header row and columns: a time column (``t``/``time``, in s, or in ms with ``[ms]``/``(ms)``
+  in its name) and a pressure column (``column=``, else the one named like ``p_sub``/``pressure``,
+  else the only other one); a unit in the header name (``p_sub [kPa]`` or ``pressure (Pa)``) is used;
+* or a single column of samples (header optional) with ``# fs = ...``.
+
+The time column must be uniform: every sample within 0.1 sample period of ``t0 + k / fs``.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import re
+from pathlib import Path
+
+import numpy as np
+
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.io._common import check_finite
+from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit
+
+_TIME_NAME = re.compile(r"^\s*(t|time)\b", re.IGNORECASE)
+_UNIT_IN_NAME = re.compile(r"[\[(]\s*([^\])]+?)\s*[\])]")
+_COMMENT_KEY = re.compile(r"^#\s*([A-Za-z_ 0-9]+?)\s*[=:]\s*(.+?)\s*$")
+
+
+def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRecord:
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise InputDataError("not a text CSV file (undecodable bytes)", p) from None
+    meta: dict[str, str] = {}
+    lines = []
+    for line in text.splitlines():
+        s = line.strip()
+        if not s:
+            continue
+        if s.startswith("#"):
+            m = _COMMENT_KEY.match(s)
+            if m:
+                meta[m.group(1).strip().lower().replace(" ", "_")] = m.group(2)
+            continue
+        lines.append(s)
+    if not lines:
+        raise InputDataError("CSV has no data rows", p)
+    delim = ";" if ";" in lines[0] else ("\t" if "\t" in lines[0] else ",")
+    first = next(csv.reader([lines[0]], delimiter=delim))
+    has_header = not all(_is_number(c) for c in first)
+    header = [c.strip() for c in first] if has_header else None
+    body = "\n".join(lines[1:] if has_header else lines)
+    if not body.strip():
+        raise InputDataError("CSV has no data rows", p)
+    try:
+        table = np.loadtxt(io.StringIO(body), delimiter=delim, ndmin=2, dtype=np.float64)
+    except ValueError as exc:
+        raise InputDataError(f"CSV data rows are not all numbers: {exc}", p) from None
+    if table.size == 0:
+        raise InputDataError("CSV has no data rows", p)
+    ncol = table.shape[1]
+    if header is not None and len(header) != ncol:
+        raise InputDataError(f"header has {len(header)} names, the rows {ncol} values", p)
+    names = header or [f"column {i}" for i in range(ncol)]
+    t_col = next((i for i, n in enumerate(names) if header and _TIME_NAME.match(n)), None)
+    if t_col is None and ncol == 2 and header is None:
+        t_col = 0
+    # pressure column
+    if column is not None:
+        if isinstance(column, int) or str(column).isdigit():
+            p_col = int(column)
+        elif header and str(column) in header:
+            p_col = header.index(str(column))
+        else:
+            raise InputDataError(f"no CSV column {column!r}; columns: {names}", p)
+        if not 0 <= p_col < ncol:
+            raise InputDataError(f"column {p_col} outside the {ncol} columns", p)
+    else:
+        rest = [i for i in range(ncol) if i != t_col]
+        named = [i for i in rest if header and PRESSURE_NAME.search(names[i])]
+        pick = named if len(named) == 1 else rest
+        if len(pick) != 1:
+            raise InputDataError(f"cannot choose the pressure column among {names}: set "
+                                 "the column", p)
+        p_col = pick[0]
+    file_unit = meta.get("unit")
+    m = _UNIT_IN_NAME.search(names[p_col]) if header else None
+    if m:
+        file_unit = m.group(1)
+    samples = table[:, p_col]
+    fs_meta = next((meta[k] for k in ("fs", "sampling_rate", "sample_rate", "fs_hz",
+                                      "sampling_rate_hz") if k in meta), None)
+    try:
+        fs_meta = None if fs_meta is None else float(fs_meta.split()[0])
+        t0 = float(meta.get("t0", "0").split()[0])
+    except ValueError:
+        raise InputDataError("'# fs' or '# t0' comment is not a number", p) from None
+    if t_col is not None:
+        t = table[:, t_col]
+        tm = _UNIT_IN_NAME.search(names[t_col]) if header else None
+        if tm and tm.group(1).lower() == "ms":
+            t = t * 1e-3
+        check_finite(t, p, "time column")
+        fs, t0 = _uniform_rate(t, p)
+        if fs_meta is not None:
+            if abs(fs - fs_meta) > 1e-3 * fs_meta:
+                raise InputDataError(f"'# fs = {fs_meta:g}' disagrees with the time column "
+                                     f"({fs:g} Hz)", p)
+            fs = fs_meta
+    elif fs_meta is not None:
+        fs = fs_meta
+    else:
+        raise InputDataError("CSV has neither a time column nor a '# fs = <Hz>' comment", p)
+    unit_used = resolve_unit(file_unit, unit, p)
+    return finish(samples, fs, t0, unit_used, f"CSV {p.name} column {names[p_col]!r}", p)
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _uniform_rate(t: np.ndarray, p: Path) -> tuple[float, float]:
+    """(fs, t0) of a time column; InputDataError unless uniform within 0.1 period."""
+    if t.size < 2:
+        raise InputDataError("time column needs at least 2 samples", p)
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    if not dt > 0:
+        raise InputDataError("time column does not increase", p)
+    dev = np.abs(t - (t[0] + dt * np.arange(t.size))) / dt
+    k = int(np.argmax(dev))
+    if dev[k] > 0.1 or np.any(np.diff(t) <= 0):
+        raise InputDataError(
+            f"non-uniform time column: row {k} (t = {t[k]:g} s) is {dev[k]:.2f} sample periods "
+            "off a uniform grid (gaps or jitter)", p)
+    return 1.0 / dt, float(t[0])
+
+
+def write_pressure_csv(path: str | Path, samples_pa: np.ndarray, fs: float, t0: float = 0.0,
+                       with_time: bool = True) -> Path:
+    """Write a pressure signal (Pa) in vfcli's CSV layout.
+
+    ``# fs = ...``, ``# t0 = ...`` and ``# unit = Pa`` comments, then a header
+    ``time [s],p_sub [Pa]`` (or ``p_sub [Pa]`` alone with ``with_time=False``)
+    and one row per sample, values with 17 significant digits (exact round trip).
+    """
+    samples = np.asarray(samples_pa, dtype=np.float64).reshape(-1)
+    if samples.size == 0 or not np.isfinite(samples).all():
+        raise ConfigError("pressure samples must be non-empty and finite")
+    if not fs > 0:
+        raise ConfigError(f"fs must be > 0, got {fs}")
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    head = f"# fs = {float(fs)!r}\n# t0 = {float(t0)!r}\n# unit = Pa\n"
+    if with_time:
+        data = np.column_stack([t0 + np.arange(samples.size) / fs, samples])
+        head += "time [s],p_sub [Pa]"
+    else:
+        data = samples[:, None]
+        head += "p_sub [Pa]"
+    np.savetxt(p, data, delimiter=",", fmt="%.17g", header=head, comments="")
+    return p
+
+

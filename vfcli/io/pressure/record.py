@@ -1,0 +1,90 @@
+"""The pressure record every reader returns, the units vfcli understands, and the checks shared by the readers.
+
+:func:`finish` is the one place where a reader's samples become a :class:`PressureRecord`:
+it converts them to Pa and refuses what cannot be a subglottal pressure recording (no samples,
+NaN/Inf, a sampling rate or a pressure outside vfcli/io/limits.py).
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from vfcli.errors import InputDataError
+from vfcli.io._common import check_finite
+from vfcli.io.limits import MAX_ABS_PRESSURE_PA, PRESSURE_FS_RANGE, check_abs_max, check_range
+
+#: Pascals per unit of each understood pressure unit (keys lower case, no spaces).
+PA_PER_UNIT = {
+    "pa": 1.0, "hpa": 100.0, "kpa": 1000.0, "mbar": 100.0, "bar": 1e5, "psi": 6894.757293168,
+    "cmh2o": 98.0665, "mmh2o": 9.80665, "inh2o": 249.08891, "mmhg": 133.322387415,
+}
+
+#: Channel or column names that look like the subglottal pressure.
+PRESSURE_NAME = re.compile(r"p_?sub|subglottal|pressure|^p$", re.IGNORECASE)
+
+
+class PressureRecord(NamedTuple):
+    """A pressure signal: ``samples (N,) float64 Pa``, ``fs`` Hz, ``t0`` s, ``unit``, ``source``."""
+
+    samples: np.ndarray
+    fs: float
+    t0: float
+    unit: str
+    source: str
+
+
+def pa_per_unit(unit: str, path: str | Path | None = None) -> float:
+    """Conversion factor to Pa for a unit string such as ``'kPa'`` or ``'cm H2O'``."""
+    key = re.sub(r"[\s_]", "", unit).lower()
+    if key not in PA_PER_UNIT:
+        raise InputDataError(
+            f"pressure unit {unit!r} is not a pressure unit vfcli knows "
+            f"({', '.join(PA_PER_UNIT)})", path)
+    return PA_PER_UNIT[key]
+
+
+def resolve_unit(file_unit: str | None, unit: str | None, path: Path) -> str:
+    """The unit to apply: the file's, checked against the configured one (default Pa)."""
+    if file_unit and unit and pa_per_unit(file_unit, path) != pa_per_unit(unit, path):
+        raise InputDataError(f"unit mismatch: the file says {file_unit!r}, the config says "
+                             f"{unit!r}", path)
+    return file_unit or unit or "Pa"
+
+
+def finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
+           path: Path) -> PressureRecord:
+    """Check a reader's samples and make the record.
+
+    Parameters
+    ----------
+    samples : (N,) array in ``unit``
+    fs : float, Hz
+    t0 : float, s
+    unit : str
+        A unit of :data:`PA_PER_UNIT`.
+
+    Raises
+    ------
+    InputDataError
+        No samples, NaN/Inf (before or after the unit), a sampling rate outside
+        ``PRESSURE_FS_RANGE`` or a pressure beyond ``MAX_ABS_PRESSURE_PA``.
+    """
+    samples = np.asarray(samples, dtype=np.float64).reshape(-1)
+    if samples.size == 0:
+        raise InputDataError("pressure signal has no samples", path)
+    check_finite(samples, path, "pressure signal")
+    if not (np.isfinite(fs) and fs > 0):
+        raise InputDataError(f"sampling rate {fs} Hz is not positive", path)
+    if not np.isfinite(t0):
+        raise InputDataError(f"start time {t0} s is not finite", path)
+    scale = pa_per_unit(unit, path)
+    fs = float(f"{fs:.12g}")  # 1 / wf_increment: drop the last-digit noise of the inverse
+    check_range(fs, *PRESSURE_FS_RANGE, "pressure sampling rate", "Hz", path)
+    with np.errstate(over="ignore"):
+        pa = samples * scale
+    check_finite(pa, path, "pressure signal (in Pa)")
+    check_abs_max(pa, MAX_ABS_PRESSURE_PA, "pressure", "Pa", path)
+    return PressureRecord(pa, fs, float(t0), unit, source)

@@ -1,0 +1,150 @@
+"""TDMS pressure recordings (npTDMS): the reader, with the truncation check npTDMS lacks, and the writer.
+
+A waveform channel with ``wf_increment`` (s) and optionally ``wf_start_offset`` (s),
+``wf_start_time`` and ``unit_string``. Channel choice: ``group``/``channel`` names if given;
+otherwise the only channel in the file, or the only one whose name looks like
+``p_sub``/``psub``/``pressure``/``subglottal``.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit
+
+
+def read_tdms(p: Path, group: str | None, channel: str | int | None,
+               unit: str | None) -> PressureRecord:
+    from nptdms import TdmsFile
+
+    with open(p, "rb") as fh:
+        if fh.read(4) != b"TDSm":
+            raise InputDataError("not a TDMS file (no 'TDSm' lead-in)", p)
+    nptdms_log = logging.getLogger("nptdms")
+    said = _Said()
+    nptdms_log.addHandler(said)
+    try:
+        try:
+            tdms = TdmsFile.open(p)  # metadata only; the chosen channel's data is read below
+        except Exception as exc:  # npTDMS raises ValueError/struct.error/... on corrupt files
+            raise InputDataError(f"unreadable TDMS: {type(exc).__name__}: {exc}", p) from None
+        try:
+            return _read_tdms_channel(p, tdms, group, channel, unit, said.messages)
+        finally:
+            tdms.close()
+    finally:
+        nptdms_log.removeHandler(said)
+
+
+class _Said(logging.Handler):
+    """Collects npTDMS's warnings (it reads a truncated file with a logged warning only)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(record.getMessage())
+
+
+def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | None,
+                       unit: str | None, warned: list[str]) -> PressureRecord:
+    try:
+        chans = [(g.name, c) for g in tdms.groups() for c in g.channels()]
+    except Exception as exc:
+        raise InputDataError(f"unreadable TDMS: {type(exc).__name__}: {exc}", p) from None
+    if group is not None:
+        chans = [gc for gc in chans if gc[0] == group]
+        if not chans:
+            raise InputDataError(f"no TDMS group {group!r}", p)
+    names = [f"{g}/{c.name}" for g, c in chans]
+    if channel is not None:
+        chans = [gc for gc in chans if gc[1].name == str(channel)]
+        if not chans:
+            raise InputDataError(f"no TDMS channel {channel!r}; channels: {names}", p)
+    elif len(chans) > 1:
+        chans = [gc for gc in chans if PRESSURE_NAME.search(gc[1].name)]
+    if len(chans) != 1:
+        raise InputDataError(
+            f"cannot choose the pressure channel among {names}: set group/channel", p)
+    gname, ch = chans[0]
+    props = ch.properties
+    try:
+        data = ch[:]
+        dt = float(props["wf_increment"])
+        t0 = float(props.get("wf_start_offset", 0.0))
+    except KeyError:
+        raise InputDataError(f"channel {gname}/{ch.name} has no wf_increment (sample "
+                             "interval): not a waveform", p) from None
+    except Exception as exc:
+        raise InputDataError(f"unreadable TDMS channel {gname}/{ch.name}: {exc}", p) from None
+    if not (np.isfinite(dt) and dt > 0):
+        raise InputDataError(f"wf_increment {dt} s is not positive", p)
+    if not np.issubdtype(np.asarray(data).dtype, np.number):
+        raise InputDataError(f"channel {gname}/{ch.name} is not numeric", p)
+    _check_tdms_complete(p, tdms, gname, ch, len(data), warned)
+    file_unit = str(props.get("unit_string", "")).strip() or None
+    unit_used = resolve_unit(file_unit, unit, p)
+    start = props.get("wf_start_time")
+    src = f"TDMS {p.name} {gname}/{ch.name}" + (f", wf_start_time {start}" if start else "")
+    return finish(data, 1.0 / dt, t0, unit_used, src, p)
+
+
+def _check_tdms_complete(p: Path, tdms, gname: str, ch, n: int, warned: list[str]) -> None:
+    """Refuse a channel with fewer samples than the file promises (a truncated TDMS).
+
+    npTDMS reads a truncated last segment with only a logged warning ("less data than
+    expected"), which vfcli turns into a refusal; a channel shorter than another channel of
+    its group at the same sample interval (a DAQ samples them together) is refused too.
+    """
+    name = f"{gname}/{ch.name}"
+    trunc = [w for w in warned if "less data than expected" in w or "not a multiple of the chunk" in w]
+    if trunc:
+        raise InputDataError(f"channel {name} is truncated ({n} samples read; npTDMS: {trunc[0][:120]})", p)
+    try:
+        dt = ch.properties.get("wf_increment")
+        promised = [len(c) for c in tdms[gname].channels()
+                    if c.name != ch.name and c.properties.get("wf_increment") == dt]
+    except Exception:  # noqa: BLE001 - lengths are a plausibility check only
+        promised = []
+    longest = max(promised, default=n)
+    if longest > n:
+        raise InputDataError(f"channel {name} holds {n} samples, another channel of the group at the same "
+                             f"rate {longest}: truncated file?", p)
+
+
+def write_pressure_tdms(path: str | Path, samples_pa: np.ndarray, fs: float, t0: float = 0.0,
+                        group: str = "pressure", channel: str = "p_sub",
+                        start_time: np.datetime64 | None = None) -> Path:
+    """Write a pressure waveform (Pa) as a TDMS channel with waveform properties.
+
+    Parameters
+    ----------
+    samples_pa : (N,) float array, Pa
+    fs : float, Hz
+    t0 : float, s
+        Stored as ``wf_start_offset``.
+    start_time : numpy.datetime64 or None
+        ``wf_start_time`` (default: now, UTC).
+    """
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    samples = np.asarray(samples_pa, dtype=np.float64).reshape(-1)
+    if samples.size == 0 or not np.isfinite(samples).all():
+        raise ConfigError("pressure samples must be non-empty and finite")
+    if not fs > 0:
+        raise ConfigError(f"fs must be > 0, got {fs}")
+    start = np.datetime64("now", "us") if start_time is None else np.datetime64(start_time, "us")
+    props = {"wf_increment": 1.0 / fs, "wf_start_offset": float(t0), "wf_start_time": start,
+             "wf_samples": int(samples.size), "unit_string": "Pa"}
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    with TdmsWriter(p) as w:
+        w.write_segment([RootObject(), GroupObject(group),
+                         ChannelObject(group, channel, samples, properties=props)])
+    return p
+
+
