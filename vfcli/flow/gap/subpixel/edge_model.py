@@ -15,16 +15,18 @@ log = logging.getLogger(__name__)
 #: :data:`vfcli.flow.gap.subpixel.profile.WINDOW_SIGMAS` is 2).
 PSF_WINDOW_SIGMAS = 3.0
 
-#: The gap level is refitted on slits at least this many PSF widths wide (their centre lies
-#: 2 sigma from each edge, where the blurred step is within 2.3 % of the gap level) ...
+#: The gap level is refitted on slits at least this many PSF widths plus one pixel wide (the box of
+#: their centre pixel lies 2 sigma from each edge, where the blurred step is within 2.3 % of the
+#: gap level) ...
 LEVEL_WIDTH_SIGMAS = 4.0
 #: ... when at least this many such rays are in the sample (a median of 16 noisy levels) ...
 MIN_LEVEL_RAYS = 16
 #: ... up to this many times (each refit is followed by a new PSF search).
 LEVEL_ITERATIONS = 3
 
-#: Range and resolution of the PSF search (:func:`estimate_edge_model`), px.
-PSF_SIGMA_RANGE_PX = (float(np.sqrt(1 / 12)), 4.0)
+#: Range and resolution of the PSF search (:func:`estimate_edge_model`), px: the widened phantoms' optics
+#: blur reaches 3 px (3.01 px with the pixel's box).
+PSF_SIGMA_RANGE_PX = (0.2, 4.0)
 
 
 def estimate_edge_model(
@@ -38,15 +40,16 @@ def estimate_edge_model(
       over the rays where the rough gap is at least ``min_width_px`` wide (on narrower
       slits blur and width cannot be told apart); a log-spaced search over
       :data:`PSF_SIGMA_RANGE_PX` refined by a parabola, with a window of 3 px beyond each
-      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider. The
-      search starts at sqrt(1/12) px: the pixel's own box integration, below which no
-      camera's blur can go.
+      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider. (A
+      floor at the pixel's box, sqrt(1/12) px, was tried: it made the glottal area of a
+      widened phantom with a 0.3 px blur 37 % too large instead of 12 %, whose tissue
+      darkens next to the edge, which the fit takes up as a sharper PSF.)
     * Gap level, refitted: under a blur of a few pixels the interior of a slit a few pixels
       wide never reaches the gap level, so the median of the mask's interior lies between gap
       and tissue (an analytic slit blurred by 3 px: 550 counts for a gap of 200). The slits
       are therefore fitted again with the PSF found and the gap level free (no prior); the
-      median fitted level of those at least :data:`LEVEL_WIDTH_SIGMAS` PSF widths wide
-      (whose centre the blur leaves at the gap level) is the new gap level, and the PSF is
+      median fitted level of those at least :data:`LEVEL_WIDTH_SIGMAS` PSF widths plus one
+      pixel wide (whose centre pixel the blur leaves at the gap level) is the new gap level, and the PSF is
       searched again with it, up to :data:`LEVEL_ITERATIONS` times (until the level moves by
       less than 1 % of the step). Fewer than :data:`MIN_LEVEL_RAYS` such slits keep the
       interior median.
@@ -137,7 +140,7 @@ def estimate_edge_model(
         # it from the slits whose fitted width leaves their centre beyond the blur (G free, no prior)
         prof, rows, a, b = collect(window(sigma))
         fit = fit_slit_profiles(prof, rows, a, b, sigma, gap_counts, gap_weight=0.0, inner=(a + 0.5, b - 0.5))
-        wide = (fit.e1 - fit.e0) >= LEVEL_WIDTH_SIGMAS * sigma
+        wide = (fit.e1 - fit.e0) >= LEVEL_WIDTH_SIGMAS * sigma + 1.0
         if wide.sum() < MIN_LEVEL_RAYS:
             break
         level = float(np.median(fit.levels[wide, 0]))
