@@ -41,18 +41,20 @@ def estimate_edge_model(
       slits blur and width cannot be told apart); a log-spaced search over
       :data:`PSF_SIGMA_RANGE_PX` refined by a parabola, with a window of 3 px beyond each
       edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider. (A
-      floor at the pixel's box, sqrt(1/12) px, was tried: it made the glottal area of a
-      widened phantom with a 0.3 px blur 37 % too large instead of 12 %, whose tissue
-      darkens next to the edge, which the fit takes up as a sharper PSF.)
+      floor at the pixel's box, sqrt(1/12) px, was tried and dropped: on widened seed 246,
+      0.3 px blur, whose tissue darkens next to the edge and which the fit takes up as a
+      sharper PSF, 0.21 px, it raised the glottal area error from +28 % to +37 %.)
     * Gap level, refitted: under a blur of a few pixels the interior of a slit a few pixels
       wide never reaches the gap level, so the median of the mask's interior lies between gap
       and tissue (an analytic slit blurred by 3 px: 550 counts for a gap of 200). The slits
       are therefore fitted again with the PSF found and the gap level free (no prior); the
       median fitted level of those at least :data:`LEVEL_WIDTH_SIGMAS` PSF widths plus one
-      pixel wide (whose centre pixel the blur leaves at the gap level) is the new gap level, and the PSF is
-      searched again with it, up to :data:`LEVEL_ITERATIONS` times (until the level moves by
-      less than 1 % of the step). Fewer than :data:`MIN_LEVEL_RAYS` such slits keep the
-      interior median.
+      pixel wide (whose centre pixel the blur leaves at the gap level) is the new gap level,
+      and the PSF is searched again with it, up to :data:`LEVEL_ITERATIONS` times (until the
+      level moves by less than 1 % of the step). Fewer than :data:`MIN_LEVEL_RAYS` such slits
+      keep the interior median. On widened phantoms whose PSF the darkening tissue next to the
+      edge makes look sharper, the fitted widths and so this level come out too high (seed 246:
+      312 counts against about 240 before; docs/benchmarks.md, "The gap on other optics").
 
     Parameters
     ----------
