@@ -353,7 +353,20 @@ def surface_velocity(raster: Raster, positions_t: np.ndarray, positions_next: np
     return interpolate(raster, disp, fill)
 
 
-def gap_mask(camera: Camera, raster: Raster, triangle_fold: np.ndarray) -> np.ndarray:
+def fold_x_range(vertices: np.ndarray, triangles: np.ndarray, triangle_fold: np.ndarray) -> tuple[float, float]:
+    """Model x interval (mm) that both folds span: (largest of their smallest x, smallest of their largest x).
+
+    vertices : (N, 3) mm.  triangles : (K, 3) int.  triangle_fold : (K,) int, 0 or 1.
+    """
+    x = np.asarray(vertices, dtype=float)[:, 0][np.asarray(triangles, dtype=np.int64)]
+    fold = np.asarray(triangle_fold).ravel()
+    lo = [float(x[fold == k].min()) for k in (0, 1) if (fold == k).any()]
+    hi = [float(x[fold == k].max()) for k in (0, 1) if (fold == k).any()]
+    return (max(lo), min(hi)) if lo else (-np.inf, np.inf)
+
+
+def gap_mask(camera: Camera, raster: Raster, triangle_fold: np.ndarray,
+             x_range: tuple[float, float] | None = None) -> np.ndarray:
     """Simulated glottal gap: pixels covered by no fold and lying between the two folds.
 
     A pixel belongs to the gap when no triangle is visible at its centre and,
@@ -362,13 +375,16 @@ def gap_mask(camera: Camera, raster: Raster, triangle_fold: np.ndarray) -> np.nd
     as the strip of pixels whose model x falls in the same bin of one pixel's
     width (exact for an unrotated camera, within a pixel otherwise).  Pixels
     beyond the anterior/posterior ends of the folds or outside their lateral
-    walls are not gap.
+    walls are not gap: with ``x_range`` (:func:`fold_x_range`), a gap pixel's
+    model x lies in it too (a turned camera's strip crosses a fold's end at a
+    slant, so the strip alone would take the pixels just past the end).
 
     Parameters
     ----------
     camera : the camera the raster was made with.
     raster : raster of both folds' surfaces.
     triangle_fold : (K,) int, fold (0 or 1) of each rasterised triangle.
+    x_range : (x_lo, x_hi) mm, optional; the model x interval both folds span.
 
     Returns
     -------
@@ -389,4 +405,6 @@ def gap_mask(camera: Camera, raster: Raster, triangle_fold: np.ndarray) -> np.nd
     np.maximum.at(ymax1, xbin[m1], xy[m1, 1])
     y = xy[:, 1]
     gap = (label < 0) & (y > ymin0[xbin]) & (y < ymax1[xbin])
+    if x_range is not None:
+        gap &= (xy[:, 0] >= x_range[0]) & (xy[:, 0] <= x_range[1])
     return gap.reshape(camera.shape)

@@ -28,7 +28,7 @@ import numpy as np
 from scipy import ndimage
 
 from vfcli.camera.camera import Camera
-from vfcli.camera.raster import Raster, gap_mask, interpolate, rasterize
+from vfcli.camera.raster import Raster, fold_x_range, gap_mask, interpolate, rasterize
 
 
 @dataclass(frozen=True)
@@ -242,7 +242,8 @@ def render_radiance(camera: Camera, vertices: np.ndarray, triangles: np.ndarray,
     if textures.channel.shape != fine.shape:
         raise ValueError(f"textures were made for {textures.channel.shape}, camera needs {fine.shape}")
     ras = rasterize(fine, vertices, triangles)
-    gap = gap_mask(fine, ras, np.asarray(triangle_fold, dtype=np.int64).ravel())
+    fold = np.asarray(triangle_fold, dtype=np.int64).ravel()
+    gap = gap_mask(fine, ras, fold, fold_x_range(vertices, triangles, fold))
     return _radiance_from_raster(camera, ras, gap, vertices, triangles, material_uv, triangle_fold,
                                  textures, settings)
 
@@ -323,7 +324,8 @@ def render_truth(camera: Camera, vertices: np.ndarray, triangles: np.ndarray, ve
     f = int(supersample)
     fine = camera.supersampled(f)
     ras_f = rasterize(fine, vertices, triangles)
-    gap_f = gap_mask(fine, ras_f, np.asarray(triangle_fold, dtype=np.int64).ravel())
+    fold = np.asarray(triangle_fold, dtype=np.int64).ravel()
+    gap_f = gap_mask(fine, ras_f, fold, fold_x_range(vertices, triangles, fold))
     return _truth_from_raster(camera, ras_f, gap_f, vertices, triangles, velocities, triangle_fold, f)
 
 
@@ -339,7 +341,7 @@ def _truth_from_raster(camera, ras_f, gap_f, vertices, triangles, velocities, tr
     else:
         ras = rasterize(camera, vertices, triangles)
         vel = interpolate(ras, velocities)
-        visible, gap = ras.mask, gap_mask(camera, ras, fold)
+        visible, gap = ras.mask, gap_mask(camera, ras, fold, fold_x_range(vertices, triangles, fold))
     return FrameTruth(vel, visible, gap, frac)
 
 
@@ -366,7 +368,7 @@ def render_frame(camera: Camera, vertices: np.ndarray, triangles: np.ndarray, ma
     truth = None
     for e, verts in enumerate(stack):
         ras = rasterize(fine, verts, triangles)
-        gap_f = gap_mask(fine, ras, fold)
+        gap_f = gap_mask(fine, ras, fold, fold_x_range(verts, triangles, fold))
         radiance += _radiance_from_raster(camera, ras, gap_f, verts, triangles, material_uv, fold,
                                           textures, settings)
         if e == len(stack) // 2:
