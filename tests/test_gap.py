@@ -235,42 +235,6 @@ def test_contact_line_and_dark_tissue_below_the_threshold_are_not_gap():
     assert open_fit.e1[0] - open_fit.e0[0] < 1.0  # the dip is fitted as a sliver at most
 
 
-def _pixel_slit_frames(sigma_optics: float, rng, widths=(3.0, 5.0, 8.0, 12.0, 16.0, 6.0), tissue=2000.0,
-                       gap=200.0, noise=30.0):
-    """Frames (k, 60, 40) of a straight slit along the columns (tilted 0.02 px/px), each pixel the
-    exact mean over its 1 px box of a step between ``tissue`` and ``gap`` counts blurred by a Gaussian
-    of ``sigma_optics`` px, plus Gaussian noise: the camera's pixel integration and the optics."""
-    from scipy.special import ndtr
-
-    def beyond(r, e):  # fraction of the pixel box [r - 1/2, r + 1/2] beyond x = e, blurred
-        def psi(z):
-            return z * ndtr(z) + np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
-        return sigma_optics * (psi((r + 0.5 - e) / sigma_optics) - psi((r - 0.5 - e) / sigma_optics))
-
-    rows, cols = np.arange(60.0)[:, None], np.arange(40.0)[None, :]
-    frames = []
-    for k, w in enumerate(widths):
-        centre = 30.3 + 0.2 * k + 0.02 * (cols - 20)
-        inside = beyond(rows, centre - w / 2) - beyond(rows, centre + w / 2)
-        frames.append(tissue - (tissue - gap) * inside + noise * rng.standard_normal((60, 40)))
-    return np.stack(frames)
-
-
-@pytest.mark.parametrize("sigma_optics", [0.3, 1.0, 2.0, 3.0])
-def test_blur_and_gap_level_of_pixel_integrated_blurred_slits(sigma_optics):
-    # the camera's effective PSF is the optics' Gaussian and the pixel's box (variance 1/12 px^2); the
-    # gap level is that of the slit's interior, which a slit a few PSF widths wide never reaches.
-    # Measured (sigma_optics 0.3, 1, 2, 3 px): sigma -0.1, -0.1, -0.4, -0.3 % of sqrt(sigma^2 + 1/12),
-    # gap level 200, 203, 206, 199 counts (true 200, step 1800). Before the gap level's refit: sigma
-    # -0.2, -0.6, -3.9, -9.5 %, gap level 200, 224, 314, 453 counts
-    frames = _pixel_slit_frames(sigma_optics, np.random.default_rng(5))
-    masks = np.stack([gap_mask(f, 1100.0, 5) for f in frames])
-    model = estimate_edge_model(frames, masks)
-    expected = np.sqrt(sigma_optics**2 + 1 / 12)
-    assert abs(model.psf_sigma_px - expected) < 0.01 * expected
-    assert abs(model.gap_counts - 200.0) < 0.01 * 1800
-
-
 def test_psf_and_gap_level_are_measured_from_the_frames(narrow):
     ph, _, gap, _ = narrow
     # the Gaussian PSF and the 2 x 2 point samples per pixel (+-0.25 px: variance 1/16); measured

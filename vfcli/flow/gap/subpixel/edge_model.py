@@ -15,18 +15,8 @@ log = logging.getLogger(__name__)
 #: :data:`vfcli.flow.gap.subpixel.profile.WINDOW_SIGMAS` is 2).
 PSF_WINDOW_SIGMAS = 3.0
 
-#: The gap level is refitted on slits at least this many PSF widths plus one pixel wide (the box of
-#: their centre pixel lies 2 sigma from each edge, where the blurred step is within 2.3 % of the
-#: gap level) ...
-LEVEL_WIDTH_SIGMAS = 4.0
-#: ... when at least this many such rays are in the sample (a median of 16 noisy levels) ...
-MIN_LEVEL_RAYS = 16
-#: ... up to this many times (each refit is followed by a new PSF search).
-LEVEL_ITERATIONS = 3
-
-#: Range and resolution of the PSF search (:func:`estimate_edge_model`), px: the widened phantoms' optics
-#: blur reaches 3 px (3.01 px with the pixel's box).
-PSF_SIGMA_RANGE_PX = (0.2, 4.0)
+#: Range and resolution of the PSF search (:func:`estimate_edge_model`), px.
+PSF_SIGMA_RANGE_PX = (0.2, 3.0)
 
 
 def estimate_edge_model(
@@ -40,21 +30,7 @@ def estimate_edge_model(
       over the rays where the rough gap is at least ``min_width_px`` wide (on narrower
       slits blur and width cannot be told apart); a log-spaced search over
       :data:`PSF_SIGMA_RANGE_PX` refined by a parabola, with a window of 3 px beyond each
-      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider. (A
-      floor at the pixel's box, sqrt(1/12) px, was tried and dropped: on widened seed 246,
-      0.3 px blur, whose tissue darkens next to the edge and which the fit takes up as a
-      sharper PSF, 0.21 px, it raised the glottal area error from +28 % to +37 %.)
-    * Gap level, refitted: under a blur of a few pixels the interior of a slit a few pixels
-      wide never reaches the gap level, so the median of the mask's interior lies between gap
-      and tissue (an analytic slit blurred by 3 px: 550 counts for a gap of 200). The slits
-      are therefore fitted again with the PSF found and the gap level free (no prior); the
-      median fitted level of those at least :data:`LEVEL_WIDTH_SIGMAS` PSF widths plus one
-      pixel wide (whose centre pixel the blur leaves at the gap level) is the new gap level,
-      and the PSF is searched again with it, up to :data:`LEVEL_ITERATIONS` times (until the
-      level moves by less than 1 % of the step). Fewer than :data:`MIN_LEVEL_RAYS` such slits
-      keep the interior median. On widened phantoms whose PSF the darkening tissue next to the
-      edge makes look sharper, the fitted widths and so this level come out too high (seed 246:
-      312 counts against about 240 before; docs/benchmarks.md, "The gap on other optics").
+      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider.
 
     Parameters
     ----------
@@ -110,7 +86,7 @@ def estimate_edge_model(
         take = np.unique(np.linspace(0, len(prof) - 1, min(len(prof), max_rays)).astype(int))
         return prof[take], rows[take], a[take], b[take]
 
-    def search(margin: int, gap_counts: float) -> float:
+    def search(margin: int) -> float:
         prof, rows, a, b = collect(margin)
 
         def cost(s: float) -> float:
@@ -129,25 +105,7 @@ def estimate_edge_model(
                 return float(np.exp(np.clip(-c[1] / (2 * c[0]), x[0], x[2])))
         return float(fine[k])
 
-    def window(sigma: float) -> int:
-        return max(3, int(np.ceil(PSF_WINDOW_SIGMAS * sigma)))
-
-    def search_sigma(gap_counts: float) -> float:
-        sigma = search(3, gap_counts)
-        return search(window(sigma), gap_counts) if window(sigma) > 3 else sigma
-
-    sigma = search_sigma(gap_counts)
-    for _ in range(LEVEL_ITERATIONS):
-        # the interior pixels of a slit narrower than a few PSF widths never reach the gap level: take
-        # it from the slits whose fitted width leaves their centre beyond the blur (G free, no prior)
-        prof, rows, a, b = collect(window(sigma))
-        fit = fit_slit_profiles(prof, rows, a, b, sigma, gap_counts, gap_weight=0.0, inner=(a + 0.5, b - 0.5))
-        wide = (fit.e1 - fit.e0) >= LEVEL_WIDTH_SIGMAS * sigma + 1.0
-        if wide.sum() < MIN_LEVEL_RAYS:
-            break
-        level = float(np.median(fit.levels[wide, 0]))
-        if abs(level - gap_counts) <= 0.01 * abs(np.median(fit.levels[wide, 1]) - level):
-            break
-        gap_counts = level
-        sigma = search_sigma(gap_counts)
+    sigma = search(3)
+    if np.ceil(PSF_WINDOW_SIGMAS * sigma) > 3:
+        sigma = search(int(np.ceil(PSF_WINDOW_SIGMAS * sigma)))
     return EdgeModel(gap_counts, sigma)
