@@ -1,8 +1,9 @@
 """`vfcli flow`: gap, opening, optical flow (/flow) and the tri-variate field (/fields).
 
-Two stages, each written by its own atomic transaction, each reading its inputs from the
-store, calling one function of :mod:`vfcli.flow.pipeline` (the science) and writing what
-it streams back, frame by frame (memory does not grow with the number of frames):
+Two stages, written by ONE atomic transaction (both reach the store or neither does), each
+reading its inputs from the store, calling one function of :mod:`vfcli.flow.pipeline` (the
+science) and writing what it streams back, frame by frame (memory does not grow with the
+number of frames):
 
 1. /flow from /hsc: :func:`vfcli.flow.pipeline.flow_pipeline`.
 2. /fields from /flow, /sync and /ldv: :func:`vfcli.flow.pipeline.velocity_fields`.
@@ -22,7 +23,7 @@ from vfcli.errors import ConfigError, InputDataError, MissingStageError
 from vfcli.flow.plausibility import FAR_BEYOND, points_on_image, pressure_velocity_bound
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
-from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
+from vfcli.stages.base import RunContext, StageResult, StageSpec, run_stages, stage_config_json
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +189,8 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
 
 
 def run_flow(ctx: RunContext) -> list[StageResult]:
-    """Write /flow (from /hsc) then /fields (from /flow, /sync, /ldv), each unless up to date.
+    """Write /flow (from /hsc) then /fields (from /flow, /sync, /ldv), each unless up to date,
+    in one transaction.
 
     Returns
     -------
@@ -197,12 +199,13 @@ def run_flow(ctx: RunContext) -> list[StageResult]:
     cfg = ctx.config.flow
     if cfg.median_px % 2 == 0:
         raise ConfigError(f"flow.median_px = {cfg.median_px}: must be odd")
-    if ctx.store.exists():  # fail before the long flow step when /fields could not be written
-        with ctx.store.read() as r:
-            r.upstream_digests([("hsc", None), ("sync", None), ("ldv", None)])
-    flow = run_stage(ctx, "flow", config_json=stage_config_json("flow", ctx.config),
-                     body=lambda r, s: _write_flow(ctx, cfg, r, s), upstream=[("hsc", None)])
-    fields = run_stage(ctx, "fields", config_json=stage_config_json("fields", ctx.config),
-                       body=lambda r, s: _write_fields(ctx, cfg, r, s),
-                       upstream=[("flow", None), ("sync", None), ("ldv", None)])
-    return [flow, fields]
+    if not ctx.store.exists():
+        raise MissingStageError("stage /hsc is missing; run `vfcli ingest-hsc` first", ctx.store.path)
+    with ctx.store.read() as r:  # fail before the long flow step when /fields could not be written
+        r.upstream_digests([("hsc", None), ("sync", None), ("ldv", None)])
+    return run_stages(ctx, [
+        StageSpec("flow", stage_config_json("flow", ctx.config), lambda r, s: _write_flow(ctx, cfg, r, s),
+                  upstream=[("hsc", None)]),
+        StageSpec("fields", stage_config_json("fields", ctx.config), lambda r, s: _write_fields(ctx, cfg, r, s),
+                  upstream=[("flow", None), ("sync", None), ("ldv", None)]),
+    ])

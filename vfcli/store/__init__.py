@@ -23,7 +23,7 @@ _PUBLIC = {
     "read_truth": "truth", "write_truth": "truth", "TruthWriter": "truth",
     "StoredMesh": "mesh", "read_mesh": "mesh", "read_stored_mesh": "mesh",
     "OptimizeRun": "runs", "read_run": "runs", "run_names": "runs",
-    "store_info": "info",
+    "store_info": "info", "copy_store": "parts",
 }
 
 __all__ = sorted(_PUBLIC)
