@@ -297,3 +297,17 @@ def test_flow_commits_flow_and_fields_together_or_neither(tmp_path):
     assert _snapshot(path) == before and _temporaries(path) == []
     with Store(path).read() as r:
         assert not r.has_stage("flow", complete=False) and not r.has_stage("fields", complete=False)
+
+
+def test_a_store_file_copied_without_its_parts_folder_is_one_clear_line(tmp_path):
+    path = tmp_path / "r.h5"
+    _write_mesh(path)
+    _write_hsc(path, 1, 20)
+    alone = tmp_path / "alone" / "r.h5"
+    alone.parent.mkdir()
+    alone.write_bytes(path.read_bytes())
+    for args in (["info", alone], ["mesh", "--force", alone]):
+        res = run_vfcli(*args)
+        assert res.returncode == 4, res.stderr
+        assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
+        assert "part file r.h5.parts/hsc-" in res.stderr and "is missing" in res.stderr and "vfcli share" in res.stderr

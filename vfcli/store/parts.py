@@ -34,9 +34,8 @@ import h5py
 from h5py import h5f, h5p
 
 from vfcli.errors import StoreSpaceError
+from vfcli.store.layout import PART_STAGES
 
-#: Stages written to their own part file (their data grow with the recording's length).
-PART_STAGES = frozenset({"hsc", "flow", "fields", "optimize", "diagnose"})
 
 _PART_RE = re.compile(r"^[a-z_]+(?:-[A-Za-z0-9_.]+)?-[0-9a-f]{16}\.h5$")
 _SAFE = re.compile(r"[^A-Za-z0-9_.]")
@@ -248,3 +247,9 @@ def holder(store: str | Path, group_path: str) -> Path:
         if isinstance(link, h5py.ExternalLink):
             return real.parent / link.filename
     return real
+
+
+def missing_parts(f: h5py.File, store: Path) -> list[str]:
+    """Link targets of the index ``f`` (of the store file at real path ``store``) whose part
+    file is not there (a store file copied or renamed without its parts folder)."""
+    return sorted(t for t in referenced_parts(f) if not (store.parent / t).is_file())

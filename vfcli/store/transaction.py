@@ -430,6 +430,7 @@ class Store:
             f = open_h5(real, "r")
             try:
                 check_format(f, self.path)
+                _refuse_missing_parts(f, real, self.path)
                 yield StoreReader(f, self.path)
             except integrity.H5_ERRORS as exc:
                 _raise_damage(exc, self.path)
@@ -558,6 +559,16 @@ class Store:
                     if parts.is_no_room(exc):
                         raise parts.no_room_error(self.path, written) from None
                 _raise_damage(exc, self.path)
+
+
+def _refuse_missing_parts(f: h5py.File, real: Path, path: Path) -> None:
+    """:class:`StoreDamagedError` naming the first part file the index links to that is not there."""
+    missing = parts.missing_parts(f, real)
+    if missing:
+        raise StoreDamagedError(
+            f"damaged store: its part file {missing[0]} is missing ({len(missing)} in all); a store is its file "
+            f"plus its folder {parts.parts_dir(real).name}: copy or move both and keep their names "
+            "(`vfcli share` makes one self-contained file)", path)
 
 
 #: Free space asked beyond the index's size before copying it (its growth by a small stage).
