@@ -21,6 +21,7 @@ import h5py
 from vfcli.errors import ConfigError
 from vfcli.store import integrity, layout
 from vfcli.store.frames import COMPRESSIONS, FrameReader
+from vfcli.store.parts import own_parts
 from vfcli.store.reader import check_format, open_h5
 from vfcli.store.transaction import StageWriter
 
@@ -104,4 +105,4 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
     finally:
         f.close()
     return {"frames": n, "compression": compression, "size_bytes": dst.stat().st_size,
-            "source_size_bytes": src.stat().st_size}
+            "source_size_bytes": src.stat().st_size + sum(p.stat().st_size for p in own_parts(Path(os.path.realpath(src))))}
