@@ -322,6 +322,11 @@ class StoreWriter:
         self._mode = mode  # the store file's permission bits, given to its new part files
         self._new_parts: list[Path] = []  # written by this transaction: removed if it aborts
 
+    @property
+    def new_parts(self) -> list[Path]:
+        """The part files this transaction wrote (removed if it aborts)."""
+        return list(self._new_parts)
+
     def set_recording_config(self, config_json: str) -> None:
         self._f.attrs[layout.ROOT_CONFIG_ATTR] = config_json
 
@@ -546,7 +551,7 @@ class Store:
                 f.flush()
                 f.close()
                 parts.fsync_path(tmp)
-                if w._new_parts:
+                if w.new_parts:
                     parts.fsync_path(parts.parts_dir(real))
                 with _signals_blocked():
                     os.replace(tmp, real)
@@ -555,7 +560,7 @@ class Store:
                 parts.collect_garbage(real, linked)  # the parts of the stages this write replaced
             except BaseException as exc:
                 if not committed:
-                    written = _abort(f, tmp, w._new_parts if w else [])
+                    written = _abort(f, tmp, w.new_parts if w else [])
                     if parts.is_no_room(exc):
                         raise parts.no_room_error(self.path, written) from None
                 _raise_damage(exc, self.path)
