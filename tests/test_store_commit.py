@@ -75,6 +75,14 @@ def _write_hsc(path: Path, seed: int, n: int) -> None:
     assert proc.returncode == 0, err
 
 
+def _store_with_video(tmp_path: Path, seed: int, n: int) -> Path:
+    """``tmp_path/r.h5`` with /mesh (in the store file) and /hsc (in its part file)."""
+    path = tmp_path / "r.h5"
+    _write_mesh(path)
+    _write_hsc(path, seed, n)
+    return path
+
+
 def _hsc_seed(path: Path) -> int | None:
     with Store(path).read() as r:
         if not r.has_stage("hsc"):
@@ -217,9 +225,7 @@ def _no_room_writer(path: Path, seed: int, n: int, limit: int) -> subprocess.Com
 
 @pytest.mark.parametrize("n_frames", [400, 3000])
 def test_a_write_that_finds_no_room_is_one_line_exit_4_and_leaves_nothing(tmp_path, n_frames):
-    path = tmp_path / "r.h5"
-    _write_mesh(path)
-    _write_hsc(path, 1, 20)
+    path = _store_with_video(tmp_path, 1, 20)
     before = _snapshot(path)
     res = _no_room_writer(path, 2, n_frames, limit=3_000_000)  # 400 frames: 6.5 MB; 3000 frames: 49 MB
     assert res.returncode == 4, res.stderr[-3000:]
@@ -244,9 +250,7 @@ def _all_links(g: h5py.Group, prefix: str = "") -> list[tuple[str, object]]:
 
 
 def test_share_makes_one_self_contained_file_and_copy_store_a_working_copy(tmp_path):
-    path = tmp_path / "r.h5"
-    _write_mesh(path)
-    _write_hsc(path, 5, 30)
+    path = _store_with_video(tmp_path, 5, 30)
     out = tmp_path / "shared" / "alone.h5"
     out.parent.mkdir()
     res = run_vfcli("share", path, out)
@@ -300,9 +304,7 @@ def test_flow_commits_flow_and_fields_together_or_neither(tmp_path):
 
 
 def test_a_store_file_copied_without_its_parts_folder_is_one_clear_line(tmp_path):
-    path = tmp_path / "r.h5"
-    _write_mesh(path)
-    _write_hsc(path, 1, 20)
+    path = _store_with_video(tmp_path, 1, 20)
     alone = tmp_path / "alone" / "r.h5"
     alone.parent.mkdir()
     alone.write_bytes(path.read_bytes())

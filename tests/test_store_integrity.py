@@ -166,7 +166,7 @@ def test_a_broken_recording_config_is_exit_4(store):
 
 
 def test_a_broken_upstream_json_is_damaged_and_rewriting_the_stage_repairs_it(store):
-    edited = _edit(store, lambda f: f["/sync"].attrs.__setitem__("upstream_json", "{not json"))
+    edited = _edit(store, lambda f: f["/sync"].attrs.__setitem__("upstream_json", "{not json"), "/sync")
     r = run_vfcli("info", store)
     _one_line_exit_4(r, "/sync", "upstream_json")
     assert "DAMAGED" in r.stdout

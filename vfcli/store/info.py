@@ -18,7 +18,7 @@ def store_info(path: str | Path, expected_config: Callable[[str | None], Expecte
     """Stages with provenance, sizes, staleness (transitive; config changes count when
     ``expected_config(recording config JSON)`` is given), damage (``verify``: every dataset's
     SHA-256 too, reading the whole store), figures and warnings; whether a writer is at work
-    now, or the leftovers of interrupted writes; the parts folder (the large stages' files) and
+    now, or the leftovers of interrupted writes; the parts folder (the stages' files) and
     its size."""
     store = Store(path)
     with store.read() as r:

@@ -1,13 +1,13 @@
-"""Part files: the large stages of a store, each in its own HDF5 file beside the store.
+"""Part files: the stages of a store that grow with the recording, each in its own HDF5 file beside the store.
 
 A store is its file ``<dir>/<name>`` plus the folder ``<dir>/<name>.parts/``. The store
-file (the *index*) holds the root attributes (format, recording config), the small stages
-(/ldv, /sync, /mesh) and one HDF5 external link per large stage (:data:`PART_STAGES`:
-/hsc, /flow, /fields and each run of /optimize and /diagnose) to the group of the same
+file (the *index*) holds the root attributes (format, recording config), /mesh (small) and
+one HDF5 external link per other stage (:data:`PART_STAGES`: /hsc, /ldv, /sync, /flow,
+/fields and each run of /optimize and /diagnose) to the group of the same
 path in its part file ``<name>.parts/<stage>-<16 hex>.h5``. h5py, h5netcdf/xarray, HDFView
 and MATLAB follow the links transparently while the folder is beside the file.
 
-A commit (:meth:`vfcli.store.transaction.Store.write`) writes each large stage into a NEW
+A commit (:meth:`vfcli.store.transaction.Store.write`) writes each such stage into a NEW
 part file, complete, flushed and fsynced, then copies the (small) index, points its links at
 the new parts and renames it over the store: the rename is the commit, so a write costs what
 it writes plus one copy of the index. Part files are never modified once written. Part files
@@ -239,7 +239,7 @@ def relink(store: Path, old_folder: str) -> None:
 def holder(store: str | Path, group_path: str) -> Path:
     """The file that holds stage group ``group_path`` ("/hsc", "/optimize/run1"): its part file,
     or the store file for a small stage. netCDF readers (xarray's h5netcdf engine) resolve a
-    dataset's dimension scales in the file they opened, so they open a large stage here:
+    dataset's dimension scales in the file they opened, so they open a stage here:
     ``xr.open_dataset(holder(store, "/hsc"), group="hsc", engine="h5netcdf")``."""
     real = Path(os.path.realpath(store))
     with h5py.File(real, "r") as f:

@@ -4,9 +4,9 @@ Crash safety
 ------------
 A write never modifies a file a reader may have open. The writer takes an exclusive lock
 (``flock`` on the sidecar ``.<name>.lock`` beside the real file, released by the kernel if
-the process dies), writes each large stage into a new part file (:mod:`vfcli.store.parts`:
+the process dies), writes each stage but /mesh into a new part file (:mod:`vfcli.store.parts`:
 ``<name>.parts/<stage>-<16 hex>.h5``, complete, flushed and fsynced), copies the store file
-(the index: root attributes, small stages and one external link per large stage; small) to
+(the index: root attributes, /mesh and one external link per other stage; small) to
 ``.<name>.vfcli-<pid>-<8 hex>.tmp``, writes the small stages and links there, fsyncs it and
 atomically renames it over the store. A process killed at any moment therefore leaves the
 old index or the new one, never a half-written stage; a leftover temporary index or an
@@ -516,7 +516,7 @@ class Store:
     def write(self, command: str) -> Iterator[StoreWriter]:
         """An exclusive write transaction: all of it reaches the store, or none of it.
 
-        Costs what it writes: the large stages go to new part files, and only the store's
+        Costs what it writes: the stages (but /mesh) go to new part files, and only the store's
         index (small) is copied, then renamed over the store (the commit). On an abort (an
         exception, Ctrl-C, SIGTERM, a full disk) the temporary copy and the new part files
         are removed and the store is unchanged; a full disk is :class:`StoreSpaceError`."""
