@@ -313,3 +313,26 @@ def test_a_store_file_copied_without_its_parts_folder_is_one_clear_line(tmp_path
         assert res.returncode == 4, res.stderr
         assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr
         assert "part file r.h5.parts/hsc-" in res.stderr and "is missing" in res.stderr and "vfcli share" in res.stderr
+
+
+def test_a_store_of_an_earlier_vfcli_moves_its_stages_to_part_files_on_the_first_write(tmp_path):
+    """A store with every stage inside its file (as vfcli wrote them before part files; `vfcli
+    share` still writes one): the first write moves them out and shrinks the file; the values,
+    digests and checks are unchanged, nothing becomes stale."""
+    path = _store_with_video(tmp_path, 4, 200)
+    old = tmp_path / "old" / "r.h5"
+    old.parent.mkdir()
+    assert run_vfcli("share", path, old, "--compression", "nbit").returncode == 0
+    with h5py.File(old, "r") as f:
+        assert isinstance(f.get("hsc", getlink=True), h5py.HardLink)
+    size_before = old.stat().st_size
+    before = json.loads(run_vfcli("info", old, "--json").stdout)
+    _write_mesh(old, 3.0)
+    assert old.stat().st_size < 64_000 < size_before / 20
+    assert [p.name.split("-")[0] for p in own_parts(old)] == ["hsc"]
+    assert _hsc_seed(old) == 4
+    res = run_vfcli("info", old, "--verify", "--json")
+    assert res.returncode == 0, res.stderr
+    after = {s["path"]: s for s in json.loads(res.stdout)["stages"]}
+    assert after["/hsc"]["provenance"]["digest"] == {s["path"]: s for s in before["stages"]}["/hsc"]["provenance"]["digest"]
+    assert not after["/hsc"]["stale"] and not after["/hsc"]["damaged"]

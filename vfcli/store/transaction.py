@@ -44,7 +44,7 @@ import numpy as np
 
 from vfcli import __version__
 from vfcli.errors import ConfigError, StoreAccessError, StoreDamagedError, StoreLockedError, VfcliError
-from vfcli.store import integrity, layout, parts
+from vfcli.store import integrity, layout, migrate, parts
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
 from vfcli.store.provenance import content_digest
@@ -527,6 +527,7 @@ class Store:
             tmp = real.with_name(f".{real.name}.vfcli-{os.getpid()}-{secrets.token_hex(4)}.tmp")
             f: h5py.File | None = None
             w: StoreWriter | None = None
+            moved: list[Path] = []  # stages of an earlier vfcli's store moved to part files
             committed = False
             try:
                 if real.exists():
@@ -538,6 +539,7 @@ class Store:
                     os.chmod(tmp, mode)
                     f = open_h5(tmp, "r+", libver=_LIBVER)  # new objects get checksummed (v2) object headers
                     parts.collect_garbage(real, parts.referenced_parts(f))  # parts of killed writers
+                    migrate.move_inline_stages(f, real, mode, moved)  # a store of an earlier vfcli
                 else:
                     mode = None
                     f = h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True, libver=_LIBVER)
@@ -546,9 +548,11 @@ class Store:
                     f.attrs["created_utc"] = _now()
                     f.attrs["generated_by"] = f"vfcli {__version__}"
                 w = StoreWriter(f, self.path, command, real, mode)
+                w._new_parts += moved
                 yield w
                 linked = parts.referenced_parts(f)
-                f.flush()
+                if migrate.needs_compaction(f):  # HDF5 does not shrink a file: write it anew
+                    tmp = _compacted(f, tmp, mode)
                 f.close()
                 parts.fsync_path(tmp)
                 if w.new_parts:
@@ -560,7 +564,7 @@ class Store:
                 parts.collect_garbage(real, linked)  # the parts of the stages this write replaced
             except BaseException as exc:
                 if not committed:
-                    written = _abort(f, tmp, w.new_parts if w else [])
+                    written = _abort(f, tmp, w.new_parts if w else moved)
                     if parts.is_no_room(exc):
                         raise parts.no_room_error(self.path, written) from None
                 _raise_damage(exc, self.path)
@@ -578,6 +582,21 @@ def _refuse_missing_parts(f: h5py.File, real: Path, path: Path) -> None:
 
 #: Free space asked beyond the index's size before copying it (its growth by a small stage).
 _ROOM_MARGIN = 4 << 20
+
+
+def _compacted(f: h5py.File, tmp: Path, mode: int | None) -> Path:
+    """A compact copy of the temporary store file ``f`` (at ``tmp``, then removed); its path."""
+    compact = tmp.with_name(f"{tmp.name.rsplit('-', 1)[0]}-{secrets.token_hex(4)}.tmp")
+    try:
+        migrate.compact_copy(f, compact)
+        if mode is not None:
+            os.chmod(compact, mode)
+    except BaseException:
+        compact.unlink(missing_ok=True)
+        raise
+    f.close()
+    tmp.unlink()
+    return compact
 
 
 def _abort(f: h5py.File | None, tmp: Path, new_parts: list[Path]) -> int:
