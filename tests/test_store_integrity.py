@@ -101,8 +101,15 @@ def test_a_store_written_by_the_stages_passes_every_check(store):
 def test_a_flipped_byte_in_an_object_header_is_exit_4_and_never_carried_forward(store, obj, delta):
     damaged = _flip(store, obj, _header_address(_holder(store, obj), obj) + delta)
     _one_line_exit_4(run_vfcli("info", store))
-    for args in (["sync", "-q", store], ["sync", "-q", "--force", store], ["mesh", "-q", "--force", store]):
-        _one_line_exit_4(run_vfcli(*args))
+    for args in (["mesh", "-q", "--force", store], ["sync", "-q", "--force", store], ["sync", "-q", store]):
+        r = run_vfcli(*args)
+        if obj.startswith("/sync/") and args[0] == "sync":
+            # a dataset of /sync damaged in /sync's part file: `sync` writes the stage anew into a new
+            # part file (it reads nothing of the old one) and the damaged file is no longer linked
+            assert r.returncode == 0, r.stderr
+            assert run_vfcli("info", "--verify", store).returncode == 0
+            return
+        _one_line_exit_4(r)
         assert _snapshot(store) == damaged, args
 
 
