@@ -6,7 +6,7 @@ iteration to ``<store>.optimize-<run>.ckpt.npz`` (written atomically next to the
 ``--resume`` after a killed job continues from the last iteration and ends where an
 uninterrupted run ends; the checkpoint is removed once the run is in the store.
 
-One descent: :func:`read_inputs` (everything from the store, once) ->
+One descent: :func:`vfcli.store.fit.read_optimize_inputs` (everything from the store, once) ->
 :func:`vfcli.inverse.setup.build_problem` -> fit -> :func:`reconstruction_uncertainty` -> write.
 """
 from __future__ import annotations
@@ -20,15 +20,15 @@ from typing import Any
 import numpy as np
 
 from vfcli.config import RecordingConfig
-from vfcli.errors import ConfigError, InputDataError
+from vfcli.errors import ConfigError
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
 from vfcli.inverse.problem import Problem
 from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
-from vfcli.inverse.setup import OptimizeInputs, Setup, build_problem, setup_summary
+from vfcli.inverse.setup import setup_summary
 from vfcli.report.plots import convergence_plot, uncertainty_map
 from vfcli.store import StageWriter, StoreReader
-from vfcli.store.mesh import read_stored_mesh
+from vfcli.store.fit import problem_of_store
 from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_std, posterior,
                            relative_uncertainty)
 from vfcli.stages.base import RunContext, StageResult, run_stage
@@ -54,60 +54,6 @@ def _load_checkpoint(path: Path, settings_json: str) -> FitState | None:
             log.warning("%s was written with other settings; starting afresh", path)
             return None
         return FitState.from_arrays({k: z[k] for k in z.files if k != "settings_json"})
-
-
-def read_inputs(reader: StoreReader, config: RecordingConfig) -> OptimizeInputs:
-    """Everything the run uses, read from the store: /mesh (mesh, material, length), the window
-    of /fields and /flow, the camera scale and ROI origin (/flow), the gap counts over the whole
-    recording when the pose is estimated, and /hsc's pressure for the pressure load model.
-
-    Raises
-    ------
-    ConfigError
-        The window (optimize.first_frame, optimize.n_frames) runs past the recording.
-    InputDataError
-        optimize.loads = 'pressure' and /hsc holds no pressure.
-    """
-    cfg = config.optimize
-    stored = read_stored_mesh(reader)
-    times_all = reader.read("fields", "frame_time")
-    f0, n = cfg.first_frame, cfg.n_frames
-    if f0 + n > len(times_all):
-        raise ConfigError(f"optimize window: frames {f0}..{f0 + n} but the recording has {len(times_all)}; "
-                          "set optimize.first_frame / optimize.n_frames")
-    sl = slice(f0, f0 + n)
-    flow_attrs = reader.attrs("flow")
-    gap_counts = None
-    if config.camera.pose == "estimate":
-        masks = reader.dataset("flow", "gap_mask")
-        gap_counts = np.zeros(masks.shape[1:])
-        for i in range(0, masks.shape[0], 64):  # streamed: memory does not grow with the frames
-            gap_counts += masks[i:i + 64].sum(axis=0)
-    pressure_time = pressure = None
-    if cfg.loads == "pressure":
-        if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
-            raise InputDataError("optimize.loads='pressure' needs the subglottal pressure recorded with the video; "
-                                 "ingest it with `vfcli ingest-hsc ... --pressure FILE`", reader.path)
-        pressure_time, pressure = reader.read("hsc", "pressure_time"), reader.read("hsc", "pressure")
-    return OptimizeInputs(
-        mesh=stored.mesh, youngs_modulus_pa=stored.youngs_modulus_pa, poisson_ratio=stored.poisson_ratio,
-        density_kg_m3=stored.density_kg_m3, length_mm=stored.length_mm, times=times_all[sl],
-        velocity=reader.dataset("fields", "velocity")[sl], valid=reader.dataset("fields", "valid")[sl],
-        gap_masks=reader.dataset("flow", "gap_mask")[sl], px_per_mm=float(flow_attrs["px_per_mm"]),
-        roi_origin_px=np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float),
-        gap_counts=gap_counts, velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
-        lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure)
-
-
-def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:
-    """The calibrated camera pose (rotation, full-frame offset) when camera.pose = 'config', else None."""
-    cam = config.camera
-    return (cam.rotation_deg, tuple(cam.offset_px)) if cam.pose == "config" else None
-
-
-def problem_of_store(reader: StoreReader, config: RecordingConfig) -> tuple[Problem, Setup]:
-    """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it)."""
-    return build_problem(read_inputs(reader, config), config.optimize, configured_pose(config))
 
 
 def check_gap_term(problem: Problem, gap_history: np.ndarray) -> None:
@@ -158,6 +104,14 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndar
     return std, systematic, summary
 
 
+def optimize_settings_json(config: RecordingConfig) -> str:
+    """The settings an optimisation run records (and compares to decide it is current), as JSON:
+    [optimize] and [camera]; the mesh and its material are /mesh's (an upstream stage), not the
+    live [mesh] section's."""
+    return json.dumps({"optimize": config.optimize.model_dump(mode="json"),
+                       "camera": config.camera.model_dump(mode="json")}, sort_keys=True)
+
+
 def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None,
                  uncertainty_plot: str | Path | None = None) -> StageResult:
     """Fit (or resume) an optimisation run and store it as /optimize/<run>.
@@ -170,9 +124,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         raise ConfigError("--uncertainty-map needs optimize.uncertainty = true (it maps the stated uncertainty)")
     if not run.replace("-", "").replace("_", "").isalnum():
         raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
-    # the mesh and its material are /mesh's (an upstream stage), not the live [mesh] section's
-    settings_json = json.dumps({"optimize": cfg.model_dump(mode="json"), "camera": ctx.config.camera.model_dump(mode="json")},
-                               sort_keys=True)
+    settings_json = optimize_settings_json(ctx.config)
     ckpt = checkpoint_path(ctx.store.path, run)
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:

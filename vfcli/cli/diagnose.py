@@ -1,0 +1,32 @@
+"""`vfcli diagnose`."""
+from __future__ import annotations
+
+import click
+
+from vfcli.cli.common import store_command
+
+
+@click.command("diagnose")
+@store_command
+@click.option("--run", "run_name", default="default", show_default=True, help="The fitted run to diagnose (/optimize/<run>).")
+@click.option("--alpha", type=float, default=0.05, show_default=True,
+              help="Family-wise false-alarm rate: a part of the residual is reported above the noise floor when its "
+                   "Holm-adjusted p-value is at most this.")
+@click.option("--harmonics", "n_harmonics", type=int, default=5, show_default=True, help="Harmonics of f0 tested.")
+@click.option("--map", "map_path", type=click.Path(dir_okay=False), help="Write the residual map to this PNG.")
+def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path):  # type: ignore[no-untyped-def]
+    """Locate where a fitted run disagrees with its recording, and name the missing physics.
+
+    Reads: /optimize/<run>, /mesh, /fields, /flow (/hsc's pressure for the pressure loads; /ldv and
+    /sync for the vibrometer's noise). Writes: /diagnose/<run> (the residual by where, when, component
+    and harmonic of f0 against a noise floor from the recording itself, the hotspots ranked, p-values).
+    Prints the findings in plain words.
+    """
+    from vfcli.stages.diagnose import run_diagnose
+
+    result = run_diagnose(ctx, run_name, alpha, n_harmonics, map_path)
+    click_ctx = click.get_current_context()
+    if not click_ctx.params.get("as_json") and not click_ctx.params.get("quiet"):
+        for line in result.summary.get("lines", []):
+            click.echo(line)
+    return result

@@ -1,0 +1,109 @@
+"""The glottal cycle from the gap area: f0, the cycle and phase of every frame, and its four phases.
+
+The phase is locked to the glottal area waveform A(t): a cycle starts where A rises through
+half its range (``A_min + 0.5 (A_max - A_min)``, linearly interpolated between frames), and the
+phase grows linearly (0 to 1) from one such crossing to the next.  The four phases of a cycle
+are read from the area's level and slope:
+
+* ``closed`` : A below 15 % of its range above the minimum (closed, or as closed as it gets);
+* ``open`` : A above 85 % of its range (around the widest opening);
+* ``opening`` / ``closing`` : between the two, A rising / falling.
+
+Whole cycles (between two consecutive crossings) are the units of replication of the noise
+floor (:mod:`vfcli.diagnose.noise`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: names of the four phases, in the order of :attr:`Cycles.phase_name`
+PHASE_NAMES = ("opening", "open", "closing", "closed")
+#: area levels (fraction of the range above the minimum) below which a frame is closed, above which open
+CLOSED_LEVEL, OPEN_LEVEL = 0.15, 0.85
+
+
+class TooFewCycles(ValueError):
+    """The recording holds too few whole glottal cycles for what was asked (a property of the data)."""
+
+
+@dataclass(frozen=True)
+class Cycles:
+    """Glottal cycles of a recording.
+
+    f0_hz : fundamental frequency, 1 / the median cycle length, Hz.
+    phase : (F,) cycle phase of each frame, cycles, continuous (frame in cycle k has phase in [k, k + 1));
+        extrapolated with 1 / f0 before the first and after the last crossing.
+    cycle : (F,) index of the whole cycle each frame lies in (0-based), -1 outside whole cycles.
+    phase_name : (F,) index into :data:`PHASE_NAMES` of each frame.
+    """
+
+    f0_hz: float
+    phase: np.ndarray
+    cycle: np.ndarray
+    phase_name: np.ndarray
+
+    @property
+    def n_cycles(self) -> int:
+        """Number of whole cycles."""
+        return int(self.cycle.max() + 1) if self.cycle.size and self.cycle.max() >= 0 else 0
+
+
+def _smooth(a: np.ndarray, width: int) -> np.ndarray:
+    if width < 2:
+        return a
+    k = np.ones(width) / width
+    pad = np.pad(a, (width // 2, width - 1 - width // 2), mode="edge")
+    return np.convolve(pad, k, mode="valid")
+
+
+def glottal_cycles(area: np.ndarray, dt: float) -> Cycles:
+    """The cycles of the glottal area waveform (module docstring).
+
+    Parameters
+    ----------
+    area : (F,) glottal area at uniformly spaced frames, mm^2 (any unit).
+    dt : frame interval, s.
+
+    Raises
+    ------
+    TooFewCycles
+        Fewer than two upward crossings (not even one whole cycle), or a flat area.
+    ValueError
+        ``area`` is not (F,) finite with F >= 4.
+    """
+    a = np.asarray(area, dtype=float)
+    if a.ndim != 1 or a.size < 4 or not np.all(np.isfinite(a)):
+        raise ValueError(f"the glottal area must be (F,) finite with F >= 4, got shape {a.shape}")
+    lo, hi = np.percentile(a, 1), np.percentile(a, 99)
+    if not hi > lo:
+        raise TooFewCycles("the glottal area is flat: no glottal cycle")
+    level = (a - lo) / (hi - lo)
+    # upward crossings of the half level, with hysteresis (0.4 / 0.6) against noise
+    ups: list[float] = []
+    armed = level[0] < 0.4
+    for i in range(1, a.size):
+        if level[i] < 0.4:
+            armed = True
+        if armed and level[i - 1] < 0.5 <= level[i]:
+            ups.append(i - 1 + (0.5 - level[i - 1]) / (level[i] - level[i - 1]))
+            armed = False
+    if len(ups) < 2:
+        raise TooFewCycles(f"the glottal area rises through half its range {len(ups)} time(s): "
+                         "no whole glottal cycle in the recording")
+    ups_arr = np.asarray(ups)
+    period = float(np.median(np.diff(ups_arr)))          # frames
+    idx = np.arange(a.size, dtype=float)
+    knots_t = np.concatenate([[ups_arr[0] - period * (1 + ups_arr[0] // period)], ups_arr,
+                              [ups_arr[-1] + period * (1 + (a.size - ups_arr[-1]) // period)]])
+    knots_p = np.concatenate([[-(1 + ups_arr[0] // period)], np.arange(len(ups_arr), dtype=float),
+                              [len(ups_arr) - 1 + 1 + (a.size - ups_arr[-1]) // period]])
+    phase = np.interp(idx, knots_t, knots_p)
+    cycle = np.floor(phase).astype(int)
+    cycle[(idx < ups_arr[0]) | (idx >= ups_arr[-1])] = -1
+    slope = np.gradient(_smooth(level, max(1, int(round(period / 20)))))
+    name = np.where(slope > 0, 0, 2)
+    name[level >= OPEN_LEVEL] = 1
+    name[level < CLOSED_LEVEL] = 3
+    return Cycles(1.0 / (period * dt), phase, cycle, name.astype(int))

@@ -1,0 +1,205 @@
+"""Locate on a whole recording: the one call of the diagnose stage.
+
+:func:`locate_run` takes the fitted window (a :class:`vfcli.diagnose.candidate.Baseline`) and
+the whole recording around it (:class:`Recording`, arrays or array-likes the stage hands in;
+the large per-frame ones are read here in slices of frames, so memory does not grow with the
+recording), and returns what Locate found (:class:`LocateResult`); :func:`diagnose_run` adds the
+candidates' screening (:func:`vfcli.diagnose.candidate.screen`) and the plain-words lines.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from vfcli.camera.pose import model_axes_velocity
+from vfcli.diagnose.candidate import available_candidates, screen
+from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, glottal_cycles
+from vfcli.diagnose.locate import Located, decompose, rank_hotspots
+from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
+from vfcli.diagnose.regions import (COMPONENT_NAMES, GAP_COMPONENT_NAMES, N_GAP_REGIONS, N_REGIONS,
+                                    gap_region_names, region_names)
+from vfcli.diagnose.residual import WindowResidual, medial_silhouettes, region_means, window_residual
+from vfcli.diagnose.words import summary_lines
+from vfcli.flow.gap.opening import measured_silhouettes
+
+#: frames read at once from the per-frame arrays
+CHUNK_FRAMES = 64
+#: whole glottal cycles on each side of the window the noise floor uses at most (bounds time and memory)
+MAX_FLOOR_CYCLES = 32
+
+
+@dataclass(frozen=True)
+class LocateSettings:
+    """alpha : family-wise false-alarm rate of the hotspots.  n_harmonics : harmonics of f0 tested (K)."""
+
+    alpha: float = 0.05
+    n_harmonics: int = 5
+
+    def __post_init__(self) -> None:
+        if not 0 < self.alpha < 1 or not 1 <= self.n_harmonics <= 20:
+            raise ValueError(f"alpha in (0, 1) and n_harmonics in 1..20, got {self.alpha}, {self.n_harmonics}")
+
+
+@dataclass(frozen=True)
+class Recording:
+    """The whole recording the window was cut from.
+
+    glottal_area : (F_all,) mm^2 at the video frames (uniform, the window's frame interval).
+    velocity : (F_all, H, W, 3) array-like, mm/s, /fields' (u, v, w) (u, v turned by velocity_rotation_deg).
+    valid : (F_all, H, W) array-like bool.  gap_masks : (F_all, H, W) array-like bool.
+    velocity_rotation_deg : rotation /flow turned the image velocities by, degrees.
+    window_start : index of the window's first frame in the recording.
+    ldv_velocity : (P, S) raw vibrometer records, mm/s, or None.  ldv_fs_hz : their rate, Hz.
+    ldv_used : (P,) bool points the field uses.  ldv_px : (P, 2) their screen positions (col, row) px.
+    ldv_record_s : seconds of record averaged per point (n_cycles / f0, median over points).
+    """
+
+    glottal_area: np.ndarray
+    velocity: Any
+    valid: Any
+    gap_masks: Any
+    velocity_rotation_deg: float
+    window_start: int
+    ldv_velocity: np.ndarray | None = None
+    ldv_fs_hz: float = float("nan")
+    ldv_used: np.ndarray | None = None
+    ldv_px: np.ndarray | None = None
+    ldv_record_s: float = float("nan")
+
+
+@dataclass(frozen=True)
+class LocateResult:
+    """located : the decomposition and hotspots.  residual : the window's residual and its regions.
+    cycles : the recording's glottal cycles.  window : (F,) indices of the window's frames in the recording.
+    ldv_density : the vibrometer's noise density above the band of motion, (mm/s)^2/Hz (NaN: none).
+    """
+
+    located: Located
+    residual: WindowResidual
+    cycles: Cycles
+    window: np.ndarray
+    ldv_density: float
+
+
+def floor_frames(cycles: Cycles, window: np.ndarray, max_cycles: int = MAX_FLOOR_CYCLES) -> slice:
+    """The frames the noise floor uses: whole cycles from ``max_cycles`` before the window's to
+    ``max_cycles`` after it (cut at integer phases, so the cycles inside stay whole)."""
+    first = np.floor(cycles.phase[window[0]]) - max_cycles
+    last = np.floor(cycles.phase[window[-1]]) + max_cycles + 1
+    inside = np.flatnonzero((cycles.phase >= first) & (cycles.phase < last))
+    return slice(int(inside[0]), int(inside[-1]) + 1)
+
+
+def measured_motion_series(rec: Recording, camera_rotation_deg: float, pixel_region: np.ndarray,
+                           frames: slice) -> np.ndarray:
+    """(F, 18, 3) measured velocity in model axes, mean over each region's valid pixels per frame, mm/s,
+    for the recording's ``frames``."""
+    n = frames.stop - frames.start
+    out = np.full((n, N_REGIONS, 3), np.nan)
+    for i in range(frames.start, frames.stop, CHUNK_FRAMES):
+        j = min(i + CHUNK_FRAMES, frames.stop)
+        v = np.array(rec.velocity[i:j], dtype=np.float64)
+        v[..., :2] = model_axes_velocity(v[..., :2], rec.velocity_rotation_deg, camera_rotation_deg)
+        v[~np.asarray(rec.valid[i:j], bool)] = np.nan
+        out[i - frames.start:j - frames.start] = region_means(v, pixel_region, N_REGIONS)
+    return out
+
+
+def ldv_points_per_region(ldv_px: np.ndarray | None, used: np.ndarray | None, pixel_region: np.ndarray) -> np.ndarray:
+    """(18,) scan points (used ones) whose screen position falls on each region."""
+    out = np.zeros(N_REGIONS)
+    if ldv_px is None:
+        return out
+    px = np.asarray(ldv_px, float)
+    keep = np.all(np.isfinite(px), axis=1) & (np.ones(len(px), bool) if used is None else np.asarray(used, bool))
+    h, w = pixel_region.shape
+    col, row = np.rint(px[keep, 0]).astype(int), np.rint(px[keep, 1]).astype(int)
+    inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
+    reg = pixel_region[row[inside], col[inside]]
+    np.add.at(out, reg[reg >= 0], 1.0)
+    return out
+
+
+def locate_run(baseline, rec: Recording, settings: LocateSettings | None = None) -> LocateResult:
+    """Locate the residual of the baseline's window against the noise floor of the whole recording."""
+    settings = settings or LocateSettings()
+    p = baseline.problem
+    k = settings.n_harmonics
+    res = window_residual(baseline)
+    cycles = glottal_cycles(np.asarray(rec.glottal_area, float), p.dt)
+    window = np.arange(rec.window_start, rec.window_start + p.n_frames)
+    if window[-1] >= len(cycles.phase):
+        raise ValueError(f"window frames {window[0]}..{window[-1]} run past the recording ({len(cycles.phase)})")
+    span = floor_frames(cycles, window)
+    around = Cycles(cycles.f0_hz, cycles.phase[span], cycles.cycle[span], cycles.phase_name[span])
+    exclude = np.zeros(span.stop - span.start, bool)
+    exclude[window - span.start] = True
+
+    motion_all = measured_motion_series(rec, p.camera.rotation_deg, res.pixel_region, span)
+    floor = cycle_floor(motion_all, around, k, exclude)
+    density = float("nan")
+    if rec.ldv_velocity is not None and len(rec.ldv_velocity):
+        density = ldv_noise_density(rec.ldv_velocity, rec.ldv_fs_hz, cycles.f0_hz, rec.ldv_used)
+        widths = floor.frames_per_bin / max(floor.frames_per_bin.sum(), 1e-12)
+        kb, kh = ldv_known_variance(density, rec.ldv_record_s,
+                                    ldv_points_per_region(rec.ldv_px, rec.ldv_used, res.pixel_region),
+                                    2, 3, widths, k)
+        floor = floor.with_known(kb, kh)
+    families = {"motion": decompose(region_means(res.motion, res.pixel_region, N_REGIONS), cycles.phase[window],
+                                    cycles.phase_name[window], floor, region_names(), COMPONENT_NAMES, "mm/s")}
+
+    if np.any(res.gap_region >= 0):
+        masks = np.concatenate([np.asarray(rec.gap_masks[i:min(i + CHUNK_FRAMES, span.stop)], bool)
+                                for i in range(span.start, span.stop, CHUNK_FRAMES)])
+        lo, hi = measured_silhouettes(masks, p.settings.lateral_axis)
+        sil = medial_silhouettes(lo, hi)[..., None] / p.camera.px_per_mm             # (F, rays, 2, 1) mm
+        gap_all = region_means(sil, res.gap_region, N_GAP_REGIONS)
+        gap_floor = cycle_floor(gap_all, around, k, exclude)
+        families["gap"] = decompose(region_means(res.gap[..., None], res.gap_region, N_GAP_REGIONS),
+                                    cycles.phase[window], cycles.phase_name[window], gap_floor,
+                                    gap_region_names(), GAP_COMPONENT_NAMES, "mm")
+    located = Located(families, rank_hotspots(families, settings.alpha), settings.alpha, cycles.f0_hz, floor.n_cycles)
+    return LocateResult(located, res, cycles, window, density)
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """What `vfcli diagnose` found: Locate's result, the candidates' screening and the plain-words lines."""
+
+    locate: LocateResult
+    screening: list
+    screening_status: str
+    lines: list[str]
+
+    @property
+    def located(self) -> Located:
+        return self.locate.located
+
+    def summary(self) -> dict[str, Any]:
+        """The figures the command prints and stores (JSON-ready)."""
+        loc = self.located
+        top = []
+        for h in loc.hotspots[:10]:
+            d = loc.families[h.family]
+            top.append({"family": h.family, "kind": h.kind, "region": d.region_names[h.region],
+                        "component": d.component_names[h.component],
+                        ("harmonic" if h.kind == "harmonic" else "phase"):
+                            (h.index if h.kind == "harmonic" else PHASE_NAMES[h.index]),
+                        "size": round(h.size, 6), "units": d.units, "ratio": round(h.ratio, 3),
+                        "p": float(f"{h.p_value:.4g}"), "p_adjusted": float(f"{h.p_adjusted:.4g}")})
+        return {"f0_hz": round(loc.f0_hz, 2), "noise_cycles": loc.n_cycles, "parts_tested": len(loc.hotspots),
+                "above_noise": len(loc.significant), "alpha": loc.alpha,
+                "smallest_p_adjusted": float(f"{loc.hotspots[0].p_adjusted:.4g}") if loc.hotspots else None,
+                "screening": self.screening_status, "lines": self.lines, "hotspots": top}
+
+
+def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None) -> Diagnosis:
+    """Locate the baseline's residual (:func:`locate_run`), then screen the candidate physics terms."""
+    loc = locate_run(baseline, rec, settings)
+    cands = available_candidates()
+    results = screen(loc.located, cands, baseline)
+    status = "not built yet" if not cands else f"{len(results)} candidates screened"
+    lines = summary_lines(loc.located) + [f"candidate screening: {status}"] + [r.words for r in results if r.words]
+    return Diagnosis(loc, results, status, lines)

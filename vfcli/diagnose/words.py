@@ -1,0 +1,53 @@
+"""Plain words for what Locate found: the lines `vfcli diagnose` prints."""
+from __future__ import annotations
+
+from vfcli.diagnose.cycles import PHASE_NAMES
+from vfcli.diagnose.locate import Hotspot, Located
+
+
+def ordinal(k: int) -> str:
+    """1st, 2nd, 3rd, 4th ... 11th, 12th, 13th, 21st."""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
+
+
+def p_text(p: float) -> str:
+    """A p-value as text: two significant digits, '< 1e-6' below."""
+    return "p < 1e-6" if p < 1e-6 else f"p = {p:.2g}"
+
+
+def hotspot_words(located: Located, h: Hotspot) -> str:
+    """One hotspot in plain words, e.g. "the residual sits on the left fold, medial edge, posterior third,
+    vertical component, 2nd harmonic of f0 (peaking in the closing phase): 4.1x the noise floor, p = 0.001"."""
+    d = located.families[h.family]
+    what = "the residual" if h.family == "motion" else "the gap silhouette's residual"
+    where = d.region_names[h.region]
+    comp = d.component_names[h.component]
+    comp = f"{comp} component" if h.family == "motion" else comp
+    if h.kind == "harmonic":
+        when = f"{ordinal(h.index)} harmonic of f0"
+        if h.peak_phase >= 0:
+            when += f" (peaking in the {PHASE_NAMES[h.peak_phase]} phase)"
+        size = f"amplitude {h.size:.3g} {d.units}"
+    else:
+        when = f"{PHASE_NAMES[h.index]} phase"
+        size = f"mean {h.size:.3g} {d.units}"
+    return (f"{what} sits on the {where}, {comp}, {when}: {h.ratio:.1f}x the noise floor ({size}), "
+            f"{p_text(h.p_value)} ({p_text(h.p_adjusted).replace('p', 'adjusted', 1)} over {len(located.hotspots)} parts)")
+
+
+def summary_lines(located: Located, max_lines: int = 5) -> list[str]:
+    """The lines the command prints: the significant hotspots (at most ``max_lines``), or that there are none."""
+    n = len(located.hotspots)
+    head = (f"f0 {located.f0_hz:.1f} Hz; noise floor from {located.n_cycles} whole glottal cycles; "
+            f"{n} parts tested, family-wise false-alarm rate {located.alpha:g}")
+    sig = located.significant
+    if not sig:
+        best = located.hotspots[0] if located.hotspots else None
+        tail = (f" (largest: {best.ratio:.1f}x the noise floor, {p_text(best.p_value)}, "
+                f"{p_text(best.p_adjusted).replace('p', 'adjusted', 1)})") if best else ""
+        return [head, "no part of the residual stands above the noise floor" + tail]
+    lines = [head] + [hotspot_words(located, h) for h in sig[:max_lines]]
+    if len(sig) > max_lines:
+        lines.append(f"... and {len(sig) - max_lines} more parts above the noise floor")
+    return lines

@@ -1,0 +1,170 @@
+"""`vfcli diagnose FILE --run RUN`: locate where a fitted run disagrees with its recording.
+
+Reads /optimize/<run> and what it was fitted to (/mesh, /fields, /flow, /hsc's pressure for
+the pressure loads), the whole recording's /fields and /flow for the noise floor, and /ldv
+and /sync for the vibrometer's noise; writes /diagnose/<run>.
+
+:func:`read_inputs` (the run's baseline, rebuilt from the store with the run's own settings and
+camera pose, and the recording as array-likes) -> :func:`vfcli.diagnose.run.diagnose_run` -> write.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vfcli.config import RecordingConfig
+from vfcli.diagnose.candidate import Baseline
+from vfcli.diagnose.cycles import TooFewCycles
+from vfcli.diagnose.residual import rms_residual
+from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.stages.base import RunContext, StageResult, run_stage
+from vfcli.store import StageWriter, StoreReader, layout
+from vfcli.store.fit import problem_of_store
+from vfcli.store.runs import read_run
+
+log = logging.getLogger(__name__)
+
+#: largest difference (mm) between the stored displacements of a run and those of its rebuilt model
+#: (the store keeps float32: about 1e-7 relative)
+_REBUILD_TOL_MM = 1e-4
+
+
+@dataclass(frozen=True)
+class DiagnoseInputs:
+    """baseline : the run's fitted model.  recording : the whole recording.  run_config : the run's settings."""
+
+    baseline: Baseline
+    recording: Recording
+    run_config: dict[str, Any]
+
+
+def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], attrs: dict[str, Any],
+                         roi_origin_px: np.ndarray) -> RecordingConfig:
+    """The recording config the run was fitted under: its own [optimize] settings, its ridge weight (no
+    L-curve rescan) and its camera pose (as found then, on the full frame)."""
+    data = config.model_dump(mode="json")
+    data["optimize"] = {**run_config.get("optimize", data["optimize"]), "ridge_weight": float(attrs["ridge_weight"])}
+    offset = np.asarray(attrs["camera_offset_px"], float) + np.asarray(roi_origin_px, float)
+    data["camera"] = {**run_config.get("camera", data["camera"]), "pose": "config",
+                      "rotation_deg": float(attrs["camera_rotation_deg"]), "offset_px": [float(v) for v in offset]}
+    return RecordingConfig.model_validate(data)
+
+
+def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> DiagnoseInputs:
+    """The run's baseline and the recording (module docstring).
+
+    Raises
+    ------
+    InputDataError
+        The model rebuilt from the store does not reproduce the run's stored displacements
+        (/mesh, /fields or /flow changed since the run).
+    """
+    stored = read_run(reader, run)
+    group = layout.stage("optimize").group_path(run)
+    flow_attrs = reader.attrs("flow")
+    roi = np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float)
+    cfg = run_recording_config(config, stored.config, stored.attrs, roi)
+    problem, _ = problem_of_store(reader, cfg)
+    if problem.n_params != len(stored.controls) or not np.allclose(problem.sim_times, stored.sim_time, atol=1e-9):
+        raise InputDataError(f"{group} does not match the model rebuilt from the store ({problem.n_params} "
+                             f"controls, {len(problem.sim_times)} times against {len(stored.controls)}, "
+                             f"{len(stored.sim_time)}); rerun `vfcli optimize --run {run}`", reader.path)
+    baseline = Baseline.at(problem, stored.controls)
+    worst = float(np.max(np.abs(baseline.displacements - stored.displacements)))
+    scale = float(np.max(np.abs(stored.displacements))) or 1.0
+    if worst > _REBUILD_TOL_MM + 1e-5 * scale:
+        raise InputDataError(f"{group}: its stored displacements differ from its model rebuilt from the store "
+                             f"by up to {worst:.3g} mm (/mesh, /fields or /flow changed since the run); rerun "
+                             f"`vfcli optimize --run {run}`", reader.path)
+    ldv = {}
+    if reader.has_stage("ldv") and reader.has_stage("sync"):
+        used = np.asarray(reader.read("sync", "ok"), bool) & ~np.asarray(reader.read("ldv", "dropout"), bool)
+        n_cyc, f0 = reader.read("sync", "n_cycles").astype(float), reader.read("sync", "f0_hz").astype(float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            record = n_cyc / f0
+        ok = used & np.isfinite(record) & (record > 0)
+        ldv = dict(ldv_velocity=reader.read("ldv", "velocity"), ldv_fs_hz=float(reader.attrs("ldv")["fs_hz"]),
+                   ldv_used=used, ldv_px=reader.read("fields", "ldv_px"),
+                   ldv_record_s=float(np.median(record[ok])) if ok.any() else float("nan"))
+    rec = Recording(glottal_area=reader.read("flow", "glottal_area"), velocity=reader.dataset("fields", "velocity"),
+                    valid=reader.dataset("fields", "valid"), gap_masks=reader.dataset("flow", "gap_mask"),
+                    velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
+                    window_start=int(cfg.optimize.first_frame), **ldv)
+    return DiagnoseInputs(baseline, rec, stored.config)
+
+
+def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> None:
+    """Write the diagnosis into the stage group (keys of the store layout)."""
+    loc, res = d.located, d.locate.residual
+    s.put("frame_time", frame_time)
+    s.put("frame_phase", d.locate.cycles.phase[d.locate.window])
+    s.put("frame_cycle_phase", d.locate.cycles.phase_name[d.locate.window].astype(np.int8))
+    motion = loc.families["motion"]
+    s.put("region_name", np.array(motion.region_names, dtype=object))
+    s.put("pixel_region", res.pixel_region.astype(np.int8))
+    s.put("rms_residual", rms_residual(res.motion).astype(np.float32))
+    for fam, dec in loc.families.items():
+        if fam == "gap":
+            s.put("gap_region_name", np.array(dec.region_names, dtype=object))
+        for key, arr in (("phase_mean", dec.bin_mean), ("phase_sd", dec.bin_sd), ("phase_dof", dec.bin_dof),
+                         ("phase_p", dec.bin_p), ("harmonic_amplitude", dec.harm_amp),
+                         ("harmonic_phase", dec.harm_phase), ("harmonic_sd", dec.harm_sd),
+                         ("harmonic_dof", dec.harm_dof), ("harmonic_p", dec.harm_p)):
+            s.put(f"{fam}_{key}", np.asarray(arr, dtype=np.float64))
+    spots = loc.hotspots
+    s.put("hotspot_family", np.array([h.family for h in spots], dtype=object))
+    s.put("hotspot_kind", np.array([h.kind for h in spots], dtype=object))
+    s.put("hotspot_region", np.array([h.region for h in spots], dtype=np.int16))
+    s.put("hotspot_component", np.array([h.component for h in spots], dtype=np.int16))
+    s.put("hotspot_index", np.array([h.index for h in spots], dtype=np.int16))
+    s.put("hotspot_ratio", np.array([h.ratio for h in spots], dtype=np.float64))
+    s.put("hotspot_p", np.array([h.p_value for h in spots], dtype=np.float64))
+    s.put("hotspot_p_adjusted", np.array([h.p_adjusted for h in spots], dtype=np.float64))
+    if d.screening:
+        s.put("candidate_name", np.array([c.name for c in d.screening], dtype=object))
+        s.put("candidate_statistic", np.array([c.statistic for c in d.screening], dtype=np.float64))
+        s.put("candidate_p", np.array([c.p_value for c in d.screening], dtype=np.float64))
+        s.put("candidate_identifiable", np.array([bool(c.identifiable) for c in d.screening]))
+        s.put("candidate_words", np.array([c.words for c in d.screening], dtype=object))
+    s.set_attrs(f0_hz=loc.f0_hz, n_cycles=loc.n_cycles, alpha=loc.alpha,
+                ldv_noise_density=d.locate.ldv_density, words_json=json.dumps(d.lines),
+                screening=d.screening_status)
+
+
+def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_harmonics: int = 5,
+                 map_path: str | Path | None = None) -> StageResult:
+    """Locate the residual of /optimize/<run> and store it as /diagnose/<run>.
+
+    map_path : the residual map image (PNG), written when given.
+    """
+    try:
+        settings = LocateSettings(alpha=alpha, n_harmonics=n_harmonics)
+    except ValueError as exc:
+        raise ConfigError(f"diagnose: {exc}") from None
+    config_json = json.dumps({"diagnose": {"alpha": alpha, "n_harmonics": n_harmonics}}, sort_keys=True)
+    upstream: list[tuple[str, str | None]] = [("optimize", run), ("mesh", None), ("fields", None), ("flow", None)]
+    if ctx.store.exists():
+        with ctx.store.read() as r:
+            upstream += [(name, None) for name in ("ldv", "sync") if r.has_stage(name)]
+
+    def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        inputs = read_inputs(reader, ctx.config, run)
+        try:
+            d = diagnose_run(inputs.baseline, inputs.recording, settings)
+        except TooFewCycles as exc:
+            raise InputDataError(f"diagnose: {exc}; record longer (more glottal cycles around the run's window)",
+                                 reader.path) from None
+        write_diagnosis(s, d, inputs.baseline.problem.meas.times)
+        if map_path is not None:
+            from vfcli.diagnose.maps import residual_map
+
+            residual_map(d.located, d.locate.residual.motion, map_path, f"residual of run {run}")
+        return d.summary()
+
+    return run_stage(ctx, "diagnose", config_json=config_json, body=body, run=run, upstream=upstream)

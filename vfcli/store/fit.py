@@ -1,0 +1,69 @@
+"""What a fit is made of, read from the store: the inputs of an optimisation run and its problem.
+
+Shared by the stages that build a run's :class:`vfcli.inverse.problem.Problem` from a store
+(`optimize` fits it, `diagnose` rebuilds a fitted run's) and by the benchmarks.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from vfcli.config import RecordingConfig
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.inverse.problem import Problem
+from vfcli.inverse.setup import OptimizeInputs, Setup, build_problem
+from vfcli.store.mesh import read_stored_mesh
+from vfcli.store.reader import StoreReader
+
+
+def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> OptimizeInputs:
+    """Everything the run uses, read from the store: /mesh (mesh, material, length), the window
+    of /fields and /flow, the camera scale and ROI origin (/flow), the gap counts over the whole
+    recording when the pose is estimated, and /hsc's pressure for the pressure load model.
+
+    Raises
+    ------
+    ConfigError
+        The window (optimize.first_frame, optimize.n_frames) runs past the recording.
+    InputDataError
+        optimize.loads = 'pressure' and /hsc holds no pressure.
+    """
+    cfg = config.optimize
+    stored = read_stored_mesh(reader)
+    times_all = reader.read("fields", "frame_time")
+    f0, n = cfg.first_frame, cfg.n_frames
+    if f0 + n > len(times_all):
+        raise ConfigError(f"optimize window: frames {f0}..{f0 + n} but the recording has {len(times_all)}; "
+                          "set optimize.first_frame / optimize.n_frames")
+    sl = slice(f0, f0 + n)
+    flow_attrs = reader.attrs("flow")
+    gap_counts = None
+    if config.camera.pose == "estimate":
+        masks = reader.dataset("flow", "gap_mask")
+        gap_counts = np.zeros(masks.shape[1:])
+        for i in range(0, masks.shape[0], 64):  # streamed: memory does not grow with the frames
+            gap_counts += masks[i:i + 64].sum(axis=0)
+    pressure_time = pressure = None
+    if cfg.loads == "pressure":
+        if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
+            raise InputDataError("optimize.loads='pressure' needs the subglottal pressure recorded with the video; "
+                                 "ingest it with `vfcli ingest-hsc ... --pressure FILE`", reader.path)
+        pressure_time, pressure = reader.read("hsc", "pressure_time"), reader.read("hsc", "pressure")
+    return OptimizeInputs(
+        mesh=stored.mesh, youngs_modulus_pa=stored.youngs_modulus_pa, poisson_ratio=stored.poisson_ratio,
+        density_kg_m3=stored.density_kg_m3, length_mm=stored.length_mm, times=times_all[sl],
+        velocity=reader.dataset("fields", "velocity")[sl], valid=reader.dataset("fields", "valid")[sl],
+        gap_masks=reader.dataset("flow", "gap_mask")[sl], px_per_mm=float(flow_attrs["px_per_mm"]),
+        roi_origin_px=np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float),
+        gap_counts=gap_counts, velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
+        lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure)
+
+
+def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:
+    """The calibrated camera pose (rotation, full-frame offset) when camera.pose = 'config', else None."""
+    cam = config.camera
+    return (cam.rotation_deg, tuple(cam.offset_px)) if cam.pose == "config" else None
+
+
+def problem_of_store(reader: StoreReader, config: RecordingConfig) -> tuple[Problem, Setup]:
+    """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it)."""
+    return build_problem(read_optimize_inputs(reader, config), config.optimize, configured_pose(config))
