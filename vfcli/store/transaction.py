@@ -30,10 +30,7 @@ import os
 import re
 import secrets
 import shutil
-import signal
 import stat
-import sys
-import threading
 from collections import deque
 from contextlib import contextmanager
 from pathlib import Path
@@ -44,7 +41,7 @@ import numpy as np
 
 from vfcli import __version__
 from vfcli.errors import ConfigError, StoreAccessError, StoreDamagedError, StoreLockedError, VfcliError
-from vfcli.store import integrity, layout, migrate, parts
+from vfcli.store import integrity, layout, migrate, parts, signals
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
 from vfcli.store.provenance import content_digest
@@ -521,7 +518,7 @@ class Store:
         exception, Ctrl-C, SIGTERM, a full disk) the temporary copy and the new part files
         are removed and the store is unchanged; a full disk is :class:`StoreSpaceError`."""
         real = self.real_path
-        with self._lock(), _signals_abort():
+        with self._lock(), signals.abort_on_sigterm():
             for leftover in _leftover_tmp_files(real):
                 leftover.unlink(missing_ok=True)
             tmp = real.with_name(f".{real.name}.vfcli-{os.getpid()}-{secrets.token_hex(4)}.tmp")
@@ -557,7 +554,7 @@ class Store:
                 parts.fsync_path(tmp)
                 if w.new_parts:
                     parts.fsync_path(parts.parts_dir(real))
-                with _signals_blocked():
+                with signals.deferred():
                     os.replace(tmp, real)
                     committed = True
                 parts.fsync_path(real.parent)
@@ -615,46 +612,3 @@ def _abort(f: h5py.File | None, tmp: Path, new_parts: list[Path]) -> int:
             pass
         p.unlink(missing_ok=True)
     return written
-
-
-class _Terminated(SystemExit):
-    """SIGTERM inside a write: unwinds like Ctrl-C (the write is aborted and cleaned up), then
-    the process exits 143 (128 + SIGTERM)."""
-
-
-@contextmanager
-def _signals_abort() -> Iterator[None]:
-    """SIGTERM raises :class:`_Terminated` while a write is open (SIGINT already raises
-    KeyboardInterrupt), so that the write's cleanup runs; only in the main thread."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def terminate(signum: int, _frame: Any) -> None:
-        print("vfcli: terminated (SIGTERM); the write was aborted, the store is unchanged", file=sys.stderr)
-        raise _Terminated(128 + signum)
-
-    previous = signal.signal(signal.SIGTERM, terminate)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-@contextmanager
-def _signals_blocked() -> Iterator[None]:
-    """SIGINT and SIGTERM held back while the commit's rename and its bookkeeping run: a signal
-    that arrives meanwhile is delivered when the block ends (the write is then committed)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    pending: list[int] = []
-    sigs = (signal.SIGINT, signal.SIGTERM)
-    previous = {s: signal.signal(s, lambda signum, _frame: pending.append(signum)) for s in sigs}
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-        for s in dict.fromkeys(pending):
-            signal.raise_signal(s)
