@@ -1,7 +1,10 @@
-"""The experiment store: one HDF5 file per recording; the only package that imports h5py.
+"""The experiment store: one HDF5 file plus a parts folder per recording; the only package that imports h5py.
 
 Modules: :mod:`~vfcli.store.layout` (every group and dataset, the only place HDF5 paths are
 spelt), :mod:`~vfcli.store.transaction` (lock, atomic commit, :class:`StageWriter`),
+:mod:`~vfcli.store.parts` (the part files beside the store file; :func:`copy_store`),
+:mod:`~vfcli.store.migrate` (stores of an earlier vfcli), :mod:`~vfcli.store.signals`,
+:mod:`~vfcli.store.precision` (stored float precision),
 :mod:`~vfcli.store.reader` (:class:`StoreReader`), :mod:`~vfcli.store.frames` (per-frame
 datasets, :class:`FrameReader`, N-bit), :mod:`~vfcli.store.chunks` (chunk encoding),
 :mod:`~vfcli.store.provenance`, :mod:`~vfcli.store.info`, :mod:`~vfcli.store.truth` (a
