@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import hashlib
 import re
-import shutil
 import subprocess
 
 import numpy as np
@@ -16,6 +15,7 @@ from _export_store import optimised_store
 from conftest import run_vfcli
 from vfcli.store.runs import read_mesh, read_run, run_names
 from vfcli.store.transaction import Store
+from vfcli.store.parts import copy_store
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +104,7 @@ def test_pvd_collection_reads_back_with_pyvista(exported):
 def test_a_second_export_does_nothing_and_the_store_is_never_modified(exported, tmp_path):
     store, _, _ = exported
     copy = tmp_path / "rec.h5"
-    shutil.copy2(store, copy)
+    copy_store(store, copy)
     before = (_sha(copy), copy.stat().st_mtime_ns)
     out = tmp_path / "out"
     first = run_vfcli("export", copy, "--to", out, "--what", "figures,tables")

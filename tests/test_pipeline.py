@@ -13,6 +13,7 @@ from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.io.pressure import write_pressure_csv
 from vfcli.store import Store, read_truth
+from vfcli.store.parts import copy_store
 
 PHANTOM = [
     "synth.duration_s=0.03", "synth.ldv_epoch_s=0.06", "synth.target_edge_mm=2.0", "synth.n_phase=64",
@@ -113,7 +114,7 @@ def test_aligned_velocity_matches_the_true_surface_velocity(raw, synced):
 
 def test_unchanged_inputs_do_nothing_and_rewritten_upstream_marks_sync_stale(raw, synced, tmp_path):
     store = tmp_path / "copy.h5"
-    shutil.copy(synced, store)
+    copy_store(synced, store)
     res = run_vfcli("ingest-ldv", store, raw / "scan.uff")
     assert res.returncode == 0 and "up to date" in res.stdout
     res = run_vfcli("sync", store)

@@ -12,6 +12,7 @@ import pytest
 
 from _export_store import optimised_store
 from conftest import run_vfcli
+from vfcli.store.parts import copy_store
 
 
 class _Refs(HTMLParser):
@@ -32,7 +33,7 @@ def report(tmp_path_factory):
     store = optimised_store(tmp_path_factory)
     d = tmp_path_factory.mktemp("report")
     copy = d / "rec.h5"
-    shutil.copy2(store, copy)
+    copy_store(store, copy)
     before = hashlib.sha256(copy.read_bytes()).hexdigest(), copy.stat().st_mtime_ns
     res = run_vfcli("report", copy, "--out", d / "report.html")
     assert res.returncode == 0, res.stderr
@@ -76,9 +77,9 @@ def test_index_links_the_reports_of_many_recordings(report, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     a.mkdir()
     b.mkdir()
-    shutil.copy2(report.with_name("rec.h5"), a / "rec.h5")
+    copy_store(report.with_name("rec.h5"), a / "rec.h5")
     shutil.copy2(report, a / "rec.html")
-    shutil.copy2(report.with_name("rec.h5"), b / "other.h5")
+    copy_store(report.with_name("rec.h5"), b / "other.h5")
     (tmp_path / "notes.h5").write_bytes(b"not hdf5")
     res = run_vfcli("report", "--index", tmp_path)
     assert res.returncode == 0, res.stderr

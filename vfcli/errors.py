@@ -11,7 +11,8 @@ Exit codes
 3  bad input data (unreadable, truncated, inconsistent or non-physical raw files)
 4  store locked by another writer (or held open by another program), not writable
    (permissions, a lock path that is a directory), not a vfcli store / incompatible version,
-   or damaged (a stage whose structure or checksums differ from what vfcli wrote)
+   or damaged (a stage whose structure or checksums differ from what vfcli wrote), or
+   not enough disk space for a write (the store is unchanged, the temporary data removed)
 5  a stage this command needs is missing or incomplete (run the upstream command first)
 6  not implemented yet
 130  interrupted (Ctrl-C, SIGINT); a stage is committed whole or not at all, so no half-written stage is left
@@ -71,6 +72,11 @@ class StoreAccessError(VfcliError):
     """The store (its folder or lock file) cannot be written: permissions, a directory in the way (exit 4)."""
 
     exit_code = EXIT_STORE
+
+
+class StoreSpaceError(StoreAccessError):
+    """Not enough disk space (or a file-size limit) for a write: the message says how much it
+    needs; the store is unchanged and the temporary data removed (exit 4)."""
 
 
 class StoreFormatError(VfcliError):

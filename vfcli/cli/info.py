@@ -19,6 +19,9 @@ def _flag(st: dict[str, Any]) -> str:
 
 def _details(info: dict[str, Any]) -> None:
     click.echo(f"{info['path']}  ({info['size_bytes'] / 1e6:.1f} MB, format {info['format']} v{info['format_version']}, created {info['created_utc']})")
+    if info.get("parts_folder"):
+        click.echo(f"  + parts folder {info['parts_folder']} ({info['parts_bytes'] / 1e6:.1f} MB): the store is this file "
+                   "plus this folder; move or copy both and keep the names, or `vfcli share` it into one self-contained file")
     for tmp in info["write_in_progress"]:
         click.echo(f"  ~ a vfcli process is writing now (lock held): {tmp} is its work in progress")
     if info["writer_active"] and not info["write_in_progress"]:
@@ -62,7 +65,7 @@ def _table(infos: list[dict[str, Any]]) -> None:
             by_stage.setdefault(st["path"].split("/")[1], []).append(word)
         cells = [",".join(sorted(set(by_stage[n]))) if n in by_stage else "-" for n in names]
         state = "writing" if info["writer_active"] else ("interrupted" if info["interrupted_writes"] else "")
-        rows.append([info["path"], f"{info['size_bytes'] / 1e6:.1f}", *cells, state])
+        rows.append([info["path"], f"{(info['size_bytes'] + info.get('parts_bytes', 0)) / 1e6:.1f}", *cells, state])
     header = ["store", "MB", *names, "writer"]
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
     for r in [header, *rows]:

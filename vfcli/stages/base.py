@@ -146,6 +146,61 @@ def run_stage(
     return StageResult(path, "written", summary)
 
 
+@dataclass
+class StageSpec:
+    """One stage of :func:`run_stages`: what :func:`run_stage` takes, for a stage without raw inputs."""
+
+    name: str
+    config_json: str | None
+    body: Body
+    upstream: list[tuple[str, str | None]] = field(default_factory=list)
+    run: str | None = None
+
+
+def _group_path(sp: StageSpec) -> str:
+    from vfcli.store import layout
+
+    return layout.stage(sp.name).group_path(sp.run)
+
+
+def run_stages(ctx: RunContext, specs: list[StageSpec]) -> list[StageResult]:
+    """Write several stages, in order, in ONE transaction: each unless it is up to date (judged
+    inside the transaction, so a later stage sees the earlier ones as written); all of them
+    reach the store or none does (``vfcli flow``: /flow and /fields). The store must exist
+    (these stages read upstream ones); ``ctx.force`` rewrites them all."""
+    stored_json = ctx.stored_config.model_dump_json(exclude_unset=True)
+
+    def current(r: StoreReader, sp: StageSpec) -> bool:
+        return (not ctx.force and r.has_stage(sp.name, sp.run)
+                and r.is_current(sp.name, sp.config_json, {}, sp.upstream, sp.run))
+
+    def up_to_date(r: StoreReader, sp: StageSpec) -> StageResult:
+        log.info("%s is up to date (inputs and config unchanged); --force reruns", _group_path(sp))
+        return StageResult(_group_path(sp), "up-to-date", dict((r.summary(sp.name, sp.run) or {}).get("figures", {})))
+
+    with ctx.store.read() as r:
+        if all(current(r, sp) for sp in specs):
+            results = [up_to_date(r, sp) for sp in specs]
+            if r.recording_config_json() == stored_json:
+                return results
+        else:
+            results = []
+    with ctx.store.write(ctx.command) as w:
+        w.set_recording_config(stored_json)
+        if results:  # only the recording config changed
+            return results
+        for sp in specs:
+            if current(w.reader, sp):
+                results.append(up_to_date(w.reader, sp))
+                continue
+            with w.stage(sp.name, config_json=sp.config_json, inputs={}, upstream=sp.upstream, run=sp.run) as s:
+                with captured_warnings() as warnings:
+                    summary = sp.body(w.reader, s)
+                s.set_summary(summary, warnings)
+            results.append(StageResult(_group_path(sp), "written", summary))
+    return results
+
+
 class _Capture(logging.Handler):
     """Collects the messages of WARNING and above; passes on every record the logger would
     have handled without the capture (see :func:`captured_warnings`)."""

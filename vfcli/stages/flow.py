@@ -1,8 +1,9 @@
 """`vfcli flow`: gap, opening, optical flow (/flow) and the tri-variate field (/fields).
 
-Two stages, each written by its own atomic transaction, each reading its inputs from the
-store, calling one function of :mod:`vfcli.flow.pipeline` (the science) and writing what
-it streams back, frame by frame (memory does not grow with the number of frames):
+Two stages, written by ONE atomic transaction (both reach the store or neither does), each
+reading its inputs from the store, calling one function of :mod:`vfcli.flow.pipeline` (the
+science) and writing what it streams back, frame by frame (memory does not grow with the
+number of frames):
 
 1. /flow from /hsc: :func:`vfcli.flow.pipeline.flow_pipeline`.
 2. /fields from /flow, /sync and /ldv: :func:`vfcli.flow.pipeline.velocity_fields`.
@@ -22,9 +23,14 @@ from vfcli.errors import ConfigError, InputDataError, MissingStageError
 from vfcli.flow.plausibility import FAR_BEYOND, points_on_image, pressure_velocity_bound
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
-from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
+from vfcli.store.precision import round_mantissa
+from vfcli.stages.base import RunContext, StageResult, StageSpec, run_stages, stage_config_json
 
 log = logging.getLogger(__name__)
+
+#: Stored mantissa bits of /fields/velocity (of 23): a relative error below 1.3e-4, far below the
+#: field's own; the stage's largest dataset shrinks by about 40 % (docs/benchmarks.md).
+FIELDS_MANTISSA_BITS = 12
 
 
 def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
@@ -159,14 +165,14 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
             j = min(i + CHUNK_FRAMES, n)
             yield ds_flow[i:j], ds_gap[i:j], aligned[:, i:j]
 
-    ds_vel = s.create("velocity", (n, h, w, 3), np.float32)
+    ds_vel = s.create("velocity", (n, h, w, 3), np.float32, attrs={"mantissa_bits": FIELDS_MANTISSA_BITS})
     ds_valid = s.create("valid", (n, h, w), bool)
     n_valid = i = 0
     speed_p99 = 0.0
     bar = ctx.progress(total=n, desc="fields", unit="frame")
     for field, valid in velocity_fields(chunks(), points_px, good, (h, w), cfg):
         j = i + len(field)
-        ds_vel[i:j] = field
+        ds_vel[i:j] = round_mantissa(field.astype(np.float32, copy=False), FIELDS_MANTISSA_BITS)
         ds_valid[i:j] = valid
         n_valid += int(valid.sum())
         if valid.any():
@@ -188,7 +194,8 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
 
 
 def run_flow(ctx: RunContext) -> list[StageResult]:
-    """Write /flow (from /hsc) then /fields (from /flow, /sync, /ldv), each unless up to date.
+    """Write /flow (from /hsc) then /fields (from /flow, /sync, /ldv), each unless up to date,
+    in one transaction.
 
     Returns
     -------
@@ -197,12 +204,13 @@ def run_flow(ctx: RunContext) -> list[StageResult]:
     cfg = ctx.config.flow
     if cfg.median_px % 2 == 0:
         raise ConfigError(f"flow.median_px = {cfg.median_px}: must be odd")
-    if ctx.store.exists():  # fail before the long flow step when /fields could not be written
-        with ctx.store.read() as r:
-            r.upstream_digests([("hsc", None), ("sync", None), ("ldv", None)])
-    flow = run_stage(ctx, "flow", config_json=stage_config_json("flow", ctx.config),
-                     body=lambda r, s: _write_flow(ctx, cfg, r, s), upstream=[("hsc", None)])
-    fields = run_stage(ctx, "fields", config_json=stage_config_json("fields", ctx.config),
-                       body=lambda r, s: _write_fields(ctx, cfg, r, s),
-                       upstream=[("flow", None), ("sync", None), ("ldv", None)])
-    return [flow, fields]
+    if not ctx.store.exists():
+        raise MissingStageError("stage /hsc is missing; run `vfcli ingest-hsc` first", ctx.store.path)
+    with ctx.store.read() as r:  # fail before the long flow step when /fields could not be written
+        r.upstream_digests([("hsc", None), ("sync", None), ("ldv", None)])
+    return run_stages(ctx, [
+        StageSpec("flow", stage_config_json("flow", ctx.config), lambda r, s: _write_flow(ctx, cfg, r, s),
+                  upstream=[("hsc", None)]),
+        StageSpec("fields", stage_config_json("fields", ctx.config), lambda r, s: _write_fields(ctx, cfg, r, s),
+                  upstream=[("flow", None), ("sync", None), ("ldv", None)]),
+    ])

@@ -1,7 +1,10 @@
-"""The experiment store: one HDF5 file per recording; the only package that imports h5py.
+"""The experiment store: one HDF5 file plus a parts folder per recording; the only package that imports h5py.
 
 Modules: :mod:`~vfcli.store.layout` (every group and dataset, the only place HDF5 paths are
 spelt), :mod:`~vfcli.store.transaction` (lock, atomic commit, :class:`StageWriter`),
+:mod:`~vfcli.store.parts` (the part files beside the store file; :func:`copy_store`),
+:mod:`~vfcli.store.migrate` (stores of an earlier vfcli), :mod:`~vfcli.store.signals`,
+:mod:`~vfcli.store.precision` (stored float precision),
 :mod:`~vfcli.store.reader` (:class:`StoreReader`), :mod:`~vfcli.store.frames` (per-frame
 datasets, :class:`FrameReader`, N-bit), :mod:`~vfcli.store.chunks` (chunk encoding),
 :mod:`~vfcli.store.provenance`, :mod:`~vfcli.store.info`, :mod:`~vfcli.store.truth` (a
@@ -23,7 +26,7 @@ _PUBLIC = {
     "read_truth": "truth", "write_truth": "truth", "TruthWriter": "truth",
     "StoredMesh": "mesh", "read_mesh": "mesh", "read_stored_mesh": "mesh",
     "OptimizeRun": "runs", "read_run": "runs", "run_names": "runs",
-    "store_info": "info",
+    "store_info": "info", "copy_store": "parts",
 }
 
 __all__ = sorted(_PUBLIC)

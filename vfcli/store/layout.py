@@ -28,6 +28,11 @@ SUMMARY_ATTR = "summary_json"
 #: and the SHA-256 of the group's other attributes (:mod:`vfcli.store.integrity`).
 MANIFEST_ATTR = "manifest_json"
 
+#: Stages kept in their own part file beside the store file, external-linked from it
+#: (:mod:`vfcli.store.parts`): every stage whose size grows with the recording (frames, LDV
+#: points and samples). Only /mesh (a few hundred kB) stays in the store file.
+PART_STAGES = frozenset({"hsc", "ldv", "sync", "flow", "fields", "optimize", "diagnose"})
+
 #: Attributes every stage group carries (its provenance).
 PROVENANCE_ATTRS = (
     "stage",
@@ -199,7 +204,9 @@ STAGES: dict[str, Stage] = {
             "Tri-variate surface velocity field v(y, t) = (u, v, w) on the pixel grid.",
             reads=("flow", "sync", "ldv"),
             datasets={
-                "velocity": D("mm/s", "Surface velocity (u, v, w)", ("frame_time", "row", "col", "uvw"), True),
+                "velocity": D("mm/s", "Surface velocity (u, v, w); float32 rounded to 12 stored mantissa bits "
+                              "(relative error below 1.3e-4, attribute mantissa_bits)",
+                              ("frame_time", "row", "col", "uvw"), True),
                 "valid": D("bool", "Fold surface visible (velocity valid)", ("frame_time", "row", "col"), True),
                 "frame_time": D("s", "Frame times", ("frame_time",)),
                 "ldv_px": D("px", "Screen position (col, row) of each LDV point", ("point", "colrow")),
@@ -364,7 +371,27 @@ def layout_markdown() -> str:
     lines = [
         "# Store layout",
         "",
-        "One HDF5 file per recording. Generated from `vfcli/store/layout.py` by `vfcli schemas`; do not edit.",
+        "Generated from `vfcli/store/layout.py` by `vfcli schemas`; do not edit.",
+        "",
+        "## A store is a file plus its parts folder",
+        "",
+        "A recording's store is the HDF5 file `<name>` (say `rec.h5`) plus the folder `<name>.parts/` beside it. "
+        "The file holds the root attributes, `/mesh` (small) and one HDF5 external link per other stage ("
+        + ", ".join(f"`/{n}/<run>`" if n in ("optimize", "diagnose") else f"`/{n}`" for n in sorted(PART_STAGES))
+        + "); each of these stages lives, at the same path, in its own part file `<name>.parts/<stage>-<16 hex>.h5`. "
+        "Readers built on libhdf5 (h5py, HDFView, MATLAB's h5read) follow the links, so every path below opens from the store file as long as the "
+        "folder is beside it. A write costs what it writes: it puts a rewritten stage in a new part file and "
+        "renames a new store file (a few kB) into place; part files are never modified, and the next write deletes "
+        "the ones no store file links to. Copy, move or back up the file and its folder together and keep their "
+        "names (a store file alone is refused: its part files are missing); `vfcli share rec.h5 out.h5` writes one "
+        "self-contained file with the links resolved, to send or archive. netCDF readers (xarray with "
+        "engine h5netcdf) look up dimension scales in the file they opened: open a stage from its part file, "
+        "`xr.open_dataset(vfcli.store.parts.holder(\"rec.h5\", \"/hsc\"), group=\"hsc\", engine=\"h5netcdf\")`, "
+        "or the `vfcli share` copy. Temporary files of a write are `.<name>.vfcli-<pid>-<8 hex>.tmp`; the lock "
+        "files are `.<name>.lock` and `.<name>.readers`. A symlinked store stays a symlink (its parts and "
+        "locks are beside its target).",
+        "",
+        "## Groups and attributes",
         "",
         f"Root attributes: `format` = `{FORMAT_NAME}`, `format_version` = {FORMAT_VERSION}, "
         f"`{ROOT_CONFIG_ATTR}` (the recording's config as JSON).",

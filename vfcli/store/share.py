@@ -5,7 +5,9 @@ vfcli with numpy, but h5py, HDFView and MATLAB decode it with libhdf5's N-bit fi
 10x slower than gzip (docs/benchmarks.md, "Ingest"). :func:`copy_for_sharing` writes a new
 store whose ``/hsc/frames`` hold the same values under another filter (gzip by default).
 The values are unchanged, so every stage keeps its provenance and digest: nothing becomes
-stale. The source store is only read.
+stale. The source store is only read. The copy is ONE self-contained file: the stages a store
+keeps in its part files (:mod:`vfcli.store.parts`) are copied into it, so it can be sent
+or moved alone.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ import h5py
 from vfcli.errors import ConfigError
 from vfcli.store import integrity, layout
 from vfcli.store.frames import COMPRESSIONS, FrameReader
+from vfcli.store.parts import own_parts
 from vfcli.store.reader import check_format, open_h5
 from vfcli.store.transaction import StageWriter
 
@@ -52,7 +55,7 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
     if not src.exists():
         raise ConfigError("no such store file", src)
     tmp = dst.with_name(f"{dst.name}.tmp-{os.getpid()}")
-    f = open_h5(src, "r")
+    f = open_h5(Path(os.path.realpath(src)), "r")  # a symlinked store: its parts are beside the target
     try:
         check_format(f, src)
         if "hsc" not in f or not f["hsc"].attrs.get("complete", False) or "frames" not in f["hsc"]:
@@ -61,8 +64,8 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
             for k, v in f.attrs.items():
                 out.attrs[k] = v
             for name in f:
-                if name != "hsc":
-                    f.copy(f[name], out, name=name)
+                if name != "hsc":  # part files' stages copied in (links resolved): one self-contained file
+                    f.copy(f[name], out, name=name, expand_external=True)
             hsc_in, hsc = f["hsc"], out.create_group("hsc")
             for k, v in hsc_in.attrs.items():
                 hsc.attrs[k] = v
@@ -73,7 +76,7 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
                     hsc.attrs[layout.SUMMARY_ATTR] = json.dumps(summary, sort_keys=True)
             for k in hsc_in:
                 if k != "frames":
-                    f.copy(hsc_in[k], hsc, name=k)
+                    f.copy(hsc_in[k], hsc, name=k, expand_external=True)
             frames_in = hsc_in["frames"]
             frames = FrameReader(frames_in)
             n = len(frames)
@@ -102,4 +105,4 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
     finally:
         f.close()
     return {"frames": n, "compression": compression, "size_bytes": dst.stat().st_size,
-            "source_size_bytes": src.stat().st_size}
+            "source_size_bytes": src.stat().st_size + sum(p.stat().st_size for p in own_parts(Path(os.path.realpath(src))))}

@@ -2,15 +2,19 @@
 
 Crash safety
 ------------
-A write never touches the store file itself. The writer takes an exclusive lock
-(``flock`` on the sidecar ``.<name>.lock``, released by the kernel if the process
-dies), copies the store to ``<name>.tmp-<pid>``, writes the stage there, flushes and
-fsyncs it, and atomically renames it over the store. A process killed at any moment
-therefore leaves either the old file or the new one, never a half-written stage; a
-leftover ``.tmp-`` file is the only trace and is removed by the next writer (``vfcli
-info`` reports it as an interrupted write). Readers open the store read-only and keep
-the version they opened. Files are created with persistent free-space tracking, so a
-stage that is rewritten reuses the space of its previous version.
+A write never modifies a file a reader may have open. The writer takes an exclusive lock
+(``flock`` on the sidecar ``.<name>.lock`` beside the real file, released by the kernel if
+the process dies), writes each stage but /mesh into a new part file (:mod:`vfcli.store.parts`:
+``<name>.parts/<stage>-<16 hex>.h5``, complete, flushed and fsynced), copies the store file
+(the index: root attributes, /mesh and one external link per other stage; small) to
+``.<name>.vfcli-<pid>-<8 hex>.tmp``, writes the small stages and links there, fsyncs it and
+atomically renames it over the store. A process killed at any moment therefore leaves the
+old index or the new one, never a half-written stage; a leftover temporary index or an
+unlinked part file is the only trace and is removed by the next writer (``vfcli info``
+reports it as an interrupted write). Ctrl-C, SIGTERM and a full disk abort the write the
+same way, removing its temporary data at once. Readers open the store read-only and keep
+the version they opened (:func:`vfcli.store.parts.reader_lock`). A write costs what it
+writes plus one copy of the index, whatever the size of the store.
 
 Video frames are written by :meth:`StageWriter.write_frames` (chunks encoded in threads,
 :mod:`vfcli.store.frames`); provenance is recorded when a stage block ends
@@ -23,7 +27,10 @@ import errno
 import fcntl
 import json
 import os
+import re
+import secrets
 import shutil
+import stat
 from collections import deque
 from contextlib import contextmanager
 from pathlib import Path
@@ -33,8 +40,8 @@ import h5py
 import numpy as np
 
 from vfcli import __version__
-from vfcli.errors import ConfigError, StoreAccessError, StoreDamagedError, StoreLockedError
-from vfcli.store import integrity, layout
+from vfcli.errors import ConfigError, StoreAccessError, StoreDamagedError, StoreLockedError, VfcliError
+from vfcli.store import integrity, layout, migrate, parts, signals
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
 from vfcli.store.provenance import content_digest
@@ -43,7 +50,6 @@ from vfcli.store.reader import StoreReader, check_format, open_h5
 if TYPE_CHECKING:
     from vfcli.io.video.base import FrameBatch
 
-_TMP_MARK = ".tmp-"
 #: HDF5 format versions of what vfcli writes: v2 object headers, B-trees and heaps, all checksummed
 #: (libhdf5 refuses a flipped byte in them instead of reading it).
 _LIBVER = ("v110", "latest")
@@ -62,7 +68,13 @@ def _lock_path(path: Path) -> Path:
 
 
 def _leftover_tmp_files(path: Path) -> list[Path]:
-    return sorted(path.parent.glob(f"{path.name}{_TMP_MARK}*"))
+    """The temporary index copies of writers of ``path`` that died: ``.<name>.vfcli-<pid>-<8 hex>.tmp``
+    (and ``<name>.tmp-<pid>`` of earlier vfcli versions), matched exactly: a user's files are left alone."""
+    pattern = re.compile(rf"^(?:\.{re.escape(path.name)}\.vfcli-\d+-[0-9a-f]{{8}}\.tmp|{re.escape(path.name)}\.tmp-\d+)$")
+    try:
+        return sorted(p for p in path.parent.iterdir() if pattern.match(p.name))
+    except OSError:
+        return []
 
 
 def _now() -> str:
@@ -294,13 +306,23 @@ class StageWriter:
 
 
 class StoreWriter:
-    """A write transaction on a store copy; committed by an atomic rename."""
+    """A write transaction on a copy of the store's index (and new part files for the large
+    stages, :mod:`vfcli.store.parts`); committed by an atomic rename of the index."""
 
-    def __init__(self, f: h5py.File, path: Path, command: str) -> None:
+    def __init__(self, f: h5py.File, path: Path, command: str, real: Path | None = None,
+                 mode: int | None = None) -> None:
         self._f = f
         self.path = path
         self.command = command
         self.reader = StoreReader(f, path)
+        self._real = real or path
+        self._mode = mode  # the store file's permission bits, given to its new part files
+        self._new_parts: list[Path] = []  # written by this transaction: removed if it aborts
+
+    @property
+    def new_parts(self) -> list[Path]:
+        """The part files this transaction wrote (removed if it aborts)."""
+        return list(self._new_parts)
 
     def set_recording_config(self, config_json: str) -> None:
         self._f.attrs[layout.ROOT_CONFIG_ATTR] = config_json
@@ -326,36 +348,61 @@ class StoreWriter:
         path = st.group_path(run)
         upstream_digests = self.reader.upstream_digests(upstream or [])
         self.reader.refuse_damaged(keep=path)  # never carry a damaged stage forward
-        if path in self._f:
-            del self._f[path]
-        g = self._f.require_group(path)
-        g.attrs["complete"] = False
-        writer = StageWriter(g, st)
-        yield writer
-        writer.attach_scales()
-        manifest = integrity.manifest(g)
-        g.attrs[layout.MANIFEST_ATTR] = manifest
-        if callable(inputs):
-            inputs = inputs()
-        record = {
-            "stage": path,
-            "vfcli_version": __version__,
-            "command": self.command,
-            "created_utc": _now(),
-            "config_json": config_json,
-            "inputs_json": json.dumps(dict(inputs or {}), sort_keys=True),
-            "upstream_json": json.dumps(upstream_digests, sort_keys=True),
-        }
-        hashed = {k: v["sha256"] for k, v in json.loads(manifest)["datasets"].items()}
-        record["digest"] = content_digest(g, hashed)   # the chunks hashed once, for the manifest
-        for k, v in record.items():
-            g.attrs[k] = v
-        g.attrs["complete"] = True
+        part: h5py.File | None = None
+        if parts.is_part_stage(st.name):  # a new part file, linked when complete
+            target = parts.new_part_name(self._real, path)
+            part_path = self._real.parent / target
+            part_path.parent.mkdir(exist_ok=True)
+            self._new_parts.append(part_path)
+            part = h5py.File(part_path, "w", libver=_LIBVER)
+            if self._mode is not None:
+                os.chmod(part_path, self._mode)
+            g = part.require_group(path)
+        else:
+            if self._f.get(path, getlink=True) is not None:
+                del self._f[path]
+            g = self._f.require_group(path)
+        try:
+            g.attrs["complete"] = False
+            writer = StageWriter(g, st)
+            yield writer
+            writer.attach_scales()
+            manifest = integrity.manifest(g)
+            g.attrs[layout.MANIFEST_ATTR] = manifest
+            if callable(inputs):
+                inputs = inputs()
+            record = {
+                "stage": path,
+                "vfcli_version": __version__,
+                "command": self.command,
+                "created_utc": _now(),
+                "config_json": config_json,
+                "inputs_json": json.dumps(dict(inputs or {}), sort_keys=True),
+                "upstream_json": json.dumps(upstream_digests, sort_keys=True),
+            }
+            hashed = {k: v["sha256"] for k, v in json.loads(manifest)["datasets"].items()}
+            record["digest"] = content_digest(g, hashed)   # the chunks hashed once, for the manifest
+            for k, v in record.items():
+                g.attrs[k] = v
+            g.attrs["complete"] = True
+            if part is not None:
+                part.flush()
+                part.close()
+                parts.fsync_path(part_path)
+                if self._f.get(path, getlink=True) is not None:
+                    del self._f[path]
+                self._f[path] = h5py.ExternalLink(target, path)
+        finally:
+            if part is not None and part.id.valid:
+                part.close()
         self.reader.forget(path)
 
 
 class Store:
-    """A recording's store file.
+    """A recording's store: its file (the index) and its parts folder (:mod:`vfcli.store.parts`).
+
+    A symlinked store stays a symlink: vfcli writes, locks and keeps the parts beside the
+    link's target (``real_path``), so the link and its target share one lock.
 
     >>> store = Store("rec.h5")                                   # doctest: +SKIP
     >>> with store.write("vfcli mesh rec.h5") as w:               # doctest: +SKIP
@@ -366,33 +413,56 @@ class Store:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
 
+    @property
+    def real_path(self) -> Path:
+        """The store file a symlink points to (the path itself otherwise)."""
+        return Path(os.path.realpath(self.path))
+
     def exists(self) -> bool:
         return self.path.exists()
 
     @contextmanager
     def read(self) -> Iterator[StoreReader]:
-        """Open read-only; :class:`StoreFormatError` if it is not a vfcli store."""
+        """Open read-only; :class:`StoreFormatError` if it is not a vfcli store. The version
+        opened stays readable until the block ends (no writer deletes its part files)."""
         if not self.path.exists():
             raise ConfigError("no such store file; the first writing command creates it", self.path)
-        f = open_h5(self.path, "r")
-        try:
-            check_format(f, self.path)
-            yield StoreReader(f, self.path)
-        except integrity.H5_ERRORS as exc:
-            _raise_damage(exc, self.path)
-        finally:
-            f.close()
+        real = self.real_path
+        with parts.reader_lock(real):
+            f = open_h5(real, "r")
+            try:
+                check_format(f, self.path)
+                _refuse_missing_parts(f, real, self.path)
+                yield StoreReader(f, self.path)
+            except integrity.H5_ERRORS as exc:
+                _raise_damage(exc, self.path)
+            finally:
+                f.close()
 
     def interrupted_writes(self) -> list[Path]:
-        """Leftovers of writers that died (cleaned up by the next writer)."""
-        return _leftover_tmp_files(self.path)
+        """Leftovers of writers that died (cleaned up by the next writer): temporary index
+        copies, and part files the index does not link to."""
+        real = self.real_path
+        found = _leftover_tmp_files(real)
+        own = parts.own_parts(real)
+        if own:
+            try:
+                f = open_h5(real, "r")
+            except VfcliError:
+                return found
+            try:
+                linked = {Path(t).name for t in parts.referenced_parts(f)}
+            finally:
+                f.close()
+            found += [p for p in own if p.name not in linked]
+        return found
 
     def writer_active(self) -> bool:
         """Whether a live process holds the write lock now (its temporary file is work in
         progress, not the leftover of an interrupted write). Probes with a shared lock,
         released at once."""
         try:
-            fd = os.open(_lock_path(self.path), os.O_RDONLY)
+            fd = os.open(_lock_path(self.real_path), os.O_RDONLY)
         except OSError:
             return False
         try:
@@ -408,11 +478,12 @@ class Store:
 
     @contextmanager
     def _lock(self) -> Iterator[None]:
+        path = self.real_path  # a symlink and its target take the same lock
         try:  # a read-only folder, an unwritable lock file, a lock path that is a directory
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            if not os.access(self.path.parent, os.W_OK | os.X_OK):
-                raise PermissionError(errno.EACCES, "folder not writable", str(self.path.parent))
-            fd = os.open(_lock_path(self.path), os.O_RDWR | os.O_CREAT, 0o644)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if not os.access(path.parent, os.W_OK | os.X_OK):
+                raise PermissionError(errno.EACCES, "folder not writable", str(path.parent))
+            fd = os.open(_lock_path(path), os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
             raise StoreAccessError(f"cannot write the store: {exc.strerror or exc}: {exc.filename}", self.path) from None
         try:
@@ -429,41 +500,115 @@ class Store:
         finally:
             os.close(fd)
 
+    def _writable_mode(self, real: Path) -> int:
+        """The store file's permission bits; :class:`StoreAccessError` when it is read-only
+        (vfcli does not replace a file its owner protected)."""
+        mode = stat.S_IMODE(os.stat(real).st_mode)
+        if not mode & stat.S_IWUSR or not os.access(real, os.W_OK):
+            raise StoreAccessError(f"the store file is read-only (mode {mode:04o}); vfcli does not replace it: "
+                                   "make it writable (chmod u+w) to write to it", self.path)
+        return mode
+
     @contextmanager
     def write(self, command: str) -> Iterator[StoreWriter]:
-        """An exclusive write transaction: all of it reaches the store, or none of it."""
-        with self._lock():
-            for leftover in _leftover_tmp_files(self.path):
+        """An exclusive write transaction: all of it reaches the store, or none of it.
+
+        Costs what it writes: the stages (but /mesh) go to new part files, and only the store's
+        index (small) is copied, then renamed over the store (the commit). On an abort (an
+        exception, Ctrl-C, SIGTERM, a full disk) the temporary copy and the new part files
+        are removed and the store is unchanged; a full disk is :class:`StoreSpaceError`."""
+        real = self.real_path
+        with self._lock(), signals.abort_on_sigterm():
+            for leftover in _leftover_tmp_files(real):
                 leftover.unlink(missing_ok=True)
-            tmp = self.path.with_name(f"{self.path.name}{_TMP_MARK}{os.getpid()}")
-            if self.path.exists():
-                with self.read():  # refuses files that are not vfcli stores
-                    pass
-                shutil.copyfile(self.path, tmp)
-                f = open_h5(tmp, "r+", libver=_LIBVER)  # new objects get checksummed (v2) object headers
-            else:
-                f = h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True, libver=_LIBVER)
-                f.attrs["format"] = layout.FORMAT_NAME
-                f.attrs["format_version"] = layout.FORMAT_VERSION
-                f.attrs["created_utc"] = _now()
-                f.attrs["generated_by"] = f"vfcli {__version__}"
+            tmp = real.with_name(f".{real.name}.vfcli-{os.getpid()}-{secrets.token_hex(4)}.tmp")
+            f: h5py.File | None = None
+            w: StoreWriter | None = None
+            moved: list[Path] = []  # stages of an earlier vfcli's store moved to part files
+            committed = False
             try:
-                yield StoreWriter(f, self.path, command)
-                f.flush()
+                if real.exists():
+                    with self.read():  # refuses files that are not vfcli stores
+                        pass
+                    mode: int | None = self._writable_mode(real)
+                    parts.check_room(real, real.stat().st_size + _ROOM_MARGIN)
+                    shutil.copyfile(real, tmp)
+                    os.chmod(tmp, mode)
+                    f = open_h5(tmp, "r+", libver=_LIBVER)  # new objects get checksummed (v2) object headers
+                    parts.collect_garbage(real, parts.referenced_parts(f))  # parts of killed writers
+                    migrate.move_inline_stages(f, real, mode, moved)  # a store of an earlier vfcli
+                else:
+                    mode = None
+                    f = h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True, libver=_LIBVER)
+                    f.attrs["format"] = layout.FORMAT_NAME
+                    f.attrs["format_version"] = layout.FORMAT_VERSION
+                    f.attrs["created_utc"] = _now()
+                    f.attrs["generated_by"] = f"vfcli {__version__}"
+                w = StoreWriter(f, self.path, command, real, mode)
+                w._new_parts += moved
+                yield w
+                linked = parts.referenced_parts(f)
+                if migrate.needs_compaction(f):  # HDF5 does not shrink a file: write it anew
+                    tmp = _compacted(f, tmp, mode)
                 f.close()
-                with open(tmp, "rb+") as fh:
-                    os.fsync(fh.fileno())
-                os.replace(tmp, self.path)
-                dfd = os.open(self.path.parent, os.O_RDONLY)
-                try:
-                    os.fsync(dfd)
-                finally:
-                    os.close(dfd)
+                parts.fsync_path(tmp)
+                if w.new_parts:
+                    parts.fsync_path(parts.parts_dir(real))
+                with signals.deferred():
+                    os.replace(tmp, real)
+                    committed = True
+                parts.fsync_path(real.parent)
+                parts.collect_garbage(real, linked)  # the parts of the stages this write replaced
             except BaseException as exc:
-                try:
-                    f.close()
-                except integrity.H5_ERRORS:
-                    pass  # a damaged copy may not close cleanly; it is deleted and exc raised
-                finally:
-                    tmp.unlink(missing_ok=True)
+                if not committed:
+                    written = _abort(f, tmp, w.new_parts if w else moved)
+                    if parts.is_no_room(exc):
+                        raise parts.no_room_error(self.path, written) from None
                 _raise_damage(exc, self.path)
+
+
+def _refuse_missing_parts(f: h5py.File, real: Path, path: Path) -> None:
+    """:class:`StoreDamagedError` naming the first part file the index links to that is not there."""
+    missing = parts.missing_parts(f, real)
+    if missing:
+        raise StoreDamagedError(
+            f"damaged store: its part file {missing[0]} is missing ({len(missing)} in all); a store is its file "
+            f"plus its folder {parts.parts_dir(real).name}: copy or move both and keep their names "
+            "(`vfcli share` makes one self-contained file)", path)
+
+
+#: Free space asked beyond the index's size before copying it (its growth by a small stage).
+_ROOM_MARGIN = 4 << 20
+
+
+def _compacted(f: h5py.File, tmp: Path, mode: int | None) -> Path:
+    """A compact copy of the temporary store file ``f`` (at ``tmp``, then removed); its path."""
+    compact = tmp.with_name(f"{tmp.name.rsplit('-', 1)[0]}-{secrets.token_hex(4)}.tmp")
+    try:
+        migrate.compact_copy(f, compact)
+        if mode is not None:
+            os.chmod(compact, mode)
+    except BaseException:
+        compact.unlink(missing_ok=True)
+        raise
+    f.close()
+    tmp.unlink()
+    return compact
+
+
+def _abort(f: h5py.File | None, tmp: Path, new_parts: list[Path]) -> int:
+    """Remove what an aborted write made (its index copy and new part files); returns their
+    size in bytes (what the write needed at least)."""
+    if f is not None:
+        try:
+            f.close()
+        except integrity.H5_ERRORS:
+            pass  # a damaged copy may not close cleanly; it is deleted
+    written = 0
+    for p in (tmp, *new_parts):
+        try:
+            written += p.stat().st_size
+        except OSError:
+            pass
+        p.unlink(missing_ok=True)
+    return written
