@@ -3,7 +3,6 @@ one-line warning in its stored summary, and fails with exit 3 (store unchanged) 
 product is unusable. Real CLI runs on a small phantom."""
 from __future__ import annotations
 
-import shutil
 from dataclasses import replace
 
 import numpy as np
@@ -13,7 +12,7 @@ from conftest import run_vfcli
 from vfcli.flow.plausibility import points_on_image, pressure_velocity_bound
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
-from vfcli.store import Store
+from vfcli.store import Store, copy_store
 
 PHANTOM = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
            "synth.width_px=112", "synth.height_px=112", "synth.px_per_mm=6", "synth.supersample=1"]
@@ -36,9 +35,7 @@ def video(tmp_path_factory):
 
 
 def _copy(store, tmp_path):
-    out = tmp_path / "rec.h5"
-    shutil.copy(store, out)
-    return out
+    return copy_store(store, tmp_path / "rec.h5")
 
 
 def test_points_on_image_and_the_velocity_bound_by_hand():
