@@ -30,6 +30,7 @@ COMMANDS: dict[str, tuple[str | None, str]] = {
     "mesh": ("vfcli.cli.mesh:mesh_cmd", "Build and tetrahedralise the M5 model of both folds."),
     "optimize": ("vfcli.cli.optimize:optimize_cmd", "Fit the force field so the FEM model matches the recording."),
     "export": ("vfcli.cli.export:export_cmd", "Export the motion for ParaView, the model over the video, figures and tables."),
+    "run": ("vfcli.cli.run:run_cmd", "Run every stage of a recording from its raw folder, only what is stale."),
     "synth": ("vfcli.cli.synth:synth_cmd", "Write a phantom recording (raw instrument files) with known truth."),
     "diagnose": (None, "Locate the mismatch and name the missing physics."),
     "report": ("vfcli.cli.report:report_cmd", "Write a self-contained HTML report of a recording (or an index of many)."),

@@ -23,7 +23,7 @@ log = logging.getLogger(__name__)
 _PHOTRON_SUFFIXES = (".mraw", ".cih", ".cihx")
 
 
-def _video_files(video: Path) -> list[Path]:
+def video_files(video: Path) -> list[Path]:
     """The files a video consists of (an MRAW and its CIH/CIHX travel together)."""
     if video.suffix.lower() in _PHOTRON_SUFFIXES:
         return sorted(p for s in _PHOTRON_SUFFIXES for p in [video.with_suffix(s)] if p.exists())
@@ -71,7 +71,7 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
     """Stream the video into /hsc (unchanged bit depth, one frame per chunk) with its pressure."""
     cfg, cam = ctx.config.ingest_hsc, ctx.config.camera
     video = Path(video)
-    inputs = _video_files(video) + ([Path(pressure)] if pressure else [])
+    inputs = video_files(video) + ([Path(pressure)] if pressure else [])
     config_json = stage_config_json("hsc", ctx.config)
 
     def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:

@@ -158,6 +158,14 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray) -> tuple[np.ndar
     return std, systematic, summary
 
 
+def optimize_settings_json(config: RecordingConfig) -> str:
+    """The settings an optimisation run records (and compares to decide it is current), as JSON:
+    [optimize] and [camera]; the mesh and its material are /mesh's (an upstream stage), not the
+    live [mesh] section's."""
+    return json.dumps({"optimize": config.optimize.model_dump(mode="json"),
+                       "camera": config.camera.model_dump(mode="json")}, sort_keys=True)
+
+
 def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None,
                  uncertainty_plot: str | Path | None = None) -> StageResult:
     """Fit (or resume) an optimisation run and store it as /optimize/<run>.
@@ -170,9 +178,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         raise ConfigError("--uncertainty-map needs optimize.uncertainty = true (it maps the stated uncertainty)")
     if not run.replace("-", "").replace("_", "").isalnum():
         raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
-    # the mesh and its material are /mesh's (an upstream stage), not the live [mesh] section's
-    settings_json = json.dumps({"optimize": cfg.model_dump(mode="json"), "camera": ctx.config.camera.model_dump(mode="json")},
-                               sort_keys=True)
+    settings_json = optimize_settings_json(ctx.config)
     ckpt = checkpoint_path(ctx.store.path, run)
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:

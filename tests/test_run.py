@@ -1,0 +1,173 @@
+"""`vfcli run` on a small phantom, as a user runs it (real CLI, real files): to the end, a second
+run that does nothing, a changed raw file that reruns exactly the stages that depend on it, a
+dry run that writes nothing and names its reasons, --until; finding the raw files."""
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import run_vfcli
+from vfcli.errors import ConfigError, InputDataError
+from vfcli.io.ldv.read import read_ldv
+from vfcli.io.ldv.write import write_ldv_uff
+from vfcli.io.raw_folder import FILES_MANIFEST, find_raw_files
+from vfcli.stages.run import STEPS, run_recording
+from vfcli.store import Store
+
+PHANTOM = [
+    "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
+    "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
+]
+#: a small fit: a coarse mesh, 12 frames, 3 iterations
+SETS = ["mesh.target_edge_mm=2.5", "optimize.n_frames=12", "optimize.first_frame=20", "optimize.max_iterations=3"]
+RAW_FILES = ["video.cihx", "video.mraw", "video.tif", "video_pressure.tdms", "video_pressure.csv", "scan.uff",
+             "scan.csv", "recording.toml"]
+
+
+def _sets(items):
+    return sum((["--set", s] for s in items), [])
+
+
+def _run(store, raw, *args):
+    res = run_vfcli("run", store, "--raw", raw, *_sets(SETS), "--json", *args)
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    return {s["name"]: s for s in out["stages"]}, out
+
+
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _digests(store: Path) -> dict[str, str]:
+    with Store(store).read() as r:
+        return {p: r.digest(p[1:].partition("/")[0], p[1:].partition("/")[2] or None) for p in r.stage_paths()}
+
+
+@pytest.fixture(scope="module")
+def phantom(tmp_path_factory):
+    """The raw files of a small phantom (without its truth.h5) and a store `vfcli run` made from them."""
+    d = tmp_path_factory.mktemp("run")
+    res = run_vfcli("synth", d / "synth", "--seed", "7", *_sets(PHANTOM))
+    assert res.returncode == 0, res.stderr
+    raw = d / "raw"
+    raw.mkdir()
+    for name in RAW_FILES:
+        shutil.copy(d / "synth" / name, raw / name)
+    store = d / "rec.h5"
+    stages, out = _run(store, raw)
+    return raw, store, stages, out
+
+
+def test_run_goes_to_the_end(phantom):
+    raw, store, stages, out = phantom
+    assert out["ok"] and list(stages) == list(STEPS)
+    assert {n: s["action"] for n, s in stages.items()} == {n: "ran" for n in STEPS}
+    assert all("missing" in s["reason"] for s in stages.values())
+    assert any("dropout" in w for w in stages["ingest-ldv"]["warnings"])  # the phantom's dropouts, as logged
+    with Store(store).read() as r:
+        assert sorted(r.stage_paths()) == ["/fields", "/flow", "/hsc", "/ldv", "/mesh", "/optimize/default", "/sync"]
+        assert r.attrs("mesh")["youngs_modulus_pa"] > 0 and r.read("optimize", "controls", "default").size > 0
+        assert r.attrs("hsc")["px_per_mm"] == 9.0  # from the raw folder's recording.toml
+
+
+def test_a_second_run_does_nothing(phantom):
+    raw, store, _, _ = phantom
+    before = _sha(store)
+    stages, out = _run(store, raw)
+    assert {n: s["action"] for n, s in stages.items()} == {n: "up to date" for n in STEPS}
+    assert _sha(store) == before
+
+
+def test_a_changed_raw_file_reruns_exactly_what_depends_on_it(phantom, tmp_path):
+    raw0, store0, _, _ = phantom
+    # the recording moved (another folder, same bytes): nothing to do
+    raw, store = tmp_path / "raw", tmp_path / "rec.h5"
+    shutil.copytree(raw0, raw)
+    shutil.copy(store0, store)
+    stages, _ = _run(store, raw, "--dry-run")
+    assert {n: s["action"] for n, s in stages.items()} == {n: "up to date" for n in STEPS}
+    # new bytes in the scan: /ldv and everything that uses it, not /hsc, /flow (video only) or /mesh
+    scan = read_ldv(raw / "scan.uff")
+    write_ldv_uff(raw / "scan.uff", replace(scan, velocity_mm_s=scan.velocity_mm_s * 1.01))
+    before, digests = _sha(store), _digests(store)
+    dry, _ = _run(store, raw, "--dry-run")
+    assert _sha(store) == before  # a dry run writes nothing
+    assert {n: s["action"] for n, s in dry.items()} == {
+        "ingest-hsc": "up to date", "ingest-ldv": "would run", "sync": "would run", "flow": "would run",
+        "mesh": "up to date", "optimize": "would run"}
+    assert dry["ingest-ldv"]["reason"] == "input changed: scan.uff"
+    assert "/ldv is rewritten first" in dry["sync"]["reason"] and "/ldv is rewritten first" in dry["flow"]["reason"]
+    assert "/fields is rewritten first" in dry["optimize"]["reason"]
+    ran, _ = _run(store, raw)
+    assert {n: s["action"] for n, s in ran.items()} == {
+        "ingest-hsc": "up to date", "ingest-ldv": "ran", "sync": "ran", "flow": "ran", "mesh": "up to date",
+        "optimize": "ran"}
+    after = _digests(store)
+    unchanged = {p for p in digests if digests[p] == after[p]}
+    assert unchanged == {"/hsc", "/flow", "/mesh"}  # flow's /fields was rewritten, its /flow not
+
+
+def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
+    raw, store0, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    shutil.copy(store0, store)
+    stages, _ = _run(store, raw, "--dry-run", "--set", "sync.n_harmonics=4")
+    assert [n for n, s in stages.items() if s["action"] == "would run"] == ["sync", "flow", "optimize"]
+    assert stages["sync"]["reason"].startswith("/sync: config changed") and "n_harmonics" in stages["sync"]["reason"]
+
+
+def test_until_stops_and_the_library_entry_point(phantom, tmp_path):
+    raw, _, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    summary = run_recording(store, raw, until="ingest-ldv", overrides={"camera.px_per_mm": 9.5})
+    assert summary.ok and [s.action for s in summary.stages] == ["ran", "ran", "skipped", "skipped", "skipped",
+                                                                  "skipped"]
+    assert summary.stages[2].reason == "after --until ingest-ldv"
+    payload = summary.to_json()
+    assert json.loads(json.dumps(payload)) == payload and payload["store"] == str(store)
+    with Store(store).read() as r:
+        assert sorted(r.stage_paths()) == ["/hsc", "/ldv"] and r.attrs("hsc")["px_per_mm"] == 9.5
+    res = run_vfcli("run", store, "--raw", raw, "--until", "nope")
+    assert res.returncode == 2 and "nope" in res.stderr
+
+
+def test_the_raw_files_are_found_by_extension_or_named_in_a_manifest(phantom, tmp_path):
+    raw, _, _, _ = phantom
+    found = find_raw_files(raw)
+    assert (found.video.name, found.pressure.name, found.ldv.name, found.config.name) == (
+        "video.cihx", "video_pressure.tdms", "scan.uff", "recording.toml")  # the instrument's format first
+    d = tmp_path / "lab"
+    shutil.copytree(raw, d)
+    shutil.copy(d / "video.tif", d / "take2.tif")
+    with pytest.raises(ConfigError, match="more than one video .*take2.tif.*" + FILES_MANIFEST):
+        find_raw_files(d)
+    res = run_vfcli("run", tmp_path / "x.h5", "--raw", d)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "take2.tif" in res.stderr
+    assert not (tmp_path / "x.h5").exists()
+    (d / FILES_MANIFEST).write_text('video = "take2.tif"\npressure = "video_pressure.csv"\n')
+    found = find_raw_files(d)
+    assert (found.video.name, found.pressure.name, found.ldv.name) == ("take2.tif", "video_pressure.csv", "scan.uff")
+    (d / "scan.uff").unlink()
+    with pytest.raises(InputDataError, match="no vibrometer scan"):
+        find_raw_files(d)
+    res = run_vfcli("run", tmp_path / "x.h5", "--raw", d)
+    assert res.returncode == 3 and len(res.stderr.strip().splitlines()) == 1 and "vibrometer scan" in res.stderr
+    (d / FILES_MANIFEST).write_text('video = "nothere.avi"\n')
+    with pytest.raises(InputDataError, match="nothere.avi"):
+        find_raw_files(d)
+
+
+def test_without_raw_the_ingest_steps_are_skipped_and_a_missing_stage_is_named(tmp_path):
+    res = run_vfcli("run", tmp_path / "none.h5")
+    assert res.returncode == 5 and len(res.stderr.strip().splitlines()) == 1 and "/hsc" in res.stderr, res.stderr
+    dry = run_vfcli("run", tmp_path / "none.h5", "--dry-run", "--json")
+    stages = {s["name"]: s for s in json.loads(dry.stdout)["stages"]}
+    assert stages["ingest-hsc"]["action"] == "skipped" and stages["sync"]["action"] == "would run"
+    assert not (tmp_path / "none.h5").exists()

@@ -1,0 +1,286 @@
+"""`vfcli run`: every stage of one recording in one process, doing only what is stale.
+
+The steps are the stage commands in order (:data:`STEPS`): ingest-hsc, ingest-ldv, sync,
+flow, mesh, optimize (run ``default``). Each step is its stage's own runner, which rewrites
+its store group(s) only when they are not current (the rule of :meth:`StoreReader.is_current`:
+raw inputs by content, the stage's settings, the digests of the stages it used). Before
+running, :func:`plan` names for every step why it would run (missing, input changed, config
+changed, an upstream stage rewritten or stale) with the rules `vfcli info` uses; a dry run
+stops there and writes nothing.
+
+This is the unit `vfcli batch` runs per recording: :func:`run_recording`.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from vfcli.errors import ConfigError
+from vfcli.io.raw_folder import RawFiles, find_raw_files
+from vfcli.progress import Progress, no_progress
+from vfcli.stages.base import RunContext, StageResult, stage_config_json
+from vfcli.store import layout
+from vfcli.store.provenance import describe_inputs, same_inputs
+
+log = logging.getLogger(__name__)
+
+#: The steps in order: command name -> the store groups it writes ``[(stage, run)]``.
+STEPS: dict[str, list[tuple[str, str | None]]] = {
+    "ingest-hsc": [("hsc", None)],
+    "ingest-ldv": [("ldv", None)],
+    "sync": [("sync", None)],
+    "flow": [("flow", None), ("fields", None)],
+    "mesh": [("mesh", None)],
+    "optimize": [("optimize", "default")],
+}
+#: The optimisation run `vfcli run` writes.
+RUN_NAME = "default"
+_RAW_STEPS = ("ingest-hsc", "ingest-ldv")
+
+
+@dataclass
+class StageOutcome:
+    """What happened to one step.
+
+    action : "ran" | "up to date" | "would run" (dry run) | "skipped" (after --until, or an
+        ingest step without a raw folder).  reason : why (for "ran"/"would run": what was
+        missing or changed).  seconds : wall time of the step.  warnings : the warnings it logged.
+    """
+
+    name: str
+    action: str
+    reason: str
+    seconds: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class RunSummary:
+    """The outcome of :func:`run_recording`: one :class:`StageOutcome` per step, in order."""
+
+    store: Path
+    stages: list[StageOutcome]
+    ok: bool
+    seconds: float
+
+    def to_json(self) -> dict[str, Any]:
+        return {"store": str(self.store), "ok": self.ok, "seconds": round(self.seconds, 3),
+                "stages": [{**asdict(s), "seconds": round(s.seconds, 3)} for s in self.stages]}
+
+
+def _override_items(overrides: Mapping[str, Any] | Sequence[str] | None) -> list[str]:
+    """``--set`` items: a mapping ``{"camera.px_per_mm": 12}`` (values as JSON literals) or
+    ``["camera.px_per_mm=12", ...]`` as given on the command line."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, Mapping):
+        return [f"{k}={json.dumps(v)}" for k, v in overrides.items()]
+    return [str(o) for o in overrides]
+
+
+def _steps_until(until: str | None) -> list[str]:
+    names = list(STEPS)
+    if until is None:
+        return names
+    if until not in STEPS:
+        raise ConfigError(f"--until {until!r}: not a step (steps: {', '.join(names)})")
+    return names[: names.index(until) + 1]
+
+
+def _settings_json(name: str, run: str | None, ctx: RunContext) -> str | None:
+    if name == "optimize":
+        if run != RUN_NAME:
+            return None
+        from vfcli.stages.optimize import optimize_settings_json
+
+        return optimize_settings_json(ctx.config)
+    return stage_config_json(name, ctx.config)
+
+
+def _input_paths(step: str, raw: RawFiles) -> list[Path]:
+    if step == "ingest-hsc":
+        from vfcli.stages.ingest import video_files
+
+        return video_files(raw.video) + ([raw.pressure] if raw.pressure else [])
+    return [raw.ldv]
+
+
+def _upstream(name: str, ctx: RunContext) -> list[str]:
+    """Group paths stage ``name`` uses (as recorded in its provenance)."""
+    ups = {"sync": ["/hsc", "/ldv"], "flow": ["/hsc"], "fields": ["/flow", "/sync", "/ldv"],
+           "optimize": ["/mesh", "/fields", "/flow"] + (["/hsc"] if ctx.config.optimize.loads == "pressure" else [])}
+    return ups.get(name, [])
+
+
+def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, str | None]:
+    """Why each step would run: ``{step: reason}``, None for a step that is current.
+
+    The reasons are those of `vfcli info` (missing, incomplete, config changed, an upstream
+    stage rewritten, gone or stale), plus raw inputs whose content changed and upstream
+    stages this run rewrites. A stage rewritten with identical content leaves the stages
+    that use it current, so a step said to run because of its upstream may end up current.
+    Reads the store; hashes a raw file only when its size or times changed.
+    """
+    groups = {layout.stage(n).group_path(r): (step, n, r) for step in steps for n, r in STEPS[step]}
+    reasons: dict[str, list[str]] = {step: [] for step in steps}
+    statuses: dict[str, Any] = {}
+    previous: dict[str, dict[str, Any]] = {}
+    if ctx.store.exists():
+        with ctx.store.read() as r:
+            statuses = {st.path: st for st in r.statuses(lambda n, run: _settings_json(n, run, ctx))}
+            for step in _RAW_STEPS:
+                if step in steps:
+                    previous[step] = r.previous_inputs(*STEPS[step][0])
+    rewritten: set[str] = set()
+    for path, (step, name, _run) in groups.items():
+        why: list[str] = []
+        st = statuses.get(path)
+        if ctx.force:
+            why.append("--force")
+        elif st is None:
+            why.append(f"{path} missing")
+        elif not st.complete or getattr(st, "damaged", None):
+            why.append(f"{path} incomplete or damaged")
+        else:
+            why += [f"{path}: {w}" if w.startswith("config") else w for w in st.stale_because]
+            if step in _RAW_STEPS and raw is not None:
+                old = previous.get(step, {})
+                new = describe_inputs(_input_paths(step, raw), old)
+                if not same_inputs(old, new):
+                    known = {v["sha256"] for v in old.values()}
+                    changed = [Path(p).name for p, v in new.items() if v["sha256"] not in known]
+                    why.append("input changed: " + (", ".join(changed) or "a file was removed"))
+            for up in _upstream(name, ctx):
+                if up in rewritten and not any(w.startswith(up + " ") for w in why):
+                    why.append(f"{up} is rewritten first")
+        if why:
+            rewritten.add(path)
+            reasons[step] += why
+    return {step: "; ".join(dict.fromkeys(w)) or None for step, w in reasons.items()}
+
+
+def _run_step(step: str, ctx: RunContext, raw: RawFiles | None) -> list[StageResult]:
+    if step == "ingest-hsc":
+        from vfcli.stages.ingest import run_ingest_hsc
+
+        assert raw is not None
+        return [run_ingest_hsc(ctx, raw.video, raw.pressure)]
+    if step == "ingest-ldv":
+        from vfcli.stages.ingest import run_ingest_ldv
+
+        assert raw is not None
+        return [run_ingest_ldv(ctx, raw.ldv)]
+    if step == "sync":
+        from vfcli.stages.sync import run_sync
+
+        return [run_sync(ctx)]
+    if step == "flow":
+        from vfcli.stages.flow import run_flow
+
+        return run_flow(ctx)
+    if step == "mesh":
+        from vfcli.stages.mesh import run_mesh
+
+        return [run_mesh(ctx)]
+    if step == "optimize":
+        from vfcli.stages.optimize import run_optimize
+
+        return [run_optimize(ctx, RUN_NAME)]
+    raise ValueError(f"unknown step {step!r}")
+
+
+class _Collect(logging.Handler):
+    """Collects the WARNING+ messages logged under ``vfcli`` (forwards nothing: the logger's
+    own handlers and propagation print them as usual)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.messages: list[str] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.messages.append(f"{record.levelname} {record.name}: {record.getMessage()}")
+
+
+def run_recording(
+    store: Path,
+    raw: Path | None,
+    *,
+    until: str | None = None,
+    overrides: Mapping[str, Any] | Sequence[str] | None = None,
+    config_path: Path | None = None,
+    dry_run: bool = False,
+    force: bool = False,
+    command: str | None = None,
+    progress: Progress = no_progress,
+) -> RunSummary:
+    """Run the pipeline on one recording: the steps up to ``until`` that are not current.
+
+    Parameters
+    ----------
+    store : the recording's store (created by the first step).
+    raw : its raw folder (:func:`vfcli.io.raw_folder.find_raw_files`); None: the ingest steps
+        are skipped (the store's /hsc and /ldv are used as they are).
+    until : last step (a name of :data:`STEPS`); default: all.
+    overrides : config values for this run, ``{"section.field": value}`` (or ``--set`` items).
+    config_path : recording.toml (stored with the recording); default: the raw folder's own.
+    dry_run : say what would run and why, write nothing.
+    force : rerun every step.
+    command : the command line recorded in the stages' provenance.
+
+    Raises
+    ------
+    VfcliError
+        A user error of a step (with its exit code); the steps before it are committed.
+    """
+    t_start = time.perf_counter()
+    store = Path(store)
+    steps = _steps_until(until)
+    raw_files = None
+    if raw is not None and any(s in _RAW_STEPS for s in steps):
+        raw_files = find_raw_files(raw, need_pressure="sync" in steps or "ingest-hsc" in steps)
+    if config_path is None and raw_files is not None:
+        config_path = raw_files.config
+    items = _override_items(overrides)
+    command = command or f"vfcli run {store}" + (f" --raw {raw}" if raw is not None else "")
+
+    def context() -> RunContext:  # reopened per step: each step sees the store as the last one left it
+        return RunContext.open(store, config_path, items, command=command, force=force, progress=progress)
+
+    ctx = context()
+    active = [s for s in steps if raw_files is not None or s not in _RAW_STEPS]
+    why = plan(ctx, raw_files, active)
+    outcomes: list[StageOutcome] = []
+    for step in STEPS:
+        if step not in steps:
+            outcomes.append(StageOutcome(step, "skipped", f"after --until {until}"))
+        elif step not in active:
+            outcomes.append(StageOutcome(step, "skipped", "no raw folder given (--raw): the store's group is used"))
+        elif dry_run:
+            outcomes.append(StageOutcome(step, "would run" if why[step] else "up to date",
+                                         why[step] or "inputs and config unchanged"))
+    if dry_run:
+        return RunSummary(store, outcomes, True, time.perf_counter() - t_start)
+    done: list[StageOutcome] = []
+    for step in active:
+        collect = _Collect()
+        logger = logging.getLogger("vfcli")
+        logger.addHandler(collect)
+        t0 = time.perf_counter()
+        try:
+            results = _run_step(step, context(), raw_files)
+        finally:
+            logger.removeHandler(collect)
+        ran = any(r.status == "written" for r in results)
+        reason = (why[step] or "rewritten with unchanged inputs") if ran else "inputs and config unchanged"
+        if not ran and why[step]:
+            reason = f"inputs and config unchanged ({why[step]}, with the same content)"
+        done.append(StageOutcome(step, "ran" if ran else "up to date", reason, time.perf_counter() - t0,
+                                 collect.messages))
+        log.info("%s: %s (%s)", step, done[-1].action, reason)
+    by_name = {o.name: o for o in [*outcomes, *done]}
+    ordered = [by_name[s] for s in STEPS]
+    return RunSummary(store, ordered, True, time.perf_counter() - t_start)
