@@ -95,6 +95,8 @@ def open_client(
     """
     dask = require("dask")
     distributed = require("distributed")
+    if not log.isEnabledFor(logging.INFO):  # dask's own INFO lines (scheduler, nannies) only with -v
+        logging.getLogger("distributed").setLevel(logging.WARNING)
     with ExitStack() as stack:
         stack.enter_context(dask.config.set({"distributed.scheduler.allowed-failures": allowed_failures}))
         if scheduler:
@@ -115,7 +117,7 @@ def open_client(
             client = distributed.Client(cluster)
         else:
             cluster = stack.enter_context(distributed.LocalCluster(
-                n_workers=workers or 2, threads_per_worker=1, processes=True, dashboard_address=None,
+                n_workers=workers or 2, threads_per_worker=1, processes=True, dashboard_address=":0",
                 silence_logs=logging.ERROR))
             client = distributed.Client(cluster)
         stack.enter_context(client)
