@@ -8,39 +8,28 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from conftest import ROOT, run_vfcli
+from _batch_phantoms import synth
+from conftest import run_vfcli
 from vfcli.batch.ledger import Ledger
 from vfcli.batch.manifest import parse_manifest, read_manifest
 from vfcli.errors import ConfigError
 
-#: A phantom small enough for a batch test (about 15 s to make, 10 s to ingest and sync).
-TINY = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.04", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-        "synth.width_px=128", "synth.height_px=128", "synth.px_per_mm=8", "synth.supersample=1"]
 SEEDS = (41, 42, 43)
-
-
-def _synth(out: Path, seed: int) -> subprocess.Popen:
-    args = [sys.executable, "-m", "vfcli.cli.main", "synth", str(out), "--seed", str(seed), "-q"]
-    for s in TINY:
-        args += ["--set", s]
-    return subprocess.Popen(args, env={**os.environ, "PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE, text=True)
 
 
 @pytest.fixture(scope="module")
 def raws(tmp_path_factory) -> list[Path]:
     base = tmp_path_factory.mktemp("batch_raw")
     outs = [base / f"rec{s}" for s in SEEDS]
-    procs = [_synth(o, s) for o, s in zip(outs[:2], SEEDS[:2])]  # two at a time (2 cores)
+    procs = [synth(o, s) for o, s in zip(outs[:2], SEEDS[:2])]  # two at a time (2 cores)
     procs[0].wait()
-    procs.append(_synth(outs[2], SEEDS[2]))
+    procs.append(synth(outs[2], SEEDS[2]))
     for p in procs:
         assert p.wait() == 0, p.stderr.read()
     return outs

@@ -6,6 +6,7 @@ import json
 import click
 
 from vfcli.cli.common import setup_logging
+from vfcli.errors import ConfigError
 
 EPILOG = """\b
 Runs on an in-process Dask LocalCluster (--workers processes, one thread each) unless
@@ -28,12 +29,14 @@ The ledger <MANIFEST>.ledger.json records each outcome; a rerun skips what is fi
 @click.option("--until", metavar="STAGE", help="Last stage for every recording (over the manifest's).")
 @click.option("--retries", type=click.IntRange(0, 100), help="Reruns of a recording whose worker died (default: the manifest's, else 2).")
 @click.option("--fresh", is_flag=True, help="Ignore the ledger: run every recording (stages still run only when stale).")
+@click.option("--job-script", is_flag=True, help="Print the SLURM/PBS job script one worker job runs (scheduler address "
+              "as a placeholder) and exit; submits nothing.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 @click.option("--quiet", "-q", is_flag=True, help="Print errors only.")
 @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
-def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, as_json, quiet, verbose):  # type: ignore[no-untyped-def]
+def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, job_script, as_json, quiet, verbose):  # type: ignore[no-untyped-def]
     """Run the pipeline over every recording listed in MANIFEST (TOML or CSV)."""
-    from vfcli.batch.cluster import open_client, parse_options, require
+    from vfcli.batch.cluster import job_script as make_job_script, open_client, parse_options, require
     from vfcli.batch.engine import run_batch
     from vfcli.batch.manifest import read_manifest
 
@@ -43,6 +46,11 @@ def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, a
     slurm_opts = {**m.slurm, **parse_options(slurm, "--slurm")} if (slurm or (m.slurm and not pbs)) else {}
     pbs_opts = {**m.pbs, **parse_options(pbs, "--pbs")} if (pbs or (m.pbs and not slurm_opts)) else {}
     n_retries = m.retries if retries is None else retries
+    if job_script:
+        if not (slurm_opts or pbs_opts):
+            raise ConfigError("--job-script: no SLURM or PBS settings (--slurm/--pbs or [batch.slurm]/[batch.pbs])")
+        click.echo(make_job_script("slurm" if slurm_opts else "pbs", slurm_opts or pbs_opts), nl=False)
+        return
 
     def progress(outcome):  # type: ignore[no-untyped-def]
         if not (quiet or as_json):
