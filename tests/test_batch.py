@@ -8,6 +8,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -15,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from _batch_phantoms import synth
-from conftest import run_vfcli
+from conftest import ROOT, run_vfcli
 from vfcli.batch.ledger import Ledger
 from vfcli.batch.manifest import parse_manifest, read_manifest
 from vfcli.errors import ConfigError
@@ -206,3 +208,24 @@ def test_a_worker_killed_mid_batch_loses_no_recording_and_damages_no_store(tmp_p
         store = tmp_path / "work" / f"{r.name}.h5"
         _verify(store)
         assert not list(store.parent.glob(f"{store.name}.tmp-*"))
+
+
+def test_without_dask_batch_says_what_to_install(tmp_path):
+    """dask not installed (a sitecustomize makes its import fail): one line, exit 2."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(
+        "import sys\n"
+        "class _NoDask:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name.split('.')[0] in ('dask', 'distributed', 'dask_jobqueue'):\n"
+        "            raise ImportError(f'No module named {name!r}')\n"
+        "sys.meta_path.insert(0, _NoDask())\n")
+    manifest = tmp_path / "b.toml"
+    manifest.write_text('[[recording]]\nraw = "raw/a"\n')
+    env = {**os.environ, "PYTHONPATH": f"{site}{os.pathsep}{ROOT}"}
+    res = subprocess.run([sys.executable, "-m", "vfcli.cli.main", "batch", str(manifest)], capture_output=True,
+                         text=True, env=env, timeout=120)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines() == ["vfcli batch: error: `vfcli batch` needs dask[distributed]: "
+                                               "pip install 'vfcli[batch]'"]

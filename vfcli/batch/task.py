@@ -12,6 +12,7 @@ resubmits the recording; the store is untouched by a killed writer
 from __future__ import annotations
 
 import os
+import resource
 import time
 import traceback
 from pathlib import Path
@@ -41,7 +42,8 @@ def run_entry(entry_json: Mapping[str, Any]) -> dict[str, Any]:
     dict
         ``name``, ``status`` ("done" | "up to date" | "failed"), ``error`` (one line, or
         None), ``exit_code`` (the code `vfcli run` would exit with), ``seconds`` (wall time),
-        ``pid`` (the process that ran it), ``summary`` (:meth:`RunSummary.to_json`, None on
+        ``pid`` (the process that ran it), ``max_rss_mb`` (the peak resident memory of that
+        process so far, MB: an upper bound for this recording's), ``summary`` (:meth:`RunSummary.to_json`, None on
         error) and ``traceback`` (only for a bug).
     """
     from vfcli.stages.run import run_recording
@@ -64,4 +66,5 @@ def run_entry(entry_json: Mapping[str, Any]) -> dict[str, Any]:
         out.update(status="failed", error=f"internal error: {type(exc).__name__}: {exc}", exit_code=EXIT_INTERNAL,
                    traceback=traceback.format_exc())
     out["seconds"] = round(time.perf_counter() - t0, 3)
+    out["max_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)  # Linux: KiB
     return out
