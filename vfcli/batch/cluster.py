@@ -51,6 +51,20 @@ def parse_options(items: list[str] | tuple[str, ...], where: str) -> dict[str, A
     return out
 
 
+def jobqueue_choice(manifest_slurm: Mapping[str, Any], manifest_pbs: Mapping[str, Any],
+                    slurm_items: list[str] | tuple[str, ...] = (), pbs_items: list[str] | tuple[str, ...] = ()
+                    ) -> tuple[str, dict[str, Any]] | None:
+    """("slurm" | "pbs", options) from the manifest's ``[batch.slurm]``/``[batch.pbs]`` and the
+    ``--slurm``/``--pbs`` items (which win, key by key, and choose the kind); None: neither."""
+    if slurm_items and pbs_items:
+        raise ConfigError("--slurm and --pbs: choose one")
+    if slurm_items or (manifest_slurm and not pbs_items):
+        return "slurm", {**manifest_slurm, **parse_options(slurm_items, "--slurm")}
+    if pbs_items or manifest_pbs:
+        return "pbs", {**manifest_pbs, **parse_options(pbs_items, "--pbs")}
+    return None
+
+
 def job_kwargs(options: Mapping[str, Any]) -> dict[str, Any]:
     """dask-jobqueue keyword arguments: :data:`JOB_DEFAULTS` overridden by ``options``, less
     vfcli's own keys (``jobs``)."""
@@ -77,8 +91,7 @@ def open_client(
     *,
     scheduler: str | None = None,
     workers: int | None = None,
-    slurm: Mapping[str, Any] | None = None,
-    pbs: Mapping[str, Any] | None = None,
+    jobqueue: tuple[str, Mapping[str, Any]] | None = None,
     allowed_failures: int = 2,
 ) -> Iterator[Any]:
     """A ``distributed.Client`` for a batch, closed (with any cluster it started) on exit.
@@ -87,8 +100,8 @@ def open_client(
     ----------
     scheduler : address of a running scheduler (``tcp://host:8786``); wins over the rest.
     workers : processes of the local cluster (default 2), one thread each.
-    slurm, pbs : dask-jobqueue cluster options (a ``jobs`` key: jobs to scale to, default
-        ``workers`` or 1); a non-empty one starts a SLURMCluster / PBSCluster.
+    jobqueue : ("slurm" | "pbs", dask-jobqueue cluster options) (:func:`jobqueue_choice`; a
+        ``jobs`` key: jobs to scale to, default ``workers`` or 1): starts a SLURMCluster / PBSCluster.
     allowed_failures : times a task is rescheduled after its worker died before the task ends
         with ``KilledWorker`` (the scheduler's ``distributed.scheduler.allowed-failures``; for
         a running scheduler, its own setting holds).
@@ -104,8 +117,8 @@ def open_client(
                 client = distributed.Client(scheduler, timeout="20s")
             except OSError as exc:
                 raise ConfigError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})") from None
-        elif slurm or pbs:
-            kind, options = ("slurm", slurm) if slurm else ("pbs", pbs)
+        elif jobqueue:
+            kind, options = jobqueue
             jq = require("dask_jobqueue")
             cls = jq.SLURMCluster if kind == "slurm" else jq.PBSCluster
             try:

@@ -85,6 +85,7 @@ def run_batch(
     *,
     until: str | None = None,
     fresh: bool = False,
+    retries: int | None = None,
     on_outcome: Callable[[dict[str, Any]], None] | None = None,
 ) -> BatchSummary:
     """Run every recording of ``manifest`` on ``client`` and return how each ended.
@@ -95,6 +96,8 @@ def run_batch(
     client : a ``distributed.Client`` (:func:`vfcli.batch.cluster.open_client`).
     until : last stage for every recording (wins over the manifest's).
     fresh : ignore the ledger (run every recording; ``vfcli run`` still skips current stages).
+    retries : reruns after a worker died that the client's scheduler allows (for the message
+        of a recording that ran out of them); default the manifest's.
     on_outcome : called with each recording's outcome as it ends (progress lines).
 
     The ledger ``<manifest>.ledger.json`` is rewritten after each recording.
@@ -124,7 +127,7 @@ def run_batch(
         try:
             outcome = future.result()
         except Exception as exc:  # KilledWorker after allowed-failures, a lost scheduler connection
-            outcome = _lost(entry, exc, manifest.retries)
+            outcome = _lost(entry, exc, manifest.retries if retries is None else retries)
         ledger.record(entry, outcome)
         outcomes[entry.name] = outcome
         log.info("batch: %s %s", entry.name, outcome["status"])

@@ -36,40 +36,33 @@ The ledger <MANIFEST>.ledger.json records each outcome; a rerun skips what is fi
 @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
 def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, job_script, as_json, quiet, verbose):  # type: ignore[no-untyped-def]
     """Run the pipeline over every recording listed in MANIFEST (TOML or CSV)."""
-    from vfcli.batch.cluster import job_script as make_job_script, open_client, parse_options, require
+    from vfcli.batch.cluster import job_script as make_job_script, jobqueue_choice, open_client, require
     from vfcli.batch.engine import run_batch
     from vfcli.batch.manifest import read_manifest
 
     setup_logging(verbose, quiet)
     require("distributed")
     m = read_manifest(manifest)
-    slurm_opts = {**m.slurm, **parse_options(slurm, "--slurm")} if (slurm or (m.slurm and not pbs)) else {}
-    pbs_opts = {**m.pbs, **parse_options(pbs, "--pbs")} if (pbs or (m.pbs and not slurm_opts)) else {}
-    n_retries = m.retries if retries is None else retries
+    jobqueue = None if scheduler else jobqueue_choice(m.slurm, m.pbs, slurm, pbs)
     if job_script:
-        if not (slurm_opts or pbs_opts):
+        if jobqueue is None:
             raise ConfigError("--job-script: no SLURM or PBS settings (--slurm/--pbs or [batch.slurm]/[batch.pbs])")
-        click.echo(make_job_script("slurm" if slurm_opts else "pbs", slurm_opts or pbs_opts), nl=False)
+        click.echo(make_job_script(*jobqueue), nl=False)
         return
 
     def progress(outcome):  # type: ignore[no-untyped-def]
         if not (quiet or as_json):
             err = f": {outcome['error']}" if outcome.get("error") else ""
-            click.echo(f"{outcome['name']}: {outcome['status']}{err}", err=True)
+            resumed = " (ledger)" if outcome.get("resumed") else ""
+            click.echo(f"{outcome['name']}: {outcome['status']}{resumed}{err}", err=True)
 
-    with open_client(scheduler=scheduler, workers=workers or m.workers, slurm=slurm_opts if not scheduler else None,
-                     pbs=pbs_opts if not scheduler else None, allowed_failures=n_retries) as client:
-        summary = run_batch(m if retries is None else _with_retries(m, retries), client, until=until, fresh=fresh,
-                            on_outcome=progress)
+    n_retries = m.retries if retries is None else retries
+    with open_client(scheduler=scheduler, workers=workers or m.workers, jobqueue=jobqueue,
+                     allowed_failures=n_retries) as client:
+        summary = run_batch(m, client, until=until, fresh=fresh, retries=n_retries, on_outcome=progress)
     if as_json:
         click.echo(json.dumps(summary.to_json(), indent=2, default=str))
     elif not quiet:
         click.echo(summary.table())
     if summary.exit_code:
         click.get_current_context().exit(summary.exit_code)
-
-
-def _with_retries(m, retries):  # type: ignore[no-untyped-def]
-    from dataclasses import replace
-
-    return replace(m, retries=retries)
