@@ -70,6 +70,8 @@ class QuasiStaticResponse:
         vop = model.vertex_operator()
         out = np.empty((3 * self.n_vertices, load_model.n_spatial))
         spans = [(a, min(a + chunk, load_model.n_spatial)) for a in range(0, load_model.n_spatial, chunk)]
+        if map is not None and hasattr(model, "factorize"):
+            model.factorize()  # once here, not by racing threads of a pool
         solved = (builtins.map if map is None else map)(
             functools.partial(_basis_block, model, vop), [loads[:, a:b] for a, b in spans])
         for (a, b), block in zip(spans, solved, strict=True):
