@@ -87,6 +87,7 @@ def test_csv_manifest_reads_the_same_fields(tmp_path):
     ('[batch]\nworkers = 0\n[[recording]]\nraw = "a"\n', "workers = 0"),
     ('[[recording]]\nraw = "a"\nset = { median_px = 3 }\n', "section.field"),
     ("[batch]\n", "no recording"),
+    ('[batch]\nuntil = "fields"\n[[recording]]\nraw = "a"\n', "until = 'fields' is not a step"),
     ("[[recording]\n", "not valid TOML"),
 ])
 def test_bad_manifests_are_one_config_error_naming_the_problem(tmp_path, text, says):

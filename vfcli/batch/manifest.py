@@ -138,8 +138,11 @@ def _entry(row: Mapping[str, Any], base: Path, defaults: Mapping[str, Any], wher
         raise ConfigError(f"{where}: bad recording name {name!r}")
     store = _path(base, row["store"], where) if row.get("store") else base / "work" / f"{name}.h5"
     until = row.get("until") or defaults.get("until")
-    if until is not None and not isinstance(until, str):
-        raise ConfigError(f"{where}: 'until' must be a stage name, got {until!r}")
+    if until is not None:
+        from vfcli.stages.run import STEPS
+
+        if until not in STEPS:
+            raise ConfigError(f"{where}: until = {until!r} is not a step (steps: {', '.join(STEPS)})")
     config = _path(base, row["config"], where) if row.get("config") else None
     overrides = dict(defaults.get("set") or {})
     own = row.get("set") or {}

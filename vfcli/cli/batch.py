@@ -6,6 +6,7 @@ import json
 import click
 
 from vfcli.cli.common import setup_logging
+from vfcli.cli.run import STEP_NAMES
 from vfcli.errors import ConfigError
 
 EPILOG = """\b
@@ -26,7 +27,7 @@ The ledger <MANIFEST>.ledger.json records each outcome; a rerun skips what is fi
               help="Run on SLURM jobs (dask-jobqueue SLURMCluster argument, e.g. queue=normal, memory=4GB, "
                    "walltime=01:00:00, jobs=8); repeatable, over [batch.slurm].")
 @click.option("--pbs", "pbs", multiple=True, metavar="KEY=VALUE", help="The same for PBS (PBSCluster), over [batch.pbs].")
-@click.option("--until", metavar="STAGE", help="Last stage for every recording (over the manifest's).")
+@click.option("--until", type=click.Choice(STEP_NAMES), help="Last step for every recording (over the manifest's).")
 @click.option("--retries", type=click.IntRange(0, 100), help="Reruns of a recording whose worker died (default: the manifest's, else 2).")
 @click.option("--fresh", is_flag=True, help="Ignore the ledger: run every recording (stages still run only when stale).")
 @click.option("--job-script", is_flag=True, help="Print the SLURM/PBS job script one worker job runs (scheduler address "
