@@ -7,7 +7,8 @@ Writes N tiny phantom recordings (`vfcli synth`, not timed), then for N = 1, 2, 
 * batch: ``vfcli batch manifest.toml --workers W`` on fresh stores (the cluster's start and
   stop included).
 
-Prints a markdown table: total wall time and time per recording of both, and the speed-up.
+Prints a markdown table: total wall time and time per recording of both, the CPU time their
+processes used (user + system, workers included), and the speed-up (loop wall / batch wall).
 Each recording runs up to ``--until`` (default: flow) with a small optimize when it is
 included (recording.toml's [optimize]: 20 frames, 3 iterations, no uncertainty).
 
@@ -20,6 +21,7 @@ Reproduce::
 from __future__ import annotations
 
 import argparse
+import resource
 import shutil
 import subprocess
 import sys
@@ -61,6 +63,20 @@ def make_phantoms(raw: Path, n: int) -> list[Path]:
     return outs
 
 
+def _cpu_children() -> float:
+    """User + system CPU time of every finished child process so far (their own children
+    included once waited for), s."""
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def timed(fn, *args) -> tuple[float, float]:
+    """(wall time, CPU time of the child processes) of ``fn(*args)``, s."""
+    c0, t0 = _cpu_children(), time.perf_counter()
+    fn(*args)
+    return time.perf_counter() - t0, _cpu_children() - c0
+
+
 def loop(raws: list[Path], work: Path, until: str) -> float:
     """Wall time of a plain loop of `vfcli run` over ``raws`` (fresh stores), s."""
     shutil.rmtree(work, ignore_errors=True)
@@ -95,13 +111,15 @@ def main() -> None:
     base = args.dir or Path(tempfile.mkdtemp(prefix="bench_batch_"))
     raws = make_phantoms(base / "raw", max(args.n))
     print(f"until {args.until}, LocalCluster of {args.workers} worker processes (1 thread each)\n")
-    print("| recordings | loop total (s) | loop per recording (s) | batch total (s) | batch per recording (s) | speed-up |")
-    print("|---:|---:|---:|---:|---:|---:|")
+    print("| recordings | loop total (s) | loop per recording (s) | loop CPU (s) | batch total (s) "
+          "| batch per recording (s) | batch CPU (s) | speed-up |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n in args.n:
-        t_loop = loop(raws[:n], base / "work_loop", args.until)
-        t_batch = batch(raws[:n], base / "work_batch", args.until, args.workers)
-        print(f"| {n} | {t_loop:.1f} | {t_loop / n:.1f} | {t_batch:.1f} | {t_batch / n:.1f} | {t_loop / t_batch:.2f} |",
-              flush=True)
+        t_loop, c_loop = timed(loop, raws[:n], base / "work_loop", args.until)
+        t_batch, c_batch = timed(batch, raws[:n], base / "work_batch", args.until, args.workers)
+        print(f"| {n} | {t_loop:.1f} | {t_loop / n:.1f} | {c_loop:.1f} | {t_batch:.1f} | {t_batch / n:.1f} | {c_batch:.1f} "
+              f"| {t_loop / t_batch:.2f} |", flush=True)
+    print(f"\nload average at the end: {' '.join(f'{x:.1f}' for x in __import__('os').getloadavg())}")
     if args.dir is None:
         shutil.rmtree(base, ignore_errors=True)
 
