@@ -56,7 +56,7 @@ sys.path.insert(0, str(ROOT))
 from vfcli.camera.camera import Camera  # noqa: E402
 from vfcli.camera.pose import model_axes_velocity  # noqa: E402
 from vfcli.model.mesh import FoldMesh  # noqa: E402
-from vfcli.stages.mesh import read_mesh  # noqa: E402
+from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
 from vfcli.store.truth import read_truth  # noqa: E402
 from vfcli.synth.scoring import interval_coverage, iou, relative_rms_error, rms, side_truth  # noqa: E402

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The whole pipeline on the bundled phantom recording (made by `vfcli synth`).
-# Runs every stage that exists, in order, and says plainly which stages are still missing
-# or were skipped because a stage they need is missing. Never fakes a stage.
+# `vfcli run` runs every stage that is not up to date, in one process, then writes the export
+# folder and the HTML report; `vfcli mesh --preview` draws the (up-to-date) mesh. Rerunning the
+# demo does only what changed. Never fakes a stage: a failing step stops the demo with its code.
 # usage: examples/demo.sh [OUTDIR]      (make demo runs it with OUTDIR=demo)
 # EFFECT=random SEED=3 make demo   hides a physics effect in the phantom (named only in truth.h5)
 set -u
@@ -10,51 +11,28 @@ VF=${VFCLI:-.venv/bin/vfcli}
 RAW="$OUT/raw"
 STORE="$OUT/recording.h5"
 mkdir -p "$OUT"
-declare -A STATE   # stage -> done | missing | skipped
 
-step() {  # step NAME "NEEDS" ARGS...
-    local name=$1 needs=$2; shift 2
-    for n in $needs; do
-        if [ "${STATE[$n]:-}" != done ]; then
-            STATE[$name]=skipped
-            echo "-- vfcli $name: skipped (needs '$n', which is ${STATE[$n]:-not run})"
-            return
-        fi
-    done
-    echo "== vfcli $name $*"
-    "$VF" "$name" "$@"
+step() {  # step COMMAND ARGS...
+    echo "== vfcli $*"
+    "$VF" "$@"
     local rc=$?
-    case $rc in
-        0) STATE[$name]=done ;;
-        6) STATE[$name]=missing ;;
-        *) echo "demo: vfcli $name failed with exit code $rc" >&2; exit $rc ;;
-    esac
+    if [ $rc != 0 ]; then
+        echo "demo: vfcli $1 failed with exit code $rc" >&2
+        exit $rc
+    fi
 }
 
-step synth      ""                "$RAW" --seed "${SEED:-1}" --effect "${EFFECT:-none}"
-step ingest-hsc "synth"           "$STORE" "$RAW/video.cihx" --pressure "$RAW/video_pressure.tdms" --config "$RAW/recording.toml"
-step ingest-ldv "synth"           "$STORE" "$RAW/scan.uff"
-step sync       "ingest-hsc ingest-ldv" "$STORE"
-step flow       "sync"            "$STORE"
-step mesh       ""                "$STORE" --preview "$OUT/mesh.png"
-step optimize   "flow mesh"       "$STORE" --plot "$OUT/convergence.png" --uncertainty-map "$OUT/inferior_uncertainty.png"
-step export     "optimize"        "$STORE" --to "$OUT/export"
-step report     "ingest-hsc"      "$STORE" --out "$OUT/report.html"
+step synth "$RAW" --seed "${SEED:-1}" --effect "${EFFECT:-none}"
+step run "$STORE" --raw "$RAW" --export "$OUT/export" --report "$OUT/report.html"
+step mesh "$STORE" --preview "$OUT/mesh.png"
 
 echo
-echo "== results"
-for s in synth ingest-hsc ingest-ldv sync flow mesh optimize export report; do
-    printf '  %-11s %s\n' "$s" "${STATE[$s]:-not run}"
-done
-if [ -f "$STORE" ]; then
-    echo
-    "$VF" info "$STORE"
-    echo
-    echo "Results: store $STORE (open it with HDFView or h5dump)"
-    for f in "$OUT"/*.png; do [ -e "$f" ] && echo "         picture $f"; done
-    [ -d "$OUT/export/paraview" ] && echo "         ParaView: $OUT/export/paraview/*.vtkhdf (or *.pvd), video $OUT/export/video/overlay.mp4"
-    [ -f "$OUT/report.html" ] && echo "         report  $OUT/report.html (open it in a browser)"
-fi
-missing=$(for s in "${!STATE[@]}"; do [ "${STATE[$s]}" != done ] && echo "$s"; done | sort | tr '\n' ' ')
+"$VF" info "$STORE"
+echo
+echo "Results: store $STORE (open it with HDFView or h5dump)"
+for f in "$OUT"/*.png "$OUT"/export/figures/*.png; do [ -e "$f" ] && echo "         picture $f"; done
+[ -d "$OUT/export/paraview" ] && echo "         ParaView: $OUT/export/paraview/*.vtkhdf (or *.pvd), video $OUT/export/video/overlay.mp4"
+[ -f "$OUT/report.html" ] && echo "         report  $OUT/report.html (open it in a browser)"
+missing=$(for c in diagnose batch; do "$VF" "$c" --help 2>/dev/null | grep -q "NOT IMPLEMENTED YET" && printf '%s ' "$c"; done)
 [ -n "$missing" ] && echo "Not yet available in this version: $missing(see README, 'Status')"
 exit 0

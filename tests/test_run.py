@@ -5,14 +5,17 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import run_vfcli
+from conftest import ROOT, VFCLI, run_vfcli
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
@@ -39,6 +42,16 @@ def _run(store, raw, *args):
     assert res.returncode == 0, res.stderr
     out = json.loads(res.stdout)
     return {s["name"]: s for s in out["stages"]}, out
+
+
+def _copy_store(src: Path, dst: Path) -> None:
+    """A copy of the store under the same file name, with the folder of part files beside it when
+    the store has one (``<name>.parts/``, whose links are relative to the store's folder)."""
+    assert src.name == dst.name
+    shutil.copy(src, dst)
+    parts = src.with_name(src.name + ".parts")
+    if parts.is_dir():
+        shutil.copytree(parts, dst.with_name(dst.name + ".parts"))
 
 
 def _sha(path: Path) -> str:
@@ -90,7 +103,7 @@ def test_a_changed_raw_file_reruns_exactly_what_depends_on_it(phantom, tmp_path)
     # the recording moved (another folder, same bytes): nothing to do
     raw, store = tmp_path / "raw", tmp_path / "rec.h5"
     shutil.copytree(raw0, raw)
-    shutil.copy(store0, store)
+    _copy_store(store0, store)
     stages, _ = _run(store, raw, "--dry-run")
     assert {n: s["action"] for n, s in stages.items()} == {n: "up to date" for n in STEPS}
     # new bytes in the scan: /ldv and everything that uses it, not /hsc, /flow (video only) or /mesh
@@ -117,7 +130,7 @@ def test_a_changed_raw_file_reruns_exactly_what_depends_on_it(phantom, tmp_path)
 def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
     raw, store0, _, _ = phantom
     store = tmp_path / "rec.h5"
-    shutil.copy(store0, store)
+    _copy_store(store0, store)
     stages, _ = _run(store, raw, "--dry-run", "--set", "sync.n_harmonics=4")
     assert [n for n, s in stages.items() if s["action"] == "would run"] == ["sync", "flow", "optimize"]
     assert stages["sync"]["reason"].startswith("/sync: config changed") and "n_harmonics" in stages["sync"]["reason"]
@@ -136,6 +149,11 @@ def test_until_stops_and_the_library_entry_point(phantom, tmp_path):
         assert sorted(r.stage_paths()) == ["/hsc", "/ldv"] and r.attrs("hsc")["px_per_mm"] == 9.5
     res = run_vfcli("run", store, "--raw", raw, "--until", "nope")
     assert res.returncode == 2 and "nope" in res.stderr
+    # --quiet: nothing but errors, although ingest-ldv warns about the phantom's dropouts
+    res = run_vfcli("run", tmp_path / "quiet.h5", "--raw", raw, "--until", "ingest-ldv", "-q")
+    assert res.returncode == 0 and res.stdout == "" and res.stderr == "", (res.stdout, res.stderr)
+    with Store(tmp_path / "quiet.h5").read() as r:
+        assert any("dropout" in w for w in r.summary("ldv")["warnings"])  # stored all the same
 
 
 def test_the_raw_files_are_found_by_extension_or_named_in_a_manifest(phantom, tmp_path):
@@ -159,6 +177,9 @@ def test_the_raw_files_are_found_by_extension_or_named_in_a_manifest(phantom, tm
         find_raw_files(d)
     res = run_vfcli("run", tmp_path / "x.h5", "--raw", d)
     assert res.returncode == 3 and len(res.stderr.strip().splitlines()) == 1 and "vibrometer scan" in res.stderr
+    (d / FILES_MANIFEST).write_text('vidoe = "take2.tif"\n')
+    with pytest.raises(ConfigError, match="unknown key 'vidoe' \\(did you mean 'video'\\?\\)"):
+        find_raw_files(d)
     (d / FILES_MANIFEST).write_text('video = "nothere.avi"\n')
     with pytest.raises(InputDataError, match="nothere.avi"):
         find_raw_files(d)
@@ -171,3 +192,35 @@ def test_without_raw_the_ingest_steps_are_skipped_and_a_missing_stage_is_named(t
     stages = {s["name"]: s for s in json.loads(dry.stdout)["stages"]}
     assert stages["ingest-hsc"]["action"] == "skipped" and stages["sync"]["action"] == "would run"
     assert not (tmp_path / "none.h5").exists()
+
+
+def _modules_imported(*args) -> tuple[subprocess.CompletedProcess, set[str]]:
+    """Every module a `vfcli ARGS` run imports (`python -X importtime`)."""
+    res = subprocess.run([sys.executable, "-X", "importtime", *VFCLI[1:], *map(str, args)], capture_output=True,
+                         text=True, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=600)
+    return res, {line.split("|")[-1].strip() for line in res.stderr.splitlines() if line.startswith("import time:")}
+
+
+def test_run_exports_and_reports_and_figures_redraw_without_refitting(phantom, tmp_path):
+    raw, store0, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    _copy_store(store0, store)
+    before = _sha(store)
+    outs = ["--export", tmp_path / "export", "--report", tmp_path / "report.html"]
+    _, out = _run(store, raw, *outs)
+    assert [(o["name"], o["action"]) for o in out["outputs"]] == [("export", "ran"), ("report", "ran")]
+    assert (tmp_path / "export/figures/fig7_convergence.png").stat().st_size > 1000
+    assert (tmp_path / "report.html").read_text().startswith("<!DOCTYPE html>")
+    _, out = _run(store, raw, *outs)
+    assert [(o["name"], o["action"]) for o in out["outputs"]] == [("export", "up to date"), ("report", "up to date")]
+    # the figures again, for another screen point: drawn from the stored fit, no optimiser loaded, store unchanged
+    res, modules = _modules_imported("export", store, "--to", tmp_path / "redrawn", "--what", "figures",
+                                     "--point", "80,70")
+    assert res.returncode == 0, res.stderr
+    assert "vfcli.stages.export_job" in modules and "vfcli.inverse.optimizers.base" not in modules
+    assert not any(m.startswith(("vfcli.inverse.setup", "vfcli.stages.optimize")) for m in modules)
+    drawn = sorted(p.name for p in (tmp_path / "redrawn/figures").iterdir())
+    assert "fig7_convergence.png" in drawn and "fig8_velocities.png" in drawn
+    assert (tmp_path / "redrawn/figures/fig8_velocities.png").read_bytes() != (
+        tmp_path / "export/figures/fig8_velocities.png").read_bytes()  # redrawn for the new point
+    assert _sha(store) == before

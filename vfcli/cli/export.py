@@ -4,15 +4,14 @@ from __future__ import annotations
 import click
 
 from vfcli.cli.common import report, setup_logging
-from vfcli.stages.export import export_store
-from vfcli.stages.export_job import WHAT, parse_point, parse_what
+from vfcli.cli.choices import EXPORT_WHAT
 
 
 @click.command("export")
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--to", "out_dir", required=True, type=click.Path(file_okay=False), help="Folder to write into.")
 @click.option("--run", "runs", multiple=True, help="Run to export (repeatable; default: every run in the store).")
-@click.option("--what", default=",".join(WHAT), show_default=True, help="What to write, comma separated.")
+@click.option("--what", default=",".join(EXPORT_WHAT), show_default=True, help="What to write, comma separated.")
 @click.option("--time-ms", "times_ms", multiple=True, type=float,
               help="Time (ms) of an overlay PNG (repeatable; default: four times across the first run).")
 @click.option("--point", "points", multiple=True, metavar="COL,ROW",
@@ -29,6 +28,9 @@ def export_cmd(file, out_dir, runs, what, times_ms, points, fps, force, quiet, a
     Writes into DIR: paraview/<run>.vtkhdf (transient, ParaView 5.12+) and <run>.pvd + .vtu,
     video/overlay.mp4 (H.264) and PNG frames, figures/*.png|svg, tables/*.csv, export.json.
     """
+    from vfcli.stages.export import export_store
+    from vfcli.stages.export_job import parse_point, parse_what
+
     setup_logging(verbose, quiet)
     report(export_store(file, out_dir, list(runs) or None, parse_what(what), list(times_ms) or None, fps, force,
                         [parse_point(p) for p in points] or None), as_json)

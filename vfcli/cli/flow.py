@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import click
 
-from vfcli.stages.flow import run_flow
 from vfcli.cli.common import store_command
 
 
@@ -17,4 +16,6 @@ def flow_cmd(ctx):  # type: ignore[no-untyped-def]
     velocity (u, v, w), with w the thin-plate spline of the synced LDV points, and where
     it is valid.
     """
+    from vfcli.stages.flow import run_flow
+
     return run_flow(ctx)

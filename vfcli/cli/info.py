@@ -7,9 +7,6 @@ from typing import Any
 import click
 
 from vfcli.errors import StoreDamagedError
-from vfcli.stages.base import expected_configs
-from vfcli.store import layout
-from vfcli.store.info import store_info
 
 
 def _flag(st: dict[str, Any]) -> str:
@@ -54,6 +51,8 @@ def _details(info: dict[str, Any]) -> None:
 
 def _table(infos: list[dict[str, Any]]) -> None:
     """One row per store, one column per stage: ok, STALE, incomplete, or - (absent)."""
+    from vfcli.store import layout
+
     names = list(layout.STAGES)
     rows = []
     for info in infos:
@@ -83,6 +82,9 @@ def info_cmd(files: tuple[str, ...], as_json: bool, verify: bool) -> None:
     when a stage is damaged (its structure, or with --verify its data, differs from what vfcli
     wrote), after showing them all.
     """
+    from vfcli.stages.base import expected_configs
+    from vfcli.store.info import store_info
+
     infos = [store_info(f, expected_configs, verify=verify) for f in files]
     if as_json:
         click.echo(json.dumps(infos[0] if len(infos) == 1 else infos, indent=2, default=str))

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import click
 
-from vfcli.stages.ingest import run_ingest_hsc, run_ingest_ldv
 from vfcli.cli.common import store_command
 
 
@@ -17,6 +16,8 @@ def ingest_hsc_cmd(ctx, video: str, pressure: str | None):  # type: ignore[no-un
     Reads: raw files. Writes: /hsc (frames unchanged in bit depth, one frame per chunk,
     frame times; the pressure with its time axis). Config sections [ingest_hsc], [camera].
     """
+    from vfcli.stages.ingest import run_ingest_hsc
+
     return run_ingest_hsc(ctx, video, pressure)
 
 
@@ -30,4 +31,6 @@ def ingest_ldv_cmd(ctx, scan: str):  # type: ignore[no-untyped-def]
     velocity and pressure reference per point, dropout flags). Config sections
     [ingest_ldv], [ldv_frame].
     """
+    from vfcli.stages.ingest import run_ingest_ldv
+
     return run_ingest_ldv(ctx, scan)

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import click
 
-from vfcli.stages.mesh import run_mesh
 from vfcli.cli.common import store_command
 
 
@@ -16,4 +15,6 @@ def mesh_cmd(ctx, preview: str | None):  # type: ignore[no-untyped-def]
     Reads: the recording config. Writes: /mesh (nodes, tetrahedra, tagged boundary
     triangles, (u, v) maps of the inferior and superior sides).
     """
+    from vfcli.stages.mesh import run_mesh
+
     return run_mesh(ctx, preview)

@@ -3,20 +3,19 @@ from __future__ import annotations
 
 import click
 
-from vfcli.config import OptimizeConfig, RecordingConfig, apply_overrides, literal_choices
-from vfcli.stages.optimize import run_optimize
+from vfcli.cli.choices import OPTIMIZE_LOADS, OPTIMIZE_METHODS, OPTIMIZE_SETUPS
 from vfcli.cli.common import store_command
 
 
 @click.command("optimize")
 @store_command
 @click.option("--run", "run_name", default="default", show_default=True, help="Name of the run (/optimize/<run>).")
-@click.option("--setup", type=click.Choice(literal_choices(OptimizeConfig, "setup")),
+@click.option("--setup", type=click.Choice(OPTIMIZE_SETUPS),
               help="Fit the paper's free force field with this setup (sets optimize.loads='free'); "
                    "default: the pressure load model tied to the measured subglottal pressure.")
-@click.option("--loads", type=click.Choice(literal_choices(OptimizeConfig, "loads")),
+@click.option("--loads", type=click.Choice(OPTIMIZE_LOADS),
               help="Load model (overrides optimize.loads; with --setup, 'free-regularised' bounds the paper's field).")
-@click.option("--method", type=click.Choice(literal_choices(OptimizeConfig, "method")), help="Optimiser (overrides optimize.method).")
+@click.option("--method", type=click.Choice(OPTIMIZE_METHODS), help="Optimiser (overrides optimize.method).")
 @click.option("--resume", "resume_run", is_flag=True, help="Continue an interrupted run from its checkpoint.")
 @click.option("--plot", type=click.Path(dir_okay=False), help="Write the convergence plot to this PNG.")
 @click.option("--uncertainty-map", "uncertainty_plot", type=click.Path(dir_okay=False),
@@ -28,6 +27,9 @@ def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot, uncertai
     /optimize/<run> (control values, history of every iteration, reconstructed vertex
     displacements and their standard deviations). Config section [optimize].
     """
+    from vfcli.config import RecordingConfig, apply_overrides
+    from vfcli.stages.optimize import run_optimize
+
     # a --setup names one of the paper's free force fields
     sets = ([f"optimize.setup={setup!r}", "optimize.loads='free'"] if setup else [])
     sets += [f"optimize.loads={loads!r}"] if loads else []

@@ -9,10 +9,11 @@ from typing import Any
 
 import click
 
+from vfcli.cli.choices import RUN_STEPS
 from vfcli.cli.common import run_options, setup_logging
 
-#: The steps, for --until (kept here so that `vfcli run --help` imports no stage module).
-STEP_NAMES = ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize")
+#: The steps, for --until (`vfcli batch` imports this name too).
+STEP_NAMES = RUN_STEPS
 
 
 def _report_current(store: Path, out: Path) -> bool:

@@ -4,14 +4,13 @@ from __future__ import annotations
 import click
 
 from vfcli.cli.common import setup_logging
-from vfcli.store.frames import COMPRESSIONS
-from vfcli.store.share import copy_for_sharing
+from vfcli.cli.choices import FRAME_COMPRESSIONS
 
 
 @click.command("share")
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.argument("out", type=click.Path(dir_okay=False))
-@click.option("--compression", default="gzip", show_default=True, type=click.Choice(list(COMPRESSIONS)),
+@click.option("--compression", default="gzip", show_default=True, type=click.Choice(FRAME_COMPRESSIONS),
               help="Filter of the copy's video frames.")
 @click.option("--quiet", "-q", is_flag=True, help="Errors only.")
 def share_cmd(file: str, out: str, compression: str, quiet: bool) -> None:
@@ -21,6 +20,8 @@ def share_cmd(file: str, out: str, compression: str, quiet: bool) -> None:
 
     Reads FILE (never writes it); writes OUT (a new file).
     """
+    from vfcli.store.share import copy_for_sharing
+
     setup_logging(0, quiet)
     s = copy_for_sharing(file, out, compression)
     if not quiet:

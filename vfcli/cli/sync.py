@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import click
 
-from vfcli.stages.sync import run_sync
 from vfcli.cli.common import store_command
 
 
@@ -16,4 +15,6 @@ def sync_cmd(ctx):  # type: ignore[no-untyped-def]
     aligned and why not, and the vertical velocity on the video's frame times).
     Config section [sync].
     """
+    from vfcli.stages.sync import run_sync
+
     return run_sync(ctx)

@@ -3,15 +3,13 @@ from __future__ import annotations
 
 import click
 
-from vfcli.config import SynthConfig, literal_choices, load_config
-from vfcli.progress import make_progress
-from vfcli.stages.synth import run_synth
+from vfcli.cli.choices import SYNTH_EFFECTS
 from vfcli.cli.common import report, run_options, setup_logging
 
 
 @click.command("synth")
 @click.argument("outdir", type=click.Path(file_okay=False))
-@click.option("--effect", type=click.Choice(literal_choices(SynthConfig, "effect")), help="Hidden physics effect (default: none); 'random' names it only in truth.h5.")
+@click.option("--effect", type=click.Choice(SYNTH_EFFECTS), help="Hidden physics effect (default: none); 'random' names it only in truth.h5.")
 @click.option("--strength", type=float, help="Effect strength (see `synth.strength` in schemas/synth.schema.json).")
 @click.option("--seed", type=int, help="Random seed: the same seed writes the same bytes.")
 @run_options
@@ -23,6 +21,10 @@ def synth_cmd(outdir, effect, strength, seed, config_path, overrides, force, qui
     video.tif, video_pressure.tdms/.csv, scan.uff/.csv, recording.toml and truth.h5
     (which no other command reads).
     """
+    from vfcli.config import load_config
+    from vfcli.progress import make_progress
+    from vfcli.stages.synth import run_synth
+
     setup_logging(verbose, quiet)
     sets = list(overrides)
     sets += [f"synth.effect={effect!r}"] if effect else []

@@ -22,6 +22,7 @@ a phantom's ``truth.h5`` and ``phantom.json``) are ignored.
 """
 from __future__ import annotations
 
+import difflib
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,9 +61,12 @@ def _read_manifest(folder: Path) -> dict[str, str]:
         data = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    unknown = sorted(set(data) - {*_KINDS, "config"})
+    known = [*_KINDS, "config"]
+    unknown = sorted(set(data) - set(known))
     if unknown:
-        raise ConfigError(f"{path}: unknown key {unknown[0]!r} (known: video, pressure, ldv, config)")
+        near = difflib.get_close_matches(unknown[0], known, n=1)
+        hint = f"did you mean {near[0]!r}?" if near else "known: " + ", ".join(known)
+        raise ConfigError(f"{path}: unknown key {unknown[0]!r} ({hint})")
     bad = [k for k, v in data.items() if not isinstance(v, str)]
     if bad:
         raise ConfigError(f"{path}: {bad[0]} must be a file name (a string), not {data[bad[0]]!r}")

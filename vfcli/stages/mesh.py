@@ -6,18 +6,20 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.model.m5 import m5_params_from
-from vfcli.model.mesh import build_mesh
 from vfcli.store import StageWriter, StoreReader
-from vfcli.store.mesh import read_mesh
 from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
 
 def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:
-    """Mesh the folds (unless /mesh is up to date) and optionally render a preview PNG."""
+    """Mesh the folds (unless /mesh is up to date) and optionally render a preview PNG.
+
+    The meshing libraries are imported only when /mesh is written (an up-to-date call stays cheap)."""
     cfg = ctx.config.mesh
 
     def body(_reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        from vfcli.model.m5 import m5_params_from
+        from vfcli.model.mesh import build_mesh
+
         mesh = build_mesh(m5_params_from(cfg), cfg.target_edge_mm, cfg.min_ratio, cfg.min_dihedral_deg)
         for key, arr in mesh.to_arrays().items():
             s.put(key, arr)
@@ -39,6 +41,7 @@ def run_mesh(ctx: RunContext, preview: str | Path | None = None) -> StageResult:
     result = run_stage(ctx, "mesh", config_json=stage_config_json("mesh", ctx.config), body=body)
     if preview is not None:
         from vfcli.model.preview import render_mesh_png
+        from vfcli.store.mesh import read_mesh
 
         with ctx.store.read() as r:
             mesh = read_mesh(r)

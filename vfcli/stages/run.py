@@ -25,20 +25,17 @@ from vfcli.progress import Progress, no_progress
 from vfcli.stages.base import RunContext, StageResult, stage_config_json
 from vfcli.store import layout
 from vfcli.store.provenance import describe_inputs, same_inputs
+from vfcli.store.reader import StageStatus
 
 log = logging.getLogger(__name__)
 
-#: The steps in order: command name -> the store groups it writes ``[(stage, run)]``.
-STEPS: dict[str, list[tuple[str, str | None]]] = {
-    "ingest-hsc": [("hsc", None)],
-    "ingest-ldv": [("ldv", None)],
-    "sync": [("sync", None)],
-    "flow": [("flow", None), ("fields", None)],
-    "mesh": [("mesh", None)],
-    "optimize": [("optimize", "default")],
-}
 #: The optimisation run `vfcli run` writes.
 RUN_NAME = "default"
+#: The steps in order: command name -> the store groups it writes ``[(stage, run)]`` (from the layout).
+STEPS: dict[str, list[tuple[str, str | None]]] = {
+    step: [(st.name, RUN_NAME if st.has_runs else None) for st in layout.STAGES.values() if st.written_by == step]
+    for step in ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize")
+}
 _RAW_STEPS = ("ingest-hsc", "ingest-ldv")
 
 
@@ -110,10 +107,12 @@ def _input_paths(step: str, raw: RawFiles) -> list[Path]:
 
 
 def _upstream(name: str, ctx: RunContext) -> list[str]:
-    """Group paths stage ``name`` uses (as recorded in its provenance)."""
-    ups = {"sync": ["/hsc", "/ldv"], "flow": ["/hsc"], "fields": ["/flow", "/sync", "/ldv"],
-           "optimize": ["/mesh", "/fields", "/flow"] + (["/hsc"] if ctx.config.optimize.loads == "pressure" else [])}
-    return ups.get(name, [])
+    """Group paths stage ``name`` uses (as recorded in its provenance): the layout's ``reads``;
+    optimize reads /hsc (the pressure) only with the pressure loads."""
+    reads = layout.stage(name).reads
+    if name == "optimize" and ctx.config.optimize.loads != "pressure":
+        reads = tuple(r for r in reads if r != "hsc")
+    return [layout.stage(r).group_path() for r in reads]
 
 
 def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, str | None]:
@@ -127,7 +126,7 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
     """
     groups = {layout.stage(n).group_path(r): (step, n, r) for step in steps for n, r in STEPS[step]}
     reasons: dict[str, list[str]] = {step: [] for step in steps}
-    statuses: dict[str, Any] = {}
+    statuses: dict[str, StageStatus] = {}
     previous: dict[str, dict[str, Any]] = {}
     if ctx.store.exists():
         with ctx.store.read() as r:
@@ -139,14 +138,16 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
     for path, (step, name, _run) in groups.items():
         why: list[str] = []
         st = statuses.get(path)
+        # a step writing several groups (flow: /flow and /fields) says which group a reason is about
+        prefix = f"{path}: " if len(STEPS[step]) > 1 else ""
         if ctx.force:
             why.append("--force")
         elif st is None:
             why.append(f"{path} missing")
-        elif not st.complete or getattr(st, "damaged", None):
+        elif not st.complete or st.damaged:
             why.append(f"{path} incomplete or damaged")
         else:
-            why += [f"{path}: {w}" if w.startswith("config") else w for w in st.stale_because]
+            why += [f"{path}: {w}" if w.startswith("config") else prefix + w for w in st.stale_because]
             if step in _RAW_STEPS and raw is not None:
                 old = previous.get(step, {})
                 new = describe_inputs(_input_paths(step, raw), old)
@@ -155,8 +156,8 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
                     changed = [Path(p).name for p, v in new.items() if v["sha256"] not in known]
                     why.append("input changed: " + (", ".join(changed) or "a file was removed"))
             for up in _upstream(name, ctx):
-                if up in rewritten and not any(w.startswith(up + " ") for w in why):
-                    why.append(f"{up} is rewritten first")
+                if up in rewritten and not any(w.startswith(up + " ") or f": {up} " in w for w in why):
+                    why.append(f"{prefix}{up} is rewritten first")
         if why:
             rewritten.add(path)
             reasons[step] += why
@@ -203,6 +204,17 @@ class _Collect(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         self.messages.append(f"{record.levelname} {record.name}: {record.getMessage()}")
+
+
+def _warnings(ctx: RunContext, step: str, logged: list[str]) -> list[str]:
+    """The warnings a step that ran stored with its groups (also under ``--quiet``, which keeps
+    them from being logged), then those it logged besides, each once."""
+    stored: list[str] = []
+    with ctx.store.read() as r:
+        for name, run in STEPS[step]:
+            if r.has_stage(name, run):
+                stored += (r.summary(name, run) or {}).get("warnings", [])
+    return list(dict.fromkeys([*stored, *logged]))
 
 
 def run_recording(
@@ -277,9 +289,9 @@ def run_recording(
         ran = any(r.status == "written" for r in results)
         reason = (why[step] or "rewritten with unchanged inputs") if ran else "inputs and config unchanged"
         if not ran and why[step]:
-            reason = f"inputs and config unchanged ({why[step]}, with the same content)"
+            reason = f"unchanged after all ({why[step]}, with the same content)"
         done.append(StageOutcome(step, "ran" if ran else "up to date", reason, time.perf_counter() - t0,
-                                 collect.messages))
+                                 _warnings(ctx, step, collect.messages) if ran else collect.messages))
         log.info("%s: %s (%s)", step, done[-1].action, reason)
     by_name = {o.name: o for o in [*outcomes, *done]}
     ordered = [by_name[s] for s in STEPS]

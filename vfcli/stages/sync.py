@@ -10,7 +10,6 @@ import numpy as np
 
 from vfcli.errors import InputDataError
 from vfcli.store import StageWriter, StoreReader
-from vfcli.sync.align import sync_scan
 from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
 
 log = logging.getLogger(__name__)
@@ -49,10 +48,13 @@ def read_inputs(reader: StoreReader) -> SyncInputs:
 
 
 def run_sync(ctx: RunContext) -> StageResult:
-    """Phase-lock every LDV point to the video (/hsc pressure) and store the aligned velocities."""
+    """Phase-lock every LDV point to the video (/hsc pressure) and store the aligned velocities
+    (the alignment, and scipy with it, is imported only when /sync is written)."""
     cfg = ctx.config.sync
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        from vfcli.sync.align import sync_scan
+
         inp = read_inputs(reader)
         res = sync_scan(
             inp.pressure, inp.fs_pressure, inp.t0_pressure, inp.frame_time, inp.reference, inp.velocity, inp.fs_ldv,
