@@ -1,6 +1,6 @@
 """The layers stay apart, checked on the syntax tree of every module of vfcli/.
 
-1. The core (every module outside vfcli/store, vfcli/stages, vfcli/cli and vfcli/io) imports
+1. The core (every module outside vfcli/store, vfcli/stages, vfcli/cli, vfcli/io and vfcli/batch) imports
    none of vfcli.store, vfcli.stages, vfcli.cli, click or h5py; beyond the core, only the
    store imports h5py and only the CLI imports click.
 2. No module but those of vfcli/store/ spells an HDF5 stage path ("/flow", f"/optimize/{run}").
@@ -22,7 +22,7 @@ from vfcli.store import layout
 PKG = Path(__file__).resolve().parents[1] / "vfcli"
 MODULES = sorted(PKG.rglob("*.py"))
 STAGE_PATH = re.compile(r"^/(%s)(/|$)" % "|".join(map(re.escape, layout.STAGES)))
-EDGE_LAYERS = ("store", "stages", "cli", "io")
+EDGE_LAYERS = ("store", "stages", "cli", "io", "batch")  # batch: runs whole recordings (stages) on a cluster
 CORE_MAY_NOT_IMPORT = ("vfcli.store", "vfcli.stages", "vfcli.cli", "click", "h5py")
 STAGE_RUNNER = "vfcli.stages.base"
 #: `vfcli run`: calls every stage's runner in order, as the command line does one at a time.

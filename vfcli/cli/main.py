@@ -34,7 +34,7 @@ COMMANDS: dict[str, tuple[str | None, str]] = {
     "synth": ("vfcli.cli.synth:synth_cmd", "Write a phantom recording (raw instrument files) with known truth."),
     "diagnose": ("vfcli.cli.diagnose:diagnose_cmd", "Locate the mismatch and name the missing physics."),
     "report": ("vfcli.cli.report:report_cmd", "Write a self-contained HTML report of a recording (or an index of many)."),
-    "batch": (None, "Run the pipeline over many recordings (cluster)."),
+    "batch": ("vfcli.cli.batch:batch_cmd", "Run the pipeline over many recordings (Dask: local, a scheduler, SLURM/PBS)."),
     "config": ("vfcli.cli.config:config_cmd", "Store, update (--set) or show a recording's config."),
     "info": ("vfcli.cli.info:info_cmd", "Show a store's stages, provenance, sizes and staleness."),
     "share": ("vfcli.cli.share:share_cmd", "Copy a store with its video re-encoded (gzip) for HDFView/MATLAB users."),

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
@@ -150,7 +150,8 @@ def load_model(inputs: OptimizeInputs, cfg: OptimizeConfig, t_range: tuple[float
 
 
 def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
-                  pose: tuple[float, tuple[float, float]] | None) -> tuple[Problem, Setup]:
+                  pose: tuple[float, tuple[float, float]] | None, *,
+                  map: Callable[..., Iterable[Any]] | None = None) -> tuple[Problem, Setup]:
     """The optimisation problem: mesh, elastic model, load model, camera, measurement, weights.
 
     Parameters
@@ -161,6 +162,9 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
         The ``[optimize]`` settings.
     pose : (rotation_deg, (col, row) full-frame px) or None
         The configured camera pose, or None to estimate it (:func:`camera_pose`).
+    map : callable, optional
+        Runs the response's basis solves (:class:`QuasiStaticResponse`'s ``map``): a thread
+        pool's or a Dask client's map; default one after the other.
 
     Returns
     -------
@@ -180,7 +184,7 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     dt = float(times[1] - times[0])
     field = load_model(inputs, cfg, (float(times[0]), float(times[-1] + dt)))
     model = ElasticModel(inputs.mesh, inputs.youngs_modulus_pa, inputs.poisson_ratio, inputs.density_kg_m3)
-    response = QuasiStaticResponse(model, field)
+    response = QuasiStaticResponse(model, field, map=map)
     ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
     settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
                                  gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside,

@@ -265,6 +265,13 @@ class ElasticModel:
         free = self.free_dofs
         return self.stiffness[free][:, free].tocsr(), self.mass[free][:, free].tocsr()
 
+    def __getstate__(self) -> dict:
+        """Pickled without its factorisation (solver objects do not pickle): a process that
+        unpickles the model (a pool's or a Dask worker's) factorises it on its first solve."""
+        state = dict(self.__dict__)
+        state["_factors"] = [None, None]
+        return state
+
     # ------------------------------------------------------------ solving
     def factorize(self) -> None:
         """Factorise the free blocks (done lazily by :meth:`solve`)."""

@@ -17,7 +17,7 @@ import h5py
 import numpy as np
 
 from vfcli.errors import MissingStageError, StoreDamagedError, StoreFormatError, StoreLockedError
-from vfcli.store import integrity, layout
+from vfcli.store import integrity, layout, locking
 from vfcli.store.frames import FrameReader
 from vfcli.store.provenance import same_inputs
 
@@ -30,6 +30,9 @@ def open_h5(path: Path, mode: str, **kwargs: Any) -> h5py.File:
     try:
         return h5py.File(path, mode, **kwargs)
     except OSError as exc:
+        code = locking.lock_unsupported(exc)
+        if code:  # the file system has no locks (NFS, Lustre): not a lock held by another program
+            raise locking.hdf5_lock_unsupported_error(code, path) from None
         if "lock" in str(exc).lower():  # libhdf5's own file lock, held by a program writing the file
             raise StoreLockedError(f"another program holds the store open for writing ({_lock_holder(path)}; "
                                    "HDF5 file lock); close it and try again", path) from None

@@ -41,7 +41,7 @@ import numpy as np
 
 from vfcli import __version__
 from vfcli.errors import ConfigError, StoreAccessError, StoreDamagedError, StoreLockedError, VfcliError
-from vfcli.store import integrity, layout, migrate, parts, signals
+from vfcli.store import integrity, layout, locking, migrate, parts, signals
 from vfcli.store.chunks import encode_frames
 from vfcli.store.frames import CHUNK_CODECS, COMPRESSIONS, nbit_dataset
 from vfcli.store.provenance import content_digest
@@ -472,6 +472,8 @@ class Store:
         except OSError as exc:
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 return True
+            if locking.lock_unsupported(exc):
+                return False  # no locks on this file system: no writer can be seen (the write says so)
             raise
         finally:
             os.close(fd)
@@ -495,6 +497,8 @@ class Store:
                         "another vfcli process is writing this store; try again when it has finished",
                         self.path,
                     ) from None
+                if locking.lock_unsupported(exc):  # NFS/Lustre without locks (errno 37, 524)
+                    raise locking.flock_unsupported_error(exc.errno, self.path) from None
                 raise
             yield
         finally:

@@ -17,7 +17,10 @@ in :class:`vfcli.inverse.problem.Problem`.
 """
 from __future__ import annotations
 
+import builtins
+import functools
 import logging
+from typing import Callable, Iterable
 
 import numpy as np
 import scipy.sparse as sp
@@ -28,6 +31,13 @@ from vfcli.model.response.base import Linearization, SeparableTerm
 log = logging.getLogger(__name__)
 
 
+def _basis_block(model, vop, rhs) -> np.ndarray:
+    """(3 N, k) vertex displacements, mm, under the (n_dofs, k) loads ``rhs`` (dense or sparse):
+    one batch of the basis solves (a module-level function, so a process pool can run it)."""
+    rhs = rhs.toarray() if sp.issparse(rhs) else rhs
+    return vop @ model.solve(rhs)
+
+
 class QuasiStaticResponse:
     """Vertex displacements of a static linear-elastic model under a load model.
 
@@ -36,6 +46,11 @@ class QuasiStaticResponse:
     model : :class:`vfcli.model.fem.ElasticModel` (factorised on first use).
     load_model : :class:`vfcli.model.loads.force_field.LoadModel`.
     chunk : right-hand sides solved per batch (bounds the (n_dofs, chunk) work array).
+    map : ``map(func, iterable)``-like callable that runs the batches' solves (they are
+        independent) and yields their results in order; default the builtin ``map`` (one after
+        the other). A thread pool's ``map`` (the factorisation's solves release the GIL) or a
+        Dask client's (``lambda f, it: client.gather(client.map(f, list(it)))``, with a model
+        that pickles) spreads them; the basis is the same whatever the map.
 
     Attributes
     ----------
@@ -43,7 +58,8 @@ class QuasiStaticResponse:
         control value (the matrix R, reshaped).
     """
 
-    def __init__(self, model, load_model: LoadModel, chunk: int = 64) -> None:
+    def __init__(self, model, load_model: LoadModel, chunk: int = 64,
+                 map: Callable[..., Iterable[np.ndarray]] | None = None) -> None:
         self.load_model = load_model
         self.n_vertices = int(model.mesh.n_nodes)
         loads = load_model.spatial_loads(model)
@@ -53,11 +69,13 @@ class QuasiStaticResponse:
                               f"({model.n_dofs}, {load_model.n_spatial})")
         vop = model.vertex_operator()
         out = np.empty((3 * self.n_vertices, load_model.n_spatial))
-        for a in range(0, load_model.n_spatial, chunk):
-            b = min(a + chunk, load_model.n_spatial)
-            rhs = loads[:, a:b]
-            rhs = rhs.toarray() if sp.issparse(rhs) else rhs
-            out[:, a:b] = vop @ model.solve(rhs)
+        spans = [(a, min(a + chunk, load_model.n_spatial)) for a in range(0, load_model.n_spatial, chunk)]
+        if map is not None and hasattr(model, "factorize"):
+            model.factorize()  # once here, not by racing threads of a pool
+        solved = (builtins.map if map is None else map)(
+            functools.partial(_basis_block, model, vop), [loads[:, a:b] for a, b in spans])
+        for (a, b), block in zip(spans, solved, strict=True):
+            out[:, a:b] = block
         self.basis_ = out.reshape(self.n_vertices, 3, load_model.n_spatial)
         self._flat = out
         log.debug("response basis: %d vertices x %d spatial patterns", self.n_vertices, load_model.n_spatial)

@@ -1,0 +1,21 @@
+"""Tiny phantom recordings for the batch tests (test_batch.py, test_examples_batch.py)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from conftest import ROOT
+
+#: A phantom small enough for a batch test (about 15 s to make, 10 s to ingest and sync).
+TINY = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.04", "synth.target_edge_mm=2.0", "synth.n_phase=64",
+        "synth.width_px=128", "synth.height_px=128", "synth.px_per_mm=8", "synth.supersample=1"]
+
+
+def synth(out: Path, seed: int) -> subprocess.Popen:
+    """Start `vfcli synth` of a tiny phantom into ``out`` (wait on the returned process)."""
+    args = [sys.executable, "-m", "vfcli.cli.main", "synth", str(out), "--seed", str(seed), "-q"]
+    for s in TINY:
+        args += ["--set", s]
+    return subprocess.Popen(args, env={**os.environ, "PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE, text=True)
