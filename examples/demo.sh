@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # The whole pipeline on the bundled phantom recording (made by `vfcli synth`).
 # `vfcli run` runs every stage that is not up to date, in one process, then writes the export
-# folder and the HTML report; `vfcli mesh --preview` draws the (up-to-date) mesh. Rerunning the
-# demo does only what changed. Never fakes a stage: a failing step stops the demo with its code.
+# folder; `vfcli diagnose` locates where the fit and the recording disagree (and screens the
+# candidate physics); `vfcli report` writes the HTML report; `vfcli mesh --preview` draws the
+# (up-to-date) mesh. Rerunning the demo does only what changed. Never fakes a stage: a failing
+# step stops the demo with its code.
 # usage: examples/demo.sh [OUTDIR]      (make demo runs it with OUTDIR=demo)
 # EFFECT=random SEED=3 make demo   hides a physics effect in the phantom (named only in truth.h5)
 set -u
@@ -23,16 +25,16 @@ step() {  # step COMMAND ARGS...
 }
 
 step synth "$RAW" --seed "${SEED:-1}" --effect "${EFFECT:-none}"
-step run "$STORE" --raw "$RAW" --export "$OUT/export" --report "$OUT/report.html"
+step run "$STORE" --raw "$RAW" --export "$OUT/export"
+step diagnose "$STORE" --run default --map "$OUT/residual_map.png"
+step report "$STORE" --out "$OUT/report.html"
 step mesh "$STORE" --preview "$OUT/mesh.png"
 
 echo
 "$VF" info "$STORE"
 echo
-echo "Results: store $STORE (open it with HDFView or h5dump)"
+echo "Results: store $STORE with its folder $STORE.parts/ (open it with HDFView or h5dump)"
 for f in "$OUT"/*.png "$OUT"/export/figures/*.png; do [ -e "$f" ] && echo "         picture $f"; done
 [ -d "$OUT/export/paraview" ] && echo "         ParaView: $OUT/export/paraview/*.vtkhdf (or *.pvd), video $OUT/export/video/overlay.mp4"
 [ -f "$OUT/report.html" ] && echo "         report  $OUT/report.html (open it in a browser)"
-missing=$(for c in diagnose batch; do "$VF" "$c" --help 2>/dev/null | grep -q "NOT IMPLEMENTED YET" && printf '%s ' "$c"; done)
-[ -n "$missing" ] && echo "Not yet available in this version: $missing(see README, 'Status')"
 exit 0
