@@ -219,13 +219,13 @@ def build_report(reader: StoreReader, work: Path) -> str:
     if diag:
         for p in diag:
             plain, notes, summary = _stage_attrs(reader, p)
-            table = {k: v for k, v in {**summary, **plain}.items() if k not in ("lines", "words_json")}
+            shown = {k: v for k, v in {**summary, **plain}.items() if k not in ("lines", "words_json")}
             try:
                 lines = json.loads(plain.get("words_json") or "[]")
             except (TypeError, ValueError):
                 lines = []
             words = "".join(f"<li>{esc(line)}</li>" for line in lines)
-            parts.append(f"<h3>{esc(p)}</h3>" + (f"<ul>{words}</ul>" if words else "") + kv_table(table))
+            parts.append(f"<h3>{esc(p)}</h3>" + (f"<ul>{words}</ul>" if words else "") + kv_table(shown))
     else:
         parts.append('<p class="muted">No diagnosis in this store (`vfcli diagnose` has not run on it).</p>')
     for note in job.notes:
