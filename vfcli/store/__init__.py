@@ -1,7 +1,7 @@
 """The experiment store: one HDF5 file plus a parts folder per recording; the only package that imports h5py.
 
 Modules: :mod:`~vfcli.store.layout` (every group and dataset, the only place HDF5 paths are
-spelt), :mod:`~vfcli.store.transaction` (lock, atomic commit, :class:`StageWriter`),
+spelt), :mod:`~vfcli.store.transaction` (lock, atomic commit), :mod:`~vfcli.store.stage_writer` (:class:`StageWriter`),
 :mod:`~vfcli.store.parts` (the part files beside the store file; :func:`copy_store`),
 :mod:`~vfcli.store.migrate` (stores of an earlier vfcli), :mod:`~vfcli.store.signals`,
 :mod:`~vfcli.store.precision` (stored float precision),

@@ -2,7 +2,7 @@
 :class:`FrameReader`, which reads them back fast (N-bit chunks unpacked by numpy).
 
 Video frames are stored one frame per chunk with standard filters (shuffle + gzip, or
-N-bit for 12-bit video). :meth:`vfcli.store.transaction.StageWriter.write_frames` encodes
+N-bit for 12-bit video). :meth:`vfcli.store.stage_writer.StageWriter.write_frames` encodes
 the chunks itself, in worker threads (:mod:`vfcli.store.chunks`), and writes them with
 ``write_direct_chunk``; every HDF5 reader reads them as usual.
 """
