@@ -28,7 +28,7 @@ browser:
 	  else echo "error: $(CHROMIUM) missing; install Debian's chromium package as root (apt-get install chromium)" >&2; exit 2; fi; }
 
 test: venv browser
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # both cores, each test file on one worker (its fixtures built once)
 
 bench: venv
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
