@@ -4,8 +4,8 @@ vfcli before :mod:`vfcli.store.parts` kept every stage inside the store file, so
 copied all of it. The first write to such a store moves each stage of
 :data:`vfcli.store.layout.PART_STAGES` into its own part file (:func:`move_inline_stages`,
 one copy of the data, once) and the commit then writes a compact store file
-(:func:`compact_copy`; HDF5 never shrinks a file in place), after which a write costs what
-it writes. Values, attributes, manifests and digests are copied as they are: no stage
+(:func:`compact_copy`, which every commit writes: HDF5 never shrinks a file in place), after
+which a write costs what it writes. Values, attributes, manifests and digests are copied as they are: no stage
 becomes stale.
 """
 from __future__ import annotations
@@ -67,12 +67,6 @@ def move_inline_stages(f: h5py.File, store: Path, mode: int | None, written: lis
         parts.fsync_path(part_path)
         del f[path]
         f[path] = h5py.ExternalLink(target, path)
-
-
-def needs_compaction(f: h5py.File) -> bool:
-    """Whether the store file ``f`` is mostly free space (more than 4 MB and half of it)."""
-    free = f.id.get_freespace()
-    return free > (4 << 20) and free > f.id.get_filesize() // 2
 
 
 def compact_copy(f: h5py.File, dst: Path) -> None:

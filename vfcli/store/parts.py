@@ -33,7 +33,7 @@ from typing import Iterator
 import h5py
 from h5py import h5f, h5p
 
-from vfcli.errors import StoreSpaceError
+from vfcli.errors import StoreDamagedError, StoreFormatError, StoreSpaceError
 from vfcli.store.layout import PART_STAGES
 
 
@@ -74,21 +74,25 @@ def is_part_stage(name: str) -> bool:
     return name in PART_STAGES
 
 
+def _external_links(f: h5py.File) -> Iterator[tuple[h5py.Group, str, h5py.ExternalLink]]:
+    """``(group, key, link)`` of each external link of the index ``f``: the stages' and, in a
+    group of runs (/optimize, /diagnose), the runs'."""
+    for key in list(f):
+        link = f.get(key, getlink=True)
+        if isinstance(link, h5py.ExternalLink):
+            yield f, key, link
+        elif key in PART_STAGES and isinstance(link, h5py.HardLink):
+            runs = f[key]
+            for run in list(runs):
+                sub = runs.get(run, getlink=True)
+                if isinstance(sub, h5py.ExternalLink):
+                    yield runs, run, sub
+
+
 def referenced_parts(f: h5py.File) -> set[str]:
     """Link targets (file names relative to the store's folder) of the external links in the
     index ``f``: the stages' and, in a group of runs (/optimize, /diagnose), the runs'."""
-    out: set[str] = set()
-    for key in f:
-        link = f.get(key, getlink=True)
-        if isinstance(link, h5py.ExternalLink):
-            out.add(link.filename)
-        elif key in PART_STAGES and isinstance(link, h5py.HardLink):
-            runs = f[key]
-            for run in runs:
-                sub = runs.get(run, getlink=True)
-                if isinstance(sub, h5py.ExternalLink):
-                    out.add(sub.filename)
-    return out
+    return {link.filename for _g, _k, link in _external_links(f)}
 
 
 def own_parts(store: Path) -> list[Path]:
@@ -123,13 +127,53 @@ def reader_lock(store: Path) -> Iterator[None]:
         os.close(fd)
 
 
+def _sibling_references(store: Path) -> set[str]:
+    """Names of the part files of ``store``'s folder that OTHER store files beside it link to
+    (a hand copy ``cp rec.h5 rec2.h5`` links into ``rec.h5.parts/`` until its first write
+    gives it its own parts, :func:`adopt_foreign_parts`). Files that are not readable vfcli
+    indexes are skipped."""
+    folder = parts_dir(store).name
+    out: set[str] = set()
+    try:
+        siblings = [p for p in store.parent.iterdir() if p.suffix in _INDEX_SUFFIXES and p.name != store.name]
+    except OSError:
+        return out
+    for p in siblings:
+        try:
+            if not p.is_file() or os.path.realpath(p) == str(store):
+                continue
+            with h5py.File(p, "r", locking=False) as f:
+                if f.attrs.get("format") != "vfcli-store":
+                    continue
+                out |= {Path(t).name for t in referenced_parts(f) if Path(t).parent.name == folder}
+        except (OSError, KeyError, ValueError, RuntimeError):
+            continue
+    return out
+
+
+#: File name endings of the store files whose links :func:`collect_garbage` respects.
+_INDEX_SUFFIXES = (".h5", ".hdf5", ".hdf", ".nc")
+
+
+def unreferenced_parts(store: Path, keep: set[str]) -> list[Path]:
+    """The part files of ``store`` that neither ``keep`` (link targets, as
+    :func:`referenced_parts` gives them) nor another store file beside it links to."""
+    own = own_parts(store)
+    keep_names = {Path(k).name for k in keep if Path(k).parent.name == parts_dir(store).name}
+    gone = [p for p in own if p.name not in keep_names]
+    if gone:
+        shared = _sibling_references(store)
+        gone = [p for p in gone if p.name not in shared]
+    return gone
+
+
 def collect_garbage(store: Path, keep: set[str]) -> list[Path]:
     """Delete the part files of ``store`` that ``keep`` (link targets, as
-    :func:`referenced_parts` gives them) does not name, unless a reader holds the store open
+    :func:`referenced_parts` gives them) does not name and no other store file in the same
+    folder links to (a hand copy of the store file), unless a reader holds the store open
     (then nothing is deleted: the next writer tries again). Call under the write lock.
     Returns the deleted files."""
-    parts = own_parts(store)
-    if not parts:
+    if not own_parts(store):
         return []
     fd = os.open(_lock_file(store), os.O_RDWR | os.O_CREAT, 0o644)
     try:
@@ -139,13 +183,42 @@ def collect_garbage(store: Path, keep: set[str]) -> list[Path]:
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 return []
             raise
-        keep_names = {Path(k).name for k in keep if Path(k).parent.name == parts_dir(store).name}
-        gone = [p for p in parts if p.name not in keep_names]
+        gone = unreferenced_parts(store, keep)
         for p in gone:
             p.unlink(missing_ok=True)
         return gone
     finally:
         os.close(fd)
+
+
+def adopt_foreign_parts(f: h5py.File, store: Path, written: list[Path]) -> None:
+    """Give the store at real path ``store`` its own copy of every part file its (writable,
+    temporary) index ``f`` links to in ANOTHER store's parts folder (the index was copied by
+    hand, ``cp rec.h5 rec2.h5``), and point the links at them, so that neither store's later
+    writes delete what the other uses. A hard link where the file system allows (no data
+    copied; part files are never modified), else a copy. Appends each new file to
+    ``written`` (removed if the write aborts). Links to missing files are left as they are."""
+    own = parts_dir(store)
+    for g, key, link in list(_external_links(f)):
+        target = Path(link.filename)
+        if target.parent.name == own.name and not target.is_absolute() and len(target.parts) == 2:
+            continue
+        src = store.parent / target
+        if not src.is_file():
+            continue
+        own.mkdir(exist_ok=True)
+        name = target.name if _PART_RE.match(target.name) else f"{target.stem}-{secrets.token_hex(8)}.h5"
+        dst = own / name
+        if dst.exists():
+            dst = own / f"{target.name.rsplit('-', 1)[0]}-{secrets.token_hex(8)}.h5"
+        written.append(dst)
+        try:
+            os.link(src, dst)
+        except OSError:
+            shutil.copy2(src, dst)
+            fsync_path(dst)
+        del g[key]
+        g[key] = h5py.ExternalLink(f"{own.name}/{dst.name}", link.path)
 
 
 def fsync_path(path: Path) -> None:
@@ -227,13 +300,10 @@ def relink(store: Path, old_folder: str) -> None:
     if old_folder == new_folder:
         return
     with h5py.File(store, "r+") as f:
-        groups = [f] + [f[k] for k in f if k in PART_STAGES and isinstance(f.get(k, getlink=True), h5py.HardLink)]
-        for g in groups:
-            for key in list(g):
-                link = g.get(key, getlink=True)
-                if isinstance(link, h5py.ExternalLink) and link.filename.startswith(old_folder + "/"):
-                    del g[key]
-                    g[key] = h5py.ExternalLink(new_folder + link.filename[len(old_folder):], link.path)
+        for g, key, link in list(_external_links(f)):
+            if link.filename.startswith(old_folder + "/"):
+                del g[key]
+                g[key] = h5py.ExternalLink(new_folder + link.filename[len(old_folder):], link.path)
 
 
 def holder(store: str | Path, group_path: str) -> Path:
@@ -253,3 +323,23 @@ def missing_parts(f: h5py.File, store: Path) -> list[str]:
     """Link targets of the index ``f`` (of the store file at real path ``store``) whose part
     file is not there (a store file copied or renamed without its parts folder)."""
     return sorted(t for t in referenced_parts(f) if not (store.parent / t).is_file())
+
+
+def refuse_missing(f: h5py.File, store: Path, shown: Path) -> None:
+    """:class:`StoreFormatError` (exit 4, one line) when the index ``f`` of the store file at
+    real path ``store`` (``shown`` as the user named it) links to part files that are not
+    there: its whole parts folder (the file was copied or moved without it), or some of its
+    files (:class:`StoreDamagedError`)."""
+    missing = missing_parts(f, store)
+    if not missing:
+        return
+    folders = sorted({Path(t).parent.as_posix() for t in missing})
+    absent = [d for d in folders if not (store.parent / d).is_dir()]
+    if absent:
+        raise StoreFormatError(
+            f"store {shown}'s stage data folder {absent[0]} is missing; copy the folder with the file, "
+            "or use `vfcli share`")
+    raise StoreDamagedError(
+        f"damaged store: its part file {missing[0]} is missing ({len(missing)} in all); a store is its file "
+        f"plus its folder {parts_dir(store).name}: copy or move both and keep their names "
+        "(`vfcli share` makes one self-contained file)", shown)

@@ -8,7 +8,8 @@ A write never modifies a file a reader may have open. The writer takes an exclus
 the process dies), writes each stage but /mesh into a new part file (:mod:`vfcli.store.parts`:
 ``<name>.parts/<stage>-<16 hex>.h5``, complete, flushed and fsynced), copies the store file
 (the index: root attributes, /mesh and one external link per other stage; small) to
-``.<name>.vfcli-<pid>-<8 hex>.tmp``, writes the small stages and links there, fsyncs it and
+``.<name>.vfcli-<pid>-<8 hex>.tmp``, writes the small stages and links there, writes a fresh
+compact copy of it (so the index does not grow from write to write), fsyncs that and
 atomically renames it over the store. A process killed at any moment therefore leaves the
 old index or the new one, never a half-written stage; a leftover temporary index or an
 unlinked part file is the only trace and is removed by the next writer (``vfcli info``
@@ -205,7 +206,7 @@ class Store:
             f = open_h5(real, "r")
             try:
                 check_format(f, self.path)
-                _refuse_missing_parts(f, real, self.path)
+                parts.refuse_missing(f, real, self.path)
                 yield StoreReader(f, self.path)
             except integrity.H5_ERRORS as exc:
                 _raise_damage(exc, self.path)
@@ -224,10 +225,10 @@ class Store:
             except VfcliError:
                 return found
             try:
-                linked = {Path(t).name for t in parts.referenced_parts(f)}
+                linked = parts.referenced_parts(f)
             finally:
                 f.close()
-            found += [p for p in own if p.name not in linked]
+            found += parts.unreferenced_parts(real, linked)  # a hand copy's parts are not leftovers
         return found
 
     def writer_active(self) -> bool:
@@ -313,6 +314,7 @@ class Store:
                     os.chmod(tmp, mode)
                     f = open_h5(tmp, "r+", libver=_LIBVER)  # new objects get checksummed (v2) object headers
                     parts.collect_garbage(real, parts.referenced_parts(f))  # parts of killed writers
+                    parts.adopt_foreign_parts(f, real, moved)  # a hand copy (cp rec.h5 rec2.h5): its own parts
                     migrate.move_inline_stages(f, real, mode, moved)  # a store of an earlier vfcli
                 else:
                     mode = None
@@ -325,8 +327,9 @@ class Store:
                 w._new_parts += moved
                 yield w
                 linked = parts.referenced_parts(f)
-                if migrate.needs_compaction(f):  # HDF5 does not shrink a file: write it anew
-                    tmp = _compacted(f, tmp, mode)
+                # a fresh compact index every time: HDF5 does not reuse all the space a rewritten
+                # attribute or link frees, so an index edited in place grows ~4 kB per write
+                tmp = _compacted(f, tmp, mode)
                 f.close()
                 parts.fsync_path(tmp)
                 if w.new_parts:
@@ -342,16 +345,6 @@ class Store:
                     if parts.is_no_room(exc):
                         raise parts.no_room_error(self.path, written) from None
                 _raise_damage(exc, self.path)
-
-
-def _refuse_missing_parts(f: h5py.File, real: Path, path: Path) -> None:
-    """:class:`StoreDamagedError` naming the first part file the index links to that is not there."""
-    missing = parts.missing_parts(f, real)
-    if missing:
-        raise StoreDamagedError(
-            f"damaged store: its part file {missing[0]} is missing ({len(missing)} in all); a store is its file "
-            f"plus its folder {parts.parts_dir(real).name}: copy or move both and keep their names "
-            "(`vfcli share` makes one self-contained file)", path)
 
 
 #: Free space asked beyond the index's size before copying it (its growth by a small stage).
