@@ -4,6 +4,7 @@ Modules: :mod:`~vfcli.store.layout` (every group and dataset, the only place HDF
 spelt), :mod:`~vfcli.store.transaction` (lock, atomic commit), :mod:`~vfcli.store.stage_writer` (:class:`StageWriter`),
 :mod:`~vfcli.store.parts` (the part files beside the store file; :func:`copy_store`),
 :mod:`~vfcli.store.migrate` (stores of an earlier vfcli), :mod:`~vfcli.store.signals`,
+:mod:`~vfcli.store.netcdf` (xarray views of the groups, :func:`open_dataset`),
 :mod:`~vfcli.store.precision` (stored float precision),
 :mod:`~vfcli.store.reader` (:class:`StoreReader`), :mod:`~vfcli.store.frames` (per-frame
 datasets, :class:`FrameReader`, N-bit), :mod:`~vfcli.store.chunks` (chunk encoding),
@@ -26,7 +27,7 @@ _PUBLIC = {
     "read_truth": "truth", "write_truth": "truth", "TruthWriter": "truth",
     "StoredMesh": "mesh", "read_mesh": "mesh", "read_stored_mesh": "mesh",
     "OptimizeRun": "runs", "read_run": "runs", "run_names": "runs",
-    "store_info": "info", "copy_store": "parts",
+    "store_info": "info", "copy_store": "parts", "open_dataset": "netcdf",
 }
 
 __all__ = sorted(_PUBLIC)

@@ -379,15 +379,20 @@ def layout_markdown() -> str:
         "The file holds the root attributes, `/mesh` (small) and one HDF5 external link per other stage ("
         + ", ".join(f"`/{n}/<run>`" if n in ("optimize", "diagnose") else f"`/{n}`" for n in sorted(PART_STAGES))
         + "); each of these stages lives, at the same path, in its own part file `<name>.parts/<stage>-<16 hex>.h5`. "
-        "Readers built on libhdf5 (h5py, HDFView, MATLAB's h5read) follow the links, so every path below opens from the store file as long as the "
-        "folder is beside it. A write costs what it writes: it puts a rewritten stage in a new part file and "
-        "renames a new store file (a few kB) into place; part files are never modified, and the next write deletes "
-        "the ones no store file links to. Copy, move or back up the file and its folder together and keep their "
-        "names (a store file alone is refused: its part files are missing); `vfcli share rec.h5 out.h5` writes one "
-        "self-contained file with the links resolved, to send or archive. netCDF readers (xarray with "
-        "engine h5netcdf) look up dimension scales in the file they opened: open a stage from its part file, "
-        "`xr.open_dataset(vfcli.store.parts.holder(\"rec.h5\", \"/hsc\"), group=\"hsc\", engine=\"h5netcdf\")`, "
-        "or the `vfcli share` copy. Temporary files of a write are `.<name>.vfcli-<pid>-<8 hex>.tmp`; the lock "
+        "Readers built on libhdf5 (h5py, HDFView, MATLAB's h5read, netCDF-C) follow the links, so every path below "
+        "opens from the store file as long as the folder is beside it; xarray opens every group of the store file "
+        "with its netcdf4 engine (`xr.open_dataset(\"rec.h5\", group=\"hsc\", engine=\"netcdf4\")`, xarray's "
+        "default when netCDF4 is installed). xarray's h5netcdf engine does not: it looks a dataset's dimension "
+        "scales up in the file it opened, not in the part file that holds the dataset; "
+        "`vfcli.store.open_dataset(\"rec.h5\", \"hsc\")` opens a group from the file that holds it, with any "
+        "engine. A write costs what it writes: it puts a rewritten stage in a new part file and "
+        "renames a new, compact store file (a few kB plus /mesh) into place; part files are never modified, and the "
+        "next write deletes the ones no store file in the same folder links to. Copy, move or back up the file and "
+        "its folder together and keep their names (a store file alone is refused: \"its stage data folder is "
+        "missing\"); a copy of the file alone in the same folder (`cp rec.h5 rec2.h5`) links to the original's "
+        "parts until its first write gives it its own (hard links where the file system allows). "
+        "`vfcli share rec.h5 out.h5` writes one self-contained file with the links resolved, to send or archive. "
+        "Temporary files of a write are `.<name>.vfcli-<pid>-<8 hex>.tmp`; the lock "
         "files are `.<name>.lock` and `.<name>.readers`. A symlinked store stays a symlink (its parts and "
         "locks are beside its target).",
         "",
@@ -404,7 +409,7 @@ def layout_markdown() -> str:
         "attributes, which vfcli checks (docs/input-checks.md, \"Store integrity\"). "
         "Every dataset carries `units` and `description`, and every axis is an HDF5 dimension scale: time "
         "axes are the stage's time datasets, the other axes are stored beside the datasets under their own "
-        "name (below), so netCDF readers (xarray with engine h5netcdf) see named dimensions.",
+        "name (below), so netCDF readers (xarray) see named dimensions.",
         "",
     ]
     for st in STAGES.values():

@@ -4,8 +4,9 @@ A store is its file ``<dir>/<name>`` plus the folder ``<dir>/<name>.parts/``. Th
 file (the *index*) holds the root attributes (format, recording config), /mesh (small) and
 one HDF5 external link per other stage (:data:`PART_STAGES`: /hsc, /ldv, /sync, /flow,
 /fields and each run of /optimize and /diagnose) to the group of the same
-path in its part file ``<name>.parts/<stage>-<16 hex>.h5``. h5py, h5netcdf/xarray, HDFView
-and MATLAB follow the links transparently while the folder is beside the file.
+path in its part file ``<name>.parts/<stage>-<16 hex>.h5``. h5py, HDFView, MATLAB and
+netCDF-C (xarray's netcdf4 engine) follow the links transparently while the folder is beside
+the file; xarray's h5netcdf engine opens a group through :func:`vfcli.store.open_dataset`.
 
 A commit (:meth:`vfcli.store.transaction.Store.write`) writes each such stage into a NEW
 part file, complete, flushed and fsynced, then copies the (small) index, points its links at
@@ -304,19 +305,6 @@ def relink(store: Path, old_folder: str) -> None:
             if link.filename.startswith(old_folder + "/"):
                 del g[key]
                 g[key] = h5py.ExternalLink(new_folder + link.filename[len(old_folder):], link.path)
-
-
-def holder(store: str | Path, group_path: str) -> Path:
-    """The file that holds stage group ``group_path`` ("/hsc", "/optimize/run1"): its part file,
-    or the store file for a small stage. netCDF readers (xarray's h5netcdf engine) resolve a
-    dataset's dimension scales in the file they opened, so they open a stage here:
-    ``xr.open_dataset(holder(store, "/hsc"), group="hsc", engine="h5netcdf")``."""
-    real = Path(os.path.realpath(store))
-    with h5py.File(real, "r") as f:
-        link = f.get(group_path, getlink=True)
-        if isinstance(link, h5py.ExternalLink):
-            return real.parent / link.filename
-    return real
 
 
 def missing_parts(f: h5py.File, store: Path) -> list[str]:
