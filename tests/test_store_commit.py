@@ -336,3 +336,46 @@ def test_a_store_of_an_earlier_vfcli_moves_its_stages_to_part_files_on_the_first
     after = {s["path"]: s for s in json.loads(res.stdout)["stages"]}
     assert after["/hsc"]["provenance"]["digest"] == {s["path"]: s for s in before["stages"]}["/hsc"]["provenance"]["digest"]
     assert not after["/hsc"]["stale"] and not after["/hsc"]["damaged"]
+
+
+# ------------------------------------------------------------------ flow on a full disk
+
+@pytest.fixture(scope="module")
+def flow_ready(tmp_path_factory) -> Path:
+    """A store with /hsc, /ldv and /sync (tests/test_flow_stage.py's slit phantom, 24 frames of
+    256 x 256): `vfcli flow` writes about 9 MB of /flow and 7.4 MB of /fields."""
+    from _flow_phantom import SlitPhantom
+    from test_flow_stage import FIRST, N_FRAMES, write_store
+
+    ph = SlitPhantom()
+    path = tmp_path_factory.mktemp("flow_full") / "r.h5"
+    write_store(path, np.stack([ph.render(ph.frame_time(FIRST + k)) for k in range(N_FRAMES)]), ph.fps, ph.px_per_mm)
+    return path
+
+
+@pytest.mark.parametrize("limit", [300_000, 3_000_000, 8_000_000])
+def test_flow_that_finds_no_room_is_one_line_exit_4_and_leaves_nothing(flow_ready, tmp_path, limit):
+    """`vfcli flow` under a real file-size limit (EFBIG, as ENOSPC on a full disk) below the size
+    of its /flow part file: it crashed (SIGSEGV, exit 139: libhdf5 flushing at exit a part file
+    whose close had failed) after printing its error, or blamed a damaged store."""
+    path = tmp_path / "r.h5"
+    copy_store(flow_ready, path)
+    for lock in (".r.h5.lock", ".r.h5.readers"):  # made by the first write (empty)
+        (tmp_path / lock).touch()
+    before = _snapshot(path)
+
+    def limited() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    res = subprocess.run([sys.executable, "-m", "vfcli.cli.main", "flow", str(path)], capture_output=True, text=True,
+                         env=_env(), preexec_fn=limited, timeout=600)
+    assert res.returncode == 4, res.stderr[-3000:]
+    assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr and "Exception ignored" not in res.stderr, \
+        res.stderr[-3000:]
+    assert "not enough disk space" in res.stderr and "file-size limit" in res.stderr
+    assert _snapshot(path) == before
+    assert _temporaries(path) == [] and len(own_parts(path)) == 3
+    if limit == 3_000_000:
+        res = run_vfcli("flow", path)  # room again: the same store takes the write
+        assert res.returncode == 0, res.stderr[-2000:]

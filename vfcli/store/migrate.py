@@ -58,7 +58,7 @@ def move_inline_stages(f: h5py.File, store: Path, mode: int | None, written: lis
         part_path = store.parent / target
         part_path.parent.mkdir(exist_ok=True)
         written.append(part_path)
-        with h5py.File(part_path, "w", libver=_LIBVER) as part:
+        with parts.writing(part_path, libver=_LIBVER) as part:
             parent = part.require_group(posixpath.dirname(path))
             f.copy(f[path], parent, name=posixpath.basename(path))
             _relink_scales(part[path], layout.stage(path.split("/")[1]))
@@ -72,7 +72,7 @@ def move_inline_stages(f: h5py.File, store: Path, mode: int | None, written: lis
 def compact_copy(f: h5py.File, dst: Path) -> None:
     """Write a compact copy of the store file ``f`` (no stage inline but /mesh) to ``dst``:
     root attributes, the links, /mesh and the groups of runs."""
-    with h5py.File(dst, "w", fs_strategy="fsm", fs_persist=True, libver=_LIBVER) as out:
+    with parts.writing(dst, fs_strategy="fsm", fs_persist=True, libver=_LIBVER) as out:
         for k, v in f.attrs.items():
             out.attrs[k] = v
         for key in f:

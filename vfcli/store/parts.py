@@ -265,6 +265,41 @@ def no_room_error(store: Path, needed_bytes: int) -> StoreSpaceError:
         store)
 
 
+def close_discarding(f: h5py.File) -> None:
+    """Close ``f``, a file being abandoned (the caller deletes it), even when libhdf5 cannot
+    write what it still holds: a full disk or a file-size limit. libhdf5 keeps a file whose
+    close failed open and tries to flush it again when the process exits, and crashes there
+    (SIGSEGV, exit 139, after vfcli printed its error). Its file descriptor is pointed at
+    /dev/null first, so the close writes nowhere and succeeds."""
+    if not f.id.valid:
+        return
+    try:
+        fd = f.id.get_vfd_handle()
+        null = os.open(os.devnull, os.O_RDWR)
+        try:
+            os.dup2(null, fd)
+        finally:
+            os.close(null)
+    except (OSError, TypeError, ValueError, RuntimeError):
+        pass  # not a POSIX file descriptor (another driver): close as it is
+    try:
+        f.close()
+    except (OSError, RuntimeError, ValueError):
+        pass
+
+
+@contextmanager
+def writing(path: Path, **kwargs: object) -> Iterator[h5py.File]:
+    """``h5py.File(path, "w", **kwargs)``, closed when the block ends; if the block or the close
+    fails, closed with :func:`close_discarding` (the caller removes the file)."""
+    f = h5py.File(path, "w", **kwargs)
+    try:
+        yield f
+        f.close()
+    finally:
+        close_discarding(f)
+
+
 def check_room(store: Path, needed_bytes: int) -> None:
     """:class:`StoreSpaceError` when the store's disk has less than ``needed_bytes`` free."""
     if shutil.disk_usage(store.parent).free < needed_bytes:

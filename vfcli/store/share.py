@@ -21,7 +21,7 @@ import h5py
 from vfcli.errors import ConfigError
 from vfcli.store import integrity, layout
 from vfcli.store.frames import COMPRESSIONS, FrameReader
-from vfcli.store.parts import own_parts, refuse_missing
+from vfcli.store.parts import own_parts, refuse_missing, writing
 from vfcli.store.reader import check_format, open_h5
 from vfcli.store.transaction import StageWriter
 
@@ -62,7 +62,7 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
         refuse_missing(f, real, src)
         if "hsc" not in f or not f["hsc"].attrs.get("complete", False) or "frames" not in f["hsc"]:
             raise ConfigError("has no complete /hsc video to re-encode; run `vfcli ingest-hsc` first", src)
-        with h5py.File(tmp, "w", fs_strategy="fsm", fs_persist=True, libver=("v110", "latest")) as out:
+        with writing(tmp, fs_strategy="fsm", fs_persist=True, libver=("v110", "latest")) as out:
             for k, v in f.attrs.items():
                 out.attrs[k] = v
             for name in f:

@@ -36,6 +36,11 @@ class StageWriter:
     def __init__(self, group: h5py.Group, stage: layout.Stage) -> None:
         self._g = group
         self._stage = stage
+        # every dataset written stays open until the transaction closes its file: libhdf5 writes a
+        # dataset's cached chunks when its last handle closes, and a failure there (a full disk)
+        # is swallowed by h5py and leaves libhdf5 unable to close the file (it crashes at exit);
+        # held open, the chunks are written by the file's flush, whose failure aborts the write
+        self._held: list[h5py.Dataset] = []
 
     def _spec(self, key: str) -> layout.Dataset | None:
         if self._stage.datasets:
@@ -46,6 +51,7 @@ class StageWriter:
 
     def _decorate(self, ds: h5py.Dataset, key: str, units: str | None, description: str | None) -> None:
         spec = self._spec(key)
+        self._held.append(ds)
         ds.attrs["units"] = units or (spec.units if spec else "1")
         ds.attrs["description"] = description or (spec.description if spec else key)
 
@@ -235,6 +241,7 @@ class StageWriter:
                 return None
             data = np.array(ax.labels, dtype=object) if ax.labels else np.arange(n, dtype=np.int64)
             scale = self._g.create_dataset(dim, data=data, dtype=h5py.string_dtype() if ax.labels else None)
+            self._held.append(scale)
             scale.attrs["units"] = "1" if ax.labels else "index"
             scale.attrs["description"] = ax.description
         scale = self._g[dim]

@@ -167,8 +167,8 @@ class StoreWriter:
                     del self._f[path]
                 self._f[path] = h5py.ExternalLink(target, path)
         finally:
-            if part is not None and part.id.valid:
-                part.close()
+            if part is not None:  # abandoned (a failed block, a full disk): removed by the abort
+                parts.close_discarding(part)
         self.reader.forget(path)
 
 
@@ -329,6 +329,7 @@ class Store:
                 linked = parts.referenced_parts(f)
                 # a fresh compact index every time: HDF5 does not reuse all the space a rewritten
                 # attribute or link frees, so an index edited in place grows ~4 kB per write
+                f.flush()  # a full disk fails here, while the stages' datasets are still open
                 tmp = _compacted(f, tmp, mode)
                 f.close()
                 parts.fsync_path(tmp)
@@ -361,7 +362,7 @@ def _compacted(f: h5py.File, tmp: Path, mode: int | None) -> Path:
     except BaseException:
         compact.unlink(missing_ok=True)
         raise
-    f.close()
+    parts.close_discarding(f)  # copied: what it still holds is not needed (nor written on a full disk)
     tmp.unlink()
     return compact
 
@@ -370,10 +371,7 @@ def _abort(f: h5py.File | None, tmp: Path, new_parts: list[Path]) -> int:
     """Remove what an aborted write made (its index copy and new part files); returns their
     size in bytes (what the write needed at least)."""
     if f is not None:
-        try:
-            f.close()
-        except integrity.H5_ERRORS:
-            pass  # a damaged copy may not close cleanly; it is deleted
+        parts.close_discarding(f)  # a damaged or unwritable copy may not close cleanly; it is deleted
     written = 0
     for p in (tmp, *new_parts):
         try:
