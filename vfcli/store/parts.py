@@ -274,6 +274,8 @@ def close_discarding(f: h5py.File) -> None:
     if not f.id.valid:
         return
     try:
+        if f.driver != "sec2":  # only the default driver's handle is a POSIX file descriptor
+            raise TypeError(f.driver)
         fd = f.id.get_vfd_handle()
         null = os.open(os.devnull, os.O_RDWR)
         try:
