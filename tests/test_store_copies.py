@@ -51,6 +51,8 @@ def test_a_write_to_the_original_spares_the_parts_a_hand_copy_still_links_to(tmp
     assert _hsc_seed(copy) == 1  # the copy reads its video, checked against its SHA-256
     info = json.loads(run_vfcli("info", path, "--json").stdout)
     assert info["interrupted_writes"] == []  # a part another store file uses is no leftover
+    info = json.loads(run_vfcli("info", copy, "--json").stdout)
+    assert info["parts_folder"] == str(parts_dir(path)) and info["parts_bytes"] == shared[0].stat().st_size
 
 
 def test_the_first_write_to_a_hand_copy_gives_it_its_own_parts(tmp_path):

@@ -18,8 +18,8 @@ def store_info(path: str | Path, expected_config: Callable[[str | None], Expecte
     """Stages with provenance, sizes, staleness (transitive; config changes count when
     ``expected_config(recording config JSON)`` is given), damage (``verify``: every dataset's
     SHA-256 too, reading the whole store), figures and warnings; whether a writer is at work
-    now, or the leftovers of interrupted writes; the parts folder (the stages' files) and
-    its size."""
+    now, or the leftovers of interrupted writes; the parts folder the store file links to (the
+    stages' files) and the size of the files it links to."""
     store = Store(path)
     with store.read() as r:
         for p in r.stage_paths() if verify else []:
@@ -31,14 +31,14 @@ def store_info(path: str | Path, expected_config: Callable[[str | None], Expecte
         stages = [st.to_json() for st in r.statuses(expected)]
         present = {p.split("/")[1] for p in r.stage_paths()}
     writing = store.writer_active()
-    folder = parts.parts_dir(store.real_path)
-    part_files = parts.own_parts(store.real_path)
+    linked = [p for p in parts.linked_files(store.real_path) if p.is_file()]
+    folders = sorted({p.parent for p in linked})  # a hand copy not yet written to: the original's folder
     leftovers = [str(p) for p in store.interrupted_writes()]
     return {
         "path": str(store.path),
         "size_bytes": os.path.getsize(store.path),
-        "parts_folder": str(folder) if part_files else None,
-        "parts_bytes": sum(p.stat().st_size for p in part_files),
+        "parts_folder": str(folders[0]) if folders else None,
+        "parts_bytes": sum(p.stat().st_size for p in linked),
         "format": str(root.get("format")),
         "format_version": int(root.get("format_version")),
         "created_utc": str(root.get("created_utc", "")),

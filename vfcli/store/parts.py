@@ -350,6 +350,13 @@ def missing_parts(f: h5py.File, store: Path) -> list[str]:
     return sorted(t for t in referenced_parts(f) if not (store.parent / t).is_file())
 
 
+def linked_files(store: Path) -> list[Path]:
+    """The part files the store file at real path ``store`` links to (in its own parts folder,
+    or, for a hand copy not yet written to, in the original's)."""
+    with h5py.File(store, "r") as f:
+        return sorted(store.parent / t for t in referenced_parts(f))
+
+
 def refuse_missing(f: h5py.File, store: Path, shown: Path) -> None:
     """:class:`StoreFormatError` (exit 4, one line) when the index ``f`` of the store file at
     real path ``store`` (``shown`` as the user named it) links to part files that are not
