@@ -252,10 +252,13 @@ def _mb(n: float) -> str:
     return f"{n / 1e6:.1f} MB"
 
 
-def no_room_error(store: Path, needed_bytes: int) -> StoreSpaceError:
+def no_room_error(store: Path, needed_bytes: int, free: int | None = None) -> StoreSpaceError:
     """The one-line error of a write that ran out of space: about how much it needs, how much
-    is free."""
-    free = shutil.disk_usage(store.parent).free
+    is free (``free``: measured before the write began, what is free again once the command
+    has exited; the files of an aborted write may stay allocated until then, held open by
+    libhdf5 through objects still alive; default: measured now)."""
+    if free is None:
+        free = shutil.disk_usage(store.parent).free
     limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
     room = (f"{_mb(free)} free in {store.parent}" if limit == resource.RLIM_INFINITY else
             f"the process's file-size limit (ulimit -f) is {_mb(limit)}")

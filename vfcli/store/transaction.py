@@ -300,6 +300,7 @@ class Store:
             for leftover in _leftover_tmp_files(real):
                 leftover.unlink(missing_ok=True)
             tmp = real.with_name(f".{real.name}.vfcli-{os.getpid()}-{secrets.token_hex(4)}.tmp")
+            free_before = shutil.disk_usage(real.parent).free if real.parent.is_dir() else None
             f: h5py.File | None = None
             w: StoreWriter | None = None
             moved: list[Path] = []  # stages of an earlier vfcli's store moved to part files
@@ -344,7 +345,7 @@ class Store:
                 if not committed:
                     written = _abort(f, tmp, w.new_parts if w else moved)
                     if parts.is_no_room(exc):
-                        raise parts.no_room_error(self.path, written) from None
+                        raise parts.no_room_error(self.path, written, free_before) from None
                 _raise_damage(exc, self.path)
 
 
