@@ -74,6 +74,20 @@ def test_the_first_write_to_a_hand_copy_gives_it_its_own_parts(tmp_path):
     assert _temporaries(path) == []
 
 
+def test_a_reader_of_a_hand_copy_keeps_the_version_it_opened(tmp_path):
+    """A reader opens the copy while it still links into r.h5.parts/; the copy's first write gives
+    it its own parts, then a write to r.h5 collects its old part: not while the reader is open."""
+    path = _store_with_video(tmp_path, 9, 20)
+    copy = _hand_copy(path)
+    with Store(copy).read() as r:  # this version links to r.h5.parts/hsc-...
+        _write_mesh(copy, 2.0)  # the copy takes its parts over
+        _write_hsc(path, 10, 10)  # r.h5 moves on (another process)
+        frames = r.read("hsc", "frames")  # opens the part file only now
+    assert frames.shape == (20, 128, 128) and _hsc_seed(copy) == 9
+    _write_hsc(path, 11, 10)  # no reader now: the original's old part is collected
+    assert len(own_parts(path)) == 1 and _hsc_seed(path) == 11 and _hsc_seed(copy) == 9
+
+
 def test_a_hand_copy_without_hard_links_gets_copies(tmp_path, monkeypatch):
     """Where the file system refuses hard links (FAT, some network shares) the parts are copied."""
     path = _store_with_video(tmp_path, 6, 20)

@@ -27,7 +27,7 @@ import re
 import resource
 import secrets
 import shutil
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Iterator
 
@@ -166,6 +166,20 @@ def unreferenced_parts(store: Path, keep: set[str]) -> list[Path]:
         shared = _sibling_references(store)
         gone = [p for p in gone if p.name not in shared]
     return gone
+
+
+@contextmanager
+def foreign_reader_locks(f: h5py.File, store: Path) -> Iterator[None]:
+    """:func:`reader_lock` on each other store whose parts folder (beside ``store``) the index
+    ``f`` links to (a hand copy not yet written to): while it is held, that store's writers
+    delete none of their part files, and the copy's first write (which gives it its own
+    parts) leaves this reader's version readable."""
+    folders = {Path(t).parent for t in referenced_parts(f)} - {Path(parts_dir(store).name)}
+    with ExitStack() as stack:
+        for folder in sorted(folders):
+            if len(folder.parts) == 1 and folder.name.endswith(".parts"):
+                stack.enter_context(reader_lock(store.parent / folder.name[: -len(".parts")]))
+        yield
 
 
 def collect_garbage(store: Path, keep: set[str]) -> list[Path]:

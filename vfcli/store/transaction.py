@@ -207,7 +207,8 @@ class Store:
             try:
                 check_format(f, self.path)
                 parts.refuse_missing(f, real, self.path)
-                yield StoreReader(f, self.path)
+                with parts.foreign_reader_locks(f, real):
+                    yield StoreReader(f, self.path)
             except integrity.H5_ERRORS as exc:
                 _raise_damage(exc, self.path)
             finally:
