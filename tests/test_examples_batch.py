@@ -12,11 +12,9 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT, run_vfcli
-from _batch_phantoms import synth
+from _batch_phantoms import SMALL_OPTIMIZE, synth
 from vfcli.batch.cluster import job_script
 from vfcli.batch.manifest import read_manifest
-
-SMALL_OPTIMIZE = '\n[optimize]\nn_frames = 20\nmax_iterations = 3\nsetup = "3x3x10-one-sided"\nloads = "free"\nuncertainty = false\n'
 
 
 def test_slurm_example_holds_the_job_script_the_code_writes():

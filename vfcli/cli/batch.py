@@ -16,6 +16,9 @@ asks for dask-jobqueue jobs. Needs: pip install 'vfcli[batch]'.
 Exit 0 when every recording ended done or up to date, else the largest exit code of the
 failed ones (3 bad data, 4 store locked or damaged, ...), after all have run.
 The ledger <MANIFEST>.ledger.json records each outcome; a rerun skips what is finished.
+One batch of a manifest at a time: a second one exits 4 at once (the ledger's lock file).
+When fewer recordings run than the cluster has worker threads, each spreads its optimize
+basis solves over the idle workers (the stores end the same).
 """
 
 
@@ -39,6 +42,7 @@ def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, j
     """Run the pipeline over every recording listed in MANIFEST (TOML or CSV)."""
     from vfcli.batch.cluster import job_script as make_job_script, jobqueue_choice, open_client, require
     from vfcli.batch.engine import run_batch
+    from vfcli.batch.ledger import Ledger
     from vfcli.batch.manifest import read_manifest
 
     setup_logging(verbose, quiet)
@@ -58,9 +62,11 @@ def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, j
             click.echo(f"{outcome['name']}: {outcome['status']}{resumed}{err}", err=True)
 
     n_retries = m.retries if retries is None else retries
-    with open_client(scheduler=scheduler, workers=workers or m.workers, jobqueue=jobqueue,
-                     allowed_failures=n_retries) as client:
-        summary = run_batch(m, client, until=until, fresh=fresh, retries=n_retries, on_outcome=progress)
+    # the ledger's lock first: a second batch of this manifest stops before it starts a cluster
+    with Ledger(m.ledger_path, m.path).hold(), open_client(scheduler=scheduler, workers=workers or m.workers,
+                                                           jobqueue=jobqueue, allowed_failures=n_retries) as client:
+        summary = run_batch(m, client, until=until, fresh=fresh, retries=n_retries, on_outcome=progress,
+                            hold_ledger=False)
     if as_json:
         click.echo(json.dumps(summary.to_json(), indent=2, default=str))
     elif not quiet:
