@@ -87,8 +87,8 @@ def job_script(kind: str, options: Mapping[str, Any]) -> str:
         raise ConfigError(f"[batch.{kind}] / --{kind}: {exc}") from None
 
 
-def _call(item: Any, func: Any) -> Any:
-    return func(item)
+def _call(item: Any, fn: Any) -> Any:
+    return fn(item)
 
 
 def _scattered_map(client: Any, func: Any, items: Any, wait: Any) -> list[Any]:
@@ -98,7 +98,7 @@ def _scattered_map(client: Any, func: Any, items: Any, wait: Any) -> list[Any]:
     if not items:
         return []
     [shared] = client.scatter([func], broadcast=True, hash=False)
-    futures = client.map(_call, items, func=shared, pure=False)
+    futures = client.map(_call, items, fn=shared, pure=False)
     try:
         return wait(futures)
     finally:
