@@ -17,6 +17,7 @@ of fewer recordings than workers spreads each recording's basis solves over the 
 Reproduce::
 
     nice -n 5 .venv/bin/python bench/bench_batch.py [--n 1 2 4 8] [--workers 2] [--until optimize] [--dir DIR]
+        [--inner-map auto|on|off]
 
 ``--dir DIR`` keeps the phantoms (and reuses those already there) between runs.
 """
@@ -91,7 +92,7 @@ def loop(raws: list[Path], work: Path, until: str) -> float:
     return time.perf_counter() - t
 
 
-def batch(raws: list[Path], work: Path, until: str, workers: int) -> float:
+def batch(raws: list[Path], work: Path, until: str, workers: int, inner_map: str = "auto") -> float:
     """Wall time of `vfcli batch` over ``raws`` on a LocalCluster (fresh stores and ledger), s."""
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
@@ -99,8 +100,8 @@ def batch(raws: list[Path], work: Path, until: str, workers: int) -> float:
     manifest.write_text(f'[batch]\nuntil = "{until}"\n' + "".join(
         f'\n[[recording]]\nraw = "{r}"\nstore = "{work / (r.name + ".h5")}"\n' for r in raws))
     t = time.perf_counter()
-    _check(subprocess.run([*VFCLI, "batch", str(manifest), "--workers", str(workers), "-q"], capture_output=True,
-                          text=True), "vfcli batch")
+    _check(subprocess.run([*VFCLI, "batch", str(manifest), "--workers", str(workers), "--inner-map", inner_map, "-q"],
+                          capture_output=True, text=True), "vfcli batch")
     return time.perf_counter() - t
 
 
@@ -110,17 +111,20 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--until", default="optimize")
     ap.add_argument("--dir", type=Path)
+    ap.add_argument("--inner-map", choices=("auto", "on", "off"), default="auto",
+                    help="vfcli batch --inner-map (auto: a batch of fewer recordings than workers spreads its solves)")
     args = ap.parse_args()
     base = args.dir or Path(tempfile.mkdtemp(prefix="bench_batch_"))
     raws = make_phantoms(base / "raw", max(args.n))
-    print(f"until {args.until}, LocalCluster of {args.workers} worker processes (1 thread each); load average at "
+    print(f"until {args.until}, LocalCluster of {args.workers} worker processes (1 thread each), --inner-map "
+          f"{args.inner_map}; load average at "
           f"the start: {' '.join(f'{x:.1f}' for x in os.getloadavg())}\n")
     print("| recordings | loop total (s) | loop per recording (s) | loop CPU (s) | batch total (s) "
           "| batch per recording (s) | batch CPU (s) | speed-up |")
     print("|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n in args.n:
         t_loop, c_loop = timed(loop, raws[:n], base / "work_loop", args.until)
-        t_batch, c_batch = timed(batch, raws[:n], base / "work_batch", args.until, args.workers)
+        t_batch, c_batch = timed(batch, raws[:n], base / "work_batch", args.until, args.workers, args.inner_map)
         print(f"| {n} | {t_loop:.1f} | {t_loop / n:.1f} | {c_loop:.1f} | {t_batch:.1f} | {t_batch / n:.1f} | {c_batch:.1f} "
               f"| {t_loop / t_batch:.2f} |", flush=True)
     print(f"\nload average at the end: {' '.join(f'{x:.1f}' for x in os.getloadavg())}")

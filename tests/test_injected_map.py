@@ -152,11 +152,13 @@ def test_optimize_through_a_dask_map_stores_the_same_run_bit_for_bit(meshed, tmp
 
         batch_store = copy_store(meshed_store, tmp_path / "batch.h5")
         manifest = parse_manifest(tmp_path / "b.toml", f'[[recording]]\nraw = "{raw}"\nstore = "{batch_store}"\n')
-        outcome = run_batch(manifest, client, until="optimize").outcomes[0]
-        ran_on_cluster = client.run_on_scheduler(lambda dask_scheduler: sorted(dask_scheduler.task_prefixes))
+        with distributed.get_task_stream(client) as stream:
+            outcome = run_batch(manifest, client, until="optimize").outcomes[0]
+        ran = [t["key"] if isinstance(t["key"], str) else t["key"][0] for t in stream.data]
 
     assert pids and os.getpid() not in pids  # the basis solves ran in the worker processes
     _assert_same_run(spread, serial)
     assert outcome["status"] == "done" and outcome["inner_map"], outcome
-    assert "_call" in ran_on_cluster, ran_on_cluster  # the recording's task spread its pieces
+    pieces = [k for k in ran if k.lstrip("_").startswith("call-")]  # the pieces the recording's task spread
+    assert pieces and len(ran) == len(pieces) + 1 and any(k.startswith("vfcli-run-") for k in ran), ran
     _assert_same_run(batch_store, serial)
