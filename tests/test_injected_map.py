@@ -125,7 +125,7 @@ def _with_pid(func, item):
 def test_optimize_through_a_dask_map_stores_the_same_run_bit_for_bit(meshed, tmp_path):
     """The same store fitted three ways: the builtin map; run_recording(map=client_map(client))
     on a 2-worker LocalCluster (the pieces run in the worker processes); `vfcli batch`'s
-    engine with one recording on that cluster (it spreads the solves by itself)."""
+    engine with one recording on that cluster (with inner_map=None it spreads the solves by itself)."""
     import distributed
 
     from vfcli.batch.cluster import client_map
@@ -153,7 +153,7 @@ def test_optimize_through_a_dask_map_stores_the_same_run_bit_for_bit(meshed, tmp
         batch_store = copy_store(meshed_store, tmp_path / "batch.h5")
         manifest = parse_manifest(tmp_path / "b.toml", f'[[recording]]\nraw = "{raw}"\nstore = "{batch_store}"\n')
         with distributed.get_task_stream(client) as stream:
-            outcome = run_batch(manifest, client, until="optimize").outcomes[0]
+            outcome = run_batch(manifest, client, until="optimize", inner_map=None).outcomes[0]  # auto
         ran = [t["key"] if isinstance(t["key"], str) else t["key"][0] for t in stream.data]
 
     assert pids and os.getpid() not in pids  # the basis solves ran in the worker processes

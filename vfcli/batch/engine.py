@@ -97,7 +97,7 @@ def run_batch(
     fresh: bool = False,
     retries: int | None = None,
     on_outcome: Callable[[dict[str, Any]], None] | None = None,
-    inner_map: bool | None = None,
+    inner_map: bool | None = False,
     hold_ledger: bool = True,
 ) -> BatchSummary:
     """Run every recording of ``manifest`` on ``client`` and return how each ended.
@@ -112,8 +112,10 @@ def run_batch(
         of a recording that ran out of them); default the manifest's.
     on_outcome : called with each recording's outcome as it ends (progress lines).
     inner_map : whether each recording spreads its own independent pieces (optimize's basis
-        solves) over the cluster (:func:`vfcli.batch.cluster.worker_map`); default
-        :func:`use_inner_map`.
+        solves) over the cluster (:func:`vfcli.batch.cluster.worker_map`); None: when
+        :func:`use_inner_map` says so. Default False: each worker would factorise the elastic
+        model again for its share of the solves, which costs more than it saves unless the load
+        model has thousands of spatial patterns (docs/cluster.md).
 
     hold_ledger : take the ledger's lock here (:meth:`Ledger.hold`); False when the caller
         already holds it (the CLI takes it before it starts a cluster).

@@ -17,8 +17,8 @@ Exit 0 when every recording ended done or up to date, else the largest exit code
 failed ones (3 bad data, 4 store locked or damaged, ...), after all have run.
 The ledger <MANIFEST>.ledger.json records each outcome; a rerun skips what is finished.
 One batch of a manifest at a time: a second one exits 4 at once (the ledger's lock file).
-When fewer recordings run than the cluster has worker threads, each spreads its optimize
-basis solves over the idle workers (--inner-map; the stores end the same).
+--inner-map auto: when fewer recordings run than the cluster has worker threads, each spreads
+its optimize basis solves over the idle workers (the stores end the same).
 """
 
 
@@ -35,9 +35,10 @@ basis solves over the idle workers (--inner-map; the stores end the same).
 @click.option("--fresh", is_flag=True, help="Ignore the ledger: run every recording (stages still run only when stale).")
 @click.option("--job-script", is_flag=True, help="Print the SLURM/PBS job script one worker job runs (scheduler address "
               "as a placeholder) and exit; submits nothing.")
-@click.option("--inner-map", type=click.Choice(["auto", "on", "off"]), default="auto", show_default=True,
-              help="Spread each recording's optimize basis solves over the cluster's workers: auto = when fewer "
-                   "recordings run than there are worker threads.")
+@click.option("--inner-map", type=click.Choice(["auto", "on", "off"]), default="off", show_default=True,
+              help="Spread each recording's optimize basis solves over the cluster's workers (auto: when fewer "
+                   "recordings run than there are worker threads); pays only for load models of thousands of "
+                   "patterns (docs/cluster.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 @click.option("--quiet", "-q", is_flag=True, help="Print errors only.")
 @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
