@@ -81,6 +81,7 @@ def _times(work: Path, rec: str) -> dict[str, int]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)  # two recordings through optimize, export and report, then two reruns
 def test_makefile_runs_two_recordings_then_nothing_then_only_the_touched_one(tmp_path, raw_pair):
     raw = tmp_path / "raw"
     shutil.copytree(raw_pair, raw)
@@ -108,6 +109,7 @@ def _smk_times(work: Path, rec: str) -> dict[str, int]:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(2400)
 @needs_snakemake
 def test_snakefile_runs_two_recordings_then_nothing_then_only_the_touched_one(tmp_path, raw_pair):
     raw = tmp_path / "raw"

@@ -121,6 +121,7 @@ def _with_pid(func, item):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # three small fits: about 6 min under a load average of 20-30 on 2 cores
 @pytest.mark.filterwarnings("ignore:Sending large graph:UserWarning")
 def test_optimize_through_a_dask_map_stores_the_same_run_bit_for_bit(meshed, tmp_path):
     """The same store fitted three ways: the builtin map; run_recording(map=client_map(client))
