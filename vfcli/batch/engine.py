@@ -14,7 +14,8 @@ recording ends:
   ``KilledWorker``. A killed writer leaves the store as it was (its commit is atomic) and
   the retry starts from there.
 
-The ledger (:mod:`vfcli.batch.ledger`) is written after each recording, so a rerun resumes.
+The ledger (:mod:`vfcli.batch.ledger`) is held for the whole batch (one batch of a manifest at
+a time) and written after each recording, so a rerun resumes.
 """
 from __future__ import annotations
 
@@ -116,7 +117,6 @@ def run_batch(
         :func:`use_inner_map` says so. Default False: each worker would factorise the elastic
         model again for its share of the solves, which costs more than it saves unless the load
         model has thousands of spatial patterns (docs/cluster.md).
-
     hold_ledger : take the ledger's lock here (:meth:`Ledger.hold`); False when the caller
         already holds it (the CLI takes it before it starts a cluster).
 
