@@ -11,6 +11,8 @@ from conftest import ROOT
 #: A phantom small enough for a batch test (about 15 s to make, 10 s to ingest and sync).
 TINY = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.04", "synth.target_edge_mm=2.0", "synth.n_phase=64",
         "synth.width_px=128", "synth.height_px=128", "synth.px_per_mm=8", "synth.supersample=1"]
+#: recording.toml's [optimize] for a small fit that holds in a tiny phantom (20 frames, 3 iterations).
+SMALL_OPTIMIZE = '\n[optimize]\nn_frames = 20\nmax_iterations = 3\nsetup = "3x3x10-one-sided"\nloads = "free"\nuncertainty = false\n'
 
 
 def synth(out: Path, seed: int) -> subprocess.Popen:

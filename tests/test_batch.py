@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -20,7 +21,9 @@ from _batch_phantoms import synth
 from conftest import ROOT, run_vfcli
 from vfcli.batch.ledger import Ledger
 from vfcli.batch.manifest import parse_manifest, read_manifest
-from vfcli.errors import ConfigError
+from vfcli.errors import ConfigError, StoreLockedError
+from vfcli.store import Store
+from vfcli.store.locking import LockUnsupportedError
 
 SEEDS = (41, 42, 43)
 
@@ -129,6 +132,32 @@ def test_ledger_resumes_only_what_is_unchanged(tmp_path):
     assert [p.name for p in tmp_path.iterdir() if ".tmp-" in p.name] == []
 
 
+def test_a_held_ledger_refuses_a_second_holder_and_says_who_holds_it(tmp_path):
+    ledger = Ledger(tmp_path / "b.toml.ledger.json", tmp_path / "b.toml")
+    with ledger.hold():
+        with pytest.raises(StoreLockedError, match=rf"another `vfcli batch` of this manifest is running \(pid {os.getpid()} on "):
+            with Ledger(tmp_path / "b.toml.ledger.json", tmp_path / "b.toml").hold():
+                pass
+    with Ledger(tmp_path / "b.toml.ledger.json", tmp_path / "b.toml").hold():  # released at the end of the block
+        pass
+
+
+@pytest.mark.parametrize("code", [37, 524])
+def test_a_file_system_without_locks_stops_the_batch_with_what_to_do(tmp_path, monkeypatch, code):
+    """flock failing as on NFS without a lock daemon (errno 37) or Lustre (524): one error (exit 4)
+    saying where to keep the manifest; nothing waits."""
+    import fcntl
+
+    def no_locks(fd, op):
+        raise OSError(code, os.strerror(code) if code == 37 else "Unknown error 524")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    with pytest.raises(LockUnsupportedError, match=f"errno {code}.*keep the manifest") as err:
+        with Ledger(tmp_path / "b.toml.ledger.json", tmp_path / "b.toml").hold():
+            pass
+    assert err.value.exit_code == 4
+
+
 # ---------------------------------------------------------------- runs
 
 def _manifest(tmp_path: Path, raws: list[Path], until: str, extra: str = "") -> Path:
@@ -171,6 +200,41 @@ def test_cli_batch_runs_resumes_and_reports_a_failed_recording(tmp_path, raws):
     res = run_vfcli("batch", manifest, "--fresh", "--json")
     status = {r["name"]: r["status"] for r in json.loads(res.stdout)["recordings"]}
     assert status == {raws[0].name: "up to date", raws[1].name: "up to date", "broken": "failed"}
+
+
+@pytest.mark.slow
+def test_a_second_batch_of_the_same_manifest_stops_and_the_first_runs_each_recording_once(tmp_path, raws):
+    """Two real `vfcli batch` processes on one manifest: the second starts while the first
+    holds the ledger, exits 4 with one line naming the first (no cluster started, no recording
+    run); the first runs every recording once and leaves a whole ledger and sound stores."""
+    manifest = _manifest(tmp_path, raws, "sync")
+    lock = tmp_path / ".batch.toml.ledger.json.lock"
+    cmd = [sys.executable, "-m", "vfcli.cli.main", "batch", str(manifest), "--json"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    first = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    deadline = time.monotonic() + 120
+    while not (lock.exists() and lock.read_text().strip()) and time.monotonic() < deadline:
+        assert first.poll() is None, first.communicate()
+        time.sleep(0.1)
+    second = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    first_running = first.poll() is None
+    out, err = first.communicate(timeout=900)
+    assert first_running, "the first batch ended before the second started: the test proves nothing"
+    assert second.returncode == 4, second.stderr
+    (line,) = second.stderr.strip().splitlines()
+    assert second.stdout == "" and line.startswith(
+        f"vfcli batch: error: {manifest}: another `vfcli batch` of this manifest is running "
+        f"(pid {first.pid} on {socket.gethostname()}, since "), line
+    assert first.returncode == 0, err
+    status = {r["name"]: r["status"] for r in json.loads(out)["recordings"]}
+    assert status == {r.name: "done" for r in raws}
+    ledger = json.loads((tmp_path / "batch.toml.ledger.json").read_text())
+    assert {k: v["status"] for k, v in ledger["recordings"].items()} == status
+    for r in raws:
+        store = tmp_path / "work" / f"{r.name}.h5"
+        _verify(store)
+        with Store(store).read() as reader:
+            assert reader.has_stage("sync")
 
 
 @pytest.mark.slow

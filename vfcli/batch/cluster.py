@@ -12,6 +12,7 @@ from contextlib import ExitStack, contextmanager
 from typing import Any, Iterator, Mapping
 
 from vfcli.errors import ConfigError
+from vfcli.parallel import Mapper
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +85,47 @@ def job_script(kind: str, options: Mapping[str, Any]) -> str:
         return job_cls(scheduler=SCHEDULER_PLACEHOLDER, **job_kwargs(options)).job_script()
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"[batch.{kind}] / --{kind}: {exc}") from None
+
+
+def _call(item: Any, fn: Any) -> Any:
+    return fn(item)
+
+
+def _scattered_map(client: Any, func: Any, items: Any, wait: Any) -> list[Any]:
+    """``func`` over ``items`` on ``client``'s workers: ``func`` (with what it holds, e.g. the
+    elastic model) is sent to each worker once, not with every item; ``wait`` gathers."""
+    items = list(items)
+    if not items:
+        return []
+    [shared] = client.scatter([func], broadcast=True, hash=False)
+    futures = client.map(_call, items, fn=shared, pure=False)
+    try:
+        return wait(futures)
+    finally:
+        client.cancel([shared, *futures])
+
+
+def client_map(client: Any) -> Mapper:
+    """A :class:`vfcli.parallel.Mapper` that runs the pieces on ``client``'s workers (a
+    ``distributed.Client`` this process holds: a script's, a notebook's)."""
+    return lambda func, items: _scattered_map(client, func, items, client.gather)
+
+
+def worker_map() -> Mapper:
+    """A :class:`vfcli.parallel.Mapper` for code running inside a Dask task (a batch's
+    recording): the pieces go to the cluster the task runs on, and the task leaves its worker
+    thread while it waits for them (``secede``/``rejoin``), so the pieces can run there too."""
+    from distributed import get_client, rejoin, secede
+
+    def wait(futures: Any) -> Any:
+        client = get_client()
+        secede()
+        try:
+            return client.gather(futures)
+        finally:
+            rejoin()
+
+    return lambda func, items: _scattered_map(get_client(), func, items, wait)
 
 
 @contextmanager

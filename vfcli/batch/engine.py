@@ -14,13 +14,15 @@ recording ends:
   ``KilledWorker``. A killed writer leaves the store as it was (its commit is atomic) and
   the retry starts from there.
 
-The ledger (:mod:`vfcli.batch.ledger`) is written after each recording, so a rerun resumes.
+The ledger (:mod:`vfcli.batch.ledger`) is held for the whole batch (one batch of a manifest at
+a time) and written after each recording, so a rerun resumes.
 """
 from __future__ import annotations
 
 import logging
 import time
 import uuid
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
@@ -79,6 +81,15 @@ def _lost(entry: RecordingEntry, exc: BaseException, retries: int) -> dict[str, 
             "exit_code": EXIT_INTERNAL, "summary": None, "seconds": None}
 
 
+def use_inner_map(n_recordings: int, client: Any) -> bool:
+    """Whether the recordings of a batch spread their own pieces over the cluster: when fewer
+    recordings run than the cluster has worker threads now (``client.nthreads()``), so that
+    threads would otherwise idle; never for a single-threaded cluster, or one whose workers
+    have not started yet (SLURM jobs still queued: 0 threads)."""
+    threads = sum(client.nthreads().values())
+    return 0 < n_recordings < threads
+
+
 def run_batch(
     manifest: Manifest,
     client: Any,
@@ -87,6 +98,8 @@ def run_batch(
     fresh: bool = False,
     retries: int | None = None,
     on_outcome: Callable[[dict[str, Any]], None] | None = None,
+    inner_map: bool | None = False,
+    hold_ledger: bool = True,
 ) -> BatchSummary:
     """Run every recording of ``manifest`` on ``client`` and return how each ended.
 
@@ -99,40 +112,57 @@ def run_batch(
     retries : reruns after a worker died that the client's scheduler allows (for the message
         of a recording that ran out of them); default the manifest's.
     on_outcome : called with each recording's outcome as it ends (progress lines).
+    inner_map : whether each recording spreads its own independent pieces (optimize's basis
+        solves) over the cluster (:func:`vfcli.batch.cluster.worker_map`); None: when
+        :func:`use_inner_map` says so. Default False: each worker would factorise the elastic
+        model again for its share of the solves, which costs more than it saves unless the load
+        model has thousands of spatial patterns (docs/cluster.md).
+    hold_ledger : take the ledger's lock here (:meth:`Ledger.hold`); False when the caller
+        already holds it (the CLI takes it before it starts a cluster).
 
-    The ledger ``<manifest>.ledger.json`` is rewritten after each recording.
+    The ledger ``<manifest>.ledger.json`` is held for the whole batch (a second batch of the
+    same manifest raises :class:`vfcli.errors.StoreLockedError`) and rewritten after each
+    recording.
     """
     from distributed import as_completed
 
     t0 = time.perf_counter()
-    ledger = Ledger(manifest.ledger_path, manifest.path) if fresh else Ledger.load(manifest.ledger_path, manifest.path)
-    entries = [replace(e, until=until) if until else e for e in manifest.recordings]
-    outcomes: dict[str, dict[str, Any]] = {}
-    futures: dict[Any, RecordingEntry] = {}
-    for entry in entries:
-        if not fresh and ledger.is_finished(entry):
-            prev = ledger.recordings[entry.name]
-            outcomes[entry.name] = {"name": entry.name, "store": str(entry.store), "status": prev["status"],
-                                    "error": None, "exit_code": 0, "summary": prev.get("summary"),
-                                    "seconds": 0.0, "resumed": True}
+    ledger = Ledger(manifest.ledger_path, manifest.path)
+    # one batch of this manifest at a time (a second one stops here, exit 4)
+    with ledger.hold() if hold_ledger else nullcontext():
+        if not fresh:  # read under the lock: what a batch that just ended wrote counts
+            ledger = Ledger.load(manifest.ledger_path, manifest.path)
+        entries = [replace(e, until=until) if until else e for e in manifest.recordings]
+        outcomes: dict[str, dict[str, Any]] = {}
+        todo: list[RecordingEntry] = []
+        for entry in entries:
+            if not fresh and ledger.is_finished(entry):
+                prev = ledger.recordings[entry.name]
+                outcomes[entry.name] = {"name": entry.name, "store": str(entry.store), "status": prev["status"],
+                                        "error": None, "exit_code": 0, "summary": prev.get("summary"),
+                                        "seconds": 0.0, "resumed": True}
+                if on_outcome:
+                    on_outcome(outcomes[entry.name])
+            else:
+                todo.append(entry)
+        spread = use_inner_map(len(todo), client) if inner_map is None else inner_map
+        futures: dict[Any, RecordingEntry] = {}
+        for entry in todo:
+            # pure=False and a unique key: a rerun in the same cluster runs again; retries=0: a
+            # task raises only when its worker died, which the scheduler's allowed-failures handles
+            key = f"vfcli-run-{entry.name}-{uuid.uuid4().hex[:8]}"
+            futures[client.submit(run_entry, entry.to_json(), spread, key=key, pure=False, retries=0)] = entry
+        for future in as_completed(list(futures)):
+            entry = futures[future]
+            try:
+                outcome = future.result()
+            except Exception as exc:  # KilledWorker after allowed-failures, a lost scheduler connection
+                outcome = _lost(entry, exc, manifest.retries if retries is None else retries)
+            ledger.record(entry, outcome)
+            outcomes[entry.name] = outcome
+            log.info("batch: %s %s", entry.name, outcome["status"])
             if on_outcome:
-                on_outcome(outcomes[entry.name])
-            continue
-        # pure=False and a unique key: a rerun in the same cluster runs again; retries=0: a
-        # task raises only when its worker died, which the scheduler's allowed-failures handles
-        key = f"vfcli-run-{entry.name}-{uuid.uuid4().hex[:8]}"
-        futures[client.submit(run_entry, entry.to_json(), key=key, pure=False, retries=0)] = entry
-    for future in as_completed(list(futures)):
-        entry = futures[future]
-        try:
-            outcome = future.result()
-        except Exception as exc:  # KilledWorker after allowed-failures, a lost scheduler connection
-            outcome = _lost(entry, exc, manifest.retries if retries is None else retries)
-        ledger.record(entry, outcome)
-        outcomes[entry.name] = outcome
-        log.info("batch: %s %s", entry.name, outcome["status"])
-        if on_outcome:
-            on_outcome(outcome)
+                on_outcome(outcome)
     ordered = [outcomes[e.name] for e in entries]
     counts = {s: sum(o["status"] == s for o in ordered) for s in STATUSES}
     return BatchSummary(str(manifest.path), ordered, time.perf_counter() - t0, counts)

@@ -8,6 +8,14 @@ entry (:meth:`RecordingEntry.key`), the files of its raw folder (names, sizes, m
 times) and its store file (size, modification time). Anything else runs again (``vfcli
 run`` itself only redoes the stale stages).
 
+One batch at a time per manifest: :meth:`Ledger.hold` takes an exclusive ``flock`` on
+``.<manifest>.ledger.json.lock`` beside it for the whole batch (the kernel releases it when the
+process dies), so a second `vfcli batch` of the same manifest stops at once with one line
+(exit 4) instead of running the same recordings again at the same time and overwriting the
+first one's ledger. Where the file system gives no locks (errno 37, 524 on some NFS and
+Lustre mounts) it stops with one line too: keep the manifest, hence its ledger, on a file
+system with locks (the stores may be anywhere).
+
 Format (JSON)::
 
     {"format": "vfcli-batch-ledger", "version": 1, "manifest": "/abs/batch.toml",
@@ -19,13 +27,19 @@ Format (JSON)::
 from __future__ import annotations
 
 import datetime as _dt
+import errno
+import fcntl
 import hashlib
 import json
 import os
+import socket
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 from vfcli.batch.manifest import RecordingEntry
+from vfcli.errors import StoreAccessError, StoreLockedError
+from vfcli.store import locking
 
 FORMAT = "vfcli-batch-ledger"
 VERSION = 1
@@ -74,6 +88,53 @@ class Ledger:
         if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("recordings"), dict):
             return cls(path, manifest)
         return cls(path, manifest, doc["recordings"])
+
+    @property
+    def lock_path(self) -> Path:
+        """The lock file of this ledger: ``.<ledger name>.lock`` beside it."""
+        return self.path.with_name(f".{self.path.name}.lock")
+
+    @contextmanager
+    def hold(self) -> Iterator[None]:
+        """Hold this ledger (hence the manifest's batch) exclusively until the block ends.
+
+        Raises
+        ------
+        StoreLockedError
+            Another process holds it (another `vfcli batch` of the same manifest); the
+            message names that process (pid, host, start time). Exit 4.
+        LockUnsupportedError
+            The file system gives no ``flock`` (errno 37, 524). Exit 4.
+        StoreAccessError
+            The lock file cannot be created (a read-only folder). Exit 4.
+        """
+        try:
+            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise StoreAccessError(f"cannot write the batch ledger's lock file: {exc.strerror or exc}: "
+                                   f"{exc.filename}", self.manifest) from None
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as exc:
+                if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                    holder = os.pread(fd, 512, 0).decode("utf-8", "replace").strip() or "a process"
+                    raise StoreLockedError(f"another `vfcli batch` of this manifest is running ({holder}); wait "
+                                           f"for it to end (it keeps {self.path.name}), then run again to resume",
+                                           self.manifest) from None
+                if locking.lock_unsupported(exc):
+                    raise locking.LockUnsupportedError(
+                        f"this file system gives no file locks (flock on {self.lock_path} failed: errno {exc.errno}), "
+                        "so vfcli cannot keep two batches of this manifest apart; keep the manifest (its ledger "
+                        "lives beside it) on a file system with locks, such as your home folder (the stores may "
+                        "stay where they are)", self.manifest) from None
+                raise
+            started = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {started}\n".encode(), 0)
+            yield
+        finally:
+            os.close(fd)
 
     def is_finished(self, entry: RecordingEntry) -> bool:
         """Whether ``entry`` ended done or up to date and nothing that defines it changed since."""

@@ -30,12 +30,15 @@ def outcome_status(summary: Mapping[str, Any]) -> str:
     return "done" if "ran" in actions else "up to date"
 
 
-def run_entry(entry_json: Mapping[str, Any]) -> dict[str, Any]:
+def run_entry(entry_json: Mapping[str, Any], inner_map: bool = False) -> dict[str, Any]:
     """Run one recording (:func:`vfcli.stages.run.run_recording`) and say how it ended.
 
     Parameters
     ----------
     entry_json : :meth:`RecordingEntry.to_json` of the recording.
+    inner_map : spread the recording's own independent pieces (optimize's basis solves) over
+        the cluster this task runs on (:func:`vfcli.batch.cluster.worker_map`); only inside a
+        Dask task. The store ends the same either way.
 
     Returns
     -------
@@ -43,19 +46,25 @@ def run_entry(entry_json: Mapping[str, Any]) -> dict[str, Any]:
         ``name``, ``status`` ("done" | "up to date" | "failed"), ``error`` (one line, or
         None), ``exit_code`` (the code `vfcli run` would exit with), ``seconds`` (wall time),
         ``pid`` (the process that ran it), ``max_rss_mb`` (the peak resident memory of that
-        process so far, MB: an upper bound for this recording's), ``summary`` (:meth:`RunSummary.to_json`, None on
+        process so far, MB: an upper bound for this recording's), ``inner_map`` (whether the
+        cluster ran its pieces), ``summary`` (:meth:`RunSummary.to_json`, None on
         error) and ``traceback`` (only for a bug).
     """
     from vfcli.stages.run import run_recording
 
     entry = RecordingEntry.from_json(entry_json)
     t0 = time.perf_counter()
-    out: dict[str, Any] = {"name": entry.name, "store": str(entry.store), "pid": os.getpid(),
+    out: dict[str, Any] = {"name": entry.name, "store": str(entry.store), "pid": os.getpid(), "inner_map": inner_map,
                            "error": None, "exit_code": 0, "summary": None, "traceback": None}
     try:
+        mapper = None
+        if inner_map:
+            from vfcli.batch.cluster import worker_map
+
+            mapper = worker_map()
         summary = run_recording(Path(entry.store), Path(entry.raw), until=entry.until,
                                 overrides=dict(entry.overrides), config_path=entry.config,
-                                command=f"vfcli batch ({entry.name})").to_json()
+                                command=f"vfcli batch ({entry.name})", map=mapper).to_json()
         out["summary"] = summary
         out["status"] = outcome_status(summary)
         if out["status"] == "failed":

@@ -16,6 +16,9 @@ asks for dask-jobqueue jobs. Needs: pip install 'vfcli[batch]'.
 Exit 0 when every recording ended done or up to date, else the largest exit code of the
 failed ones (3 bad data, 4 store locked or damaged, ...), after all have run.
 The ledger <MANIFEST>.ledger.json records each outcome; a rerun skips what is finished.
+One batch of a manifest at a time: a second one exits 4 at once (the ledger's lock file).
+--inner-map auto: when fewer recordings run than the cluster has worker threads, each spreads
+its optimize basis solves over the idle workers (the stores end the same).
 """
 
 
@@ -32,13 +35,19 @@ The ledger <MANIFEST>.ledger.json records each outcome; a rerun skips what is fi
 @click.option("--fresh", is_flag=True, help="Ignore the ledger: run every recording (stages still run only when stale).")
 @click.option("--job-script", is_flag=True, help="Print the SLURM/PBS job script one worker job runs (scheduler address "
               "as a placeholder) and exit; submits nothing.")
+@click.option("--inner-map", type=click.Choice(["auto", "on", "off"]), default="off", show_default=True,
+              help="Spread each recording's optimize basis solves over the cluster's workers (auto: when fewer "
+                   "recordings run than there are worker threads); pays only for load models of thousands of "
+                   "patterns (docs/cluster.md).")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 @click.option("--quiet", "-q", is_flag=True, help="Print errors only.")
 @click.option("-v", "--verbose", count=True, help="More logging (-vv for debug).")
-def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, job_script, as_json, quiet, verbose):  # type: ignore[no-untyped-def]
+def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, job_script, inner_map, as_json,  # type: ignore[no-untyped-def]
+              quiet, verbose):
     """Run the pipeline over every recording listed in MANIFEST (TOML or CSV)."""
     from vfcli.batch.cluster import job_script as make_job_script, jobqueue_choice, open_client, require
     from vfcli.batch.engine import run_batch
+    from vfcli.batch.ledger import Ledger
     from vfcli.batch.manifest import read_manifest
 
     setup_logging(verbose, quiet)
@@ -58,9 +67,11 @@ def batch_cmd(manifest, scheduler, workers, slurm, pbs, until, retries, fresh, j
             click.echo(f"{outcome['name']}: {outcome['status']}{resumed}{err}", err=True)
 
     n_retries = m.retries if retries is None else retries
-    with open_client(scheduler=scheduler, workers=workers or m.workers, jobqueue=jobqueue,
-                     allowed_failures=n_retries) as client:
-        summary = run_batch(m, client, until=until, fresh=fresh, retries=n_retries, on_outcome=progress)
+    # the ledger's lock first: a second batch of this manifest stops before it starts a cluster
+    with Ledger(m.ledger_path, m.path).hold(), open_client(scheduler=scheduler, workers=workers or m.workers,
+                                                           jobqueue=jobqueue, allowed_failures=n_retries) as client:
+        summary = run_batch(m, client, until=until, fresh=fresh, retries=n_retries, on_outcome=progress,
+                            hold_ledger=False, inner_map={"auto": None, "on": True, "off": False}[inner_map])
     if as_json:
         click.echo(json.dumps(summary.to_json(), indent=2, default=str))
     elif not quiet:

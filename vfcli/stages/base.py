@@ -11,6 +11,7 @@ from typing import Any, Callable, Iterator, Literal
 
 from vfcli.config import FlowConfig, RecordingConfig, fields_shaping, load_config
 from vfcli.errors import MissingStageError
+from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
 from vfcli.store.provenance import describe_inputs
 from vfcli.store import StageWriter, Store, StoreReader
@@ -20,7 +21,11 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class RunContext:
-    """One command's view of a recording: its store, its configs and how to report."""
+    """One command's view of a recording: its store, its configs and how to report.
+
+    map : where the recording's independent pieces of work run (:mod:`vfcli.parallel`; the
+        optimize basis solves); None: one after the other in this process.
+    """
 
     store: Store
     stored_config: RecordingConfig
@@ -28,6 +33,7 @@ class RunContext:
     command: str = "vfcli"
     force: bool = False
     progress: Progress = no_progress
+    map: Mapper | None = None
 
     @classmethod
     def open(

@@ -163,7 +163,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
     ckpt = checkpoint_path(ctx.store.path, run)
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
-        problem, setup = problem_of_store(reader, ctx.config)
+        problem, setup = problem_of_store(reader, ctx.config, ctx.map)
         label = f"{'pressure loads' if cfg.loads == 'pressure' else f'{cfg.setup}, {cfg.loads}'} ({cfg.method})"
         opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease, xtol=cfg.stop_rel_change)
         bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")

@@ -21,6 +21,7 @@ from typing import Any, Mapping, Sequence
 
 from vfcli.errors import ConfigError
 from vfcli.io.raw_folder import RawFiles, find_raw_files
+from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
 from vfcli.stages.base import RunContext, StageResult, stage_config_json
 from vfcli.store import layout
@@ -228,6 +229,7 @@ def run_recording(
     force: bool = False,
     command: str | None = None,
     progress: Progress = no_progress,
+    map: Mapper | None = None,
 ) -> RunSummary:
     """Run the pipeline on one recording: the steps up to ``until`` that are not current.
 
@@ -242,6 +244,9 @@ def run_recording(
     dry_run : say what would run and why, write nothing.
     force : rerun every step.
     command : the command line recorded in the stages' provenance.
+    map : runs the independent pieces of work of the steps (:mod:`vfcli.parallel`: optimize's
+        basis solves), e.g. a Dask client's map; default one after the other. The stored
+        results are the same whatever the map.
 
     Raises
     ------
@@ -260,7 +265,8 @@ def run_recording(
     command = command or f"vfcli run {store}" + (f" --raw {raw}" if raw is not None else "")
 
     def context() -> RunContext:  # reopened per step: each step sees the store as the last one left it
-        return RunContext.open(store, config_path, items, command=command, force=force, progress=progress)
+        return RunContext.open(store, config_path, items, command=command, force=force, progress=progress,
+                               map=map)
 
     ctx = context()
     active = [s for s in steps if raw_files is not None or s not in _RAW_STEPS]

@@ -11,6 +11,7 @@ from vfcli.config import RecordingConfig
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.inverse.problem import Problem
 from vfcli.inverse.setup import OptimizeInputs, Setup, build_problem
+from vfcli.parallel import Mapper
 from vfcli.store.mesh import read_stored_mesh
 from vfcli.store.reader import StoreReader
 
@@ -64,6 +65,7 @@ def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]
     return (cam.rotation_deg, tuple(cam.offset_px)) if cam.pose == "config" else None
 
 
-def problem_of_store(reader: StoreReader, config: RecordingConfig) -> tuple[Problem, Setup]:
-    """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it)."""
-    return build_problem(read_optimize_inputs(reader, config), config.optimize, configured_pose(config))
+def problem_of_store(reader: StoreReader, config: RecordingConfig, map: Mapper | None = None) -> tuple[Problem, Setup]:
+    """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it);
+    ``map`` runs the response's basis solves (:mod:`vfcli.parallel`; default one after the other)."""
+    return build_problem(read_optimize_inputs(reader, config), config.optimize, configured_pose(config), map=map)

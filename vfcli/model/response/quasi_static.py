@@ -17,16 +17,15 @@ in :class:`vfcli.inverse.problem.Problem`.
 """
 from __future__ import annotations
 
-import builtins
 import functools
 import logging
-from typing import Callable, Iterable
 
 import numpy as np
 import scipy.sparse as sp
 
 from vfcli.model.loads.force_field import LoadModel
 from vfcli.model.response.base import Linearization, SeparableTerm
+from vfcli.parallel import Mapper, serial_map
 
 log = logging.getLogger(__name__)
 
@@ -46,11 +45,11 @@ class QuasiStaticResponse:
     model : :class:`vfcli.model.fem.ElasticModel` (factorised on first use).
     load_model : :class:`vfcli.model.loads.force_field.LoadModel`.
     chunk : right-hand sides solved per batch (bounds the (n_dofs, chunk) work array).
-    map : ``map(func, iterable)``-like callable that runs the batches' solves (they are
-        independent) and yields their results in order; default the builtin ``map`` (one after
-        the other). A thread pool's ``map`` (the factorisation's solves release the GIL) or a
-        Dask client's (``lambda f, it: client.gather(client.map(f, list(it)))``, with a model
-        that pickles) spreads them; the basis is the same whatever the map.
+    map : a :class:`vfcli.parallel.Mapper` that runs the batches' solves (they are
+        independent) and returns their results in order; default one after the other. A thread
+        pool's ``map`` (the factorisation's solves release the GIL) or a Dask client's
+        (:func:`vfcli.batch.cluster.client_map`; the model pickles without its factorisation,
+        which each worker redoes) spreads them; the basis is the same whatever the map.
 
     Attributes
     ----------
@@ -59,7 +58,7 @@ class QuasiStaticResponse:
     """
 
     def __init__(self, model, load_model: LoadModel, chunk: int = 64,
-                 map: Callable[..., Iterable[np.ndarray]] | None = None) -> None:
+                 map: Mapper | None = None) -> None:
         self.load_model = load_model
         self.n_vertices = int(model.mesh.n_nodes)
         loads = load_model.spatial_loads(model)
@@ -72,7 +71,7 @@ class QuasiStaticResponse:
         spans = [(a, min(a + chunk, load_model.n_spatial)) for a in range(0, load_model.n_spatial, chunk)]
         if map is not None and hasattr(model, "factorize"):
             model.factorize()  # once here, not by racing threads of a pool
-        solved = (builtins.map if map is None else map)(
+        solved = (serial_map if map is None else map)(
             functools.partial(_basis_block, model, vop), [loads[:, a:b] for a, b in spans])
         for (a, b), block in zip(spans, solved, strict=True):
             out[:, a:b] = block
