@@ -39,8 +39,14 @@ Phase 2, scoring (reads truth.h5, :func:`score_case`):
 Reproduce (prints a markdown section for docs/benchmarks.md)::
 
     .venv/bin/python bench/bench_diagnose.py --seeds 2001 [--effects none inertia ...] [--per-effect 3]
-        [--nulls 6] [--duration 0.03] [--jobs 2] [--keep DIR] [--json OUT] [--stop-after MIN]
-    .venv/bin/python bench/bench_diagnose.py --keep DIR --rescore        # score a kept panel again
+        [--nulls 6] [--duration 0.04] [--jobs 2] [--keep DIR] [--json OUT] [--stop-after MIN]
+    .venv/bin/python bench/bench_diagnose.py ... --keep DIR --prepare    # phantoms and fits, ahead
+    .venv/bin/python bench/bench_diagnose.py ... --keep DIR --rescore    # score a kept panel again
+
+The phantoms and the baseline fits do not depend on the diagnosis under test, so ``--prepare`` may
+make them ahead (synth and ``vfcli run --until optimize`` into the same ``--keep DIR``; every
+truth.h5 sealed in ``truth/`` at once, nothing scored); the panel's run then checks with ``vfcli
+run`` that they are up to date, diagnoses, and reports the prepared wall times.
 
 Seeds 2001-2100 are reserved for this panel (develop on 3001+).
 """
@@ -49,7 +55,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -157,43 +162,92 @@ def _last_line(text: str) -> str:
     return lines[-1][:300] if lines else ""
 
 
-def run_case(case: Case, work: Path, duration: float, synth_sets: list[str], run_sets: list[str],
-             diag_args: list[str]) -> dict[str, Any]:
-    """Phase 1 for one recording (reads no truth): synth, run to optimize, diagnose. Writes and returns
-    ``work/case.json``: {case, steps: {name: {rc, seconds, note}}, run, diagnosis, retried}."""
+def synth_case(case: Case, work: Path, duration: float, synth_sets: list[str]) -> dict[str, Any]:
+    """``vfcli synth`` of one recording into ``work/raw``, its truth.h5 moved at once into ``work/truth/``
+    (sealed until phase 2); {rc, seconds, note}, also kept in ``work/synth.json``. A phantom already
+    made for the same case and settings (``--prepare``) is kept: the phantoms do not depend on the
+    method under test."""
+    key = {"case": asdict(case), "duration": duration, "sets": synth_sets}
+    done = work / "synth.json"
+    if done.exists() and (work / "truth" / "truth.h5").exists():
+        old = json.loads(done.read_text())
+        if old.get("key") == key and old["step"]["rc"] == 0:
+            return {**old["step"], "note": "made beforehand (--prepare)"}
     if work.exists():
         shutil.rmtree(work)
     work.mkdir(parents=True)
-    raw, store, log = work / "raw", work / "recording.h5", work / "stderr.log"
-    sets = lambda xs: sum((["--set", s] for s in xs), [])  # noqa: E731
+    raw = work / "raw"
+    rc, wall, _, err = _vfcli(["synth", raw, "--seed", case.seed, "--effect", case.effect, "--strength",
+                               case.strength, "-q", *_sets(["synth.panel='widened'", f"synth.duration_s={duration}",
+                                                            *synth_sets])], work / "stderr.log")
+    step = {"rc": rc, "seconds": wall, "note": _last_line(err) if rc else ""}
+    if rc == 0:
+        (work / "truth").mkdir()
+        shutil.move(raw / "truth.h5", work / "truth" / "truth.h5")
+    done.write_text(json.dumps({"key": key, "step": step}))
+    return step
+
+
+def _sets(items: list[str]) -> list[str]:
+    return sum((["--set", s] for s in items), [])
+
+
+def run_case(case: Case, work: Path, duration: float, synth_sets: list[str], run_sets: list[str],
+             diag_args: list[str], prepare: bool = False) -> dict[str, Any]:
+    """Phase 1 for one recording (reads no truth): synth (:func:`synth_case`), ``vfcli run --until
+    optimize``, ``vfcli diagnose``. Writes and returns ``work/case.json``: {case, steps: {name: {rc,
+    seconds, note}}, run, diagnosis, retried}.
+
+    prepare : stop after the run (``work/prepared.json``; kept when it is there for the same case and
+        settings); a later call with the same case and settings
+        keeps that run (``vfcli run`` then finds every step up to date: checked, not assumed) and
+        reports the prepared run's wall times."""
     out: dict[str, Any] = {"case": asdict(case), "steps": {}, "run": None, "diagnosis": None, "retried": None}
+    out["steps"]["synth"] = synth_case(case, work, duration, synth_sets)
+    store, log = work / "recording.h5", work / "stderr.log"
 
     def save() -> dict[str, Any]:
-        (work / "case.json").write_text(json.dumps(out, indent=1))
+        (work / ("prepared.json" if prepare else "case.json")).write_text(json.dumps(out, indent=1))
         return out
 
-    rc, wall, _, err = _vfcli(["synth", raw, "--seed", case.seed, "--effect", case.effect, "--strength",
-                               case.strength, "-q", *sets(["synth.panel='widened'", f"synth.duration_s={duration}",
-                                                           *synth_sets])], log)
-    out["steps"]["synth"] = {"rc": rc, "seconds": wall, "note": _last_line(err) if rc else ""}
-    if rc:
+    if out["steps"]["synth"]["rc"]:
         return save()
-    (work / "truth").mkdir()
-    shutil.move(raw / "truth.h5", work / "truth" / "truth.h5")   # sealed until phase 2
-    run_args = ["run", store, "--raw", raw, "--until", "optimize", "--json", *sets(run_sets)]
+    key = {"case": asdict(case), "duration": duration, "synth": synth_sets, "run": run_sets}
+    prepared = json.loads((work / "prepared.json").read_text()) if (work / "prepared.json").exists() else None
+    if prepare and prepared is not None and prepared.get("key") == key and "run" in prepared["steps"]:
+        return prepared
+    reuse = not prepare and prepared is not None and prepared.get("key") == key and "run" in prepared["steps"]
+    if reuse and prepared["steps"]["run"]["rc"]:      # the prepared run failed: the same code fails again
+        out.update(retried=prepared.get("retried"), steps={**out["steps"], **{
+            k: v for k, v in prepared["steps"].items() if k != "synth"}})
+        return save()
+    if not reuse:
+        for old in (store, work / "recording.h5.parts"):
+            shutil.rmtree(old) if old.is_dir() else old.unlink(missing_ok=True)
+    run_args = ["run", store, "--raw", work / "raw", "--until", "optimize", "--json", *_sets(run_sets)]
+    if reuse and prepared.get("retried"):
+        run_args += _sets(prepared["retried"]["set"])
     rc, wall, stdout, err = _vfcli(run_args, log)
     if rc == 3 and "ingest_ldv.grid_rows" in err:
         out["retried"] = {"first_exit": rc, "message": _last_line(err), "set": GRID_RETRY, "seconds": wall}
-        rc, wall2, stdout, err = _vfcli(run_args + sets(GRID_RETRY), log)
+        rc, wall2, stdout, err = _vfcli(run_args + _sets(GRID_RETRY), log)
         wall += wall2
-    out["steps"]["run"] = {"rc": rc, "seconds": wall, "note": _last_line(err) if rc else ""}
-    if rc == 0:
-        out["run"] = json.loads(stdout)
-        for st in out["run"]["stages"]:
-            out["steps"][st["name"]] = {"rc": 0, "seconds": st["seconds"], "note": st["action"]}
-    if rc:
+    if reuse and rc == 0 and not any(st["action"] == "ran" for st in json.loads(stdout)["stages"]):
+        out["retried"], out["run"] = prepared.get("retried"), prepared["run"]
+        out["steps"].update({k: {**v, "note": v["note"] + " (prepared)"} for k, v in prepared["steps"].items()
+                             if k != "synth"})
+    else:
+        out["steps"]["run"] = {"rc": rc, "seconds": wall, "note": _last_line(err) if rc else ""}
+        if rc == 0:
+            out["run"] = json.loads(stdout)
+            for st in out["run"]["stages"]:
+                out["steps"][st["name"]] = {"rc": 0, "seconds": st["seconds"], "note": st["action"]}
+    if prepare:
+        out["key"] = key
+    if rc or prepare:
         return save()
-    rc, wall, stdout, err = _vfcli(["diagnose", store, "--json", "--map", work / "residual_map.png", *diag_args], log)
+    rc, wall, stdout, err = _vfcli(["diagnose", store, "--json", "--force", "--map", work / "residual_map.png",
+                                    *diag_args], log)
     out["steps"]["diagnose"] = {"rc": rc, "seconds": wall, "note": _last_line(err) if rc else ""}
     if rc == 0:
         out["diagnosis"] = json.loads(stdout)
@@ -486,7 +540,7 @@ def main() -> None:
     ap.add_argument("--effects", nargs="+", default=list(EFFECTS), choices=list(EFFECTS))
     ap.add_argument("--per-effect", type=int, default=3)
     ap.add_argument("--nulls", type=int, default=6, help="'none' recordings besides --per-effect")
-    ap.add_argument("--duration", type=float, default=0.03, help="video length, s (synth.duration_s)")
+    ap.add_argument("--duration", type=float, default=0.04, help="video length, s (synth.duration_s)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--keep", type=Path, help="work folder (else a temporary one, removed)")
     ap.add_argument("--json", dest="json_out", type=Path, help="write every figure here")
@@ -495,9 +549,11 @@ def main() -> None:
     ap.add_argument("--diagnose-arg", dest="diag_args", action="append", default=[], help="extra `vfcli diagnose` argument")
     ap.add_argument("--stop-after", type=float, help="start no recording after this many minutes; score those done")
     ap.add_argument("--rescore", action="store_true", help="score the case.json files in --keep DIR again")
+    ap.add_argument("--prepare", action="store_true",
+                    help="only synth and `vfcli run --until optimize` into --keep DIR, for a later run to use")
     args = ap.parse_args()
-    if args.rescore and args.keep is None:
-        ap.error("--rescore needs --keep DIR")
+    if (args.rescore or args.prepare) and args.keep is None:
+        ap.error("--rescore and --prepare need --keep DIR")
     cases = panel_cases(parse_seeds(args.seeds), args.effects, args.per_effect, args.nulls)
     base = args.keep or Path(tempfile.mkdtemp(prefix="bench_diagnose_"))
     base.mkdir(parents=True, exist_ok=True)
@@ -520,11 +576,14 @@ def main() -> None:
                 if res is None:
                     print(f"  {c.name}: not started (--stop-after)", file=sys.stderr)
                     continue
-                phase1[c.name] = res
+                if not args.prepare:
+                    phase1[c.name] = res
                 st = res["steps"]
                 print(f"  {c.name} ({c.strength:g}): " + ", ".join(f"{k} {v['rc']} {v['seconds']:.0f} s"
                       for k, v in st.items() if k in ("synth", "run", "diagnose")), file=sys.stderr, flush=True)
         meta_old = {}
+    if args.prepare:
+        return
     # every diagnosis is done: only now is truth read
     results = [score_case(base / c.name, phase1[c.name]) for c in cases if c.name in phase1]
     cmd = "python bench/bench_diagnose.py " + " ".join(a for a in sys.argv[1:])
@@ -544,7 +603,8 @@ def main() -> None:
 def _guarded(case: Case, base: Path, args: argparse.Namespace, t0: float) -> dict[str, Any] | None:
     if args.stop_after is not None and time.time() - t0 > 60 * args.stop_after:
         return None
-    return run_case(case, base / case.name, args.duration, args.synth_sets, args.run_sets, args.diag_args)
+    return run_case(case, base / case.name, args.duration, args.synth_sets, args.run_sets, args.diag_args,
+                    args.prepare)
 
 
 if __name__ == "__main__":
