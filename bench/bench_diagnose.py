@@ -277,34 +277,27 @@ def named_label(found: list[dict[str, Any]] | None) -> str:
     return "+".join(names) if names else "none"
 
 
-def _first(d: dict[str, Any], keys: tuple[str, ...]) -> Any:
-    for k in keys:
-        if k in d and d[k] is not None:
-            return d[k]
-    return None
-
-
-def finding_figures(f: dict[str, Any]) -> dict[str, float]:
-    """estimate, interval (lo, hi), held-out error before/after and the refit's run of one finding
-    (NaN / None when the diagnosis does not state them)."""
-    est = _first(f, ("estimate", "theta", "value", "parameter"))
-    if isinstance(est, (list, tuple)):
-        est = est[0] if est else None
-    lo = hi = float("nan")
-    iv = _first(f, ("interval", "ci", "interval_90", "ci90"))
-    sd = _first(f, ("sd", "std", "theta_sd"))
-    if isinstance(iv, (list, tuple)) and len(iv) == 2:
-        lo, hi = float(iv[0]), float(iv[1])
-    elif sd is not None and est is not None:
-        sd0 = float(sd[0] if isinstance(sd, (list, tuple)) else sd)
-        lo, hi = float(est) - 1.645 * sd0, float(est) + 1.645 * sd0
-    held = f.get("heldout") if isinstance(f.get("heldout"), dict) else f
-    before = _first(held, ("heldout_before", "before", "error_before"))
-    after = _first(held, ("heldout_after", "after", "error_after"))
-    return {"estimate": float(est) if est is not None else float("nan"), "lo": lo, "hi": hi,
-            "heldout_before": float(before) if before is not None else float("nan"),
-            "heldout_after": float(after) if after is not None else float("nan"),
-            "run": _first(f, ("run", "refit_run", "new_run"))}
+def refit_figures(refit: dict[str, Any] | None) -> dict[str, Any]:
+    """The confirmation refit as the diagnosis states it (``--json``'s ``refit``: candidate, run,
+    parameters {name: {estimate, sd, interval}}, heldout [{kind, baseline, extended, reduction}]):
+    candidate, run, the first parameter's estimate and stated interval (lo, hi), and per held-out kind
+    the RMS error over its splits before (baseline) and after (extended) and the reduction the
+    diagnosis computed. {} without a refit."""
+    if not refit:
+        return {}
+    params = list((refit.get("parameters") or {}).items())
+    out: dict[str, Any] = {"candidate": refit.get("candidate"), "run": refit.get("run") or None,
+                           "improves": refit.get("improves")}
+    if params:
+        name, p = params[0]
+        iv = p.get("interval") or [float("nan"), float("nan")]
+        out.update(parameter=name, estimate=float(p["estimate"]), lo=float(iv[0]), hi=float(iv[1]))
+    for h in refit.get("heldout") or []:
+        b, e = np.asarray(h["baseline"], float), np.asarray(h["extended"], float)
+        out[f"heldout_{h['kind']}"] = {"before": float(np.sqrt(np.mean(b ** 2))), "after": float(np.sqrt(np.mean(e ** 2))),
+                                       "drop": float(h.get("reduction", 1 - np.sqrt(np.mean(e ** 2) / np.mean(b ** 2)))),
+                                       "units": h.get("units", ""), "beyond_spread": h.get("beyond_spread")}
+    return out
 
 
 # --------------------------------------------------------------------------------------- phase 2: scoring
@@ -379,24 +372,29 @@ def score_case(work: Path, phase1: dict[str, Any]) -> dict[str, Any]:
     s["draw"] = {k.removeprefix("widened_"): (v.tolist() if hasattr(v, "tolist") else v)
                  for k, v in attrs.items() if k.startswith("widened_")}
     s["true_parameter"] = true_parameter(case.effect, case.strength, attrs)
-    match = [f for f in (found or []) if CANDIDATE_EFFECT.get(str(f.get("name")), f.get("name")) == case.effect]
     store = work / "recording.h5"
     if diag is not None and store.exists():
         s["inferior_before"] = inferior_error(store, "default", truth)
-    if match:
-        fig = finding_figures(match[0])
-        s.update({k: v for k, v in fig.items() if k != "run"})
-        tp = s["true_parameter"]
-        if tp is not None and np.isfinite(fig["estimate"]):
-            s["param_rel_err"] = abs(fig["estimate"] - tp) / abs(tp)
-            s["param_within"] = bool(s["param_rel_err"] <= PARAM_TOL)
-            s["param_inside"] = bool(fig["lo"] <= tp <= fig["hi"]) if np.isfinite(fig["lo"]) else None
-        if np.isfinite(fig["heldout_before"]) and fig["heldout_before"] > 0:
-            s["heldout_drop"] = 1 - fig["heldout_after"] / fig["heldout_before"]
+    fig = refit_figures((diag or {}).get("refit"))
+    if fig:
+        s["refit"] = {k: v for k, v in fig.items() if not k.startswith("heldout_")}
+        s["refit_candidate"] = CANDIDATE_EFFECT.get(str(fig["candidate"]), str(fig["candidate"]))
         run = fig["run"] or _extended_run(store)
         if run:
-            s["refit_run"] = run
             s["inferior_after"] = inferior_error(store, run, truth)
+        if s["refit_candidate"] == case.effect:
+            s.update({k: fig[k] for k in ("estimate", "lo", "hi", "parameter") if k in fig})
+            tp = s["true_parameter"]
+            if tp is not None and "estimate" in fig:
+                s["param_rel_err"] = abs(fig["estimate"] - tp) / abs(tp)
+                s["param_within"] = bool(s["param_rel_err"] <= PARAM_TOL)
+                s["param_inside"] = bool(fig["lo"] <= tp <= fig["hi"]) if np.isfinite(fig["lo"]) else None
+            held = fig.get("heldout_cycles") or fig.get("heldout_instruments")
+            for kind in ("cycles", "instruments"):
+                if f"heldout_{kind}" in fig:
+                    s[f"heldout_{kind}"] = fig[f"heldout_{kind}"]
+            if held:
+                s["heldout_before"], s["heldout_after"], s["heldout_drop"] = held["before"], held["after"], held["drop"]
     return s
 
 
@@ -487,21 +485,27 @@ def markdown(results: list[dict[str, Any]], effects: list[str], meta: dict[str, 
     out += ["", "Confusion matrix (rows: hidden effect; columns: what the diagnosis named):", "",
             "| hidden \\ named | " + " | ".join(cols) + " |", "| --- |" + " ---: |" * len(cols)]
     out += [f"| {row} | " + " | ".join(str(v) for v in m[i]) + " |" for i, row in enumerate(rows)]
-    out += ["", "| seed | hidden (strength) | named | parameter: estimate [interval] / truth | within 25 % | "
-                "inside | held-out error before -> after (drop) | inferior error before -> after | exits |",
-            "| ---: | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    out += ["", "| seed | hidden (strength) | named | refitted | parameter: estimate [95 % interval] / truth | "
+                "within 25 % | inside | held-out error, cycles: before -> after (drop) | held-out, vibrometer: "
+                "before -> after (drop) | inferior error: baseline -> refit | exits |",
+            "| ---: | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    yn = lambda v: "-" if v is None else ("yes" if v else "no")  # noqa: E731
+
+    def held(h: dict[str, Any] | None) -> str:
+        return "-" if not h else (f"{_f(h['before'])} -> {_f(h['after'])} {h.get('units', '')} "
+                                  f"({_f(h['drop'], '{:.0%}')})")
+
     for r in results:
         exits = ", ".join(f"{k} {v['rc']}" for k, v in r["steps"].items() if v["rc"]) or "all 0"
         if r.get("retried"):
             exits += " (ingest-ldv retried with the grid it found)"
         par = (f"{_f(r.get('estimate'))} [{_f(r.get('lo'))}, {_f(r.get('hi'))}] / {_f(r.get('true_parameter'))}"
                if "estimate" in r else f"- / {_f(r.get('true_parameter'))}")
-        held = (f"{_f(r.get('heldout_before'))} -> {_f(r.get('heldout_after'))} ({_f(r.get('heldout_drop'), '{:.0%}')})"
-                if "heldout_before" in r else "-")
         inf = f"{_f(r.get('inferior_before'), '{:.0%}')} -> {_f(r.get('inferior_after'), '{:.0%}')}"
-        yn = lambda v: "-" if v is None else ("yes" if v else "no")  # noqa: E731
-        out.append(f"| {r['seed']} | {r['effect']} ({r['strength']:.3g}) | {r['named']} | {par} | "
-                   f"{yn(r.get('param_within'))} | {yn(r.get('param_inside'))} | {held} | {inf} | {exits} |")
+        out.append(f"| {r['seed']} | {r['effect']} ({r['strength']:.3g}) | {r['named']} | "
+                   f"{r.get('refit_candidate') or '-'} | {par} | {yn(r.get('param_within'))} | "
+                   f"{yn(r.get('param_inside'))} | {held(r.get('heldout_cycles'))} | "
+                   f"{held(r.get('heldout_instruments'))} | {inf} | {exits} |")
     fa = false_alarms(results)
     out += ["", "| target | met |", "| --- | ---: |"]
     out += [f"| {k} | {a} of {b} |" for k, (a, b) in targets(results).items()]

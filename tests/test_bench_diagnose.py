@@ -106,11 +106,15 @@ def test_the_true_parameter_in_the_candidates_units():
     assert bd.true_parameter("contact", 1.0, attrs) is None and bd.true_parameter("none", 0.0, attrs) is None
 
 
-def test_finding_figures_from_an_interval_or_a_standard_deviation():
-    f = bd.finding_figures({"name": "asymmetry", "estimate": 0.2, "interval": [0.15, 0.25],
-                            "heldout": {"before": 2.0, "after": 1.2}, "run": "default+asymmetry"})
-    assert (f["estimate"], f["lo"], f["hi"], f["heldout_before"], f["heldout_after"], f["run"]) == (
-        0.2, 0.15, 0.25, 2.0, 1.2, "default+asymmetry")
-    g = bd.finding_figures({"name": "damping", "theta": [0.3], "sd": 0.1})
-    assert g["lo"] == pytest.approx(0.3 - 0.1645) and g["hi"] == pytest.approx(0.3 + 0.1645)
-    assert np.isnan(g["heldout_before"]) and g["run"] is None
+def test_refit_figures_read_the_confirmation_as_the_diagnosis_states_it():
+    refit = {"candidate": "asymmetry", "run": "default+asymmetry", "uncertainty": "sandwich", "improves": True,
+             "parameters": {"left_softening": {"estimate": 0.2, "sd": 0.02, "interval": [0.16, 0.24]}},
+             "heldout": [{"kind": "cycles", "units": "mm/s", "baseline": [3.0, 4.0], "extended": [1.0, 2.0],
+                          "reduction": 0.37, "spread": 0.1, "beyond_spread": True}]}
+    f = bd.refit_figures(refit)
+    assert (f["candidate"], f["run"], f["parameter"], f["estimate"], f["lo"], f["hi"]) == (
+        "asymmetry", "default+asymmetry", "left_softening", 0.2, 0.16, 0.24)
+    h = f["heldout_cycles"]
+    assert h["before"] == pytest.approx(np.sqrt(12.5)) and h["after"] == pytest.approx(np.sqrt(2.5))
+    assert h["drop"] == 0.37 and "heldout_instruments" not in f  # the diagnosis's own reduction is reported
+    assert bd.refit_figures(None) == {} and bd.refit_figures({"candidate": "damping", "run": ""})["run"] is None
