@@ -470,8 +470,9 @@ def _f(v: Any, fmt: str = "{:.3g}") -> str:
 
 def markdown(results: list[dict[str, Any]], effects: list[str], meta: dict[str, Any]) -> str:
     """The section for docs/benchmarks.md."""
-    out = [f"Command: `{meta['command']}`  ", f"Commit: {meta['commit']}; {meta['n']} recordings of "
-           f"{meta['duration'] * 1e3:.0f} ms, {meta['jobs']} at a time; machine load average {meta['load']}; "
+    out = [f"Command: `{meta.get('command', '?')}`  ", f"Commit: {meta.get('commit', '?')}; {meta['n']} of "
+           f"{meta['of']} recordings finished, videos of {meta.get('duration', float('nan')) * 1e3:.0f} ms, "
+           f"{meta.get('jobs', '?')} at a time; machine load average {meta['load']}; "
            f"wall time {meta['wall_min']:.1f} min.", ""]
     out += ["| seed | hidden effect | strength | camera rotation (deg) | field of view / length (mm) | blur (px) | E / nominal |",
             "| ---: | --- | ---: | ---: | ---: | ---: | ---: |"]
@@ -561,20 +562,24 @@ def main() -> None:
     cases = panel_cases(parse_seeds(args.seeds), args.effects, args.per_effect, args.nulls)
     base = args.keep or Path(tempfile.mkdtemp(prefix="bench_diagnose_"))
     base.mkdir(parents=True, exist_ok=True)
-    t0, load0 = time.time(), os.getloadavg()[0]
+    t0 = time.time()
     phase1: dict[str, dict[str, Any]] = {}
+    meta_file = base / ("meta_prepare.json" if args.prepare else "meta.json")
     if args.rescore:
         for c in cases:
             f = base / c.name / "case.json"
             if f.exists():
                 phase1[c.name] = json.loads(f.read_text())
-        meta_old = json.loads((base / "meta.json").read_text()) if (base / "meta.json").exists() else {}
+        meta = json.loads(meta_file.read_text()) if meta_file.exists() else {}
     else:
+        meta = {"command": "python bench/bench_diagnose.py " + " ".join(sys.argv[1:]), "commit": _commit(),
+                "duration": args.duration, "jobs": args.jobs, "load_start": os.getloadavg()[0], "t0": t0}
+        meta_file.write_text(json.dumps(meta))
         print(f"{len(cases)} recordings, work folder {base}", file=sys.stderr)
+        # recordings whose phantom and fit were made ahead first (only their diagnosis is left)
+        ordered = sorted(cases, key=lambda c: not (base / c.name / "prepared.json").exists())
         with ThreadPoolExecutor(args.jobs) as pool:
-            futures = {}
-            for c in cases:
-                futures[pool.submit(_guarded, c, base, args, t0)] = c
+            futures = {pool.submit(_guarded, c, base, args, t0): c for c in ordered}
             for fut in as_completed(futures):
                 c, res = futures[fut], fut.result()
                 if res is None:
@@ -585,17 +590,16 @@ def main() -> None:
                 st = res["steps"]
                 print(f"  {c.name} ({c.strength:g}): " + ", ".join(f"{k} {v['rc']} {v['seconds']:.0f} s"
                       for k, v in st.items() if k in ("synth", "run", "diagnose")), file=sys.stderr, flush=True)
-        meta_old = {}
+        meta.update(load_end=os.getloadavg()[0], wall_min=(time.time() - t0) / 60)
+        meta_file.write_text(json.dumps(meta))
     if args.prepare:
         return
     # every diagnosis is done: only now is truth read
     results = [score_case(base / c.name, phase1[c.name]) for c in cases if c.name in phase1]
-    cmd = "python bench/bench_diagnose.py " + " ".join(a for a in sys.argv[1:])
-    meta = meta_old or {"command": cmd, "commit": _commit(), "n": len(results), "duration": args.duration,
-                        "jobs": args.jobs, "load": f"{load0:.0f} at the start, {os.getloadavg()[0]:.0f} at the end",
-                        "wall_min": (time.time() - t0) / 60}
-    if not args.rescore:
-        (base / "meta.json").write_text(json.dumps(meta))
+    meta = {**meta, "n": len(results), "of": len(cases),
+            "load": f"{meta.get('load_start', float('nan')):.0f} at the start, "
+                    + (f"{meta['load_end']:.0f} at the end" if "load_end" in meta else "still running"),
+            "wall_min": meta.get("wall_min", (time.time() - meta.get("t0", t0)) / 60)}
     print(markdown(results, args.effects, meta))
     if args.json_out:
         args.json_out.write_text(json.dumps({"meta": meta, "results": results, "false_alarms": false_alarms(results),
