@@ -262,10 +262,19 @@ def findings(diag: dict[str, Any] | None) -> list[dict[str, Any]] | None:
     None when the output holds no decision (a diagnosis without one)."""
     if not diag:
         return None
-    for holder in (diag, diag.get("decision") if isinstance(diag.get("decision"), dict) else {}):
+    for holder in (diag, *(diag[k] for k in ("candidates", "decision") if isinstance(diag.get(k), dict))):
         if "findings" in holder:
             return [f if isinstance(f, dict) else {"name": str(f)} for f in holder["findings"] or []]
     return None
+
+
+def family_alpha(diag: dict[str, Any] | None) -> float | None:
+    """The family-wise false-alarm rate the diagnosis's decision was calibrated for (``candidates.alpha_family``;
+    else the locate step's ``alpha``)."""
+    if not diag:
+        return None
+    cand = diag.get("candidates") if isinstance(diag.get("candidates"), dict) else {}
+    return cand.get("alpha_family", diag.get("alpha"))
 
 
 def named_label(found: list[dict[str, Any]] | None) -> str:
@@ -363,7 +372,7 @@ def score_case(work: Path, phase1: dict[str, Any]) -> dict[str, Any]:
     found = findings(diag)
     label = named_label(found) if diag else "failed"
     s: dict[str, Any] = {"seed": case.seed, "effect": case.effect, "strength": case.strength, "named": label,
-                         "correct": label == case.effect, "alpha": (diag or {}).get("alpha"),
+                         "correct": label == case.effect, "alpha": family_alpha(diag),
                          "steps": phase1["steps"], "retried": phase1.get("retried") is not None}
     truth = work / "truth" / "truth.h5"
     if not truth.exists():

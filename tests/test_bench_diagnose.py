@@ -46,6 +46,9 @@ def test_named_label_reads_the_findings_and_says_when_there_is_no_decision():
     assert bd.named_label(bd.findings({"findings": [{"name": "collision"}]})) == "contact"
     assert bd.named_label(bd.findings({"decision": {"findings": ["damping", "inertia"]}})) == "damping+inertia"
     assert bd.named_label(bd.findings({"screening": "4 candidates screened"})) == "no decision"
+    calibrated = {"alpha": 0.05, "candidates": {"alpha_family": 0.01, "leads": ["inertia"], "findings": ["inertia"]}}
+    assert bd.named_label(bd.findings(calibrated)) == "inertia" and bd.family_alpha(calibrated) == 0.01
+    assert bd.family_alpha({"alpha": 0.05}) == 0.05 and bd.family_alpha(None) is None
     assert bd.findings(None) is None
 
 
