@@ -235,13 +235,14 @@ def run_case(case: Case, work: Path, duration: float, synth_sets: list[str], run
     if reuse and rc == 0 and not any(st["action"] == "ran" for st in json.loads(stdout)["stages"]):
         out["retried"], out["run"] = prepared.get("retried"), prepared["run"]
         out["steps"].update({k: {**v, "note": v["note"] + " (prepared)"} for k, v in prepared["steps"].items()
-                             if k != "synth"})
+                             if k not in ("synth", "diagnose")})
     else:
         out["steps"]["run"] = {"rc": rc, "seconds": wall, "note": _last_line(err) if rc else ""}
         if rc == 0:
             out["run"] = json.loads(stdout)
             for st in out["run"]["stages"]:
-                out["steps"][st["name"]] = {"rc": 0, "seconds": st["seconds"], "note": st["action"]}
+                if st["action"] != "skipped":
+                    out["steps"][st["name"]] = {"rc": 0, "seconds": st["seconds"], "note": st["action"]}
     if prepare:
         out["key"] = key
     if rc or prepare:
