@@ -19,7 +19,7 @@ from vfcli.camera.pose import model_axes_velocity
 from vfcli.diagnose.calibrate_run import calibrate_run
 from vfcli.diagnose.candidate import available_candidates, screenings
 from vfcli.diagnose.candidates.blocks import screen_run_columns
-from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, glottal_cycles
+from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles, glottal_cycles
 from vfcli.diagnose.locate import Located, decompose, rank_hotspots
 from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
 from vfcli.diagnose.regions import (COMPONENT_NAMES, GAP_COMPONENT_NAMES, N_GAP_REGIONS, N_REGIONS,
@@ -232,13 +232,19 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
         status = "not built yet"
         return Diagnosis(loc, [], status, summary_lines(loc.located) + [f"candidate screening: {status}"])
     tests, columns, model = screen_run_columns(cands, baseline)
-    cal = calibrate_run(cands, baseline, rec, loc.cycles, loc.window, tests, columns, model,
-                        settings.n_replicates, settings.seed, map)
+    results = screenings(cands, tests)
+    status = f"{len(results)} candidates screened"
+    lines = summary_lines(loc.located) + [f"candidate screening: {status}"] + [r.words for r in results if r.words]
+    try:
+        cal = calibrate_run(cands, baseline, rec, loc.cycles, loc.window, tests, columns, model,
+                            settings.n_replicates, settings.seed, map)
+    except TooFewCycles as exc:
+        # too short a recording to calibrate: no lead can be claimed (the naive p-values are not a decision)
+        return Diagnosis(loc, results, status, lines + [f"decision: not calibrated ({exc}); no missing physics "
+                                                        "can be claimed: record more glottal cycles around the "
+                                                        "run's window"])
     results = [dataclasses.replace(r, p_calibrated=float(pc), p_family=float(pf))
-               for r, pc, pf in zip(screenings(cands, tests), cal.calibration.p_value, cal.calibration.p_family)]
+               for r, pc, pf in zip(results, cal.calibration.p_value, cal.calibration.p_family)]
     decision = decide([c.name for c in cands], cal.calibration.p_family, [r.identifiable for r in results],
                       cal.calibration.n_replicates, settings.alpha, confirmations)
-    status = f"{len(results)} candidates screened"
-    lines = (summary_lines(loc.located) + [f"candidate screening: {status}"] + [r.words for r in results if r.words]
-             + decision.lines)
-    return Diagnosis(loc, results, status, lines, cal, decision)
+    return Diagnosis(loc, results, status, lines + decision.lines, cal, decision)
