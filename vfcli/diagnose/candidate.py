@@ -141,7 +141,9 @@ class Screening:
     """The screening result of one candidate.
 
     name : the candidate's name.  statistic : the test statistic (e.g. a score statistic).
-    p_value : its p-value under the baseline (null: the term is absent).
+    p_value : its naive p-value under the baseline (chi2; null: the term is absent).
+    p_calibrated, p_family : its bootstrap p-value alone and family-wise over all candidates
+        (:mod:`vfcli.diagnose.calibrate`; NaN when not calibrated).
     identifiable : False when the load model can absorb the term ("not identifiable with this load model").
     estimate, interval : (n_params,) one-step estimate of theta and its (n_params, 2) interval, or None.
     words : one line in plain words.
@@ -154,6 +156,8 @@ class Screening:
     estimate: np.ndarray | None = None
     interval: np.ndarray | None = None
     words: str = ""
+    p_calibrated: float = float("nan")
+    p_family: float = float("nan")
 
 
 def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list[Screening]:
@@ -168,9 +172,15 @@ def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list
     if not candidates:
         return []
     from vfcli.diagnose.candidates.blocks import screen_run
+
+    return screenings(candidates, screen_run(candidates, baseline))
+
+
+def screenings(candidates: Sequence[Candidate], tests) -> list[Screening]:
+    """One :class:`Screening` per candidate from its score test
+    (:class:`vfcli.diagnose.candidates.screening.ScoreTest`), in the given order."""
     from vfcli.diagnose.candidates.screening import words
 
-    tests = screen_run(candidates, baseline)
     return [Screening(c.name, t.statistic, t.p_value, t.identifiability.identifiable, t.estimate,
                       np.column_stack([t.estimate - 1.96 * t.std, t.estimate + 1.96 * t.std]),
                       words(c, t, len(candidates))) for c, t in zip(candidates, tests)]
