@@ -42,6 +42,9 @@ class Baseline:
     displacements : (F + 1, N, 3) mm, the baseline's vertex displacements at ``problem.sim_times``.
     frames : the frozen rasters and silhouettes at x (``problem.freeze(x, displacements)``).
     f0_hz : fundamental frequency of the window (from the gap area's cycle), Hz.
+    model : the run's own :class:`vfcli.model.fem.ElasticModel` (its mesh, E, nu and density: the
+        one the run was fitted with, :func:`vfcli.store.fit.run_model`), or None when unknown (then a
+        candidate that needs K or M builds a default-material model of the mesh, which scales its columns).
     """
 
     problem: object
@@ -49,13 +52,15 @@ class Baseline:
     displacements: np.ndarray
     frames: list
     f0_hz: float = float("nan")
+    model: object | None = None
 
     @classmethod
-    def at(cls, problem, x: np.ndarray, f0_hz: float = float("nan")) -> "Baseline":
-        """The baseline of ``problem`` at control values ``x`` (displacements and frozen frames computed)."""
+    def at(cls, problem, x: np.ndarray, f0_hz: float = float("nan"), model=None) -> "Baseline":
+        """The baseline of ``problem`` at control values ``x`` (displacements and frozen frames computed),
+        with the run's elastic ``model`` when known."""
         x = np.asarray(x, dtype=float)
         u = problem.displacements(x)
-        return cls(problem, x, u, problem.freeze(x, u), float(f0_hz))
+        return cls(problem, x, u, problem.freeze(x, u), float(f0_hz), model)
 
     # ------------------------------------------------------------------ rows
     @property
