@@ -178,7 +178,14 @@ def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list
     tests = screen_run(candidates, baseline)
     return [Screening(c.name, t.statistic, t.p_value, t.identifiability.identifiable, t.estimate,
                       np.column_stack([t.estimate - 1.96 * t.std, t.estimate + 1.96 * t.std]),
-                      words(c, t, len(candidates))) for c, t in zip(candidates, tests)]
+                      _with_evidence(words(c, t, len(candidates)), c, baseline)) for c, t in zip(candidates, tests)]
+
+
+def _with_evidence(line: str, candidate, baseline) -> str:
+    """The screening line, followed by what the baseline shows of the term's signature when the
+    candidate states it (an optional ``evidence(baseline) -> str``, e.g. contact's midplane crossing)."""
+    evidence = getattr(candidate, "evidence", None)
+    return f"{line}; {evidence(baseline)}" if callable(evidence) else line
 
 
 #: the package of candidate terms; it exposes ``CANDIDATES``: a sequence of :class:`Candidate` instances

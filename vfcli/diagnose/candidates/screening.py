@@ -114,7 +114,10 @@ FAMILY_ALPHA = 0.05
 
 
 def words(candidate, test: ScoreTest, n_candidates: int, alpha: float = FAMILY_ALPHA) -> str:
-    """One plain line: not identifiable / no evidence / a lead with its estimate and p-value."""
+    """One plain line: not acting / not identifiable / no evidence / a lead with its estimate and p-value."""
+    if not np.any(test.identifiability.own_information):
+        # a zero column: the term changes nothing at this baseline (contact whose folds never touch)
+        return f"{candidate.name}: no evidence (the term does not act on this fit)"
     if not test.identifiability.identifiable:
         return f"{candidate.name}: not identifiable with this load model (the loads can absorb it)"
     est = ", ".join(f"{n} = {e:.3g} +- {1.96 * s:.2g}"
