@@ -95,7 +95,7 @@ def shifted_ritz_vectors(model, loads: np.ndarray, shift_hz: float, n_blocks: in
         idx = o + fold.free
         m_ff = mass[idx][:, idx]
         a = (fold.stiffness[fold.free][:, fold.free] - sigma * m_ff).tocsc()
-        lu = splu(a, permc_spec="MMD_AT_PLUS_A")
+        lu = splu(a)
         block = lu.solve(np.ascontiguousarray(loads[idx], dtype=float))
         for _ in range(int(n_blocks)):
             block, _r = np.linalg.qr(block)
