@@ -25,7 +25,7 @@ from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_ru
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
-from vfcli.store.fit import problem_of_store
+from vfcli.store.fit import problem_of_store, run_model
 from vfcli.store.runs import read_run
 
 log = logging.getLogger(__name__)
@@ -75,7 +75,7 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
         raise InputDataError(f"{group} does not match the model rebuilt from the store ({problem.n_params} "
                              f"controls, {len(problem.sim_times)} times against {len(stored.controls)}, "
                              f"{len(stored.sim_time)}); rerun `vfcli optimize --run {run}`", reader.path)
-    baseline = Baseline.at(problem, stored.controls)
+    baseline = Baseline.at(problem, stored.controls, model=run_model(reader))
     worst = float(np.max(np.abs(baseline.displacements - stored.displacements)))
     scale = float(np.max(np.abs(stored.displacements))) or 1.0
     if worst > _REBUILD_TOL_MM + 1e-5 * scale:

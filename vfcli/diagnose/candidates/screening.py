@@ -114,8 +114,11 @@ FAMILY_ALPHA = 0.05
 
 
 def words(candidate, test: ScoreTest, n_candidates: int, alpha: float = FAMILY_ALPHA) -> str:
-    """One plain line: not identifiable, or the one-step estimate and the uncalibrated p-value (the decision
-    is the calibrated one, :mod:`vfcli.diagnose.decide`)."""
+    """One plain line: not acting / not identifiable / the one-step estimate and the uncalibrated p-value (the
+    decision is the calibrated one, :mod:`vfcli.diagnose.decide`)."""
+    if not np.any(test.identifiability.own_information):
+        # a zero column: the term changes nothing at this baseline (contact whose folds never touch)
+        return f"{candidate.name}: no evidence (the term does not act on this fit)"
     if not test.identifiability.identifiable:
         return f"{candidate.name}: not identifiable with this load model (the loads can absorb it)"
     est = ", ".join(f"{n} = {e:.3g} +- {1.96 * s:.2g}"
