@@ -269,6 +269,24 @@ def findings(diag: dict[str, Any] | None) -> list[dict[str, Any]] | None:
     return None
 
 
+def leads_label(diag: dict[str, Any] | None) -> str:
+    """The calibrated leads of the diagnosis (``candidates.leads``: family-wise calibrated, identifiable,
+    not yet confirmed by a refit) as a confusion-matrix column ("none": no lead; "no decision")."""
+    cand = (diag or {}).get("candidates")
+    if not isinstance(cand, dict) or "leads" not in cand:
+        return "no decision"
+    return named_label([{"name": n} for n in cand["leads"]])
+
+
+def family_p(diag: dict[str, Any] | None, effect: str) -> float | None:
+    """The calibrated family-wise p-value of the candidate that models ``effect`` (None: not tested)."""
+    cand = (diag or {}).get("candidates")
+    for t in (cand.get("tests", []) if isinstance(cand, dict) else []):
+        if CANDIDATE_EFFECT.get(t["name"], t["name"]) == effect:
+            return float(t["p_family"])
+    return None
+
+
 def family_alpha(diag: dict[str, Any] | None) -> float | None:
     """The family-wise false-alarm rate the diagnosis's decision was calibrated for (``candidates.alpha_family``;
     else the locate step's ``alpha``)."""
@@ -374,6 +392,7 @@ def score_case(work: Path, phase1: dict[str, Any]) -> dict[str, Any]:
     label = named_label(found) if diag else "failed"
     s: dict[str, Any] = {"seed": case.seed, "effect": case.effect, "strength": case.strength, "named": label,
                          "correct": label == case.effect, "alpha": family_alpha(diag),
+                         "leads": leads_label(diag) if diag else "failed", "p_family": family_p(diag, case.effect),
                          "steps": phase1["steps"], "retried": phase1.get("retried") is not None}
     truth = work / "truth" / "truth.h5"
     if not truth.exists():
@@ -420,15 +439,17 @@ def _extended_run(store: Path) -> str | None:
 # ------------------------------------------------------------------------------------------ the summary
 
 
-def confusion(results: list[dict[str, Any]], effects: Iterable[str]) -> tuple[list[str], list[str], np.ndarray]:
-    """(rows: true effects, columns: named labels, counts (rows, columns)). The columns are the effects
-    in order, then any other label met (several names, "no decision", "failed")."""
+def confusion(results: list[dict[str, Any]], effects: Iterable[str], key: str = "named"
+              ) -> tuple[list[str], list[str], np.ndarray]:
+    """(rows: true effects, columns: labels of ``key`` ("named": the findings; "leads": the calibrated
+    leads), counts (rows, columns)). The columns are the effects in order, then any other label met
+    (several names, "no decision", "failed")."""
     rows = list(effects)
-    cols = rows + sorted({r["named"] for r in results} - set(rows))
+    cols = rows + sorted({r[key] for r in results} - set(rows))
     m = np.zeros((len(rows), len(cols)), int)
     for r in results:
         if r["effect"] in rows:
-            m[rows.index(r["effect"]), cols.index(r["named"])] += 1
+            m[rows.index(r["effect"]), cols.index(r[key])] += 1
     return rows, cols, m
 
 
@@ -492,14 +513,17 @@ def markdown(results: list[dict[str, Any]], effects: list[str], meta: dict[str, 
                    f"{_f(d.get('fov_mm'), '{:.1f}')} / {_f(d.get('length_mm'), '{:.1f}')} | "
                    f"{_f(d.get('psf_sigma_px'), '{:.2f}')} | "
                    f"{_f(d.get('youngs_modulus_pa', float('nan')) / 4400, '{:.3f}')} |")
-    rows, cols, m = confusion(results, effects)
-    out += ["", "Confusion matrix (rows: hidden effect; columns: what the diagnosis named):", "",
-            "| hidden \\ named | " + " | ".join(cols) + " |", "| --- |" + " ---: |" * len(cols)]
-    out += [f"| {row} | " + " | ".join(str(v) for v in m[i]) + " |" for i, row in enumerate(rows)]
-    out += ["", "| seed | hidden (strength) | named | refitted | parameter: estimate [95 % interval] / truth | "
-                "within 25 % | inside | held-out error, cycles: before -> after (drop) | held-out, vibrometer: "
-                "before -> after (drop) | inferior error: baseline -> refit | exits |",
-            "| ---: | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for key, what in (("named", "what the diagnosis named (its findings; 'none' = no missing physics detected)"),
+                      ("leads", "the calibrated leads (family-wise calibrated screening, before any confirmation)")):
+        rows, cols, m = confusion(results, effects, key)
+        out += ["", f"Confusion matrix (rows: hidden effect; columns: {what}):", "",
+                "| hidden \\ " + key + " | " + " | ".join(cols) + " |", "| --- |" + " ---: |" * len(cols)]
+        out += [f"| {row} | " + " | ".join(str(v) for v in m[i]) + " |" for i, row in enumerate(rows)]
+    out += ["", "| seed | hidden (strength) | named | calibrated leads | family-wise p of its candidate | refitted | "
+                "parameter: estimate [95 % interval] / truth | within 25 % | inside | held-out error, cycles: before "
+                "-> after (drop) | held-out, vibrometer: before -> after (drop) | inferior error: baseline -> refit "
+                "| exits |",
+            "| ---: | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     yn = lambda v: "-" if v is None else ("yes" if v else "no")  # noqa: E731
 
     def held(h: dict[str, Any] | None) -> str:
@@ -513,8 +537,8 @@ def markdown(results: list[dict[str, Any]], effects: list[str], meta: dict[str, 
         par = (f"{_f(r.get('estimate'))} [{_f(r.get('lo'))}, {_f(r.get('hi'))}] / {_f(r.get('true_parameter'))}"
                if "estimate" in r else f"- / {_f(r.get('true_parameter'))}")
         inf = f"{_f(r.get('inferior_before'), '{:.0%}')} -> {_f(r.get('inferior_after'), '{:.0%}')}"
-        out.append(f"| {r['seed']} | {r['effect']} ({r['strength']:.3g}) | {r['named']} | "
-                   f"{r.get('refit_candidate') or '-'} | {par} | {yn(r.get('param_within'))} | "
+        out.append(f"| {r['seed']} | {r['effect']} ({r['strength']:.3g}) | {r['named']} | {r.get('leads', '-')} | "
+                   f"{_f(r.get('p_family'))} | {r.get('refit_candidate') or '-'} | {par} | {yn(r.get('param_within'))} | "
                    f"{yn(r.get('param_inside'))} | {held(r.get('heldout_cycles'))} | "
                    f"{held(r.get('heldout_instruments'))} | {inf} | {exits} |")
     fa = false_alarms(results)

@@ -30,7 +30,7 @@ def test_confusion_matrix_counts_every_recording_once_in_its_cell():
     results = ([_r("none", "none")] * 5 + [_r("none", "damping")] + [_r("inertia", "inertia")] * 2
                + [_r("inertia", "damping+inertia")] + [_r("asymmetry", "offset")] + [_r("contact", "failed")])
     rows, cols, m = bd.confusion(results, EFFECTS)
-    assert rows == EFFECTS
+    assert rows == EFFECTS and bd.confusion([_r("none", "x", leads="inertia")], EFFECTS, "leads")[2][0, 1] == 1
     assert cols == EFFECTS + ["damping+inertia", "failed", "offset"]  # other labels after the effects, sorted
     assert m.sum() == len(results) and m.shape == (5, 8)
     assert m[0, 0] == 5 and m[0, 2] == 1
@@ -49,6 +49,11 @@ def test_named_label_reads_the_findings_and_says_when_there_is_no_decision():
     calibrated = {"alpha": 0.05, "candidates": {"alpha_family": 0.01, "leads": ["inertia"], "findings": ["inertia"]}}
     assert bd.named_label(bd.findings(calibrated)) == "inertia" and bd.family_alpha(calibrated) == 0.01
     assert bd.family_alpha({"alpha": 0.05}) == 0.05 and bd.family_alpha(None) is None
+    assert bd.leads_label(calibrated) == "inertia" and bd.leads_label({"alpha": 0.05}) == "no decision"
+    tests = {"candidates": {"leads": [], "tests": [{"name": "inertia", "p_family": 0.5},
+                                                   {"name": "collision", "p_family": 0.02}]}}
+    assert bd.leads_label(tests) == "none" and bd.family_p(tests, "contact") == 0.02
+    assert bd.family_p(tests, "damping") is None
     assert bd.findings(None) is None
 
 
@@ -121,3 +126,22 @@ def test_refit_figures_read_the_confirmation_as_the_diagnosis_states_it():
     assert h["before"] == pytest.approx(np.sqrt(12.5)) and h["after"] == pytest.approx(np.sqrt(2.5))
     assert h["drop"] == 0.37 and "heldout_instruments" not in f  # the diagnosis's own reduction is reported
     assert bd.refit_figures(None) == {} and bd.refit_figures({"candidate": "damping", "run": ""})["run"] is None
+
+
+def test_the_markdown_section_holds_both_confusion_matrices_and_the_targets():
+    steps = {"synth": {"rc": 0, "seconds": 10.0, "note": ""}, "run": {"rc": 0, "seconds": 20.0, "note": ""},
+             "optimize": {"rc": 0, "seconds": 15.0, "note": "ran"}, "diagnose": {"rc": 0, "seconds": 5.0, "note": ""}}
+    results = [_r("none", "none", leads="none", alpha=0.05, steps=steps),
+               _r("inertia", "inertia", leads="inertia", p_family=0.01, refit_candidate="inertia", estimate=1.1,
+                  lo=0.9, hi=1.3, true_parameter=1.0, param_within=True, param_inside=True,
+                  heldout_cycles={"before": 2.0, "after": 1.0, "drop": 0.5, "units": "mm/s"},
+                  heldout_drop=0.5, inferior_before=0.3, inferior_after=0.2, steps=steps)]
+    meta = {"command": "x", "commit": "abc", "n": 2, "of": 21, "duration": 0.04, "jobs": 2, "load": "20",
+            "wall_min": 3.0}
+    md = bd.markdown(results, EFFECTS, meta)
+    assert "2 of 21 recordings finished" in md
+    assert md.count("| hidden \\ ") == 2 and "| inertia | 0 | 1 | 0 | 0 | 0 |" in md
+    assert "| hidden effect named | 1 of 1 |" in md and "1.1 [0.9, 1.3] / 1" in md
+    assert "2 -> 1 mm/s (50%)" in md and "30% -> 20%" in md
+    # wall time: median (largest) per stage; the whole recording = synth + run + diagnose
+    assert "| 10 (10) | - (-) |" in md and "| 35 (35) |" in md
