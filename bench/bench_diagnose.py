@@ -41,6 +41,7 @@ Reproduce (prints a markdown section for docs/benchmarks.md)::
     .venv/bin/python bench/bench_diagnose.py --seeds 2001 [--effects none inertia ...] [--per-effect 3]
         [--nulls 6] [--duration 0.04] [--jobs 2] [--keep DIR] [--json OUT] [--stop-after MIN]
     .venv/bin/python bench/bench_diagnose.py ... --keep DIR --prepare    # phantoms and fits, ahead
+    .venv/bin/python bench/bench_diagnose.py ... --keep DIR --only-prepared  # diagnose what is prepared
     .venv/bin/python bench/bench_diagnose.py ... --keep DIR --rescore    # score a kept panel again
 
 The phantoms and the baseline fits do not depend on the diagnosis under test, so ``--prepare`` may
@@ -588,6 +589,9 @@ def main() -> None:
     ap.add_argument("--diagnose-arg", dest="diag_args", action="append", default=[], help="extra `vfcli diagnose` argument")
     ap.add_argument("--stop-after", type=float, help="start no recording after this many minutes; score those done")
     ap.add_argument("--rescore", action="store_true", help="score the case.json files in --keep DIR again")
+    ap.add_argument("--only-prepared", action="store_true",
+                    help="diagnose only the recordings --prepare has finished (call again for the others)")
+    ap.add_argument("--again", action="store_true", help="diagnose recordings that have a case.json again")
     ap.add_argument("--prepare", action="store_true",
                     help="only synth and `vfcli run --until optimize` into --keep DIR, for a later run to use")
     args = ap.parse_args()
@@ -617,7 +621,7 @@ def main() -> None:
             for fut in as_completed(futures):
                 c, res = futures[fut], fut.result()
                 if res is None:
-                    print(f"  {c.name}: not started (--stop-after)", file=sys.stderr)
+                    print(f"  {c.name}: not started (--stop-after or --only-prepared)", file=sys.stderr)
                     continue
                 if not args.prepare:
                     phase1[c.name] = res
@@ -643,7 +647,12 @@ def main() -> None:
 
 
 def _guarded(case: Case, base: Path, args: argparse.Namespace, t0: float) -> dict[str, Any] | None:
+    work = base / case.name
     if args.stop_after is not None and time.time() - t0 > 60 * args.stop_after:
+        return None
+    if not args.prepare and (work / "case.json").exists() and not args.again:
+        return json.loads((work / "case.json").read_text())     # diagnosed by an earlier call
+    if args.only_prepared and not (work / "prepared.json").exists():
         return None
     return run_case(case, base / case.name, args.duration, args.synth_sets, args.run_sets, args.diag_args,
                     args.prepare)
