@@ -178,12 +178,13 @@ def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list
         return []
     from vfcli.diagnose.candidates.blocks import screen_run
 
-    return screenings(candidates, screen_run(candidates, baseline))
+    return screenings(candidates, screen_run(candidates, baseline), baseline)
 
 
-def screenings(candidates: Sequence[Candidate], tests) -> list[Screening]:
+def screenings(candidates: Sequence[Candidate], tests, baseline: Baseline) -> list[Screening]:
     """One :class:`Screening` per candidate from its score test
-    (:class:`vfcli.diagnose.candidates.screening.ScoreTest`), in the given order."""
+    (:class:`vfcli.diagnose.candidates.screening.ScoreTest`), in the given order; each line followed by
+    the evidence the candidate reads off the baseline, when it states one."""
     from vfcli.diagnose.candidates.screening import words
 
     return [Screening(c.name, t.statistic, t.p_value, t.identifiability.identifiable, t.estimate,

@@ -232,7 +232,7 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
         status = "not built yet"
         return Diagnosis(loc, [], status, summary_lines(loc.located) + [f"candidate screening: {status}"])
     tests, columns, model = screen_run_columns(cands, baseline)
-    results = screenings(cands, tests)
+    results = screenings(cands, tests, baseline)
     status = f"{len(results)} candidates screened"
     lines = summary_lines(loc.located) + [f"candidate screening: {status}"] + [r.words for r in results if r.words]
     try:
