@@ -591,6 +591,7 @@ def main() -> None:
     ap.add_argument("--rescore", action="store_true", help="score the case.json files in --keep DIR again")
     ap.add_argument("--only-prepared", action="store_true",
                     help="diagnose only the recordings --prepare has finished (call again for the others)")
+    ap.add_argument("--only", type=int, nargs="+", help="run only these seeds of the panel (score every one done)")
     ap.add_argument("--again", action="store_true", help="diagnose recordings that have a case.json again")
     ap.add_argument("--prepare", action="store_true",
                     help="only synth and `vfcli run --until optimize` into --keep DIR, for a later run to use")
@@ -653,6 +654,8 @@ def _guarded(case: Case, base: Path, args: argparse.Namespace, t0: float) -> dic
     if not args.prepare and (work / "case.json").exists() and not args.again:
         return json.loads((work / "case.json").read_text())     # diagnosed by an earlier call
     if args.only_prepared and not (work / "prepared.json").exists():
+        return None
+    if args.only and case.seed not in args.only:
         return None
     return run_case(case, base / case.name, args.duration, args.synth_sets, args.run_sets, args.diag_args,
                     args.prepare)
