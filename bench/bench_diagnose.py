@@ -464,11 +464,12 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
     return lo, hi
 
 
-def false_alarms(results: list[dict[str, Any]]) -> dict[str, Any]:
-    """On the null recordings with a decision: how many name any effect (a false alarm), the rate and its
-    95 % interval, and the family-wise alpha the diagnoses state."""
-    nulls = [r for r in results if r["effect"] == "none" and r["named"] not in ("failed", "no decision")]
-    k = sum(r["named"] != "none" for r in nulls)
+def false_alarms(results: list[dict[str, Any]], key: str = "named") -> dict[str, Any]:
+    """On the null recordings with a decision: how many name any effect (a false alarm; ``key`` "named":
+    the findings, "leads": the calibrated leads), the rate and its 95 % interval, and the family-wise
+    alpha the diagnoses state."""
+    nulls = [r for r in results if r["effect"] == "none" and r.get(key) not in (None, "failed", "no decision")]
+    k = sum(r[key] != "none" for r in nulls)
     n = len(nulls)
     alphas = sorted({float(r["alpha"]) for r in nulls if r.get("alpha") is not None})
     lo, hi = clopper_pearson(k, n) if n else (float("nan"), float("nan"))
@@ -542,12 +543,13 @@ def markdown(results: list[dict[str, Any]], effects: list[str], meta: dict[str, 
                    f"{_f(r.get('p_family'))} | {r.get('refit_candidate') or '-'} | {par} | {yn(r.get('param_within'))} | "
                    f"{yn(r.get('param_inside'))} | {held(r.get('heldout_cycles'))} | "
                    f"{held(r.get('heldout_instruments'))} | {inf} | {exits} |")
-    fa = false_alarms(results)
     out += ["", "| target | met |", "| --- | ---: |"]
     out += [f"| {k} | {a} of {b} |" for k, (a, b) in targets(results).items()]
-    out.append(f"| false-alarm rate on nulls (95 % interval) vs the calibrated alpha | {fa['alarms']} of {fa['nulls']}: "
-               f"{_f(fa['rate'], '{:.2f}')} ({_f(fa['ci95'][0], '{:.2f}')}-{_f(fa['ci95'][1], '{:.2f}')}) vs "
-               f"{', '.join(f'{a:g}' for a in fa['alpha']) or '-'} |")
+    for key, what in (("named", "findings"), ("leads", "calibrated leads")):
+        fa = false_alarms(results, key)
+        out.append(f"| false-alarm rate on nulls, {what} (95 % interval) vs the calibrated alpha | {fa['alarms']} of "
+                   f"{fa['nulls']}: {_f(fa['rate'], '{:.2f}')} ({_f(fa['ci95'][0], '{:.2f}')}-"
+                   f"{_f(fa['ci95'][1], '{:.2f}')}) vs {', '.join(f'{a:g}' for a in fa['alpha']) or '-'} |")
     steps = ["synth", *RUN_STEPS, "diagnose"]
     out += ["", "Wall time per stage, s (median and largest over the recordings, loaded machine):", "",
             "| " + " | ".join(steps) + " | whole recording |", "|" + " ---: |" * (len(steps) + 1)]

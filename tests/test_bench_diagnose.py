@@ -66,6 +66,8 @@ def test_false_alarm_rate_and_its_clopper_pearson_interval():
     # the exact interval's defining property: each end leaves 2.5 % in its tail
     assert binom.sf(1, 10, lo) == pytest.approx(0.025, rel=1e-6)
     assert binom.cdf(2, 10, hi) == pytest.approx(0.025, rel=1e-6)
+    leads = bd.false_alarms([_r("none", "none", leads="inertia", alpha=0.05), _r("none", "none", leads="none")], "leads")
+    assert (leads["alarms"], leads["nulls"]) == (1, 2)
     assert bd.clopper_pearson(0, 6)[0] == 0.0 and bd.clopper_pearson(0, 6)[1] == pytest.approx(1 - 0.025 ** (1 / 6))
 
 
