@@ -3,8 +3,8 @@
 # `vfcli run` runs every stage that is not up to date, in one process, then writes the export
 # folder; it would end with the diagnosis too, but the demo stops it at optimize and runs
 # `vfcli diagnose` by itself to draw the residual map (--map): it locates where the fit and the
-# recording disagree and names the missing physics; `vfcli report` writes the HTML report; `vfcli mesh --preview` draws the
-# (up-to-date) mesh. Rerunning the demo does only what changed. Never fakes a stage: a failing
+# recording disagree and names the missing physics; `vfcli report` writes the HTML report;
+# `vfcli mesh --preview` draws the (up-to-date) mesh. Rerunning the demo does only what changed. Never fakes a stage: a failing
 # step stops the demo with its code.
 # usage: examples/demo.sh [OUTDIR]      (make demo runs it with OUTDIR=demo)
 # EFFECT=random SEED=3 make demo   hides a physics effect in the phantom (named only in truth.h5)
