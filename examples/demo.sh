@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The whole pipeline on the bundled phantom recording (made by `vfcli synth`).
 # `vfcli run` runs every stage that is not up to date, in one process, then writes the export
-# folder; `vfcli diagnose` locates where the fit and the recording disagree (and screens the
-# candidate physics); `vfcli report` writes the HTML report; `vfcli mesh --preview` draws the
-# (up-to-date) mesh. Rerunning the demo does only what changed. Never fakes a stage: a failing
+# folder; it would end with the diagnosis too, but the demo stops it at optimize and runs
+# `vfcli diagnose` by itself to draw the residual map (--map): it locates where the fit and the
+# recording disagree and names the missing physics; `vfcli report` writes the HTML report;
+# `vfcli mesh --preview` draws the (up-to-date) mesh. Rerunning the demo does only what changed. Never fakes a stage: a failing
 # step stops the demo with its code.
 # usage: examples/demo.sh [OUTDIR]      (make demo runs it with OUTDIR=demo)
 # EFFECT=random SEED=3 make demo   hides a physics effect in the phantom (named only in truth.h5)
@@ -25,7 +26,7 @@ step() {  # step COMMAND ARGS...
 }
 
 step synth "$RAW" --seed "${SEED:-1}" --effect "${EFFECT:-none}"
-step run "$STORE" --raw "$RAW" --export "$OUT/export"
+step run "$STORE" --raw "$RAW" --until optimize --export "$OUT/export"
 step diagnose "$STORE" --run default --map "$OUT/residual_map.png"
 step report "$STORE" --out "$OUT/report.html"
 step mesh "$STORE" --preview "$OUT/mesh.png"

@@ -116,7 +116,10 @@ def test_gauss_newton_screening_raises_no_alarm_on_noise_only_and_agrees_on_iden
     tests = screen_run(CANDIDATES, _noisy_baseline(0.0, seed=6))
     assert all(t.p_value > 0.05 / len(CANDIDATES) for t in tests), [t.p_value for t in tests]
     # the normal-equation shares (objective weights) against the dense projection (uniform weights):
-    # measured within 2 %
+    # measured within 2 %; contact does not act here (the folds never reach the midplane: a zero column)
     for c, t in zip(CANDIDATES, tests):
+        if c.name == "contact":
+            assert t.p_value == 1.0 and not t.identifiability.own_information.any() and fractions["pressure"][c.name] == 0
+            continue
         dense = fractions["pressure"][c.name]
         assert abs(t.identifiability.residual_fraction / dense - 1) < 0.05, (c.name, t.identifiability, dense)

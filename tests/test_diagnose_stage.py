@@ -47,7 +47,7 @@ def test_diagnose_writes_the_run_group_and_says_what_it_located(fitted, tmp_path
     assert lines[0].startswith("f0 ") and "whole glottal cycles" in lines[0]
     assert any(line.startswith("the residual sits on the ") or line.startswith("no part of the residual")
                for line in lines)
-    assert "candidate screening: 4 candidates screened" in lines
+    assert "candidate screening: 5 candidates screened" in lines
     assert png.stat().st_size > 10_000
     with Store(fitted).read() as r:
         assert r.has_stage("diagnose", "fit")
@@ -62,7 +62,7 @@ def test_diagnose_writes_the_run_group_and_says_what_it_located(fitted, tmp_path
         ds = r.dataset("diagnose", "motion_harmonic_amplitude", "fit")
         assert ds.attrs["units"] == "mm/s"
         assert [d.label for d in ds.dims] == ["region", "component", "harmonic"]
-    assert attrs["stage"] == "/diagnose/fit" and attrs["screening"] == "4 candidates screened"
+    assert attrs["stage"] == "/diagnose/fit" and attrs["screening"] == "5 candidates screened"
     assert json.loads(attrs["words_json"])[0] == lines[0]
     assert len(names) == 18 and mean.shape == (18, 3, 4) and frame_time.shape == (60,)
     assert np.all((p[np.isfinite(p)] >= 0) & (p[np.isfinite(p)] <= 1)) and np.all(adj >= p - 1e-12)
@@ -76,11 +76,11 @@ def test_diagnose_json_parses_and_a_rerun_is_up_to_date(fitted):
     assert first.returncode == 0, first.stderr
     out = json.loads(first.stdout)
     assert out["stage"] == "/diagnose/fit"
-    assert out["screening"] == "4 candidates screened" and isinstance(out["lines"], list) and out["hotspots"]
+    assert out["screening"] == "5 candidates screened" and isinstance(out["lines"], list) and out["hotspots"]
     assert {"region", "component", "ratio", "p", "p_adjusted"} <= set(out["hotspots"][0])
     again = run_vfcli("diagnose", fitted, "--run", "fit")
     assert again.returncode == 0 and "up to date" in again.stdout
-    assert "candidate screening: 4 candidates screened" in again.stdout
+    assert "candidate screening: 5 candidates screened" in again.stdout
 
 
 def test_diagnose_user_errors_are_one_line(fitted):

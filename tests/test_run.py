@@ -1,6 +1,7 @@
-"""`vfcli run` on a small phantom, as a user runs it (real CLI, real files): to the end, a second
-run that does nothing, a changed raw file that reruns exactly the stages that depend on it, a
-dry run that writes nothing and names its reasons, --until; finding the raw files."""
+"""`vfcli run` on a small phantom, as a user runs it (real CLI, real files): to the end (diagnose
+included), a second run that does nothing, a changed raw file that reruns exactly the stages that
+depend on it, a dry run that writes nothing and names its reasons, --until; the diagnose step
+skipped with its reason when the recording holds too few whole cycles; finding the raw files."""
 from __future__ import annotations
 
 import hashlib
@@ -20,11 +21,12 @@ from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.io.raw_folder import FILES_MANIFEST, find_raw_files
-from vfcli.stages.run import STEPS, run_recording
+from vfcli.stages.run import DIAGNOSE_MIN_CYCLES, STEPS, cycles_outside_window, run_recording
 from vfcli.store import Store
 
+#: f0 250 Hz: 20 ms hold 5 glottal cycles, enough for the diagnose step
 PHANTOM = [
-    "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
+    "synth.f0_hz=250", "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
     "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
 ]
 #: a small fit: a coarse mesh, 12 frames, 3 iterations
@@ -85,8 +87,10 @@ def test_run_goes_to_the_end(phantom):
     assert all("missing" in s["reason"] for s in stages.values())
     assert any("dropout" in w for w in stages["ingest-ldv"]["warnings"])  # the phantom's dropouts, as logged
     with Store(store).read() as r:
-        assert sorted(r.stage_paths()) == ["/fields", "/flow", "/hsc", "/ldv", "/mesh", "/optimize/default", "/sync"]
+        assert sorted(r.stage_paths()) == ["/diagnose/default", "/fields", "/flow", "/hsc", "/ldv", "/mesh",
+                                           "/optimize/default", "/sync"]
         assert r.attrs("mesh")["youngs_modulus_pa"] > 0 and r.read("optimize", "controls", "default").size > 0
+        assert r.attrs("diagnose", "default")["n_cycles"] >= DIAGNOSE_MIN_CYCLES
         assert r.attrs("hsc")["px_per_mm"] == 9.0  # from the raw folder's recording.toml
 
 
@@ -114,14 +118,15 @@ def test_a_changed_raw_file_reruns_exactly_what_depends_on_it(phantom, tmp_path)
     assert _sha(store) == before  # a dry run writes nothing
     assert {n: s["action"] for n, s in dry.items()} == {
         "ingest-hsc": "up to date", "ingest-ldv": "would run", "sync": "would run", "flow": "would run",
-        "mesh": "up to date", "optimize": "would run"}
+        "mesh": "up to date", "optimize": "would run", "diagnose": "would run"}
     assert dry["ingest-ldv"]["reason"] == "input changed: scan.uff"
+    assert dry["diagnose"]["reason"].startswith("/optimize/default is rewritten first")
     assert "/ldv is rewritten first" in dry["sync"]["reason"] and "/ldv is rewritten first" in dry["flow"]["reason"]
     assert "/fields is rewritten first" in dry["optimize"]["reason"]
     ran, _ = _run(store, raw)
     assert {n: s["action"] for n, s in ran.items()} == {
         "ingest-hsc": "up to date", "ingest-ldv": "ran", "sync": "ran", "flow": "ran", "mesh": "up to date",
-        "optimize": "ran"}
+        "optimize": "ran", "diagnose": "ran"}
     after = _digests(store)
     unchanged = {p for p in digests if digests[p] == after[p]}
     assert unchanged == {"/hsc", "/flow", "/mesh"}  # flow's /fields was rewritten, its /flow not
@@ -132,7 +137,7 @@ def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
     store = tmp_path / "rec.h5"
     _copy_store(store0, store)
     stages, _ = _run(store, raw, "--dry-run", "--set", "sync.n_harmonics=4")
-    assert [n for n, s in stages.items() if s["action"] == "would run"] == ["sync", "flow", "optimize"]
+    assert [n for n, s in stages.items() if s["action"] == "would run"] == ["sync", "flow", "optimize", "diagnose"]
     assert stages["sync"]["reason"].startswith("/sync: config changed") and "n_harmonics" in stages["sync"]["reason"]
 
 
@@ -140,8 +145,7 @@ def test_until_stops_and_the_library_entry_point(phantom, tmp_path):
     raw, _, _, _ = phantom
     store = tmp_path / "rec.h5"
     summary = run_recording(store, raw, until="ingest-ldv", overrides={"camera.px_per_mm": 9.5})
-    assert summary.ok and [s.action for s in summary.stages] == ["ran", "ran", "skipped", "skipped", "skipped",
-                                                                  "skipped"]
+    assert summary.ok and [s.action for s in summary.stages] == ["ran", "ran"] + ["skipped"] * 5
     assert summary.stages[2].reason == "after --until ingest-ldv"
     payload = summary.to_json()
     assert json.loads(json.dumps(payload)) == payload and payload["store"] == str(store)
@@ -154,6 +158,32 @@ def test_until_stops_and_the_library_entry_point(phantom, tmp_path):
     assert res.returncode == 0 and res.stdout == "" and res.stderr == "", (res.stdout, res.stderr)
     with Store(tmp_path / "quiet.h5").read() as r:
         assert any("dropout" in w for w in r.summary("ldv")["warnings"])  # stored all the same
+
+
+def test_whole_cycles_outside_the_window_of_a_known_area():
+    # 1 - cos: rises through half its range at frames 10, 50, 90, 130, 170: whole cycles 10-49, ..., 130-169
+    area = 1 - np.cos(2 * np.pi * np.arange(200) / 40)
+    assert cycles_outside_window(area, 1e-4, 20, 12) == (4, 3)    # the window lies in the first cycle
+    assert cycles_outside_window(area, 1e-4, 0, 84) == (4, 2)     # frames 0-9 are in no whole cycle
+    assert cycles_outside_window(area, 1e-4, 45, 10) == (4, 2)    # across a cycle's end: two touched
+    assert cycles_outside_window(area[:45], 1e-4, 0, 12) == (0, 0)  # one crossing: no whole cycle
+    assert cycles_outside_window(np.ones(50), 1e-4, 0, 12) == (0, 0)  # flat: no cycle
+
+
+def test_diagnose_is_skipped_with_its_reason_when_the_window_leaves_too_few_cycles(phantom, tmp_path):
+    raw, store0, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    _copy_store(store0, store)
+    before = _sha(store)
+    stages, _ = _run(store, raw, "--dry-run", "--set", "optimize.n_frames=150")
+    assert stages["optimize"]["action"] == "would run" and stages["diagnose"]["action"] == "skipped"
+    reason = stages["diagnose"]["reason"]
+    assert f"needs {DIAGNOSE_MIN_CYCLES}" in reason and "outside the fitted window (frames 20-169" in reason
+    assert "record longer" in reason
+    # --until optimize leaves it out, saying so
+    stages, _ = _run(store, raw, "--dry-run", "--until", "optimize")
+    assert (stages["diagnose"]["action"], stages["diagnose"]["reason"]) == ("skipped", "after --until optimize")
+    assert _sha(store) == before
 
 
 def test_the_raw_files_are_found_by_extension_or_named_in_a_manifest(phantom, tmp_path):

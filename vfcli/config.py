@@ -322,6 +322,15 @@ class SynthConfig(_Section):
     ldv_dropout_fraction: float = Field(0.02, ge=0, le=0.5, description="Fraction of LDV points with signal dropouts (1)")
 
 
+class DiagnoseConfig(_Section):
+    """`vfcli diagnose`: the calibration of the candidates' screening (see docs/diagnose.md)."""
+
+    replicates: int = Field(199, ge=19, le=100000, description="Bootstrap replicates of the calibrated null "
+                            "(noise resampled in whole cycles, periodic model error included); p-values resolve "
+                            "1 / (replicates + 1)")
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="Seed of the bootstrap (the same seed gives the same p-values)")
+
+
 class RecordingConfig(_Section):
     """Everything vfcli knows about one recording, as in ``recording.toml``."""
 
@@ -334,6 +343,7 @@ class RecordingConfig(_Section):
     flow: FlowConfig = FlowConfig()
     mesh: MeshConfig = MeshConfig()
     optimize: OptimizeConfig = OptimizeConfig()
+    diagnose: DiagnoseConfig = DiagnoseConfig()
     synth: SynthConfig = SynthConfig()
 
 
@@ -348,6 +358,7 @@ SCHEMA_MODELS: dict[str, type[BaseModel]] = {
     "flow": FlowConfig,
     "mesh": MeshConfig,
     "optimize": OptimizeConfig,
+    "diagnose": DiagnoseConfig,
     "synth": SynthConfig,
 }
 

@@ -19,4 +19,4 @@ FRAME_COMPRESSIONS = ("gzip", "gzip4", "nbit", "none")
 #: ``vfcli.stages.export_job.WHAT``
 EXPORT_WHAT = ("paraview", "video", "figures", "tables")
 #: ``vfcli.stages.run.STEPS``
-RUN_STEPS = ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize")
+RUN_STEPS = ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize", "diagnose")

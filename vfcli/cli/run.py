@@ -38,8 +38,10 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
             report_file: str | None, config_path: str | None, overrides: tuple[str, ...], force: bool,
             quiet: bool, as_json: bool, verbose: int) -> None:
     """Run every step of one recording in one process: ingest-hsc, ingest-ldv, sync, flow,
-    mesh, optimize (run 'default'), each only when it is not current (same rules as `vfcli
-    info`: inputs by content, config, upstream stages), then --export / --report.
+    mesh, optimize (run 'default'), diagnose (of run 'default'; skipped, saying why, when the
+    recording holds fewer than 3 whole glottal cycles outside the fitted window), each only
+    when it is not current (same rules as `vfcli info`: inputs by content, config, upstream
+    stages), then --export / --report.
 
     The instrument files are found in the raw folder by extension (a manifest vfcli-files.toml
     names them when that is ambiguous); its recording.toml is the config unless --config.

@@ -42,6 +42,9 @@ class Baseline:
     displacements : (F + 1, N, 3) mm, the baseline's vertex displacements at ``problem.sim_times``.
     frames : the frozen rasters and silhouettes at x (``problem.freeze(x, displacements)``).
     f0_hz : fundamental frequency of the window (from the gap area's cycle), Hz.
+    model : the run's own :class:`vfcli.model.fem.ElasticModel` (its mesh, E, nu and density: the
+        one the run was fitted with, :func:`vfcli.store.fit.run_model`), or None when unknown (then a
+        candidate that needs K or M builds a default-material model of the mesh, which scales its columns).
     """
 
     problem: object
@@ -49,13 +52,15 @@ class Baseline:
     displacements: np.ndarray
     frames: list
     f0_hz: float = float("nan")
+    model: object | None = None
 
     @classmethod
-    def at(cls, problem, x: np.ndarray, f0_hz: float = float("nan")) -> "Baseline":
-        """The baseline of ``problem`` at control values ``x`` (displacements and frozen frames computed)."""
+    def at(cls, problem, x: np.ndarray, f0_hz: float = float("nan"), model=None) -> "Baseline":
+        """The baseline of ``problem`` at control values ``x`` (displacements and frozen frames computed),
+        with the run's elastic ``model`` when known."""
         x = np.asarray(x, dtype=float)
         u = problem.displacements(x)
-        return cls(problem, x, u, problem.freeze(x, u), float(f0_hz))
+        return cls(problem, x, u, problem.freeze(x, u), float(f0_hz), model)
 
     # ------------------------------------------------------------------ rows
     @property
@@ -141,7 +146,9 @@ class Screening:
     """The screening result of one candidate.
 
     name : the candidate's name.  statistic : the test statistic (e.g. a score statistic).
-    p_value : its p-value under the baseline (null: the term is absent).
+    p_value : its naive p-value under the baseline (chi2; null: the term is absent).
+    p_calibrated, p_family : its bootstrap p-value alone and family-wise over all candidates
+        (:mod:`vfcli.diagnose.calibrate`; NaN when not calibrated).
     identifiable : False when the load model can absorb the term ("not identifiable with this load model").
     estimate, interval : (n_params,) one-step estimate of theta and its (n_params, 2) interval, or None.
     words : one line in plain words.
@@ -154,6 +161,8 @@ class Screening:
     estimate: np.ndarray | None = None
     interval: np.ndarray | None = None
     words: str = ""
+    p_calibrated: float = float("nan")
+    p_family: float = float("nan")
 
 
 def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list[Screening]:
@@ -168,12 +177,26 @@ def screen(located, candidates: Sequence[Candidate], baseline: Baseline) -> list
     if not candidates:
         return []
     from vfcli.diagnose.candidates.blocks import screen_run
+
+    return screenings(candidates, screen_run(candidates, baseline), baseline)
+
+
+def screenings(candidates: Sequence[Candidate], tests, baseline: Baseline) -> list[Screening]:
+    """One :class:`Screening` per candidate from its score test
+    (:class:`vfcli.diagnose.candidates.screening.ScoreTest`), in the given order; each line followed by
+    the evidence the candidate reads off the baseline, when it states one."""
     from vfcli.diagnose.candidates.screening import words
 
-    tests = screen_run(candidates, baseline)
     return [Screening(c.name, t.statistic, t.p_value, t.identifiability.identifiable, t.estimate,
                       np.column_stack([t.estimate - 1.96 * t.std, t.estimate + 1.96 * t.std]),
-                      words(c, t, len(candidates))) for c, t in zip(candidates, tests)]
+                      _with_evidence(words(c, t, len(candidates)), c, baseline)) for c, t in zip(candidates, tests)]
+
+
+def _with_evidence(line: str, candidate, baseline) -> str:
+    """The screening line, followed by what the baseline shows of the term's signature when the
+    candidate states it (an optional ``evidence(baseline) -> str``, e.g. contact's midplane crossing)."""
+    evidence = getattr(candidate, "evidence", None)
+    return f"{line}; {evidence(baseline)}" if callable(evidence) else line
 
 
 #: the package of candidate terms; it exposes ``CANDIDATES``: a sequence of :class:`Candidate` instances

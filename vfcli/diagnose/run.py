@@ -8,19 +8,24 @@ candidates' screening (:func:`vfcli.diagnose.candidate.screen`) and the plain-wo
 """
 from __future__ import annotations
 
+import builtins
+import dataclasses
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from vfcli.camera.pose import model_axes_velocity
-from vfcli.diagnose.candidate import available_candidates, screen
-from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, glottal_cycles
+from vfcli.diagnose.calibrate_run import calibrate_run
+from vfcli.diagnose.candidate import available_candidates, screenings
+from vfcli.diagnose.candidates.blocks import screen_run_columns
+from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles, glottal_cycles
 from vfcli.diagnose.locate import Located, decompose, rank_hotspots
 from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
 from vfcli.diagnose.regions import (COMPONENT_NAMES, GAP_COMPONENT_NAMES, N_GAP_REGIONS, N_REGIONS,
                                     gap_region_names, region_names)
 from vfcli.diagnose.residual import WindowResidual, medial_silhouettes, region_means, window_residual
+from vfcli.diagnose.decide import decide
 from vfcli.diagnose.words import summary_lines
 from vfcli.flow.gap.opening import measured_silhouettes
 
@@ -32,14 +37,19 @@ MAX_FLOOR_CYCLES = 32
 
 @dataclass(frozen=True)
 class LocateSettings:
-    """alpha : family-wise false-alarm rate of the hotspots.  n_harmonics : harmonics of f0 tested (K)."""
+    """alpha : family-wise false-alarm rate of the hotspots and of the candidates' decision.
+    n_harmonics : harmonics of f0 tested (K).  n_replicates, seed : the calibration's bootstrap
+    (:mod:`vfcli.diagnose.calibrate`)."""
 
     alpha: float = 0.05
     n_harmonics: int = 5
+    n_replicates: int = 199
+    seed: int = 0
 
     def __post_init__(self) -> None:
-        if not 0 < self.alpha < 1 or not 1 <= self.n_harmonics <= 20:
-            raise ValueError(f"alpha in (0, 1) and n_harmonics in 1..20, got {self.alpha}, {self.n_harmonics}")
+        if not 0 < self.alpha < 1 or not 1 <= self.n_harmonics <= 20 or self.n_replicates < 1:
+            raise ValueError(f"alpha in (0, 1), n_harmonics in 1..20 and n_replicates >= 1, got {self.alpha}, "
+                             f"{self.n_harmonics}, {self.n_replicates}")
 
 
 @dataclass(frozen=True)
@@ -172,6 +182,8 @@ class Diagnosis:
     screening: list
     screening_status: str
     lines: list[str]
+    calibration: Any = None
+    decision: Any = None
 
     @property
     def located(self) -> Located:
@@ -192,14 +204,47 @@ class Diagnosis:
         return {"f0_hz": round(loc.f0_hz, 2), "noise_cycles": loc.n_cycles, "parts_tested": len(loc.hotspots),
                 "above_noise": len(loc.significant), "alpha": loc.alpha,
                 "smallest_p_adjusted": float(f"{loc.hotspots[0].p_adjusted:.4g}") if loc.hotspots else None,
-                "screening": self.screening_status, "lines": self.lines, "hotspots": top}
+                "screening": self.screening_status, "lines": self.lines, "hotspots": top,
+                **({"candidates": calibration_summary(self)} if self.calibration is not None else {})}
 
 
-def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None) -> Diagnosis:
-    """Locate the baseline's residual (:func:`locate_run`), then screen the candidate physics terms."""
+def calibration_summary(d: Diagnosis) -> dict[str, Any]:
+    """The calibrated screening's figures (JSON-ready): per candidate the naive and calibrated p-values."""
+    cal = d.calibration.calibration
+    return {"alpha_family": d.decision.alpha, "replicates": cal.n_replicates, "seed": cal.seed,
+            "pool_cycles": cal.n_pool_cycles, "verdict": d.decision.verdict, "leads": list(d.decision.leads),
+            "findings": list(d.decision.findings),
+            "tests": [{"name": n, "p_naive": float(f"{pn:.4g}"), "p_calibrated": float(f"{pc:.4g}"),
+                       "p_family": float(f"{pf:.4g}"), "statistic": float(f"{st:.4g}")}
+                      for n, pn, pc, pf, st in zip(d.calibration.names, d.calibration.naive_p, cal.p_value,
+                                                   cal.p_family, cal.statistic)]}
+
+
+def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None, map: Callable = builtins.map,
+                 confirmations: dict | None = None) -> Diagnosis:
+    """Locate the baseline's residual (:func:`locate_run`), screen the candidate physics terms, calibrate
+    their null distribution by bootstrap (:mod:`vfcli.diagnose.calibrate_run`) and decide
+    (:mod:`vfcli.diagnose.decide`).  map : applied to the bootstrap's chunks of replicates."""
+    settings = settings or LocateSettings()
     loc = locate_run(baseline, rec, settings)
     cands = available_candidates()
-    results = screen(loc.located, cands, baseline)
-    status = "not built yet" if not cands else f"{len(results)} candidates screened"
+    if not cands:
+        status = "not built yet"
+        return Diagnosis(loc, [], status, summary_lines(loc.located) + [f"candidate screening: {status}"])
+    tests, columns, model = screen_run_columns(cands, baseline)
+    results = screenings(cands, tests, baseline)
+    status = f"{len(results)} candidates screened"
     lines = summary_lines(loc.located) + [f"candidate screening: {status}"] + [r.words for r in results if r.words]
-    return Diagnosis(loc, results, status, lines)
+    try:
+        cal = calibrate_run(cands, baseline, rec, loc.cycles, loc.window, tests, columns, model,
+                            settings.n_replicates, settings.seed, map)
+    except TooFewCycles as exc:
+        # too short a recording to calibrate: no lead can be claimed (the naive p-values are not a decision)
+        return Diagnosis(loc, results, status, lines + [f"decision: not calibrated ({exc}); no missing physics "
+                                                        "can be claimed: record more glottal cycles around the "
+                                                        "run's window"])
+    results = [dataclasses.replace(r, p_calibrated=float(pc), p_family=float(pf))
+               for r, pc, pf in zip(results, cal.calibration.p_value, cal.calibration.p_family)]
+    decision = decide([c.name for c in cands], cal.calibration.p_family, [r.identifiable for r in results],
+                      cal.calibration.n_replicates, settings.alpha, confirmations)
+    return Diagnosis(loc, results, status, lines + decision.lines, cal, decision)

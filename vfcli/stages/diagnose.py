@@ -25,7 +25,7 @@ from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_ru
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
-from vfcli.store.fit import problem_of_store
+from vfcli.store.fit import problem_of_store, run_model
 from vfcli.store.runs import read_run
 
 log = logging.getLogger(__name__)
@@ -75,7 +75,7 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
         raise InputDataError(f"{group} does not match the model rebuilt from the store ({problem.n_params} "
                              f"controls, {len(problem.sim_times)} times against {len(stored.controls)}, "
                              f"{len(stored.sim_time)}); rerun `vfcli optimize --run {run}`", reader.path)
-    baseline = Baseline.at(problem, stored.controls)
+    baseline = Baseline.at(problem, stored.controls, model=run_model(reader))
     worst = float(np.max(np.abs(baseline.displacements - stored.displacements)))
     scale = float(np.max(np.abs(stored.displacements))) or 1.0
     if worst > _REBUILD_TOL_MM + 1e-5 * scale:
@@ -132,6 +132,16 @@ def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> Non
         s.put("candidate_p", np.array([c.p_value for c in d.screening], dtype=np.float64))
         s.put("candidate_identifiable", np.array([bool(c.identifiable) for c in d.screening]))
         s.put("candidate_words", np.array([c.words for c in d.screening], dtype=object))
+    if d.calibration is not None:
+        cal = d.calibration.calibration
+        s.put("candidate_p_calibrated", np.asarray(cal.p_value, dtype=np.float64))
+        s.put("candidate_p_family", np.asarray(cal.p_family, dtype=np.float64))
+        s.put("candidate_statistic_studentized", np.asarray(cal.statistic, dtype=np.float64))
+        s.put("candidate_null_statistic", np.asarray(cal.null_statistics, dtype=np.float32))
+        s.set_attrs(calibration_replicates=cal.n_replicates, calibration_seed=cal.seed,
+                    calibration_pool_cycles=cal.n_pool_cycles, alpha_family=d.decision.alpha,
+                    decision=d.decision.verdict, decision_leads_json=json.dumps(list(d.decision.leads)),
+                    decision_findings_json=json.dumps(list(d.decision.findings)))
     s.set_attrs(f0_hz=loc.f0_hz, n_cycles=loc.n_cycles, alpha=loc.alpha,
                 ldv_noise_density=d.locate.ldv_density, words_json=json.dumps(d.lines),
                 screening=d.screening_status)
@@ -143,11 +153,13 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
 
     map_path : the residual map image (PNG), written when given.
     """
+    dcfg = ctx.config.diagnose
     try:
-        settings = LocateSettings(alpha=alpha, n_harmonics=n_harmonics)
+        settings = LocateSettings(alpha=alpha, n_harmonics=n_harmonics, n_replicates=dcfg.replicates, seed=dcfg.seed)
     except ValueError as exc:
         raise ConfigError(f"diagnose: {exc}") from None
-    config_json = json.dumps({"diagnose": {"alpha": alpha, "n_harmonics": n_harmonics}}, sort_keys=True)
+    config_json = json.dumps({"diagnose": {"alpha": alpha, "n_harmonics": n_harmonics,
+                                           "replicates": dcfg.replicates, "seed": dcfg.seed}}, sort_keys=True)
     upstream: list[tuple[str, str | None]] = [("optimize", run), ("mesh", None), ("fields", None), ("flow", None)]
     if ctx.store.exists():
         with ctx.store.read() as r:

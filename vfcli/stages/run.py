@@ -1,12 +1,14 @@
 """`vfcli run`: every stage of one recording in one process, doing only what is stale.
 
 The steps are the stage commands in order (:data:`STEPS`): ingest-hsc, ingest-ldv, sync,
-flow, mesh, optimize (run ``default``). Each step is its stage's own runner, which rewrites
+flow, mesh, optimize (run ``default``), diagnose (of run ``default``, with the command's default
+settings). Each step is its stage's own runner, which rewrites
 its store group(s) only when they are not current (the rule of :meth:`StoreReader.is_current`:
 raw inputs by content, the stage's settings, the digests of the stages it used). Before
 running, :func:`plan` names for every step why it would run (missing, input changed, config
 changed, an upstream stage rewritten or stale) with the rules `vfcli info` uses; a dry run
-stops there and writes nothing.
+stops there and writes nothing. The diagnose step is skipped, with its reason, when the
+recording holds too few whole glottal cycles outside the fitted window (:func:`diagnose_skip_reason`).
 
 This is the unit `vfcli batch` runs per recording: :func:`run_recording`.
 """
@@ -18,6 +20,8 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
+
+import numpy as np
 
 from vfcli.errors import ConfigError
 from vfcli.io.raw_folder import RawFiles, find_raw_files
@@ -35,9 +39,14 @@ RUN_NAME = "default"
 #: The steps in order: command name -> the store groups it writes ``[(stage, run)]`` (from the layout).
 STEPS: dict[str, list[tuple[str, str | None]]] = {
     step: [(st.name, RUN_NAME if st.has_runs else None) for st in layout.STAGES.values() if st.written_by == step]
-    for step in ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize")
+    for step in ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize", "diagnose")
 }
 _RAW_STEPS = ("ingest-hsc", "ingest-ldv")
+#: whole glottal cycles the diagnose step needs outside the fitted window: its noise floor is the
+#: cycle-to-cycle variation of the recording with whole cycles as the units of replication
+#: (:func:`vfcli.diagnose.noise.cycle_floor`); from 3 cycles that do not touch the window the floor is
+#: independent of the residual it judges and its variance has 2 degrees of freedom
+DIAGNOSE_MIN_CYCLES = 3
 
 
 @dataclass
@@ -90,6 +99,8 @@ def _steps_until(until: str | None) -> list[str]:
 
 
 def _settings_json(name: str, run: str | None, ctx: RunContext) -> str | None:
+    """The settings JSON stage ``name`` would record; None: not compared here (diagnose: its own
+    command-line defaults, compared by the stage itself when it runs)."""
     if name == "optimize":
         if run != RUN_NAME:
             return None
@@ -113,7 +124,7 @@ def _upstream(name: str, ctx: RunContext) -> list[str]:
     reads = layout.stage(name).reads
     if name == "optimize" and ctx.config.optimize.loads != "pressure":
         reads = tuple(r for r in reads if r != "hsc")
-    return [layout.stage(r).group_path() for r in reads]
+    return [layout.stage(r).group_path(RUN_NAME if layout.stage(r).has_runs else None) for r in reads]
 
 
 def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, str | None]:
@@ -192,7 +203,48 @@ def _run_step(step: str, ctx: RunContext, raw: RawFiles | None) -> list[StageRes
         from vfcli.stages.optimize import run_optimize
 
         return [run_optimize(ctx, RUN_NAME)]
+    if step == "diagnose":
+        from vfcli.stages.diagnose import run_diagnose
+
+        return [run_diagnose(ctx, RUN_NAME)]
     raise ValueError(f"unknown step {step!r}")
+
+
+def cycles_outside_window(area: np.ndarray, dt: float, first: int, n_frames: int) -> tuple[int, int]:
+    """Whole glottal cycles of a recording: (all of them, those with no frame in the window).
+
+    area : (F,) glottal area per frame (any unit).  dt : frame interval, s.
+    first, n_frames : the fitted window, frames ``first .. first + n_frames - 1``.
+    The cycles are :func:`vfcli.diagnose.cycles.glottal_cycles`' (0, 0 when there is none).
+    """
+    from vfcli.diagnose.cycles import TooFewCycles, glottal_cycles
+
+    try:
+        cyc = glottal_cycles(np.asarray(area, float), dt)
+    except TooFewCycles:
+        return 0, 0
+    ids = np.unique(cyc.cycle[cyc.cycle >= 0])
+    hit = cyc.cycle[max(first, 0):first + n_frames]
+    return len(ids), len(np.setdiff1d(ids, hit))
+
+
+def diagnose_skip_reason(ctx: RunContext) -> str | None:
+    """Why the diagnose step cannot run on this recording (too few whole glottal cycles outside the
+    fitted window, :data:`DIAGNOSE_MIN_CYCLES`), or None (also when /flow is not there yet: the
+    stage then names what is missing)."""
+    with ctx.store.read() as r:
+        if not r.has_stage("flow"):
+            return None
+        area, times = r.read("flow", "glottal_area"), r.read("flow", "frame_time")
+    if len(area) < 4:
+        return f"the recording holds {len(area)} frames: no glottal cycle to judge a residual against"
+    first, n = ctx.config.optimize.first_frame, ctx.config.optimize.n_frames
+    total, outside = cycles_outside_window(area, float(np.median(np.diff(times))), first, n)
+    if outside >= DIAGNOSE_MIN_CYCLES:
+        return None
+    return (f"the recording holds {outside} whole glottal cycle(s) outside the fitted window (frames {first}-"
+            f"{first + n - 1}; {total} in all), diagnose needs {DIAGNOSE_MIN_CYCLES}: its noise floor is the "
+            f"cycle-to-cycle variation of whole cycles that do not touch the window it judges; record longer")
 
 
 class _Collect(logging.Handler):
@@ -278,12 +330,21 @@ def run_recording(
         elif step not in active:
             outcomes.append(StageOutcome(step, "skipped", "no raw folder given (--raw): the store's group is used"))
         elif dry_run:
-            outcomes.append(StageOutcome(step, "would run" if why[step] else "up to date",
+            # the diagnose step's skip is known ahead when /flow is there and stays as it is
+            skip = diagnose_skip_reason(ctx) if step == "diagnose" and ctx.store.exists() and not why.get("flow") else None
+            outcomes.append(StageOutcome(step, "skipped", skip) if skip else
+                            StageOutcome(step, "would run" if why[step] else "up to date",
                                          why[step] or "inputs and config unchanged"))
     if dry_run:
         return RunSummary(store, outcomes, True, time.perf_counter() - t_start)
     done: list[StageOutcome] = []
     for step in active:
+        if step == "diagnose":
+            skip = diagnose_skip_reason(context())
+            if skip:
+                done.append(StageOutcome(step, "skipped", skip))
+                log.info("diagnose: skipped (%s)", skip)
+                continue
         collect = _Collect()
         logger = logging.getLogger("vfcli")
         logger.addHandler(collect)

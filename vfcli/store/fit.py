@@ -11,6 +11,7 @@ from vfcli.config import RecordingConfig
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.inverse.problem import Problem
 from vfcli.inverse.setup import OptimizeInputs, Setup, build_problem
+from vfcli.model.fem import ElasticModel
 from vfcli.parallel import Mapper
 from vfcli.store.mesh import read_stored_mesh
 from vfcli.store.reader import StoreReader
@@ -69,3 +70,11 @@ def problem_of_store(reader: StoreReader, config: RecordingConfig, map: Mapper |
     """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it);
     ``map`` runs the response's basis solves (:mod:`vfcli.parallel`; default one after the other)."""
     return build_problem(read_optimize_inputs(reader, config), config.optimize, configured_pose(config), map=map)
+
+
+def run_model(reader: StoreReader) -> ElasticModel:
+    """The elastic model a run of this store is fitted with: /mesh's mesh and the material the mesh
+    stage recorded (E, nu, density; the values :func:`read_optimize_inputs` gives the run's problem),
+    not yet factorised (the first solve does it)."""
+    stored = read_stored_mesh(reader)
+    return ElasticModel(stored.mesh, stored.youngs_modulus_pa, stored.poisson_ratio, stored.density_kg_m3)

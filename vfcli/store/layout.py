@@ -268,7 +268,8 @@ STAGES: dict[str, Stage] = {
             "diagnose",
             "diagnose",
             "Missing-physics diagnosis of one optimisation run: Locate (the residual by where, when, component "
-            "and harmonic of f0, against a noise floor from the recording itself) and the candidates' screening.",
+            "and harmonic of f0, against a noise floor from the recording itself), the candidates' screening and its "
+            "bootstrap calibration, and the decision (attrs decision, alpha_family).",
             reads=("optimize", "mesh", "fields", "flow", "ldv", "sync"),
             has_runs=True,
             datasets={
@@ -310,6 +311,16 @@ STAGES: dict[str, Stage] = {
                 "candidate_p": D("1", "p-value of each candidate's screening (null: the term is absent)", ("candidate",)),
                 "candidate_identifiable": D("bool", "False: the load model can absorb the term (not identifiable with it)", ("candidate",)),
                 "candidate_words": D("text", "Each candidate's finding in plain words", ("candidate",)),
+                "candidate_p_calibrated": D("1", "Bootstrap-calibrated p-value of each candidate alone (null: noise "
+                                            "resampled in whole cycles plus the periodic model error no candidate "
+                                            "explains; attrs calibration_replicates, calibration_seed)", ("candidate",)),
+                "candidate_p_family": D("1", "Family-wise (Westfall-Young min-p over all candidates) calibrated "
+                                        "p-value; a lead when at most attrs alpha_family", ("candidate",)),
+                "candidate_statistic_studentized": D("1", "The calibrated test's statistic: the candidate's efficient "
+                                                     "score studentized by its noise covariance over the whole-cycle "
+                                                     "stretches of the recording", ("candidate",)),
+                "candidate_null_statistic": D("1", "The bootstrap replicates of that statistic under the null",
+                                              ("candidate", "replicate")),
             },
         ),
     ]

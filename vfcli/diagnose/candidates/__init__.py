@@ -6,16 +6,19 @@ Jacobian of the predicted measurement at the baseline fit):
 - :class:`~vfcli.diagnose.candidates.inertia.Inertia`: density factor;
 - :class:`~vfcli.diagnose.candidates.damping.KelvinVoigtDamping`: retardation time;
 - :class:`~vfcli.diagnose.candidates.asymmetry.StiffnessAsymmetry`: left/right stiffness ratio;
-- :class:`~vfcli.diagnose.candidates.asymmetry.MountingOffset`: lateral offset per fold.
+- :class:`~vfcli.diagnose.candidates.asymmetry.MountingOffset`: lateral offset per fold;
+- :class:`~vfcli.diagnose.candidates.contact.Contact`: collision at the midplane (share of the
+  rigid-contact correction).
 
 :mod:`~vfcli.diagnose.candidates.identifiability` says whether the load model can absorb a term,
 :mod:`~vfcli.diagnose.candidates.screening` tests each term with a score test (no refit).
 """
 from vfcli.diagnose.candidates.asymmetry import MountingOffset, StiffnessAsymmetry
+from vfcli.diagnose.candidates.contact import Contact
 from vfcli.diagnose.candidates.damping import KelvinVoigtDamping
 from vfcli.diagnose.candidates.inertia import Inertia
 
 #: the candidate terms screened by ``vfcli diagnose`` (instances; :func:`vfcli.diagnose.candidate.available_candidates`)
-CANDIDATES = (Inertia(), KelvinVoigtDamping(), StiffnessAsymmetry(), MountingOffset())
+CANDIDATES = (Inertia(), KelvinVoigtDamping(), StiffnessAsymmetry(), MountingOffset(), Contact())
 
-__all__ = ["CANDIDATES", "Inertia", "KelvinVoigtDamping", "MountingOffset", "StiffnessAsymmetry"]
+__all__ = ["CANDIDATES", "Contact", "Inertia", "KelvinVoigtDamping", "MountingOffset", "StiffnessAsymmetry"]

@@ -93,6 +93,14 @@ def _kappa_after(baseline, model, dof: float, u: np.ndarray, n_extra: int) -> fl
 def screen_run(candidates, baseline, rtol: float = 1e-10) -> list[ScoreTest]:
     """Score test of every candidate (each a :class:`vfcli.diagnose.candidates.base.DisplacementTerm`)
     at a fitted run's baseline, from the Gauss-Newton blocks (module docstring)."""
+    return screen_run_columns(candidates, baseline, rtol)[0]
+
+
+def screen_run_columns(candidates, baseline, rtol: float = 1e-10):
+    """(tests, columns, model): :func:`screen_run`'s score tests, and per candidate its efficient displacement
+    columns ``dU_c - dU/dx H_LL^-1 H_Lc`` (F + 1, N, 3, p_c) (what the candidate moves that a Gauss-Newton
+    refit of the loads, ridge included, cannot make; the bootstrap calibration's score directions,
+    :mod:`vfcli.diagnose.calibrate_run`), and the Gauss-Newton model of E at the baseline."""
     from vfcli.inverse.linearization import gauss_newton_model
     from vfcli.inverse.uncertainty import effective_sample_size, posterior
 
@@ -102,7 +110,7 @@ def screen_run(candidates, baseline, rtol: float = 1e-10) -> list[ScoreTest]:
     dof = posterior(model, corr).dof
     g_l = model.grad
     lin = model.linearization
-    out = []
+    out, columns = [], []
     for cand in candidates:
         dudp = cand.displacement_jacobian(baseline)
         g_c, h_lc, h_cc = candidate_blocks(baseline, dudp)
@@ -110,6 +118,8 @@ def screen_run(candidates, baseline, rtol: float = 1e-10) -> list[ScoreTest]:
         g = g_c - h_lc.T @ solved[:, 0]
         info = h_cc - h_lc.T @ solved[:, 1:]
         info = 0.5 * (info + info.T)
+        columns.append(dudp - np.moveaxis(np.stack([lin.apply(solved[:, 1 + j]) for j in range(dudp.shape[-1])]),
+                                          0, -1))
         d = np.sqrt(np.maximum(np.diag(h_cc), 1e-300))
         frac = float(np.linalg.eigvalsh(info / np.outer(d, d)).min())
         ident = _GramIdentifiability(max(frac, 0.0), info, h_cc)
@@ -127,4 +137,4 @@ def screen_run(candidates, baseline, rtol: float = 1e-10) -> list[ScoreTest]:
         stat = float(kappa * g @ inv @ g)
         out.append(ScoreTest(stat, int(keep.sum()), float(stats.chi2.sf(stat, int(keep.sum()))), theta,
                              np.sqrt(np.maximum(np.diag(inv), 0.0) / kappa), ident))
-    return out
+    return out, columns, model

@@ -13,20 +13,26 @@ modal/Ritz reduction computed once (:class:`vfcli.model.response.modal.ModalRedu
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 import scipy.sparse as sp
 
 from vfcli.diagnose.candidates.base import DisplacementTerm, derivative_step, time_derivative
 from vfcli.model.response.modal import ModalReduction, harmonic_fit
 
+log = logging.getLogger(__name__)
+
 
 def elastic_model_of(baseline):
-    """The baseline's :class:`vfcli.model.fem.ElasticModel`: ``baseline.model`` when the baseline
-    carries one, else a default-material model of its mesh (E = 4.4 kPa, nu = 0.499, 1070 kg/m^3)."""
+    """The baseline's :class:`vfcli.model.fem.ElasticModel`: ``baseline.model`` (the run's own: its
+    E, nu and density) when the baseline carries one, else a default-material model of its mesh
+    (E = 4.4 kPa, nu = 0.499, 1070 kg/m^3; the column then scales with 4.4 kPa / E of the run)."""
     model = getattr(baseline, "model", None)
     if model is None:
         from vfcli.model.fem import ElasticModel
 
+        log.warning("inertia: the baseline carries no elastic model; using a default-material model of its mesh")
         model = ElasticModel(baseline.problem.mesh)
     return model
 
@@ -47,13 +53,16 @@ class Inertia(DisplacementTerm):
 
     def __init__(self, model=None) -> None:
         self.model = model
-        self._cache: tuple = (None, None)            # (response, its mass responses)
-        self._own: tuple = (None, None)              # (mesh, the model built for it)
+        self._cache: tuple = (None, None, None)      # (response, model, its mass responses)
+        self._own: tuple = (None, None)              # (mesh, the default model built for it)
 
     def _model(self, baseline):
-        """The given model, else the baseline's (built once per mesh: CANDIDATES' instances are shared)."""
+        """The given model, else the baseline's own, else a default-material model of its mesh (built
+        once per mesh: CANDIDATES' instances are shared)."""
         if self.model is not None:
             return self.model
+        if getattr(baseline, "model", None) is not None:
+            return baseline.model
         if self._own[0] is not baseline.problem.mesh:
             self._own = (baseline.problem.mesh, elastic_model_of(baseline))
         return self._own[1]
@@ -61,13 +70,13 @@ class Inertia(DisplacementTerm):
     def mass_responses(self, baseline) -> np.ndarray:
         """(N, 3, S) vertex displacement of ``K^-1 M K^-1 L_s`` per spatial load pattern s, mm s^2."""
         response = baseline.problem.response
-        if self._cache[0] is not response:
-            model = self._model(baseline)
+        model = self._model(baseline)
+        if self._cache[0] is not response or self._cache[1] is not model:
             loads = response.load_model.spatial_loads(model)
             loads = loads.toarray() if sp.issparse(loads) else np.asarray(loads, dtype=float)
             z = model.solve(model.mass @ model.solve(loads))
-            self._cache = (response, np.moveaxis(model.vertex_displacements(z), 0, -1))   # (N, 3, S)
-        return self._cache[1]
+            self._cache = (response, model, np.moveaxis(model.vertex_displacements(z), 0, -1))   # (N, 3, S)
+        return self._cache[2]
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
         p = baseline.problem

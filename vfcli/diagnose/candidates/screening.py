@@ -16,7 +16,7 @@ The run's noise is not known: :func:`screen_baseline` whitens with a standard de
 row kind (motion, gap) estimated from the baseline residual, inflated by the residual's
 correlation area and time (:func:`vfcli.inverse.uncertainty.effective_sample_size`), so that
 correlated rows are not counted as independent.  Bootstrap calibration in whole cycles and the
-family-wise control over candidates are the next steps (docs/diagnose.md).
+family-wise control over candidates are :mod:`vfcli.diagnose.calibrate` (docs/diagnose.md).
 """
 from __future__ import annotations
 
@@ -109,17 +109,19 @@ def screen_baseline(candidates, baseline) -> list[ScoreTest]:
     return [score_test(c.jacobian(baseline) / sigma[:, None], r / sigma, q=q) for c in candidates]
 
 
-#: family-wise false-alarm rate over all candidates (Bonferroni until the bootstrap calibration is built)
+#: family-wise false-alarm rate over all candidates (the calibrated decision's, :mod:`vfcli.diagnose.decide`)
 FAMILY_ALPHA = 0.05
 
 
 def words(candidate, test: ScoreTest, n_candidates: int, alpha: float = FAMILY_ALPHA) -> str:
-    """One plain line: not identifiable / no evidence / a lead with its estimate and p-value."""
+    """One plain line: not acting / not identifiable / the one-step estimate and the uncalibrated p-value (the
+    decision is the calibrated one, :mod:`vfcli.diagnose.decide`)."""
+    if not np.any(test.identifiability.own_information):
+        # a zero column: the term changes nothing at this baseline (contact whose folds never touch)
+        return f"{candidate.name}: no evidence (the term does not act on this fit)"
     if not test.identifiability.identifiable:
         return f"{candidate.name}: not identifiable with this load model (the loads can absorb it)"
     est = ", ".join(f"{n} = {e:.3g} +- {1.96 * s:.2g}"
                     for n, e, s in zip(candidate.parameter_names, test.estimate, test.std))
-    if test.p_value < alpha / max(n_candidates, 1):
-        return (f"{candidate.name}: the residual leans on this term beyond noise (score test p = {test.p_value:.2g}, "
-                f"{est}); a lead to confirm by refit, not yet a finding")
-    return f"{candidate.name}: no evidence (score test p = {test.p_value:.2g})"
+    return (f"{candidate.name}: one-step estimate {est}; uncalibrated score test p = {test.p_value:.2g} (white-noise "
+            "chi2 reference, not a decision: see the calibrated decision below)")

@@ -15,11 +15,17 @@ Reduction (computed once, then every (rho, tau, eta, w) costs a few small produc
 -----------------------------------------------------------------------------------
 The basis is the union of the lowest ``n_modes`` eigenmodes of each fold (``K phi = w^2 M phi``,
 scipy's ``eigsh`` in shift-invert mode through the model's factorisation,
-:meth:`vfcli.model.fem.ElasticModel.modes`) and the load-dependent Ritz vectors of the loads
+:meth:`vfcli.model.fem.ElasticModel.modes`), the load-dependent Ritz vectors of the loads
 (the block Krylov space ``K^-1 F, (K^-1 M) K^-1 F, ...``, ``n_ritz`` blocks; Wilson, Yuan and
-Dickens 1982).  The Ritz vectors contain the static response ``K^-1 F`` exactly, so the reduced
+Dickens 1982) and, for each frequency of ``shifts_hz`` (the harmonics of f0 the steady state is
+wanted at), the shifted Ritz vectors ``(K - w_s^2 M)^-1 F, ((K - w_s^2 M)^-1 M) (K - w_s^2 M)^-1 F``
+(``n_shift_blocks`` blocks; a rational Krylov space, one sparse LU of the shifted matrix per fold
+and shift).  The Ritz vectors contain the static response ``K^-1 F`` exactly, so the reduced
 model is exact at ``w = 0`` and matches the first ``2 n_ritz`` moments of ``H(w) F`` in ``w^2``;
-the modes carry the resonances.  The basis V (n_dofs, r) is diagonalised once by the small dense
+the shifted blocks make it exact at ``rho w^2 = w_s^2`` (undamped) and match moments there; the
+modes carry the resonances.  Without shifts the Krylov space at 0 converges to the low end of the
+spectrum only: 2.4e-4 relative error at 170 Hz but 7 % at 340 Hz and 13 % at 850 Hz on the 2 mm
+test mesh (folds' lowest modes near 50 Hz; tests/test_modal.py).  The basis V (n_dofs, r) is diagonalised once by the small dense
 eigenproblem ``V^T K V z = mu V^T M V z``; with the M-orthonormal reduced modes ``psi_j``::
 
     H(w) F ~= sum_j psi_j (psi_j^T F) / (c mu_j - rho w^2)
@@ -65,6 +71,41 @@ def ritz_vectors(model, loads: np.ndarray, n_blocks: int) -> np.ndarray:
     return np.hstack(out)
 
 
+def shifted_ritz_vectors(model, loads: np.ndarray, shift_hz: float, n_blocks: int = 2) -> np.ndarray:
+    """(n_dofs, <= 2 n_blocks S) block Krylov vectors of the loads about the shift ``w_s^2``.
+
+    ``span{A^-1 F_k, (A^-1 M) A^-1 F_k, ...}``, ``A = K - w_s^2 M`` factorised once per fold
+    (sparse LU: A is indefinite above the lowest resonance), F_k the loads restricted to fold k,
+    0 at the clamped DOFs.  Not orthonormalised (the caller orthonormalises the whole basis).
+
+    Parameters
+    ----------
+    model : :class:`vfcli.model.fem.ElasticModel`.
+    loads : (n_dofs, S) load vectors, Pa mm^2.
+    shift_hz : shift frequency f_s, Hz (w_s = 2 pi f_s).
+    n_blocks : Krylov blocks (>= 1).
+    """
+    from scipy.sparse.linalg import splu
+
+    sigma = (2 * np.pi * float(shift_hz)) ** 2
+    mass = model.mass
+    out = []
+    for k, fold in enumerate(model.folds):
+        o = model.offsets[k]
+        idx = o + fold.free
+        m_ff = mass[idx][:, idx]
+        a = (fold.stiffness[fold.free][:, fold.free] - sigma * m_ff).tocsc()
+        lu = splu(a)
+        block = lu.solve(np.ascontiguousarray(loads[idx], dtype=float))
+        for _ in range(int(n_blocks)):
+            block, _r = np.linalg.qr(block)
+            full = np.zeros((model.n_dofs, block.shape[1]))
+            full[idx] = block
+            out.append(full)
+            block = lu.solve(np.ascontiguousarray(m_ff @ block))
+    return np.hstack(out)
+
+
 class ModalReduction:
     """Diagonalised modal/Ritz reduction of the folds for a set of load patterns (module docstring).
 
@@ -75,6 +116,9 @@ class ModalReduction:
         ``spatial_loads(model)``).
     n_modes : lowest eigenmodes per fold put into the basis (0: Ritz vectors only).
     n_ritz : Krylov blocks of load-dependent Ritz vectors (>= 1).
+    shifts_hz : frequencies (Hz) at which shifted Ritz vectors are added (e.g. the harmonics
+        ``k f0`` the steady state is evaluated at); empty: none.
+    n_shift_blocks : Krylov blocks per shift (>= 1).
 
     Attributes
     ----------
@@ -84,7 +128,8 @@ class ModalReduction:
     fold_frequencies_hz_ : (2 n_modes,) the eigsh frequencies of the two folds (for reporting).
     """
 
-    def __init__(self, model, loads, n_modes: int = 20, n_ritz: int = 10) -> None:
+    def __init__(self, model, loads, n_modes: int = 20, n_ritz: int = 10, shifts_hz=(),
+                 n_shift_blocks: int = 2) -> None:
         f = loads.toarray() if sp.issparse(loads) else np.asarray(loads, dtype=float)
         if f.ndim != 2 or f.shape[0] != model.n_dofs:
             raise ValueError(f"loads must be (n_dofs={model.n_dofs}, S), got {f.shape}")
@@ -96,6 +141,10 @@ class ModalReduction:
             rows = slice(model.offsets[k], model.offsets[k + 1])
             per_fold[rows, k * f.shape[1]:(k + 1) * f.shape[1]] = f[rows]
         parts = [ritz_vectors(model, per_fold, n_ritz)]
+        for shift in np.atleast_1d(np.asarray(shifts_hz, dtype=float)):
+            if not shift > 0:
+                raise ValueError(f"shifts_hz must be positive frequencies, got {shift!r}")
+            parts.append(shifted_ritz_vectors(model, f, shift, n_shift_blocks))
         freqs = []
         if n_modes:
             for fold in (0, 1):

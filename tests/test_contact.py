@@ -1,0 +1,129 @@
+"""The collision candidate (vfcli.diagnose.candidates.contact) on forward cases.
+
+- where the linear model's folds cross the midplane (the pressure case with a medial suction), the
+  term at theta = 1 removes the crossing, its contact forces are those of the rigid-contact problem
+  solved by an independent method (scipy's L-BFGS-B on the dual energy), and its column is the
+  derivative of the predicted measurement (motion and gap rows) along that independent solution;
+- where the folds never reach the midplane (the pressure case as fitted), the term does not act:
+  a zero column, "never cross" in words, and the screening says "no evidence".
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from _candidates_case import pressure_case
+from _forward_case import F0_HZ
+from vfcli.diagnose.candidate import Baseline, Candidate, screen
+from vfcli.diagnose.candidates import CANDIDATES, Contact
+from vfcli.diagnose.candidates.contact import closed_frames
+from vfcli.inverse.terms.gap import gap_rows
+
+
+@lru_cache(maxsize=1)
+def crossing_case() -> Baseline:
+    """The pressure case with a medial suction of 0.6 p_ref: the folds cross the midplane in every
+    frame, by up to 0.26 mm (measured)."""
+    base = pressure_case()
+    load = base.problem.response.load_model
+    c = load.control_matrix(base.x).copy()
+    c[1, 0] = -0.6 * load.p_ref
+    return Baseline.at(base.problem, c.ravel(), F0_HZ, model=base.model)
+
+
+def _predicted(base: Baseline, disp: np.ndarray) -> np.ndarray:
+    """Predicted measurement (motion rows mm/s, gap rows mm) at displacements disp, raster frozen at the baseline."""
+    p = base.problem
+    gaps = [gap_rows(p, p.mesh.nodes + disp[f], fr.sil, np.zeros((len(disp[f]), 3, 0)))[1] / p.camera.px_per_mm
+            for f, fr in enumerate(base.frames)]
+    return np.concatenate([base.motion_vector(disp), *gaps])
+
+
+def _independent_forces(g0: np.ndarray, compliance: np.ndarray) -> np.ndarray:
+    """Rigid-contact forces of one time by L-BFGS-B on ``1/2 l^T G l + g0^T l, l >= 0``, in the
+    scaled unknown ``w = l d`` (d the mean diagonal of G: ``1/2 w^T (G / d) w + g0^T w``)."""
+    d = float(np.diag(compliance).mean())
+    gn = compliance / d
+    res = minimize(lambda w: (0.5 * w @ gn @ w + g0 @ w, gn @ w + g0), np.zeros(len(g0)), jac=True,
+                   method="L-BFGS-B", bounds=[(0.0, None)] * len(g0),
+                   options={"ftol": 1e-16, "gtol": 1e-13, "maxiter": 50000, "maxcor": 50})
+    return res.x / d
+
+
+def test_contact_follows_the_protocol_and_is_screened_by_default():
+    c = Contact()
+    assert isinstance(c, Candidate) and c.n_params == 1 and "midplane" in c.signature
+    assert any(isinstance(k, Contact) for k in CANDIDATES)
+
+
+@pytest.mark.slow
+def test_the_term_removes_the_crossing_with_the_forces_of_the_rigid_contact_problem():
+    base = crossing_case()
+    term = Contact()
+    depth0 = term.overlap(base)
+    assert 0.2 < depth0.max() < 0.3 and np.all(depth0 > 0), depth0        # measured 0.262 mm, every time
+    u1 = base.displacements + term.extension(base, np.array([1.0]))
+    sep1 = term.separation(base, u1)
+    assert sep1.min() > -1e-7, sep1.min()                                   # no interpenetration left
+    lam = term.forces(base)
+    assert lam.min() >= 0.0
+    # complementarity: a node pushed is a node touching (relative to the crossing removed)
+    assert np.max(np.abs(lam * sep1)) < 1e-6 * np.max(lam) * depth0.max()
+    # against an independent solver of the same problem (a few times)
+    _, _, g = term.operators(base)
+    g0 = term.separation(base)
+    for t in (0, 5, 10):
+        ref = _independent_forces(g0[t], g)
+        err = np.linalg.norm(lam[t] - ref) / np.linalg.norm(ref)
+        assert err < 1e-3, (t, err)
+    # the deepest crossing is pushed back to its own side by about its depth
+    _, cn, _ = term.operators(base)
+    t, i = np.unravel_index(np.argmin(g0), g0.shape)
+    push = cn.side[i] * (u1 - base.displacements)[t, cn.nodes[i], 1]
+    assert abs(push / -g0[t, i] - 1) < 1e-6, (push, g0[t, i])
+
+
+@pytest.mark.slow
+def test_the_column_is_the_derivative_of_the_predicted_measurement():
+    base = crossing_case()
+    term = Contact()
+    column = term.jacobian(base)[:, 0]
+    # the independent rigid-contact displacement change of every time (forces from L-BFGS-B)
+    _, _, g = term.operators(base)
+    g0 = term.separation(base)
+    ref = term.correction(base, np.array([_independent_forces(row, g) for row in g0]))
+    h = 1e-3
+    fd = (_predicted(base, base.displacements + h * ref) - _predicted(base, base.displacements - h * ref)) / (2 * h)
+    n_motion = base.n_motion_rows
+    for rows in (slice(0, n_motion), slice(n_motion, None)):
+        err = np.linalg.norm(column[rows] - fd[rows]) / np.linalg.norm(fd[rows])
+        assert 0 < np.linalg.norm(fd[rows]) and err < 2e-3, (rows, err)
+
+
+@pytest.mark.slow
+def test_where_the_folds_never_reach_the_midplane_the_term_does_not_act_and_has_no_evidence():
+    base = pressure_case()
+    term = Contact(base.model)
+    assert term.overlap(base).max() == 0.0
+    assert not np.any(term.jacobian(base))
+    words = term.evidence(base)
+    assert words.startswith("the folds of the no-contact fit never cross the midplane"), words
+    (res,) = screen(None, [term], base)
+    assert res.p_value == 1.0 and "no evidence (the term does not act" in res.words, res.words
+    assert "never cross the midplane" in res.words
+
+
+@pytest.mark.slow
+def test_the_evidence_separates_closed_and_open_frames():
+    base = crossing_case()
+    term = Contact()
+    depth = term.overlap(base)[:-1]
+    closed = np.zeros(len(depth), bool)
+    closed[np.argsort(depth)[-3:]] = True                                  # say the three deepest were closed
+    words = term.evidence(base, closed)
+    assert f"by up to {depth.max():.2g} mm during the closed phase (3 of 3 frames)" in words, words
+    assert f"by up to {depth[~closed].max():.2g} mm while the glottis is open (9 of 9 frames)" in words, words
+    assert closed_frames(base.problem.meas).shape == (len(depth),)

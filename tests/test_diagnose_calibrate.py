@@ -1,0 +1,173 @@
+"""The bootstrap calibration of the candidates' screening (vfcli.diagnose.calibrate) on a linear problem.
+
+A recording of whole cycles, each of T time samples on S spatial points: data = loads + noise,
+the noise AR(1) in time within a cycle (rho 0.9, shared across neighbouring points: correlated in
+space and time) and independent between cycles; the fit is cycle 0 (the window), the other cycles
+are the pool the noise is resampled from.  Four candidates with smooth columns, partly inside the
+load span.  Checked, each against an independent reference:
+
+- under the null the naive chi2 score test (white noise of the residual's scale) over-rejects
+  badly, the bootstrap p-values are uniform (Kolmogorov-Smirnov) and reject at 0.05 within
+  binomial error, both ways;
+- the family-wise rate over the four candidates (Westfall-Young) is at or below 0.05 within error;
+- with a periodic model error (a smooth field repeated in every cycle, the loads' and candidates'
+  own family) on top, the noise-only bootstrap and the naive test alarm on most draws, the
+  calibrated test on about 0.1 (above nominal: the stated limit of the method);
+- with an injected effect well above the model error the calibrated test has power and names the
+  right candidate.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from vfcli.diagnose.calibrate import NullParts, ScoreBasis, calibrate, quadrature_scores, replicate_statistics
+from vfcli.diagnose.candidates.identifiability import load_basis, project_out
+from vfcli.diagnose.candidates.screening import score_test
+
+S, T = 12, 40                   # spatial points, samples per cycle
+M = S * T                       # rows per cycle, time-major: row = t * S + s
+N_CYCLES = 13                   # cycle 0 is the window, 12 in the pool
+RHO = 0.9
+ALPHA = 0.05
+N_DRAWS = 150
+B = 199
+
+
+def _smooth(rng, n_cols: int, n_modes: int = 3) -> np.ndarray:
+    """(M, n_cols) smooth periodic space-time columns."""
+    t = np.arange(T)[:, None, None] / T
+    x = np.arange(S)[None, :, None] / S
+    out = np.zeros((T, S, n_cols))
+    for k in range(1, n_modes + 1):
+        for j in range(1, n_modes + 1):
+            a = rng.normal(size=(4, n_cols)) / (k * j)
+            out += (a[0] * np.cos(2 * np.pi * k * t) + a[1] * np.sin(2 * np.pi * k * t)) * \
+                   (a[2] * np.cos(np.pi * j * x) + a[3] * np.sin(np.pi * j * x))
+    return out.reshape(M, n_cols)
+
+
+def _problem(seed: int = 0):
+    rng = np.random.default_rng(seed)
+    jl = _smooth(rng, 6)
+    cands = [0.5 * jl[:, :1] + _smooth(rng, 1), _smooth(rng, 1), 0.3 * jl[:, 2:4] + _smooth(rng, 2), _smooth(rng, 1)]
+    q = load_basis(jl)
+    cols = [project_out(c, q) for c in cands]
+    basis = ScoreBasis(cols, [c.T @ c for c in cols], [True] * len(cols))
+    return jl, q, cands, cols, basis
+
+
+def _noise(rng, n: int) -> np.ndarray:
+    """(n, M) AR(1) in time within each cycle, correlated across neighbouring points, unit-ish scale."""
+    e = np.empty((n, T, S))
+    w = rng.normal(size=(n, T, S))
+    w = w + np.roll(w, 1, axis=2) + np.roll(w, -1, axis=2)
+    e[:, 0] = w[:, 0] / np.sqrt(1 - RHO ** 2)
+    for t in range(1, T):
+        e[:, t] = RHO * e[:, t - 1] + w[:, t]
+    return e.reshape(n, M)
+
+
+def _calibrated(data: np.ndarray, q, cols, basis, seed: int, model_error_null: bool = True):
+    """The pipeline of a run on a (N_CYCLES, M) recording: fit cycle 0, template and deviations from the pool."""
+    y0, pool = data[0], data[1:]
+    r = project_out(y0, q)                                       # the loads refitted on the window
+    template = pool.mean(axis=0)
+    dev = pool - template
+    s = r - (y0 - template)                                      # the window's systematic residual
+    s = project_out(s, q)                                        # what the loads cannot make
+    shifts = quadrature_scores(s.reshape(T, S), [w.reshape(T, S, -1) for w in basis.weights]) if model_error_null \
+        else np.zeros((0, sum(basis.sizes)))
+    if model_error_null:                                         # as calibrate_run: the loads' share of each turn
+        for j, a in enumerate(np.concatenate(cols, axis=1).T):
+            h = _hilbert(a)
+            shifts[:, j] /= np.sqrt(max(np.sum(project_out(h, q) ** 2) / np.sum(h ** 2), 0.05))
+    parts = NullParts(basis.scores(dev.T).T, shifts)
+    return r, calibrate(basis, r, parts, B, seed)
+
+
+def _hilbert(v: np.ndarray) -> np.ndarray:
+    x = np.fft.rfft(v.reshape(T, S), axis=0) * -1j
+    x[0] = 0.0
+    return np.fft.irfft(x, n=T, axis=0).ravel()
+
+
+def _naive(r: np.ndarray, cols) -> np.ndarray:
+    sigma = np.sqrt(np.mean(r ** 2) * M / (M - 6))
+    return np.array([score_test(c / sigma, r / sigma, q=np.zeros((M, 0))).p_value for c in cols])
+
+
+def _draws(effect: np.ndarray | None = None, model_error: bool = False, model_error_null: bool = True, seed: int = 1):
+    jl, q, cands, cols, basis = _problem(0)
+    rng = np.random.default_rng(seed)
+    naive, boot, fam = [], [], []
+    for i in range(N_DRAWS):
+        data = jl @ rng.normal(scale=5.0, size=(jl.shape[1], 1)) + 0.0
+        data = np.repeat(data.T, N_CYCLES, axis=0) + _noise(rng, N_CYCLES)
+        if model_error:
+            data += 3.0 * _smooth(rng, 1, n_modes=4)[:, 0]          # the same in every cycle, a new field per draw
+        if effect is not None:
+            data += effect
+        r, cal = _calibrated(data, q, cols, basis, seed=i, model_error_null=model_error_null)
+        naive.append(_naive(r, cols))
+        boot.append(cal.p_value)
+        fam.append(cal.p_family)
+    return np.array(naive), np.array(boot), np.array(fam), cands
+
+
+def _binomial_band(p: float, n: int, z: float = 3.5) -> float:
+    return z * np.sqrt(p * (1 - p) / n)
+
+
+def test_replicates_are_reproducible_and_independent_of_the_map():
+    rng = np.random.default_rng(3)
+    parts = NullParts(rng.normal(size=(7, 5)), rng.normal(size=(11, 5)))
+    args = (parts, (1, 2, 2), (True, True, False), 150)
+    a = replicate_statistics(*args, seed=4)
+    b = replicate_statistics(*args, seed=4, map=lambda f, *xs: [f(*x) for x in zip(*xs)])
+    c = replicate_statistics(*args, seed=5)
+    assert a.shape == (3, 150) and np.array_equal(a, b) and not np.allclose(a, c)
+    assert np.all(a[2] == 0) and np.all(a[:2] > 0)
+
+
+def test_null_bootstrap_is_uniform_where_the_naive_chi2_over_rejects():
+    naive, boot, fam, _ = _draws()
+    band = _binomial_band(ALPHA, boot.size)
+    naive_rate = np.mean(naive < ALPHA)
+    boot_rate = np.mean(boot <= ALPHA)
+    print(f"naive rate {naive_rate:.3f}, bootstrap rate {boot_rate:.3f}, family-wise {np.mean(fam.min(1) <= ALPHA):.3f}")
+    assert naive_rate > 3 * ALPHA, naive_rate                       # correlated noise: the chi2 reference is wrong
+    assert abs(boot_rate - ALPHA) < band, boot_rate                 # two-sided: neither too many nor too few
+    assert stats.kstest(boot.ravel(), "uniform").pvalue > 1e-3
+    fw = np.mean(fam.min(axis=1) <= ALPHA)
+    assert fw <= ALPHA + _binomial_band(ALPHA, len(fam)), fw
+
+
+def test_periodic_model_error_is_mostly_absorbed_by_the_calibration():
+    """A smooth model error repeated in every cycle, drawn from the same low-dimensional family as the loads and
+    the candidates (adversarial: the loads absorb about half of its quarter-period turn): the noise-only bootstrap
+    and the naive test alarm on most recordings; the calibrated one much less, but still above nominal (measured
+    0.107 over 150 draws): the known limit of the quadrature estimate (docs/diagnose.md)."""
+    naive, boot, fam, _ = _draws(model_error=True, seed=2)
+    fw = np.mean(fam.min(axis=1) <= ALPHA)
+    _, _, fam_noise_only, _ = _draws(model_error=True, model_error_null=False, seed=2)
+    fw_noise_only = np.mean(fam_noise_only.min(axis=1) <= ALPHA)
+    fw_naive = np.mean(naive.min(axis=1) < ALPHA / 4)
+    print(f"family-wise with model error: {fw:.3f}; noise-only null {fw_noise_only:.3f}; naive {fw_naive:.3f}")
+    assert fw_noise_only > 0.25 and fw_naive > 0.8, (fw_noise_only, fw_naive)   # measured 0.33, 0.91
+    assert fw < 0.16, fw                                                           # measured 0.107; nominal 0.05
+
+
+def test_an_injected_effect_is_found_and_named_above_the_model_error():
+    jl, q, cands, cols, basis = _problem(0)
+    info = float(cols[1][:, 0] @ cols[1][:, 0])
+    theta = 20.0 * np.sqrt(RHO_VAR / info)
+    _, boot, fam, _ = _draws(effect=cands[1][:, 0] * theta, model_error=True, seed=3)
+    found = np.mean(fam[:, 1] <= ALPHA)
+    named = np.mean(np.argmin(fam, axis=1) == 1)
+    print(f"power {found:.3f}, named {named:.3f}")
+    assert found > 0.85 and named > 0.8, (found, named)                            # measured 0.95, 0.91
+
+
+#: variance of the AR(1) noise per row (innovation variance 3 from the three shared points)
+RHO_VAR = 3.0 / (1 - RHO ** 2)

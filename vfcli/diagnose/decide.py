@@ -1,0 +1,89 @@
+"""The decision: which left-out physics the diagnosis names, or "no missing physics detected".
+
+A candidate is a **lead** when the loads cannot absorb it (identifiable) and its calibrated
+family-wise p-value (:mod:`vfcli.diagnose.calibrate`: parametric bootstrap from the fitted
+baseline, noise resampled in whole cycles, the periodic model error no candidate explains
+included, Westfall-Young min-p over all candidates) is at most alpha.  A lead is a **finding**
+only when its confirmation refit (``vfcli.diagnose.confirmation.Confirmation`` of the refit,
+duck-typed here: ``candidate`` and ``improves``) also predicts data the fit did not see better
+than the baseline, beyond the spread over splits.  Without a confirmation a lead stays a lead:
+the answer is then still "no missing physics detected", with the unconfirmed leads named.
+
+The family-wise false-alarm rate of the leads is alpha (0.05) by construction of the calibration;
+requiring the confirmation as well can only lower the rate of false findings.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+#: the family-wise false-alarm rate the decision is calibrated for
+FAMILY_ALPHA = 0.05
+
+
+@dataclass(frozen=True)
+class Decision:
+    """names : the candidates, in screening order.  p_family : (C,) calibrated family-wise p-values.
+    leads : names of the calibrated leads (smallest p first).  findings : leads confirmed by refit.
+    alpha : the family-wise false-alarm rate.  n_replicates : the bootstrap's replicates.
+    lines : the plain-words lines."""
+
+    names: tuple[str, ...]
+    p_family: np.ndarray
+    leads: tuple[str, ...]
+    findings: tuple[str, ...]
+    alpha: float
+    n_replicates: int
+    lines: list[str] = field(default_factory=list)
+
+    @property
+    def verdict(self) -> str:
+        """"missing physics: <names>" or "no missing physics detected"."""
+        return f"missing physics: {', '.join(self.findings)}" if self.findings else "no missing physics detected"
+
+
+def _p(p: float, n_replicates: int) -> str:
+    floor = 1.0 / (n_replicates + 1)
+    return f"p <= {floor:.2g}" if p <= floor + 1e-12 else f"p = {p:.2g}"
+
+
+def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bool], n_replicates: int,
+           alpha: float = FAMILY_ALPHA, confirmations: Mapping[str, Any] | None = None) -> Decision:
+    """Leads and findings (module docstring).
+
+    names : (C,) candidate names.  p_family : (C,) calibrated family-wise p-values.
+    identifiable : (C,) whether the loads cannot absorb each.  n_replicates : B of the bootstrap.
+    confirmations : candidate name -> its confirmation refit (an object with ``improves``), when one was made.
+    """
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    p = np.asarray(p_family, dtype=float)
+    confirmations = dict(confirmations or {})
+    order = np.argsort(p, kind="stable")
+    leads = tuple(names[i] for i in order if identifiable[i] and p[i] <= alpha)
+    findings = tuple(n for n in leads if n in confirmations and bool(getattr(confirmations[n], "improves", False)))
+    head = (f"decision: family-wise false-alarm rate {alpha:g} over {len(names)} candidates, calibrated by "
+            f"{n_replicates} bootstrap replicates (noise resampled in whole cycles, periodic model error included)")
+    lines = [head]
+    for i in order:
+        n = names[i]
+        if not identifiable[i]:
+            continue
+        if n in findings:
+            lines.append(f"{n}: missing physics found (calibrated family-wise {_p(p[i], n_replicates)}; its refit "
+                         "predicts held-out data better than the baseline beyond the spread)")
+        elif n in leads:
+            why = ("its refit does not predict held-out data better beyond the spread" if n in confirmations
+                   else "not confirmed: no held-out refit")
+            lines.append(f"{n}: a calibrated lead (family-wise {_p(p[i], n_replicates)}), {why}")
+        else:
+            lines.append(f"{n}: no evidence beyond noise and model error (calibrated family-wise "
+                         f"{_p(p[i], n_replicates)})")
+    d = Decision(tuple(names), p, leads, findings, float(alpha), int(n_replicates))
+    tail = d.verdict
+    if not findings and leads:
+        tail += f" (unconfirmed lead{'s' if len(leads) > 1 else ''}: {', '.join(leads)})"
+    lines.append(tail)
+    return Decision(d.names, d.p_family, d.leads, d.findings, d.alpha, d.n_replicates, lines)
