@@ -47,7 +47,7 @@ def widened_run(tmp_path_factory):
         ["flow", store],
         ["mesh", store, "--set", "mesh.target_edge_mm=2.5"],
         ["optimize", store, "--loads", "pressure", "--set", "optimize.n_frames=48", "--set", "optimize.first_frame=10",
-         "--set", "mesh.target_edge_mm=2.5", "--run", "p"],
+         "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.gap_margin_px=4", "--run", "p"],
     ]
     for args in steps:
         res = run_vfcli(*args)
