@@ -243,6 +243,12 @@ class OptimizeConfig(_Section):
         "paper", description="Motion term where only one of simulation and recording sees tissue: 'paper': only the "
         "recording's side costs |v|^2 (the paper's one-sided E); 'symmetric': the simulation's side in the measured gap "
         "costs |v_bar|^2 too (vfcli/inverse/problem.py)")
+    gap_margin_px: float = Field(
+        0.0, ge=0, le=100, description="Leave the motion term out within this distance (px) of the glottal gap's "
+        "envelope over the window (0: off, the default): next to the open gap the vibrometer's interpolated field "
+        "mixes scan points on the tissue with points that look through the gap; the gap term still places the medial "
+        "edge (4 px halves the inferior error on widened phantoms but its stated uncertainty then understates, "
+        "docs/benchmarks.md)")
     keep_every: int = Field(1, ge=1, le=10000, description="Store the control values of every k-th iteration")
     uncertainty: bool = Field(True, description="Compute the posterior standard deviation of every reconstructed "
                               "displacement (vfcli/inverse/uncertainty.py)")

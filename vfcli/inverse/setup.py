@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Callable, Iterable
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from vfcli.camera.camera import Camera
 from vfcli.camera.pose import estimate_pose, lateral_axis_for, model_axes_velocity
@@ -149,6 +150,20 @@ def load_model(inputs: OptimizeInputs, cfg: OptimizeConfig, t_range: tuple[float
                         medial_z=n_z, medial_x=n_x, inferior_linear_x=cfg.pressure_inferior_linear)
 
 
+def near_gap(gap_masks: np.ndarray, margin_px: float) -> np.ndarray:
+    """(H, W) bool: pixels within ``margin_px`` (Euclidean, px) of the gap's envelope over the window.
+
+    gap_masks : (F, H, W) bool measured gap masks.  margin_px : 0 gives the envelope itself.
+    The motion term leaves these pixels out (``optimize.gap_margin_px``): next to the open gap the
+    vibrometer's interpolated field mixes scan points on the tissue with points that look through the
+    gap (docs/benchmarks.md, "Where the widened phantoms' inferior error comes from").
+    """
+    envelope = np.asarray(gap_masks, bool).any(axis=0)
+    if not envelope.any():
+        return envelope
+    return distance_transform_edt(~envelope) <= float(margin_px)
+
+
 def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
                   pose: tuple[float, tuple[float, float]] | None, *,
                   map: Callable[..., Iterable[Any]] | None = None) -> tuple[Problem, Setup]:
@@ -189,7 +204,10 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
                                  gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside,
                                  lateral_axis=lateral)
-    measurement = Measurement.from_gap_masks(times, velocity, inputs.valid, inputs.gap_masks, lateral)
+    valid = np.asarray(inputs.valid, bool)
+    if cfg.gap_margin_px > 0:
+        valid = valid & ~near_gap(inputs.gap_masks, cfg.gap_margin_px)[None]
+    measurement = Measurement.from_gap_masks(times, velocity, valid, inputs.gap_masks, lateral)
     problem = Problem(inputs.mesh, camera, response, measurement, settings)
     curve = None
     if ridge is None:

@@ -1,0 +1,91 @@
+"""The pressure load model on a widened phantom (issue 15): the motion term's margin around the gap,
+and the inferior surface's error and stated 90 % intervals on a short widened recording run through
+the real CLI (own geometry, material within its batch tolerance, its own intraglottal drive, any
+camera angle and zoom, vibrometer artefacts)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import run_vfcli
+from vfcli.inverse.setup import near_gap
+from vfcli.store import Store, read_truth
+from vfcli.synth.scoring import interval_coverage, side_truth
+
+
+def test_the_margin_around_the_gap_is_a_euclidean_disc_about_its_envelope():
+    """One gap pixel in one frame and another in a later frame: the band is the union of the
+    lattice points within the margin of either (Gauss's circle count: 49 points within 4 px)."""
+    masks = np.zeros((3, 40, 40), bool)
+    masks[0, 10, 10] = True
+    masks[2, 30, 25] = True
+    band = near_gap(masks, 4.0)
+    assert band.sum() == 2 * 49
+    assert band[10, 14] and not band[10, 15] and band[13, 12] and not band[13, 13]   # 3^2 + 2^2 < 16 < 3^2 + 3^2
+    assert near_gap(masks, 0.0).sum() == 2
+    assert not near_gap(np.zeros((2, 8, 8), bool), 4.0).any()
+
+
+WIDENED = [
+    "synth.panel='widened'", "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0",
+    "synth.n_phase=64", "synth.width_px=160", "synth.height_px=160", "synth.supersample=1",
+]
+SEED = 7
+
+
+@pytest.fixture(scope="module")
+def widened_run(tmp_path_factory):
+    """A short widened phantom through every stage; (estimate, stated std, truth) of the inferior surface."""
+    d = tmp_path_factory.mktemp("widened")
+    raw, store = d / "raw", d / "rec.h5"
+    steps = [
+        ["synth", raw, "--seed", str(SEED), *sum((["--set", s] for s in WIDENED), [])],
+        ["ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms", "--config",
+         raw / "recording.toml"],
+        ["ingest-ldv", store, raw / "scan.uff"],
+        ["sync", store],
+        ["flow", store],
+        ["mesh", store, "--set", "mesh.target_edge_mm=2.5"],
+        ["optimize", store, "--loads", "pressure", "--set", "optimize.n_frames=48", "--set", "optimize.first_frame=10",
+         "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.gap_margin_px=4", "--run", "p"],
+    ]
+    for args in steps:
+        res = run_vfcli(*args)
+        assert res.returncode == 0, (args[0], res.stderr)
+    from vfcli.model.mesh import FoldMesh
+    from vfcli.store.mesh import read_mesh
+
+    t, _ = read_truth(raw / "truth.h5")
+    tm = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
+    with Store(store).read() as r:
+        mesh = read_mesh(r)
+        disp = r.read("optimize", "displacements", "p").astype(float)[:-1]
+        std = r.read("optimize", "displacement_std", "p").astype(float)[:-1]
+        sim_time = r.read("optimize", "sim_time", "p")
+    true = t["frames/displacement"][np.searchsorted(t["frames/time"], sim_time[:-1] - 1e-9)].astype(float)
+    nodes, ref = side_truth(mesh.uv, mesh.node_side, tm.uv, tm.node_side, true, 1)
+    est, std = disp[:, nodes], std[:, nodes]
+    rms = lambda a: float(np.sqrt(np.mean(a ** 2)))  # noqa: E731
+    osc = rms((est - est.mean(axis=0)) - (ref - ref.mean(axis=0))) / rms(ref - ref.mean(axis=0))
+    cov = interval_coverage(est, std, ref)
+    print(f"widened seed {SEED}: inferior error {100 * rms(est - ref) / rms(ref):.1f} % (oscillating {100 * osc:.1f} %), "
+          f"stated {100 * rms(std) / rms(est):.1f} %, 90 % coverage {100 * cov:.1f} %")
+    return est, std, ref, osc, cov
+
+
+@pytest.mark.slow
+def test_the_inferior_surface_of_a_widened_phantom_is_within_its_measured_error(widened_run):
+    """The oscillating part of the unobserved inferior surface within 10 % (measured 6.7 % with the
+    motion term's 4 px margin around the gap; the whole displacement, static part included, 14.1 %)."""
+    est, std, ref, osc, _ = widened_run
+    total = float(np.sqrt(np.mean((est - ref) ** 2) / np.mean(ref ** 2)))
+    assert osc <= 0.10, f"oscillating error {100 * osc:.1f} %"
+    assert total <= 0.20, f"total error {100 * total:.1f} %"
+
+
+@pytest.mark.slow
+def test_the_90_percent_intervals_on_a_widened_phantom_cover_85_to_95_percent(widened_run):
+    """Two-sided: the stated 90 % intervals neither understate nor overstate (measured 91.0 %, stated
+    standard deviation 28 % of the motion, most of it the instruments' disagreement)."""
+    coverage = widened_run[4]
+    assert 0.85 <= coverage <= 0.95, f"coverage {100 * coverage:.1f} %"
