@@ -15,17 +15,8 @@ log = logging.getLogger(__name__)
 #: :data:`vfcli.flow.gap.subpixel.profile.WINDOW_SIGMAS` is 2).
 PSF_WINDOW_SIGMAS = 3.0
 
-#: Weight of the gap-level prior in the PSF search's fits (pixels' worth): none, the gap level is
-#: free on every ray. Under a blur of a few pixels the interior of a slit a few pixels wide never
-#: reaches the gap level, so the interior median (the prior) lies between gap and tissue; a fit held
-#: to it can only reach the dip's depth with a narrower PSF (analytic slits, 2 x 2 samples, noise 12
-#: counts: sigma 1.5 px estimated 1.34, 3 px estimated 1.41; with the level free 1.56 and 3.0).
-PSF_GAP_WEIGHT = 0.0
-
-#: Range and resolution of the PSF search (:func:`estimate_edge_model`), px: 15 log steps of 25 %,
-#: to 4.7 px (the widened phantoms' optics blur up to 3 px).
-PSF_SIGMA_RANGE_PX = (0.2, 4.7)
-PSF_GRID_POINTS = 15
+#: Range and resolution of the PSF search (:func:`estimate_edge_model`), px.
+PSF_SIGMA_RANGE_PX = (0.2, 3.0)
 
 
 def estimate_edge_model(
@@ -39,8 +30,7 @@ def estimate_edge_model(
       over the rays where the rough gap is at least ``min_width_px`` wide (on narrower
       slits blur and width cannot be told apart); a log-spaced search over
       :data:`PSF_SIGMA_RANGE_PX` refined by a parabola, with a window of 3 px beyond each
-      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider; the gap
-      level is free in these fits (:data:`PSF_GAP_WEIGHT`).
+      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider.
 
     Parameters
     ----------
@@ -100,11 +90,10 @@ def estimate_edge_model(
         prof, rows, a, b = collect(margin)
 
         def cost(s: float) -> float:
-            fit = fit_slit_profiles(prof, rows, a, b, s, gap_counts, gap_weight=PSF_GAP_WEIGHT,
-                                    inner=(a + 0.5, b - 0.5))
+            fit = fit_slit_profiles(prof, rows, a, b, s, gap_counts, inner=(a + 0.5, b - 0.5))
             return float(np.sum(fit.rms**2))
 
-        grid = np.geomspace(*PSF_SIGMA_RANGE_PX, PSF_GRID_POINTS)  # steps of 25 %
+        grid = np.geomspace(*PSF_SIGMA_RANGE_PX, 13)  # steps of 25 %
         k = int(np.argmin([cost(s) for s in grid]))
         fine = np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 9)  # steps of about 5 %
         values = np.array([cost(s) for s in fine])
