@@ -14,14 +14,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from _small_phantom import SMALL, phantom_with_hsc
 from conftest import run_vfcli
 from vfcli.flow.plausibility import ContrastAccumulator, moving_pixels, points_on_folds
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.store import Store, copy_store
 
-PHANTOM = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-           "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=6", "synth.supersample=1"]
+PHANTOM = SMALL + ["synth.width_px=160", "synth.height_px=160"]     # a field of view of 26.7 mm
 OFF = "off the folds"
 
 
@@ -56,13 +56,7 @@ def test_temporal_contrast_of_noise_and_of_a_moving_texture():
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
-    d = tmp_path_factory.mktemp("onfolds")
-    raw, store = d / "raw", d / "hsc.h5"
-    assert run_vfcli("synth", "-q", raw, "--seed", "4", *sum((["--set", s] for s in PHANTOM), [])).returncode == 0
-    res = run_vfcli("ingest-hsc", "-q", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
-                    "--config", raw / "recording.toml")
-    assert res.returncode == 0, res.stderr
-    return raw, store
+    return phantom_with_hsc(tmp_path_factory.mktemp("onfolds"), 4, PHANTOM)
 
 
 def _pipeline(store, scan):

@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from _small_phantom import SMALL, phantom_with_hsc
 from conftest import run_vfcli
 from vfcli.errors import InputDataError
 from vfcli.io.ldv.read import read_ldv
@@ -75,20 +76,10 @@ def test_the_harmonics_of_the_true_f0_explain_the_short_record_and_a_harmonic_do
 
 # --------------------------------------------------------------------------- the stage, real subprocesses
 
-PHANTOM = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-           "synth.width_px=112", "synth.height_px=112", "synth.px_per_mm=6", "synth.supersample=1"]
-
-
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
     """A small phantom and a store with its /hsc."""
-    d = tmp_path_factory.mktemp("syncshort")
-    raw, store = d / "raw", d / "hsc.h5"
-    assert run_vfcli("synth", "-q", raw, "--seed", "4", *sum((["--set", s] for s in PHANTOM), [])).returncode == 0
-    res = run_vfcli("ingest-hsc", "-q", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
-                    "--config", raw / "recording.toml")
-    assert res.returncode == 0, res.stderr
-    return raw, store
+    return phantom_with_hsc(tmp_path_factory.mktemp("syncshort"), 4, SMALL)
 
 
 def test_a_sync_that_aligns_no_point_fails_with_the_reasons_and_leaves_the_store(video, tmp_path):

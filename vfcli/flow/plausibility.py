@@ -16,6 +16,8 @@
 """
 from __future__ import annotations
 
+from typing import Iterable
+
 import numpy as np
 
 #: Tissue (or silicone) density used by the velocity bound, kg/m^3.
@@ -158,3 +160,20 @@ def points_on_folds(points_px: np.ndarray, moving: np.ndarray, margin_px: float)
     ij[:, 1] = np.clip(ij[:, 1], 0, h - 1)
     out[on] = dist[ij[:, 1], ij[:, 0]] <= margin_px
     return out
+
+
+def points_on_folds_of_video(chunks: Iterable[np.ndarray], points_px: np.ndarray, px_per_mm: float) -> np.ndarray | None:
+    """Which screen points (P, 2) (col, row) px lie on the folds of a video fed as consecutive chunks
+    of frames (k, H, W) counts: moving pixels (:class:`ContrastAccumulator`, :func:`moving_pixels`)
+    within :data:`FOLD_MARGIN_MM` (:func:`points_on_folds`).
+
+    Returns
+    -------
+    (P,) bool, or None when the video holds fewer than 2 blocks of :data:`CONTRAST_BLOCK` frames.
+    """
+    acc = ContrastAccumulator()
+    for chunk in chunks:
+        acc.add(chunk)
+    if acc.n_blocks < 2:
+        return None
+    return points_on_folds(points_px, moving_pixels(acc.contrast(), acc.block), FOLD_MARGIN_MM * float(px_per_mm))

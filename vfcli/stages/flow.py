@@ -20,8 +20,8 @@ import numpy as np
 
 from vfcli.config import FlowConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, ContrastAccumulator,
-                                    moving_pixels, points_on_folds, points_on_image, pressure_velocity_bound)
+from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, points_on_folds_of_video,
+                                    points_on_image, pressure_velocity_bound)
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.precision import round_mantissa
@@ -146,7 +146,7 @@ def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, 
 
 def _check_on_folds(reader: StoreReader, points_px: np.ndarray, shape: tuple[int, int]) -> None:
     """The LDV points (P, 2) px on the frames lie on the folds, i.e. near pixels that move in the video
-    (:func:`vfcli.flow.plausibility.points_on_folds`); warn when more than OFF_FOLD_WARN of them do
+    (:func:`vfcli.flow.plausibility.points_on_folds_of_video`); warn when more than OFF_FOLD_WARN of them do
     not, fail (exit 3) when more than OFF_FOLD_FAIL do not. Needs /hsc/frames of ``shape`` and at least
     2 blocks of frames; otherwise nothing is checked."""
     if not reader.has_stage("hsc") or "frames" not in reader.group("hsc") or len(points_px) == 0:
@@ -154,20 +154,18 @@ def _check_on_folds(reader: StoreReader, points_px: np.ndarray, shape: tuple[int
     frames = reader.frames("hsc", "frames")
     if tuple(frames.shape[1:]) != tuple(shape):
         return
-    acc = ContrastAccumulator()
-    for i in range(0, len(frames), CHUNK_FRAMES):
-        acc.add(frames[i : i + CHUNK_FRAMES])
-    if acc.n_blocks < 2:
+    chunks = (frames[i : i + CHUNK_FRAMES] for i in range(0, len(frames), CHUNK_FRAMES))
+    on = points_on_folds_of_video(chunks, points_px, float(reader.attrs("hsc")["px_per_mm"]))
+    if on is None:
         return
-    margin_px = FOLD_MARGIN_MM * float(reader.attrs("hsc")["px_per_mm"])
-    on = points_on_folds(points_px, moving_pixels(acc.contrast(), acc.block), margin_px)
     off = int((~on).sum())
     if off <= OFF_FOLD_WARN * len(on):
         return
     what = (f"{off} of the {len(on)} LDV points the spline uses on the frames lie off the folds (no pixel "
             f"within {FOLD_MARGIN_MM} mm of them moves in the video: the fixture, the silicone around the folds "
             "or the background)")
-    advice = "check ldv_frame.affine (scan to camera mm), ingest_ldv.length_unit and camera.px_per_mm, then rerun ingest-ldv"
+    advice = ("check ldv_frame.affine (scan to camera mm), ingest_ldv.length_unit and camera.px_per_mm, "
+              "then rerun ingest-ldv")
     if off > OFF_FOLD_FAIL * len(on):
         raise InputDataError(f"fields: {what}; {advice}", reader.path)
     log.warning("fields: %s; their vertical velocity is not the folds'; %s", what, advice)
