@@ -147,15 +147,18 @@ def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, 
 def _check_on_folds(reader: StoreReader, points_px: np.ndarray, shape: tuple[int, int]) -> None:
     """The LDV points (P, 2) px on the frames lie on the folds, i.e. near pixels that move in the video
     (:func:`vfcli.flow.plausibility.points_on_folds_of_video`); warn when more than OFF_FOLD_WARN of them do
-    not, fail (exit 3) when more than OFF_FOLD_FAIL do not. Needs /hsc/frames of ``shape`` and at least
-    2 blocks of frames; otherwise nothing is checked."""
+    not, fail (exit 3) when more than OFF_FOLD_FAIL do not. Needs /hsc/frames of ``shape`` holding at
+    least one phonation cycle (at /sync's f0_video_hz: a shorter video does not show where the folds
+    move) and 2 blocks of frames; otherwise nothing is checked."""
     if not reader.has_stage("hsc") or "frames" not in reader.group("hsc") or len(points_px) == 0:
         return
     frames = reader.frames("hsc", "frames")
-    if tuple(frames.shape[1:]) != tuple(shape):
+    hsc = reader.attrs("hsc")
+    f0 = float(reader.attrs("sync").get("f0_video_hz", np.nan))
+    if tuple(frames.shape[1:]) != tuple(shape) or not len(frames) / float(hsc["fps_hz"]) * f0 >= 1.0:
         return
     chunks = (frames[i : i + CHUNK_FRAMES] for i in range(0, len(frames), CHUNK_FRAMES))
-    on = points_on_folds_of_video(chunks, points_px, float(reader.attrs("hsc")["px_per_mm"]))
+    on = points_on_folds_of_video(chunks, points_px, float(hsc["px_per_mm"]))
     if on is None:
         return
     off = int((~on).sum())
