@@ -35,7 +35,10 @@ need it. Afterwards, and only then, truth.h5 is read and the products are scored
 Reproduce::
 
     .venv/bin/python bench/bench_unseen.py SEED [SEED ...] [--duration 0.012] [--keep DIR]
-        [--set synth.X=Y ...] [--optimize-set optimize.X=Y ...]
+        [--set synth.X=Y ...] [--optimize-set optimize.X=Y ...] [--until STAGE | --resume]
+
+``--until flow --keep DIR`` runs the stages up to ``flow`` only; ``--resume --keep DIR`` later runs
+the rest on the same stores (the records of the stages already run are kept), then scores.
 
 ``--duration`` must hold optimize's window (``optimize.n_frames``, 84 frames at 10 kHz by default).
 """
@@ -80,8 +83,12 @@ def run(args: list) -> tuple[int, float, str]:
     return res.returncode, time.perf_counter() - t, res.stderr
 
 
-def pipeline(seed: int, work: Path, duration: float, synth_sets: list[str], opt_sets: list[str]) -> dict:
-    """Run every stage; {stage: (rc or None when skipped, wall s, warnings, last stderr line)}."""
+def pipeline(seed: int, work: Path, duration: float, synth_sets: list[str], opt_sets: list[str],
+             done: dict | None = None, until: str | None = None) -> dict:
+    """Run every stage; {stage: (rc or None when skipped, wall s, warnings, last stderr line)}.
+
+    ``done``: the records of stages an earlier run of this seed already ran (``--resume``), kept as
+    they are and not run again; ``until``: the last stage to run (``--until``)."""
     raw, store = work / "raw", work / "recording.h5"
     sets = lambda xs: sum((["--set", s] for s in xs), [])  # noqa: E731
     cmds = {
@@ -96,7 +103,10 @@ def pipeline(seed: int, work: Path, duration: float, synth_sets: list[str], opt_
         "optimize": ["optimize", store, *sets(opt_sets)],
     }
     out = {}
-    for stage in STAGES:
+    for stage in STAGES[: STAGES.index(until) + 1] if until else STAGES:
+        if done and stage in done and done[stage][0] is not None:
+            out.update({k: v for k, v in done.items() if k.split(" (")[0] == stage})
+            continue
         if any(out.get(n, (None,))[0] != 0 for n in NEEDS[stage]):
             out[stage] = (None, 0.0, [], "skipped")
             continue
@@ -254,11 +264,15 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="folder for the phantoms and stores (else a temporary one)")
     ap.add_argument("--set", dest="sets", action="append", default=[])
     ap.add_argument("--optimize-set", dest="opt_sets", action="append", default=[])
+    ap.add_argument("--until", choices=STAGES, default=None,
+                    help="run the stages up to this one only (the rest with --resume later)")
+    ap.add_argument("--resume", action="store_true",
+                    help="in --keep DIR, keep the stages an earlier (--until) run ran and run the others")
     ap.add_argument("--rescore", action="store_true",
                     help="score the products of an earlier run in --keep DIR again (its stages.json) without rerunning")
     args = ap.parse_args()
-    if args.rescore and args.keep is None:
-        ap.error("--rescore needs --keep DIR")
+    if (args.rescore or args.resume) and args.keep is None:
+        ap.error("--rescore and --resume need --keep DIR")
     base = args.keep or Path(tempfile.mkdtemp(prefix="bench_unseen_"))
     results = []
     for seed in args.seeds:
@@ -267,9 +281,16 @@ def main() -> None:
         if args.rescore:
             stages = {k: tuple(v) for k, v in json.loads((work / "stages.json").read_text()).items()}
         else:
-            (work / "recording.h5").unlink(missing_ok=True)
-            stages = pipeline(seed, work, args.duration, args.sets, args.opt_sets)
+            done = None
+            if args.resume and (work / "stages.json").exists():
+                done = {k: tuple(v) for k, v in json.loads((work / "stages.json").read_text()).items()}
+            else:
+                (work / "recording.h5").unlink(missing_ok=True)
+            stages = pipeline(seed, work, args.duration, args.sets, args.opt_sets, done, args.until)
             (work / "stages.json").write_text(json.dumps(stages))
+            if args.until:
+                print(f"  seed {seed}: stopped after {args.until} (--until); score with --resume", file=sys.stderr)
+                continue
         store = work / "recording.h5"
         empty = empty_products(store, stages) if store.exists() else []
         s = score(work / "raw", store, stages) if stages["synth"][0] == 0 else {}

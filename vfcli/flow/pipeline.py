@@ -30,7 +30,7 @@ import numpy as np
 from vfcli.camera.pose import gap_axis, lateral_axis_for
 from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
-from vfcli.flow.gap.detect import gap_mask, gap_threshold, midline_from_masks
+from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.velocity_field import LdvTps, combine_fields, hull_mask
@@ -180,9 +180,18 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
     auto = cfg.threshold is None
     threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
     counts_range = intensity_range(sample)
+    core = None
     masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample])
+    if not masks.any():
+        # no dark core anywhere: a blurred gap never gets near black; measure the core from its darkest pixels
+        core = dark_core_level(sample, threshold)
+        masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral, core_level=core) for f in sample])
+        if masks.any():
+            log.info("flow: no sampled gap reaches %.1f counts (half the threshold); gap cores taken below %.1f "
+                     "counts, half-way from the darkest pixels to the threshold", 0.5 * threshold, core)
     if axis_from_gap and not _gap_agrees(masks, lateral):
-        other = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=1 - lateral) for f in sample])
+        other = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=1 - lateral, core_level=core)
+                          for f in sample])
         if _gap_agrees(other, 1 - lateral):
             log.info("flow: the gap runs along image %s; taking image %s as lateral (camera.pose = 'estimate')",
                      _ALONG[1 - lateral], _LATERAL[1 - lateral])

@@ -8,8 +8,15 @@
   ``rho``), with the slowest documented mucosal wave (0.5 m/s) and a tissue density of
   1000 kg/m^3: 2 m/s per kPa, above the in-vivo closing velocities (0.3-1.6 m/s at about
   1 kPa; docs/physical-setup).
+* :func:`temporal_contrast` and :func:`points_on_folds`: the vibrometer points lie on the folds,
+  not on the fixture, the silicone block around the folds or the background. The folds are what
+  moves in the video: their textured surface slides past the pixels and the gap opens and closes
+  at the phonation frequency, while the fixture and the block are static (their pixels show noise
+  only). A point is on the folds when moving pixels lie within :data:`FOLD_MARGIN_MM` of it.
 """
 from __future__ import annotations
+
+from typing import Iterable
 
 import numpy as np
 
@@ -20,6 +27,21 @@ SLOWEST_WAVE_M_S = 0.5
 #: "Far beyond": speeds over this multiple of :func:`pressure_velocity_bound` are flagged (a widened
 #: phantom's flow reached 1.06 x the bound at its 99th percentile, a mis-scaled vibrometer 10-1000 x).
 FAR_BEYOND = 2.0
+
+#: Frames per block of :func:`temporal_contrast`: 1.6 ms at 10 kHz, under a fifth of the shortest
+#: phonation cycle (250 Hz), so a block mean keeps the cycle's motion and averages the noise.
+CONTRAST_BLOCK = 16
+#: A pixel moves when its temporal contrast exceeds this multiple of a static pixel's expected
+#: contrast, ``1 / sqrt(CONTRAST_BLOCK - 1)`` (white noise only): measured on phantoms, static
+#: pixels (fixture, silicone block) lie at 0.6-0.9 of that expectation (1st-10th percentile 0.15-0.22
+#: for an expected 0.26), the folds at 3-7 times it (median 0.9-1.8).
+MOVING_FACTOR = 2.0
+#: A point is on the folds when a moving pixel lies within this distance: the lab's scan grid
+#: stays about 0.5 mm inside the folds' clamped lateral edges, where they hardly move.
+FOLD_MARGIN_MM = 0.5
+#: Share of the points off the folds above which `fields` warns, and above which it fails.
+OFF_FOLD_WARN = 0.1
+OFF_FOLD_FAIL = 0.5
 
 
 def points_on_image(points_px: np.ndarray, shape: tuple[int, int], margin_px: float = 0.5) -> np.ndarray:
@@ -52,3 +74,106 @@ def pressure_velocity_bound(pressure_pa: np.ndarray) -> float:
     if p.size == 0:
         return float("nan")
     return float(np.max(np.abs(p)) / (TISSUE_DENSITY_KG_M3 * SLOWEST_WAVE_M_S) * 1e3)
+
+
+class ContrastAccumulator:
+    """Temporal contrast of each pixel over a video, fed block by block (memory O(H W)).
+
+    ``add(frames)`` takes consecutive frames (k, H, W) in any blocking; they are regrouped into
+    blocks of ``block`` frames (a trailing partial block is ignored). :meth:`contrast` is
+    ``sqrt(variance of the block means / mean variance within a block)``, (H, W): about
+    ``1 / sqrt(block - 1)`` where a pixel shows white noise only, far above it where the image
+    changes over a phonation cycle (the block means follow the cycle, the noise averages out).
+    """
+
+    def __init__(self, block: int = CONTRAST_BLOCK) -> None:
+        if block < 2:
+            raise ValueError(f"contrast block must hold at least 2 frames, got {block}")
+        self.block = int(block)
+        self._pending: np.ndarray | None = None
+        self._n = 0
+        self._sum = self._sum2 = self._within = None
+
+    def add(self, frames: np.ndarray) -> None:
+        """Feed the next frames (k, H, W), counts (any real type)."""
+        f = np.asarray(frames, dtype=np.float64)
+        if self._pending is not None and len(self._pending):
+            f = np.concatenate([self._pending, f])
+        n_full = len(f) // self.block * self.block
+        self._pending = f[n_full:]
+        if n_full == 0:
+            return
+        blocks = f[:n_full].reshape(-1, self.block, *f.shape[1:])
+        means = blocks.mean(axis=1)
+        within = blocks.var(axis=1, ddof=1).sum(axis=0)
+        if self._sum is None:
+            self._sum, self._sum2, self._within = np.zeros(f.shape[1:]), np.zeros(f.shape[1:]), np.zeros(f.shape[1:])
+        self._sum += means.sum(axis=0)
+        self._sum2 += (means ** 2).sum(axis=0)
+        self._within += within
+        self._n += len(blocks)
+
+    @property
+    def n_blocks(self) -> int:
+        """Whole blocks fed so far."""
+        return self._n
+
+    def contrast(self) -> np.ndarray:
+        """(H, W) temporal contrast (see the class doc); needs at least 2 blocks (ValueError)."""
+        if self._n < 2:
+            raise ValueError(f"temporal contrast needs at least 2 blocks of {self.block} frames, got {self._n}")
+        mean = self._sum / self._n
+        between = np.maximum(self._sum2 / self._n - mean ** 2, 0.0) * self._n / (self._n - 1)
+        within = self._within / self._n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(within > 0, np.sqrt(between / within), np.where(between > 0, np.inf, 0.0))
+
+
+def moving_pixels(contrast: np.ndarray, block: int = CONTRAST_BLOCK) -> np.ndarray:
+    """Pixels whose temporal contrast (H, W) exceeds :data:`MOVING_FACTOR` times a static pixel's
+    ``1 / sqrt(block - 1)``; (H, W) bool."""
+    return np.asarray(contrast) > MOVING_FACTOR / np.sqrt(block - 1)
+
+
+def points_on_folds(points_px: np.ndarray, moving: np.ndarray, margin_px: float) -> np.ndarray:
+    """Which screen points (P, 2) (col, row) px have a moving pixel (H, W) bool within ``margin_px``.
+
+    Points off the frame (or not finite) are False. The distance is from the point to the nearest
+    moving pixel centre (Euclidean distance transform).
+
+    Returns
+    -------
+    (P,) bool
+    """
+    from scipy import ndimage
+
+    p = np.asarray(points_px, float).reshape(-1, 2)
+    mv = np.asarray(moving, bool)
+    h, w = mv.shape
+    on = points_on_image(p, (h, w))
+    if not mv.any():
+        return np.zeros(len(p), bool)
+    dist = ndimage.distance_transform_edt(~mv)
+    out = np.zeros(len(p), bool)
+    ij = np.rint(p[on]).astype(int)
+    ij[:, 0] = np.clip(ij[:, 0], 0, w - 1)
+    ij[:, 1] = np.clip(ij[:, 1], 0, h - 1)
+    out[on] = dist[ij[:, 1], ij[:, 0]] <= margin_px
+    return out
+
+
+def points_on_folds_of_video(chunks: Iterable[np.ndarray], points_px: np.ndarray, px_per_mm: float) -> np.ndarray | None:
+    """Which screen points (P, 2) (col, row) px lie on the folds of a video fed as consecutive chunks
+    of frames (k, H, W) counts: moving pixels (:class:`ContrastAccumulator`, :func:`moving_pixels`)
+    within :data:`FOLD_MARGIN_MM` (:func:`points_on_folds`).
+
+    Returns
+    -------
+    (P,) bool, or None when the video holds fewer than 2 blocks of :data:`CONTRAST_BLOCK` frames.
+    """
+    acc = ContrastAccumulator()
+    for chunk in chunks:
+        acc.add(chunk)
+    if acc.n_blocks < 2:
+        return None
+    return points_on_folds(points_px, moving_pixels(acc.contrast(), acc.block), FOLD_MARGIN_MM * float(px_per_mm))

@@ -20,7 +20,8 @@ import numpy as np
 
 from vfcli.config import FlowConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.plausibility import FAR_BEYOND, points_on_image, pressure_velocity_bound
+from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, points_on_folds_of_video,
+                                    points_on_image, pressure_velocity_bound)
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.precision import round_mantissa
@@ -134,12 +135,43 @@ def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, 
     if not on.all():
         log.warning("fields: %d of %d LDV points the spline uses lie outside the frames (the vertical velocity "
                     "there is extrapolated); %s", int((~on).sum()), len(on), advice)
+    _check_on_folds(reader, points_px[good][on], shape)
     if reader.has_stage("hsc") and "pressure" in reader.group("hsc"):
         bound = pressure_velocity_bound(reader.read("hsc", "pressure"))
         if np.isfinite(bound) and speed_p99 > FAR_BEYOND * bound:
             log.warning("fields: surface speeds reach %.0f mm/s (99th percentile), far beyond the %.0f mm/s the "
                         "recorded pressure can drive; check ingest_ldv.length_unit and the vibrometer's velocity unit, "
                         "camera.px_per_mm and camera.fps_hz", speed_p99, bound)
+
+
+def _check_on_folds(reader: StoreReader, points_px: np.ndarray, shape: tuple[int, int]) -> None:
+    """The LDV points (P, 2) px on the frames lie on the folds, i.e. near pixels that move in the video
+    (:func:`vfcli.flow.plausibility.points_on_folds_of_video`); warn when more than OFF_FOLD_WARN of them do
+    not, fail (exit 3) when more than OFF_FOLD_FAIL do not. Needs /hsc/frames of ``shape`` holding at
+    least one phonation cycle (at /sync's f0_video_hz: a shorter video does not show where the folds
+    move) and 2 blocks of frames; otherwise nothing is checked."""
+    if not reader.has_stage("hsc") or "frames" not in reader.group("hsc") or len(points_px) == 0:
+        return
+    frames = reader.frames("hsc", "frames")
+    hsc = reader.attrs("hsc")
+    f0 = float(reader.attrs("sync").get("f0_video_hz", np.nan))
+    if tuple(frames.shape[1:]) != tuple(shape) or not len(frames) / float(hsc["fps_hz"]) * f0 >= 1.0:
+        return
+    chunks = (frames[i : i + CHUNK_FRAMES] for i in range(0, len(frames), CHUNK_FRAMES))
+    on = points_on_folds_of_video(chunks, points_px, float(hsc["px_per_mm"]))
+    if on is None:
+        return
+    off = int((~on).sum())
+    if off <= OFF_FOLD_WARN * len(on):
+        return
+    what = (f"{off} of the {len(on)} LDV points the spline uses on the frames lie off the folds (no pixel "
+            f"within {FOLD_MARGIN_MM} mm of them moves in the video: the fixture, the silicone around the folds "
+            "or the background)")
+    advice = ("check ldv_frame.affine (scan to camera mm), ingest_ldv.length_unit and camera.px_per_mm, "
+              "then rerun ingest-ldv")
+    if off > OFF_FOLD_FAIL * len(on):
+        raise InputDataError(f"fields: {what}; {advice}", reader.path)
+    log.warning("fields: %s; their vertical velocity is not the folds'; %s", what, advice)
 
 
 def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:

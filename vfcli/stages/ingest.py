@@ -169,20 +169,25 @@ def _check_rate_against_video(reader: StoreReader, scan: LdvScan, sync_cfg: Sync
                               scan_path: str | Path) -> None:
     """Refuse a scan whose stated sampling rate the video's pressure contradicts (needs /hsc/pressure).
 
-    The video's f0 comes from /hsc/pressure; a video pressure that gives none is left for `vfcli sync`
-    to report (this is the scan's stage).
+    The video's f0 comes from /hsc/pressure; a video pressure that gives none, or whose own f0 the
+    scan's f0 explains clearly better (:func:`vfcli.sync.rate.scan_explains_video`: a record too short
+    for an f0 of its own), is left for `vfcli sync` to report (this is the scan's stage).
     """
     if not reader.has_stage("hsc") or "pressure" not in reader.group("hsc"):
         return
     from vfcli.sync.f0 import estimate_f0        # scipy: imported only when there is a rate to check
-    from vfcli.sync.rate import check_ldv_rate
+    from vfcli.sync.rate import check_ldv_rate, scan_explains_video, scan_f0
 
     f_range = (sync_cfg.f0_min_hz, sync_cfg.f0_max_hz)
+    video_pressure = reader.read("hsc", "pressure")
+    fs_video = float(reader.attrs("hsc")["pressure_fs_hz"])
     try:
-        f0_video = estimate_f0(reader.read("hsc", "pressure"), float(reader.attrs("hsc")["pressure_fs_hz"]), f_range,
-                               source="video pressure")
+        f0_video = estimate_f0(video_pressure, fs_video, f_range, source="video pressure")
     except InputDataError:
         return
+    f_scan = scan_f0(scan.reference, scan.fs, f_range, sync_cfg.max_drift)
+    if f_scan is not None and scan_explains_video(video_pressure, fs_video, f0_video, f_scan, sync_cfg.n_harmonics):
+        return   # the video's own f0 is a harmonic of a record too short for one: sync searches it near the scan's
     check_ldv_rate(f0_video, scan.reference, scan.fs, f_range=f_range, max_drift=sync_cfg.max_drift, source=scan_path)
 
 

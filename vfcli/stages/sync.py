@@ -14,6 +14,10 @@ from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_j
 
 log = logging.getLogger(__name__)
 
+#: Fewest aligned points `sync` accepts: the thin-plate spline of `flow`'s /fields needs 3
+#: (vfcli.flow.pipeline.good_ldv_points); fewer is an empty product (issue 15), refused with exit 3.
+MIN_ALIGNED = 3
+
 
 @dataclass(frozen=True)
 class SyncInputs:
@@ -55,6 +59,17 @@ def _ldv_file(reader: StoreReader) -> str:
     return next(iter(reader.previous_inputs("ldv")), f"{reader.path}:/ldv")
 
 
+def check_aligned(aligned: int, points: int, reasons: Counter, f0_video_hz: float, ldv_source: str) -> None:
+    """Refuse a sync that aligned fewer than :data:`MIN_ALIGNED` of ``points`` LDV points (InputDataError,
+    naming the commonest reasons); ``reasons`` counts each reason a point was not aligned."""
+    if aligned >= MIN_ALIGNED:
+        return
+    why = "; ".join(f"{n} x {r}" for r, n in reasons.most_common(2))
+    raise InputDataError(f"sync: only {aligned} of {points} LDV points could be aligned to the video (f0 "
+                         f"{f0_video_hz:.2f} Hz), `flow` needs at least {MIN_ALIGNED}; commonest reasons: {why}",
+                         ldv_source)
+
+
 def run_sync(ctx: RunContext) -> StageResult:
     """Phase-lock every LDV point to the video (/hsc pressure) and store the aligned velocities
     (the alignment, and scipy with it, is imported only when /sync is written)."""
@@ -71,6 +86,8 @@ def run_sync(ctx: RunContext) -> StageResult:
             smooth=cfg.smooth, phase_reference=cfg.phase_reference, source=inp.source,
             ldv_source=inp.ldv_source,
         )
+        reasons = Counter(r for r in res.reason if r)
+        check_aligned(int(res.ok.sum()), int(res.ok.size), reasons, res.f0_video_hz, inp.ldv_source)
         for key in ("offset_s", "f0_hz", "drift", "drift_rate_per_s", "quality", "ok", "n_cycles"):
             s.put(key, getattr(res, key))
         s.put("reason", np.asarray(res.reason, dtype=object))
@@ -78,7 +95,6 @@ def run_sync(ctx: RunContext) -> StageResult:
         s.put("frame_time", inp.frame_time)
         s.put("video_phase", res.video_phase)
         s.set_attrs(f0_video_hz=res.f0_video_hz, template_real=res.template.real, template_imag=res.template.imag)
-        reasons = Counter(r for r in res.reason if r)
         for why, n in reasons.items():
             log.warning("%d LDV point(s) not aligned: %s", n, why)
         return {

@@ -65,7 +65,7 @@ from vfcli.config import SyncConfig
 from vfcli.errors import InputDataError
 from vfcli.sync.average import invert_monotonic, matched_times, phase_average_at
 from vfcli.sync.f0 import F_RANGE, check_signal, coarse_f0, estimate_f0
-from vfcli.sync.rate import check_ldv_rate
+from vfcli.sync.rate import check_ldv_rate, scan_explains_video, scan_f0
 from vfcli.sync.phase import (
     PhaseTracks,
     PressureTemplate,
@@ -142,8 +142,8 @@ def video_phase_reference(
             f"f0 {f0:.2f} Hz lies outside the search range {f_range[0]}-{f_range[1]} Hz", source)
     if duration * f0 < 2.0:
         raise InputDataError(
-            f"too short: {duration * 1e3:.1f} ms holds fewer than 2 cycles at f0 = {f0:.1f} Hz",
-            source)
+            f"too short: {duration * 1e3:.1f} ms holds fewer than 2 cycles at f0 = {f0:.1f} Hz; sync needs "
+            f"a video (and its pressure record) of at least 2 cycles ({2e3 / f0:.1f} ms)", source)
     phase = track.phase_at(frame_times)[0]
     shift = np.floor(phase[0])
     track.theta = track.theta - shift
@@ -357,19 +357,61 @@ def sync_scan(
     """
     _check_settings(f_range, knot_cycles, max_f0_deviation, min_quality, min_cycles, smooth,
                     phase_reference)
-    video = video_phase_reference(video_pressure, fs_video_p, t0_video_p, frame_times,
-                                  f_range=f_range, n_harmonics=n_harmonics,
-                                  knot_cycles=knot_cycles, smooth=smooth, source=source)
     ref = np.asarray(ldv_reference, dtype=float)
     vel = np.asarray(ldv_velocity, dtype=float)
     if ref.ndim != 2 or ref.shape != vel.shape:
         raise InputDataError(
             f"LDV reference {ref.shape} and velocity {vel.shape} must both be (points, samples)",
             ldv_source)
+    video = _video_reference(video_pressure, fs_video_p, t0_video_p, frame_times, ref, fs_ldv,
+                             f_range=f_range, n_harmonics=n_harmonics, knot_cycles=knot_cycles,
+                             smooth=smooth, max_drift=max_f0_deviation, source=source)
     check_ldv_rate(video.f0_hz, ref, fs_ldv, f_range=f_range, max_drift=max_f0_deviation, source=ldv_source)
     return _align_all(ref, vel, fs_ldv, video, f_range=f_range, knot_cycles=knot_cycles,
                       max_f0_deviation=max_f0_deviation, min_quality=min_quality,
                       min_cycles=min_cycles, smooth=smooth, phase_reference=phase_reference)
+
+
+def _video_reference(
+    video_pressure: np.ndarray, fs_video_p: float, t0_video_p: float, frame_times: np.ndarray,
+    ref: np.ndarray, fs_ldv: float, *, f_range: tuple[float, float], n_harmonics: int, knot_cycles: float,
+    smooth: float, max_drift: float, source: str,
+) -> VideoPhase:
+    """:func:`video_phase_reference`, searched near the scan's f0 when that explains the video better.
+
+    A video pressure of one or two cycles gives no reliable f0 of its own: its estimate can be a
+    harmonic, and sync then blamed the scan's sampling rate (:func:`vfcli.sync.rate.check_ldv_rate`)
+    or called the video too short at a wrong f0. When the video's estimate fails or differs by
+    more than ``max_drift`` from the f0 the scan's long epochs agree on
+    (:func:`vfcli.sync.rate.scan_f0`), and the scan's f0 explains the video's pressure clearly better
+    (:func:`vfcli.sync.rate.scan_explains_video`), the video is fitted again with the f0 search range
+    ``scan f0 / (1 + max_drift) .. scan f0 * (1 + max_drift)``; a record under 2 cycles of it is
+    refused as too short (InputDataError, naming the length it needs).
+    """
+    kw = dict(n_harmonics=n_harmonics, knot_cycles=knot_cycles, smooth=smooth, source=source)
+    try:
+        video, error = video_phase_reference(video_pressure, fs_video_p, t0_video_p, frame_times,
+                                             f_range=f_range, **kw), None
+    except InputDataError as exc:
+        video, error = None, exc
+    f_scan = scan_f0(ref, fs_ldv, f_range, max_drift)
+    if (f_scan is None or (video is not None and abs(video.f0_hz / f_scan - 1.0) <= max_drift)
+            or not scan_explains_video(video_pressure, fs_video_p, None if video is None else video.f0_hz, f_scan,
+                                       n_harmonics)):
+        if video is None:
+            raise error
+        return video
+    duration = (np.asarray(video_pressure).size - 1) / fs_video_p
+    if duration * f_scan < 2.0:
+        raise InputDataError(
+            f"too short: the pressure recorded with the video ({duration * 1e3:.1f} ms) holds {duration * f_scan:.1f} "
+            f"cycles at the f0 the scan's reference pressure agrees on ({f_scan:.1f} Hz); sync needs at least 2 "
+            f"cycles: a video and pressure record of at least {2e3 / f_scan:.1f} ms", source)
+    log.info("sync: the video's pressure holds %.1f cycles at the scan's f0 %.2f Hz (its own estimate: %s); "
+             "searching its f0 near the scan's", duration * f_scan, f_scan,
+             "none" if video is None else f"{video.f0_hz:.2f} Hz")
+    return video_phase_reference(video_pressure, fs_video_p, t0_video_p, frame_times,
+                                 f_range=(f_scan / (1.0 + max_drift), f_scan * (1.0 + max_drift)), **kw)
 
 
 def _align_all(

@@ -204,6 +204,6 @@ def check_signal(y: np.ndarray, fs: float, f_range: tuple[float, float], source:
     if y.size / fs * f_range[1] < 2.0 or y.size < 16:
         raise InputDataError(
             f"too short: {y.size} samples ({y.size / fs * 1e3:.2f} ms) cannot hold 2 cycles "
-            f"of f0 <= {f_range[1]} Hz", source)
+            f"of f0 <= {f_range[1]:g} Hz", source)
     if np.ptp(y) == 0.0:
         raise InputDataError("signal is constant: no periodicity to estimate f0 from", source)

@@ -66,6 +66,85 @@ def apparent_reference_f0(reference: np.ndarray, fs: float, f_range: tuple[float
     return f0[np.isfinite(f0)]
 
 
+def scan_f0(reference: np.ndarray, fs: float, f_range: tuple[float, float], max_drift: float) -> float | None:
+    """The f0 the scan's reference channels agree on at the stated rate, Hz (None: no agreement).
+
+    The median apparent f0 of the probed epochs (:func:`apparent_reference_f0`) when at least
+    :data:`MIN_AGREEING` of them lie within ``max_drift`` of it and the epochs hold at least
+    :data:`MIN_CYCLES` cycles of it.
+    """
+    f0s = apparent_reference_f0(reference, fs, f_range)
+    if f0s.size == 0:
+        return None
+    med = float(np.median(f0s))
+    if np.mean(np.abs(f0s / med - 1.0) <= max_drift) < MIN_AGREEING:
+        return None
+    if np.asarray(reference).shape[-1] / fs * med < MIN_CYCLES:
+        return None
+    return med
+
+
+def harmonic_r2(p: np.ndarray, fs: float, f0: float, n_harmonics: int) -> float:
+    """Share of a signal's variance (after a quadratic baseline) that harmonics of ``f0`` explain, in [0, 1].
+
+    Parameters
+    ----------
+    p : (S,) float, any unit, sampled at ``fs`` Hz.  f0 : Hz.  n_harmonics : harmonics fitted
+        (capped below 0.45 fs).
+
+    Returns
+    -------
+    float
+        R^2 of the least-squares fit of ``sum_h a_h cos(2 pi h f0 t) + b_h sin(...)`` to the
+        detrended signal (0 for a constant signal or an f0 that is not finite and positive).
+    """
+    y = np.asarray(p, dtype=float)
+    t = np.linspace(-1.0, 1.0, y.size)
+    base = np.column_stack([np.ones_like(t), t, t * t])
+    y = y - base @ np.linalg.lstsq(base, y, rcond=None)[0]
+    total = float(y @ y)
+    n_h = min(int(n_harmonics), int(0.45 * fs / f0)) if np.isfinite(f0) and f0 > 0 else 0
+    if total <= 0 or n_h < 1:
+        return 0.0
+    ts = np.arange(y.size) / fs
+    arg = 2 * np.pi * f0 * np.outer(ts, np.arange(1, n_h + 1))
+    a = np.column_stack([base, np.cos(arg), np.sin(arg)])
+    resid = y - a @ np.linalg.lstsq(a, y, rcond=None)[0]
+    return float(np.clip(1.0 - (resid @ resid) / total, 0.0, 1.0))
+
+
+#: The scan's f0 is taken for the video's when its harmonics leave less than this share of the
+#: residual variance that the harmonics of the video's own estimate leave (see
+#: :func:`scan_explains_video`).
+BETTER_RESIDUAL = 0.5
+
+
+def scan_explains_video(video_pressure: np.ndarray, fs: float, f0_video: float | None, f0_scan: float,
+                        n_harmonics: int) -> bool:
+    """The scan's f0 explains the video's pressure clearly better than the video's own f0 estimate.
+
+    A video pressure of one or two cycles gives no reliable f0 of its own (the harmonic-sum
+    estimate wants about 4 cycles, vfcli/sync/f0.py): 12 ms videos (1.4 cycles at 120 Hz) of
+    widened phantoms gave 361 Hz (3 x 120) and 52.5 Hz. The harmonics of the true f0 explain the
+    record; those of a harmonic (3 f0) do not. A wrong sampling rate of the scan instead makes the
+    scan's apparent f0 a fraction (or multiple) of the true one: a sub-harmonic explains the video no
+    better than the video's own right estimate, a multiple worse, so the rate check still applies.
+
+    Returns
+    -------
+    bool
+        ``harmonic_r2(scan f0) >= 0.5`` and its residual share is below :data:`BETTER_RESIDUAL` times the
+        video estimate's (any share when the video gave no estimate, ``f0_video`` None).
+    """
+    r2_scan = harmonic_r2(video_pressure, fs, f0_scan, n_harmonics)
+    if r2_scan < 0.5:
+        return False
+    if f0_video is None:
+        return True
+    r2_own = harmonic_r2(video_pressure, fs, f0_video, n_harmonics)
+    return (1.0 - r2_scan) < BETTER_RESIDUAL * (1.0 - r2_own)
+
+
 def check_ldv_rate(f0_video_hz: float, reference: np.ndarray, fs: float, *, f_range: tuple[float, float],
                    max_drift: float, source: str | Path) -> None:
     """Refuse a scan whose stated rate the pressure contradicts.

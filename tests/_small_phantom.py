@@ -1,0 +1,22 @@
+"""A small `vfcli synth` phantom and a store holding its /hsc, for tests of the later stages."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from conftest import run_vfcli
+
+#: A short, small phantom (200 frames of 112 x 112 px at 6 px/mm; 0.03 s vibrometer epochs).
+SMALL = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
+         "synth.width_px=112", "synth.height_px=112", "synth.px_per_mm=6", "synth.supersample=1"]
+
+
+def phantom_with_hsc(folder: Path, seed: int, sets: list[str]) -> tuple[Path, Path]:
+    """`vfcli synth` into FOLDER/raw with ``--set`` SETS, then `vfcli ingest-hsc` of its video and
+    pressure into FOLDER/hsc.h5; (raw folder, store)."""
+    raw, store = folder / "raw", folder / "hsc.h5"
+    res = run_vfcli("synth", "-q", raw, "--seed", str(seed), *sum((["--set", s] for s in sets), []))
+    assert res.returncode == 0, res.stderr
+    res = run_vfcli("ingest-hsc", "-q", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
+                    "--config", raw / "recording.toml")
+    assert res.returncode == 0, res.stderr
+    return raw, store

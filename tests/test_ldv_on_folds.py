@@ -1,0 +1,110 @@
+"""The vibrometer points lie on the folds (issue 15, item 3): `flow`'s /fields checks that the LDV
+points the spline uses are near pixels that move in the video (the folds), not on the static fixture
+or background. A phantom's scan written again by the synth's UFF writer with its grid shifted along
+the glottis, past the folds' end onto the fixture: a stored warning when part of the grid is off the
+folds, exit 3 (store unchanged) when most of it is; the phantom's own scan: no warning.
+
+The phantom is small but its field of view (26.7 mm) is wider than the folds (15 mm long, 16 mm
+across), so the fixture surrounds them on the image."""
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from _small_phantom import SMALL, phantom_with_hsc
+from conftest import run_vfcli
+from vfcli.flow.plausibility import ContrastAccumulator, moving_pixels, points_on_folds
+from vfcli.io.ldv.read import read_ldv
+from vfcli.io.ldv.write import write_ldv_uff
+from vfcli.store import Store, copy_store
+
+PHANTOM = SMALL + ["synth.width_px=160", "synth.height_px=160"]     # a field of view of 26.7 mm
+OFF = "off the folds"
+
+
+def test_temporal_contrast_of_noise_and_of_a_moving_texture():
+    """White noise: contrast near 1 / sqrt(15) = 0.26 (block 16), not moving; a texture sliding
+    0.3 px back and forth at 120 Hz (10 kHz frames) under the same noise: far above, moving."""
+    rng = np.random.default_rng(0)
+    n, h, w = 240, 8, 64
+    t = np.arange(n) / 1e4
+    x = np.arange(w)[None, :] + 0.3 * np.sin(2 * np.pi * 120 * t)[:, None]
+    texture = 1000 + 200 * np.sin(2 * np.pi * x / 9.0)                       # (n, w)
+    frames = np.empty((n, h, w))
+    frames[:, : h // 2] = 1000.0                                           # static half
+    frames[:, h // 2 :] = texture[:, None, :]                               # moving half
+    frames += 20.0 * rng.standard_normal(frames.shape)
+    acc = ContrastAccumulator(16)
+    for i in range(0, n, 7):                                               # any blocking of the feed
+        acc.add(frames[i : i + 7])
+    c = acc.contrast()
+    assert acc.n_blocks == 15
+    static = np.median(c[: h // 2])
+    assert 0.17 < static < 0.35                                            # 1 / sqrt(15) = 0.258
+    mv = moving_pixels(c)
+    # the sine texture's crests and troughs (2 of its 9 px period) barely change when it slides: the
+    # margin covers them
+    assert not mv[: h // 2].any() and mv[h // 2 :].mean() > 0.7
+    rows, cols = np.mgrid[h // 2 : h, 0:w]
+    assert points_on_folds(np.column_stack([cols.ravel(), rows.ravel()]), mv, margin_px=1.5).all()
+    px = np.array([[10.0, 1.0], [10.0, 6.0], [10.0, 2.0], [10.0, 3.0], [-5.0, 6.0]])  # (col, row)
+    np.testing.assert_array_equal(points_on_folds(px, mv, margin_px=1.0), [False, True, False, True, False])
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory):
+    return phantom_with_hsc(tmp_path_factory.mktemp("onfolds"), 4, PHANTOM)
+
+
+def _pipeline(store, scan):
+    """ingest-ldv and sync, then flow: (flow's result, the store's bytes before flow)."""
+    for args in (["ingest-ldv", store, scan], ["sync", store]):
+        res = run_vfcli(*args)
+        assert res.returncode == 0, (args[0], res.stderr)
+    before = store.read_bytes()
+    return run_vfcli("flow", store), before
+
+
+def _shifted(raw, tmp_path, dx_mm: float):
+    scan = read_ldv(raw / "scan.uff")
+    coords = scan.coords_mm.copy()
+    coords[:, 0] += dx_mm
+    return write_ldv_uff(tmp_path / f"scan_dx{dx_mm:g}.uff", replace(scan, coords_mm=coords))
+
+
+def test_the_phantoms_own_scan_is_on_the_folds(video, tmp_path):
+    raw, hsc = video
+    store = copy_store(hsc, tmp_path / "rec.h5")
+    res, _ = _pipeline(store, raw / "scan.uff")
+    assert res.returncode == 0, res.stderr
+    with Store(store).read() as r:
+        assert not [w for w in r.summary("fields")["warnings"] if OFF in w]
+
+
+def test_a_scan_shifted_half_past_the_folds_end_is_a_stored_warning(video, tmp_path):
+    raw, hsc = video
+    store = copy_store(hsc, tmp_path / "rec.h5")
+    res, _ = _pipeline(store, _shifted(raw, tmp_path, 7.0))
+    assert res.returncode == 0, res.stderr
+    with Store(store).read() as r:
+        hit = [w for w in r.summary("fields")["warnings"] if OFF in w]
+    assert len(hit) == 1 and "ldv_frame.affine" in hit[0], hit
+    off, used = (int(v) for v in re.search(r"(\d+) of the (\d+) LDV points", hit[0]).groups())
+    # the grid spans x = 0.5..14.5 mm of folds 15 mm long: shifted by 7 mm, the points past x = 15 mm
+    # on the image (up to its edge at about 20.8 mm) are off the folds: about 40-50 % of those on the image
+    assert 0.25 * used < off < 0.5 * used, hit
+    info = run_vfcli("info", store)
+    assert info.returncode == 0 and OFF in info.stdout
+
+
+def test_a_scan_mostly_off_the_folds_fails_and_leaves_the_store(video, tmp_path):
+    raw, hsc = video
+    store = copy_store(hsc, tmp_path / "rec.h5")
+    res, before = _pipeline(store, _shifted(raw, tmp_path, 11.0))
+    assert res.returncode == 3, res.stderr
+    line = res.stderr.strip().splitlines()[-1]
+    assert OFF in line and "ldv_frame.affine" in line and "Traceback" not in res.stderr, line
+    assert store.read_bytes() == before
