@@ -45,10 +45,15 @@ class Inertia(DisplacementTerm):
     signature = ("residual content rising with the square of frequency (the higher harmonics of f0 "
                  "under-predicted), with the phase flipping above a resonance of the folds")
 
+    #: densities the confirmation refit tries before its Gauss-Newton steps (:mod:`vfcli.diagnose.refit`):
+    #: above a resonance the change is far from linear in the density
+    start_values = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
+
     def __init__(self, model=None) -> None:
         self.model = model
         self._cache: tuple = (None, None)            # (response, its mass responses)
         self._own: tuple = (None, None)              # (mesh, the model built for it)
+        self._modal: tuple = (None, None)            # (response, its ModalReduction)
 
     def _model(self, baseline):
         """The given model, else the baseline's (built once per mesh: CANDIDATES' instances are shared)."""
@@ -76,6 +81,21 @@ class Inertia(DisplacementTerm):
         b2 = time_derivative(load_model.time_basis, p.sim_times, 2, derivative_step(baseline))   # (T, n_time)
         z = self.mass_responses(baseline)
         return -np.einsum("ncs,st->tnc", z, c @ b2.T)[..., None]
+
+    def reduction(self, baseline) -> ModalReduction:
+        """The modal/Ritz reduction of the baseline's model and load patterns (built once per response)."""
+        response = baseline.problem.response
+        if self._modal[0] is not response:
+            model = self._model(baseline)
+            self._modal = (response, ModalReduction(model, response.load_model.spatial_loads(model)))
+        return self._modal[1]
+
+    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
+        """Exact change at density factor theta[0]: the periodic steady state with that density minus
+        the one without (both of the same harmonics of the load, so theta = 0 changes nothing)."""
+        rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        red = self.reduction(baseline)
+        return self.steady_state(baseline, rho, red) - self.steady_state(baseline, 0.0, red)
 
     def steady_state(self, baseline, density: float, reduction: ModalReduction | None = None,
                      n_harmonics: int = 6, retardation_s: float = 0.0) -> np.ndarray:
