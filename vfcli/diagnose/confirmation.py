@@ -82,8 +82,7 @@ class Confirmation:
 
     candidate : its name ("inertia", ...).  parameter_names : (p,) with units.
     estimate : (p,) refitted theta.  sd : (p,) its stated standard deviation (``uncertainty`` says which).
-    uncertainty : "laplace" (the joint Gauss-Newton Hessian scaled by the residual's own variance,
-        deflated by its correlation area and time; :mod:`vfcli.diagnose.refit`).
+    uncertainty : "sandwich" (over frames, as optimize's; :mod:`vfcli.diagnose.refit`) or "laplace".
     heldout : the held-out comparisons (:class:`HeldOutError`), one per kind that could be made.
     run : name of the /optimize run the extended model was stored as ("" when not stored).
     """
@@ -92,7 +91,7 @@ class Confirmation:
     parameter_names: tuple[str, ...]
     estimate: np.ndarray
     sd: np.ndarray
-    uncertainty: str = "laplace"
+    uncertainty: str = "sandwich"
     heldout: tuple[HeldOutError, ...] = ()
     run: str = ""
 
