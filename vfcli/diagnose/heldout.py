@@ -6,7 +6,8 @@ decision can say "beyond the spread" (:class:`vfcli.diagnose.confirmation.HeldOu
 
 * **cycles** (:func:`leave_cycles_out`): the window's frames are grouped by glottal cycle (the
   phase of :mod:`vfcli.diagnose.cycles`; the cycles cut by the window's ends are groups too,
-  :func:`cycle_groups`).  Split k fits the baseline and the
+  :func:`cycle_groups`; a window shorter than two cycles is cut into contiguous thirds instead:
+  then the split is not by cycle and the prediction of an end third is an extrapolation in time).  Split k fits the baseline and the
   extended model on every frame outside group k and predicts the velocity in group k.
 * **instruments** (:func:`across_instruments`): both models are fitted to the camera's in-plane
   motion, the gap and the pressure (motion component weights (1, 1, 0)) and predict the vertical
@@ -31,10 +32,11 @@ CAMERA_ONLY = (1.0, 1.0, 0.0)
 MIN_GROUP_FRAMES = 3
 
 
-def cycle_groups(phase: np.ndarray) -> np.ndarray:
+def cycle_groups(phase: np.ndarray, n_blocks: int = 3) -> np.ndarray:
     """(F,) group of each window frame: its glottal cycle ``floor(phase)`` (the cycles cut by the
     window's ends included), renumbered 0..G-1; -1 for a cycle with fewer than
-    :data:`MIN_GROUP_FRAMES` frames in the window.
+    :data:`MIN_GROUP_FRAMES` frames in the window.  A window with fewer than two such cycles (a
+    window shorter than a cycle or two) is cut into ``n_blocks`` contiguous blocks of frames instead.
 
     phase : (F,) cycle phase of the window's frames (:attr:`vfcli.diagnose.cycles.Cycles.phase`)."""
     lab = np.floor(np.asarray(phase, dtype=float)).astype(int)
@@ -45,6 +47,8 @@ def cycle_groups(phase: np.ndarray) -> np.ndarray:
         if sel.sum() >= MIN_GROUP_FRAMES:
             out[sel] = g
             g += 1
+    if g < 2 and len(lab) >= 2 * MIN_GROUP_FRAMES:
+        out = (np.arange(len(lab)) * min(n_blocks, len(lab) // MIN_GROUP_FRAMES)) // len(lab)
     return out
 
 
