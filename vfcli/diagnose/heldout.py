@@ -6,8 +6,8 @@ decision can say "beyond the spread" (:class:`vfcli.diagnose.confirmation.HeldOu
 
 * **cycles** (:func:`leave_cycles_out`): the window's frames are grouped by glottal cycle (the
   phase of :mod:`vfcli.diagnose.cycles`; the cycles cut by the window's ends are groups too,
-  :func:`cycle_groups`; a window shorter than two cycles is cut into contiguous thirds instead:
-  then the split is not by cycle and the prediction of an end third is an extrapolation in time).  Split k fits the baseline and the
+  :func:`cycle_groups`; a window shorter than two cycles is cut into six contiguous blocks instead,
+  the four inner ones held out in turn: then a split is not a cycle).  Split k fits the baseline and the
   extended model on every frame outside group k and predicts the velocity in group k.
 * **instruments** (:func:`across_instruments`): both models are fitted to the camera's in-plane
   motion, the gap and the pressure (motion component weights (1, 1, 0)) and predict the vertical
@@ -32,11 +32,13 @@ CAMERA_ONLY = (1.0, 1.0, 0.0)
 MIN_GROUP_FRAMES = 3
 
 
-def cycle_groups(phase: np.ndarray, n_blocks: int = 3) -> np.ndarray:
+def cycle_groups(phase: np.ndarray, n_blocks: int = 6) -> np.ndarray:
     """(F,) group of each window frame: its glottal cycle ``floor(phase)`` (the cycles cut by the
     window's ends included), renumbered 0..G-1; -1 for a cycle with fewer than
     :data:`MIN_GROUP_FRAMES` frames in the window.  A window with fewer than two such cycles (a
-    window shorter than a cycle or two) is cut into ``n_blocks`` contiguous blocks of frames instead.
+    window shorter than a cycle or two) is cut into ``n_blocks`` contiguous blocks of frames instead,
+    the inner ones the groups (the first and last block always stay in the fit: a held-out end
+    would be an extrapolation of the loads' time basis, which neither model constrains).
 
     phase : (F,) cycle phase of the window's frames (:attr:`vfcli.diagnose.cycles.Cycles.phase`)."""
     lab = np.floor(np.asarray(phase, dtype=float)).astype(int)
@@ -47,8 +49,9 @@ def cycle_groups(phase: np.ndarray, n_blocks: int = 3) -> np.ndarray:
         if sel.sum() >= MIN_GROUP_FRAMES:
             out[sel] = g
             g += 1
-    if g < 2 and len(lab) >= 2 * MIN_GROUP_FRAMES:
-        out = (np.arange(len(lab)) * min(n_blocks, len(lab) // MIN_GROUP_FRAMES)) // len(lab)
+    if g < 2 and len(lab) >= n_blocks * MIN_GROUP_FRAMES:
+        block = (np.arange(len(lab)) * n_blocks) // len(lab)
+        out = np.where((block > 0) & (block < n_blocks - 1), block - 1, -1)
     return out
 
 
@@ -92,9 +95,9 @@ def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndar
         keep = np.ones(len(groups), bool)
         keep[held] = False
         b = joint_fit(baseline.problem, baseline.x, None, baseline.f0_hz, keep=keep,
-                      max_iterations=max_iterations, model=model)
+                      max_iterations=max_iterations, model=model, stated=False)
         e = joint_fit(baseline.problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta, keep=keep,
-                      max_iterations=max_iterations, model=model)
+                      max_iterations=max_iterations, model=model, stated=False)
         base_err.append(prediction_error(baseline, b.displacements, held))
         ext_err.append(prediction_error(baseline, e.displacements, held))
     return HeldOutError("cycles", "mm/s", np.array(base_err), np.array(ext_err))
@@ -113,9 +116,9 @@ def across_instruments(baseline, candidate, extended: RefitResult, groups: np.nd
         return None
     problem = baseline.problem.with_weights(component_weights=CAMERA_ONLY)
     model = getattr(baseline, "model", None)
-    b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model)
+    b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model, stated=False)
     e = joint_fit(problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta,
-                  max_iterations=max_iterations, model=model)
+                  max_iterations=max_iterations, model=model, stated=False)
     base_err = [prediction_error(baseline, b.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
     ext_err = [prediction_error(baseline, e.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
     return HeldOutError("instruments", "mm/s", np.array(base_err), np.array(ext_err))

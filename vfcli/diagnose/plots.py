@@ -1,8 +1,8 @@
 """Velocity at points (PNG): measured vs the baseline vs the extended model, at a few pixels.
 
 The pixels are those the baseline's frozen raster compares in the most frames, the ones with the
-largest measured vertical velocity first (the vibrometer's component), at most :data:`N_POINTS`
-of them, a few pixels apart.  Per pixel two panels: lateral (model y) and vertical (model z)
+largest measured vertical velocity first (the vibrometer's component), half of them on each fold
+(the region the model shows there), at most :data:`N_POINTS` of them, a few pixels apart.  Per pixel two panels: lateral (model y) and vertical (model z)
 velocity, mm/s, over the window's frame times (ms).
 """
 from __future__ import annotations
@@ -51,15 +51,22 @@ def choose_pixels(baseline, n: int = N_POINTS) -> np.ndarray:
         vz2[fr.pix_both] += fr.v_both[:, 2] ** 2
     if not count.any():
         return np.zeros(0, int)
+    from vfcli.diagnose.regions import N_REGIONS
+    from vfcli.diagnose.residual import pixel_regions
+
+    fold = pixel_regions(baseline).ravel() // (N_REGIONS // 2)            # -1 // 9 = -1: no fold
     cand = np.flatnonzero(count >= 0.9 * count.max())
     order = cand[np.argsort(-vz2[cand])]
     w = p.camera.shape[1]
     out: list[int] = []
-    for q in order:
-        if all(np.hypot(q // w - o // w, q % w - o % w) >= MIN_SEPARATION_PX for o in out):
-            out.append(int(q))
-        if len(out) == n:
-            break
+    for k in (0, 1):                                                      # half of the pixels on each fold
+        mine: list[int] = []
+        for q in order[fold[order] == k]:
+            if all(np.hypot(q // w - o // w, q % w - o % w) >= MIN_SEPARATION_PX for o in mine):
+                mine.append(int(q))
+            if len(mine) == n // 2:
+                break
+        out += mine
     return np.asarray(out, int)
 
 

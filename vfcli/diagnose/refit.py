@@ -177,7 +177,7 @@ def _pinv_sym(a: np.ndarray, rtol: float = 1e-12) -> np.ndarray:
 
 def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan"), theta0=None,
               keep: np.ndarray | None = None, max_iterations: int = 8, model=None,
-              fixed_theta: bool = False) -> RefitResult:
+              fixed_theta: bool = False, stated: bool = True) -> RefitResult:
     """Fit the loads x and the candidate's theta jointly by Gauss-Newton (module docstring).
 
     Parameters
@@ -193,6 +193,7 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
     model : the :class:`vfcli.model.fem.ElasticModel` of the baseline (the modal terms need its
         material); default the candidate's own.
     fixed_theta : keep theta at theta0 (refit the loads only, e.g. a held-out prediction).
+    stated : compute the stated uncertainty (False: NaN sd and kappa, e.g. the held-out fits).
     """
     t_start = time.perf_counter()
     ext = _Extended(problem, candidate, f0_hz, model, keep)
@@ -243,10 +244,13 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
         if rel < FTOL:
             converged = True
             break
-    if blocks is None:
-        blocks = _blocks(ext, st)
-    cov_laplace, kappa = laplace(ext, st, blocks)
-    cov = sandwich_theta(ext, st, blocks)[0] if ext.p else cov_laplace
+    if stated:
+        blocks = _blocks(ext, st) if blocks is None else blocks
+        cov_laplace, kappa = laplace(ext, st, blocks)
+        cov = sandwich_theta(ext, st, blocks)[0] if ext.p else cov_laplace
+    else:
+        cov_laplace = cov = np.full((ext.p, ext.p), np.nan)
+        kappa = float("nan")
     history = {k: np.asarray(v, dtype=float) for k, v in hist.items()}
     history["theta"] = history["theta"].reshape(len(hist["iteration"]), ext.p)
     names = tuple(candidate.parameter_names) if candidate is not None else ()
