@@ -8,6 +8,8 @@ held-out comparisons (:mod:`vfcli.diagnose.heldout`) and Locate on the extended 
 """
 from __future__ import annotations
 
+import logging
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,6 +18,8 @@ from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.confirmation import Confirmation
 from vfcli.diagnose.heldout import across_instruments, cycle_groups, leave_cycles_out
 from vfcli.diagnose.refit import RefitResult, refit
+
+log = logging.getLogger(__name__)
 
 #: the --refit choices besides a candidate's name
 REFIT_MODES = ("auto", "none")
@@ -86,11 +90,17 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     locate : ``lambda baseline: LocateResult`` (e.g. :func:`vfcli.diagnose.run.locate_run` with the
         recording), or None to skip the "after" residual.
     """
+    t0 = time.perf_counter()
     result = refit(baseline, candidate, max_iterations=max_iterations)
+    t1 = time.perf_counter()
     groups = cycle_groups(window_phase)
-    held = tuple(h for h in (leave_cycles_out(baseline, candidate, result, groups, max_splits, heldout_iterations),
-                             across_instruments(baseline, candidate, result, groups, heldout_iterations + 1))
-                 if h is not None)
+    cyc = leave_cycles_out(baseline, candidate, result, groups, max_splits, heldout_iterations)
+    t2 = time.perf_counter()
+    inst = across_instruments(baseline, candidate, result, groups, heldout_iterations + 1)
+    t3 = time.perf_counter()
+    log.info("refit of %s: %.0f s (%d iterations); held out cycles %.0f s, instruments %.0f s", candidate.name,
+             t1 - t0, len(result.history["iteration"]) - 1, t2 - t1, t3 - t2)
+    held = tuple(h for h in (cyc, inst) if h is not None)
     conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, result.sd,
                         result.uncertainty, held)
     ext = extended_baseline(baseline, result)
