@@ -17,7 +17,7 @@ import numpy as np
 from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.confirmation import Confirmation
 from vfcli.diagnose.heldout import across_instruments, cycle_groups, leave_cycles_out
-from vfcli.diagnose.refit import RefitResult, refit
+from vfcli.diagnose.refit import RefitResult, refit, with_displacements
 
 log = logging.getLogger(__name__)
 
@@ -60,16 +60,6 @@ def choose(screening, candidates, mode: str, alpha: float = 0.05):
     if not leads:
         return None
     return by_name.get(min(leads, key=lambda s: s.p_value).name)
-
-
-def with_displacements(problem, disp: np.ndarray):
-    """A shallow copy of ``problem`` whose model shows ``disp`` (F + 1, N, 3) whatever its controls
-    (the extended model's refit, for Locate and the residual maps, which read ``problem.displacements``)."""
-    import copy
-
-    other = copy.copy(problem)
-    other.displacements = lambda x: disp
-    return other
 
 
 def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:

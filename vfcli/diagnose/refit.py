@@ -317,8 +317,7 @@ def laplace(ext: _Extended, st: _State, blocks) -> tuple[np.ndarray, float]:
 
     g_l, qm, g_c, h_lc, h_cc, _ = blocks
     p = ext.problem
-    corr = effective_sample_size(p.motion_residuals(st.x, st.frames) if ext.p == 0 else
-                                 _motion_images(p, st.disp, st.frames))
+    corr = effective_sample_size(with_displacements(p, st.disp).motion_residuals(st.x, st.frames))
     dof = posterior(qm, corr).dof
     kappa = _kappa_after(ext.baseline(st.x, st.disp, st.frames), qm, dof, st.disp, ext.p)
     if ext.p == 0:
@@ -327,14 +326,15 @@ def laplace(ext: _Extended, st: _State, blocks) -> tuple[np.ndarray, float]:
     return _pinv_sym(schur) / kappa, kappa
 
 
-def _motion_images(problem, disp: np.ndarray, frames: list) -> np.ndarray:
-    """(F, H, W, 3) simulated minus measured velocity at displacements ``disp`` (NaN where not compared)."""
-    h, w = problem.camera.shape
-    out = np.full((problem.n_frames, h * w, 3), np.nan)
-    for f, fr in enumerate(frames):
-        out[f, fr.pix_both] = fr.m_both @ (disp[f + 1] - disp[f]) / problem.dt - fr.v_both
-        out[f, fr.pix_only] = -problem.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
-    return out.reshape(problem.n_frames, h, w, 3)
+def with_displacements(problem, disp: np.ndarray):
+    """A shallow copy of ``problem`` whose model shows ``disp`` (F + 1, N, 3) whatever its controls
+    (an extended model's displacements, for what reads ``problem.displacements``: the motion residual
+    images, Locate and the residual maps)."""
+    import copy
+
+    other = copy.copy(problem)
+    other.displacements = lambda x: disp
+    return other
 
 
 def refit(baseline: Baseline, candidate, keep: np.ndarray | None = None, max_iterations: int = 8,

@@ -142,6 +142,17 @@ AXES: dict[str, Axis] = {
                              "camera is scored (0-based index)"),
 }
 
+#: the datasets of a confirmation refit's candidate parameters (in /optimize/<run>+<candidate> and /diagnose/<run>)
+_REFIT_PARAMS = {
+    "refit_parameter_name": D("text", "Confirmation refit by `vfcli diagnose`: name (with units) of each "
+                              "parameter of the candidate term (attribute refit_candidate names it)",
+                              ("refit_param",)),
+    "refit_theta": D("1", "Confirmation refit: fitted value of each candidate parameter (units in its name)",
+                     ("refit_param",)),
+    "refit_theta_sd": D("1", "Confirmation refit: stated standard deviation of each candidate parameter (the "
+                        "sandwich over frames, vfcli/diagnose/refit.py)", ("refit_param",)),
+}
+
 STAGES: dict[str, Stage] = {
     s.name: s
     for s in [
@@ -269,14 +280,7 @@ STAGES: dict[str, Stage] = {
                 "lcurve_penalty": D("Pa^2", "Penalty x^T Omega x at each weight", ("lcurve",)),
                 "history_theta": D("1", "Confirmation refit: the candidate's parameters at each iteration",
                                    ("iteration", "refit_param")),
-                "refit_parameter_name": D("text", "Confirmation refit by `vfcli diagnose`: name (with units) of each "
-                                          "parameter of the candidate term (attribute refit_candidate names it)",
-                                          ("refit_param",)),
-                "refit_theta": D("1", "Confirmation refit: fitted value of each candidate parameter (units in its name)",
-                                 ("refit_param",)),
-                "refit_theta_sd": D("1", "Confirmation refit: standard deviation of each candidate parameter (Laplace: "
-                                    "the joint Gauss-Newton Hessian scaled by the residual's own variance)",
-                                    ("refit_param",)),
+                **_REFIT_PARAMS,
             },
         ),
         Stage(
@@ -325,14 +329,7 @@ STAGES: dict[str, Stage] = {
                 "candidate_p": D("1", "p-value of each candidate's screening (null: the term is absent)", ("candidate",)),
                 "candidate_identifiable": D("bool", "False: the load model can absorb the term (not identifiable with it)", ("candidate",)),
                 "candidate_words": D("text", "Each candidate's finding in plain words", ("candidate",)),
-                "refit_parameter_name": D("text", "Confirmation refit by `vfcli diagnose`: name (with units) of each "
-                                          "parameter of the candidate term (attribute refit_candidate names it)",
-                                          ("refit_param",)),
-                "refit_theta": D("1", "Confirmation refit: fitted value of each candidate parameter (units in its name)",
-                                 ("refit_param",)),
-                "refit_theta_sd": D("1", "Confirmation refit: standard deviation of each candidate parameter (Laplace: "
-                                    "the joint Gauss-Newton Hessian scaled by the residual's own variance)",
-                                    ("refit_param",)),
+                **_REFIT_PARAMS,
                 "heldout_cycles_baseline": D("mm/s", "RMS velocity error of the baseline on each cycle left out of its "
                                              "refit", ("cycle_split",)),
                 "heldout_cycles_extended": D("mm/s", "The same for the baseline extended by the refitted candidate",
