@@ -241,6 +241,8 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     from vfcli.diagnose.run import locate_run
 
     b = inputs.baseline
+    if not np.isfinite(b.f0_hz):
+        b.f0_hz = float(d.located.f0_hz)             # the window's f0 from the gap area's cycle (Locate's)
     got = confirm_run(b, cand, d.locate.cycles.phase[d.locate.window], lambda ext: locate_run(ext, inputs.recording,
                                                                                               settings))
     name = refit_run_name(run, cand.name)
