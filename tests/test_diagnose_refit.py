@@ -123,3 +123,20 @@ def test_confirmation_records_say_beyond_spread_only_when_it_is():
     assert c.improves and not dataclasses.replace(c, heldout=(noisy,)).improves
     with pytest.raises(ValueError):
         HeldOutError("bogus", "mm/s", np.ones(2), np.ones(2))
+
+
+def test_choose_takes_the_smallest_identifiable_lead_below_the_family_level_or_the_named_one():
+    from vfcli.diagnose.candidate import Screening
+    from vfcli.diagnose.candidates import CANDIDATES
+    from vfcli.diagnose.confirm import choose
+
+    cands = list(CANDIDATES)
+    scr = [Screening("inertia", 30.0, 1e-4, True), Screening("damping", 1.0, 0.5, True),
+           Screening("asymmetry", 50.0, 1e-6, False), Screening("offset", 20.0, 1e-3, True)]
+    assert choose(scr, cands, "auto").name == "inertia"          # asymmetry's p is smaller, but not identifiable
+    assert choose(scr, cands, "none") is None
+    assert choose(scr, cands, "damping").name == "damping"      # forced, whatever its p
+    weak = [dataclasses.replace(s, p_value=0.02) for s in scr]   # 0.02 > 0.05 / 4: no lead
+    assert choose(weak, cands, "auto") is None
+    with pytest.raises(ValueError, match="choose one of auto, none, inertia"):
+        choose(scr, cands, "gravity")
