@@ -73,7 +73,7 @@ def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:
 
 
 def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=None,
-                max_iterations: int = 8, heldout_iterations: int = 3, max_splits: int = 3) -> Confirmed:
+                max_iterations: int = 8, heldout_iterations: int = 3, max_splits: int = 4) -> Confirmed:
     """Refit ``candidate`` on the whole window, then the held-out comparisons and the "after" Locate.
 
     window_phase : (F,) glottal cycle phase of the window's frames.

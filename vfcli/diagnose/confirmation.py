@@ -61,13 +61,17 @@ class HeldOutError:
         r = self.reduction_per_split
         return float(np.std(r, ddof=1) / np.sqrt(r.size)) if r.size > 1 else float("nan")
 
-    def beyond_spread(self, z: float = 2.0) -> bool:
-        """True when the mean per-split reduction exceeds ``z`` standard errors (and is positive).
+    def beyond_spread(self, level: float = 0.95) -> bool:
+        """True when the mean per-split reduction is positive and beyond its spread: above the one-sided
+        ``level`` quantile of Student's t with n_splits - 1 degrees of freedom times the standard error
+        (t, not a normal quantile: with 2-4 splits the spread itself is uncertain).  Never with one split."""
+        from scipy import stats
 
-        With a single split (no spread) it is never beyond spread."""
         r = self.reduction_per_split
         s = self.spread
-        return bool(np.isfinite(s) and float(np.mean(r)) > z * s and float(np.mean(r)) > 0)
+        if not np.isfinite(s) or r.size < 2:
+            return False
+        return bool(float(np.mean(r)) > max(float(stats.t.ppf(level, r.size - 1)) * s, 0.0))
 
     def as_dict(self) -> dict:
         return {"kind": self.kind, "units": self.units, "baseline": [float(v) for v in self.baseline],

@@ -6,7 +6,7 @@ decision can say "beyond the spread" (:class:`vfcli.diagnose.confirmation.HeldOu
 
 * **cycles** (:func:`leave_cycles_out`): the window's frames are grouped by glottal cycle (the
   phase of :mod:`vfcli.diagnose.cycles`; the cycles cut by the window's ends are groups too,
-  :func:`cycle_groups`; a window shorter than two cycles is cut into six contiguous blocks instead,
+  :func:`cycle_groups`; a window with fewer than three cycles is cut into six contiguous blocks instead,
   the four inner ones held out in turn: then a split is not a cycle).  Split k fits the baseline and the
   extended model on every frame outside group k and predicts the velocity in group k.
 * **instruments** (:func:`across_instruments`): both models are fitted to the camera's in-plane
@@ -35,8 +35,8 @@ MIN_GROUP_FRAMES = 3
 def cycle_groups(phase: np.ndarray, n_blocks: int = 6) -> np.ndarray:
     """(F,) group of each window frame: its glottal cycle ``floor(phase)`` (the cycles cut by the
     window's ends included), renumbered 0..G-1; -1 for a cycle with fewer than
-    :data:`MIN_GROUP_FRAMES` frames in the window.  A window with fewer than two such cycles (a
-    window shorter than a cycle or two) is cut into ``n_blocks`` contiguous blocks of frames instead,
+    :data:`MIN_GROUP_FRAMES` frames in the window.  A window with fewer than three such cycles (a
+    window shorter than two or three cycles: too few splits for a spread) is cut into ``n_blocks`` contiguous blocks of frames instead,
     the inner ones the groups (the first and last block always stay in the fit: a held-out end
     would be an extrapolation of the loads' time basis, which neither model constrains).
 
@@ -49,7 +49,7 @@ def cycle_groups(phase: np.ndarray, n_blocks: int = 6) -> np.ndarray:
         if sel.sum() >= MIN_GROUP_FRAMES:
             out[sel] = g
             g += 1
-    if g < 2 and len(lab) >= n_blocks * MIN_GROUP_FRAMES:
+    if g < 3 and len(lab) >= n_blocks * MIN_GROUP_FRAMES:
         block = (np.arange(len(lab)) * n_blocks) // len(lab)
         out = np.where((block > 0) & (block < n_blocks - 1), block - 1, -1)
     return out
@@ -78,7 +78,7 @@ def _pick(groups: np.ndarray, max_splits: int) -> np.ndarray:
     return ids[np.round(np.linspace(0, len(ids) - 1, max_splits)).astype(int)]
 
 
-def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndarray, max_splits: int = 3,
+def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndarray, max_splits: int = 4,
                      max_iterations: int = 3) -> HeldOutError | None:
     """Leave-cycles-out errors of the baseline and of ``candidate``'s extension (module docstring).
 
