@@ -23,13 +23,13 @@ from vfcli.diagnose.cycles import TooFewCycles
 from vfcli.diagnose.residual import rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
+from vfcli.model.fem import ElasticModel
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.fit import problem_of_store
 from vfcli.store.mesh import read_stored_mesh
 from vfcli.store.refit_run import write_refit_params, write_refit_run
 from vfcli.store.runs import read_run
-from vfcli.model.fem import ElasticModel
 
 log = logging.getLogger(__name__)
 
@@ -217,15 +217,18 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         return summary
 
     result = run_stage(ctx, "diagnose", config_json=config_json, body=body, run=run, upstream=upstream)
-    if "refit" in done:
-        new = done["name"]
-        run_stage(ctx, "optimize", config_json=json.dumps({**done["config"], "refit": {"of_run": run,
-                                                          "candidate": done["refit"].candidate}}, sort_keys=True),
-                  body=lambda reader, s: (write_refit_run(s, done["refit"], done["sim_time"], done["parameter_names"],
-                                                          run, done["attrs"]) or
-                                          {"refit_of": run, "candidate": done["refit"].candidate,
-                                           "E_final": float(done["refit"].history["total"][-1])}),
-                  run=new, upstream=[("optimize", run), ("mesh", None), ("fields", None), ("flow", None)])
+    if "refit" in done:                                 # the extended model as its own run
+        fitted = done["refit"]
+
+        def write_run(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+            write_refit_run(s, fitted, done["sim_time"], done["parameter_names"], run, done["attrs"])
+            return {"refit_of": run, "candidate": fitted.candidate, "E_start": float(fitted.history["total"][0]),
+                    "E_final": float(fitted.history["total"][-1]), "converged": bool(fitted.converged)}
+
+        settings_json = json.dumps({**done["config"], "refit": {"of_run": run, "candidate": fitted.candidate}},
+                                   sort_keys=True)
+        run_stage(ctx, "optimize", config_json=settings_json, body=write_run, run=done["name"],
+                  upstream=[("optimize", run), ("mesh", None), ("fields", None), ("flow", None)])
     return result
 
 
