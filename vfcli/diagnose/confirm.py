@@ -102,7 +102,8 @@ def words(conf: Confirmation) -> list[str]:
     est = ", ".join(f"{n} = {e:.3g} (95 % interval {a:.3g} .. {b:.3g}, {conf.uncertainty})"
                     for n, e, (a, b) in zip(conf.parameter_names, conf.estimate, conf.interval))
     out = [f"refit with {conf.candidate}{f' (run {conf.run})' if conf.run else ''}: {est}"]
-    names = {"cycles": "leaving whole cycles out", "instruments": "vertical velocity predicted from the camera"}
+    names = {"cycles": "leaving frames out (by cycle, or by block in a short window)",
+             "instruments": "vertical velocity predicted from the camera"}
     for h in conf.heldout:
         verdict = "beyond the spread over splits" if h.beyond_spread() else "not beyond the spread over splits"
         out.append(f"held-out error {names[h.kind]}: {np.sqrt(np.mean(h.baseline ** 2)):.3g} -> "
