@@ -14,35 +14,19 @@ import json
 import h5py
 import pytest
 
+from _diagnose_phantom import fitted_phantom
 from conftest import run_vfcli
 from vfcli.store import Store
 
 pytestmark = pytest.mark.slow
 
-PHANTOM = [
-    "synth.duration_s=0.03", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-    "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
-]
 FIT = ["--set", "optimize.loads=pressure", "--set", "optimize.n_frames=60", "--set", "optimize.first_frame=120",
        "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.max_iterations=6", "--run", "fit"]
 
 
 def _pipeline(d, seed: int, effect: str, strength: float):
-    raw, store = d / "raw", d / "rec.h5"
-    steps = [
-        ["synth", raw, "--seed", str(seed), "--effect", effect, "--strength", str(strength),
-         *sum((["--set", s] for s in PHANTOM), [])],
-        ["ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
-         "--config", raw / "recording.toml"],
-        ["ingest-ldv", store, raw / "scan.uff"],
-        ["sync", store],
-        ["flow", store],
-        ["mesh", store, "--set", "mesh.target_edge_mm=2.5"],
-        ["optimize", store, *FIT],
-    ]
-    for args in steps:
-        res = run_vfcli(*args)
-        assert res.returncode == 0, (args[0], res.stderr)
+    raw = d / "raw"
+    store = fitted_phantom(d, seed, FIT, ("--effect", effect, "--strength", str(strength)))
     res = run_vfcli("diagnose", store, "--run", "fit", "--refit", "asymmetry", "--json", "--map", d / "map.png",
                     timeout=1800)
     assert res.returncode == 0, res.stderr
