@@ -18,7 +18,8 @@ from _diagnose_phantom import fitted_phantom
 from conftest import run_vfcli
 from vfcli.store import Store
 
-pytestmark = pytest.mark.slow
+# two phantom pipelines and two diagnoses with a refit: 10-30 min on a loaded machine
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
 
 FIT = ["--set", "optimize.loads=pressure", "--set", "optimize.n_frames=60", "--set", "optimize.first_frame=120",
        "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.max_iterations=6", "--run", "fit"]
