@@ -8,34 +8,17 @@ import json
 import numpy as np
 import pytest
 
+from _diagnose_phantom import fitted_phantom
 from conftest import run_vfcli
 from vfcli.store import Store
 
-PHANTOM = [
-    "synth.duration_s=0.03", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-    "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
-]
 FIT = ["--setup", "3x3x10-one-sided", "--set", "optimize.n_frames=60", "--set", "optimize.first_frame=120",
        "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.max_iterations=3", "--run", "fit"]
 
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
-    d = tmp_path_factory.mktemp("diag")
-    raw, store = d / "raw", d / "rec.h5"
-    steps = [
-        ["synth", raw, "--seed", "21", *sum((["--set", s] for s in PHANTOM), [])],
-        ["ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms", "--config", raw / "recording.toml"],
-        ["ingest-ldv", store, raw / "scan.uff"],
-        ["sync", store],
-        ["flow", store],
-        ["mesh", store, "--set", "mesh.target_edge_mm=2.5"],
-        ["optimize", store, *FIT],
-    ]
-    for args in steps:
-        res = run_vfcli(*args)
-        assert res.returncode == 0, (args[0], res.stderr)
-    return store
+    return fitted_phantom(tmp_path_factory.mktemp("diag"), 21, FIT)
 
 
 def test_diagnose_writes_the_run_group_and_says_what_it_located(fitted, tmp_path):

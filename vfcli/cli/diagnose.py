@@ -14,17 +14,23 @@ from vfcli.cli.common import store_command
                    "Holm-adjusted p-value is at most this.")
 @click.option("--harmonics", "n_harmonics", type=int, default=5, show_default=True, help="Harmonics of f0 tested.")
 @click.option("--map", "map_path", type=click.Path(dir_okay=False), help="Write the residual map to this PNG.")
-def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path):  # type: ignore[no-untyped-def]
+@click.option("--refit", "refit", default="auto", show_default=True, metavar="auto|none|NAME",
+              help="Confirm by refit: 'auto' refits the candidate the screening singles out (if any), 'none' never "
+                   "refits, a candidate's name (inertia, damping, asymmetry, offset) refits that one.")
+def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path, refit):  # type: ignore[no-untyped-def]
     """Locate where a fitted run disagrees with its recording, and name the missing physics.
 
     Reads: /optimize/<run>, /mesh, /fields, /flow (/hsc's pressure for the pressure loads; /ldv and
     /sync for the vibrometer's noise). Writes: /diagnose/<run> (the residual by where, when, component
     and harmonic of f0 against a noise floor from the recording itself, the hotspots ranked, p-values).
+    A refit of a candidate (--refit) is stored as the run /optimize/<run>+<candidate> with its
+    parameter and interval, the held-out errors before and after in /diagnose/<run>, and writes
+    before/after residual maps and velocity-at-point plots (PNG) beside --map (or beside the store).
     Prints the findings in plain words.
     """
     from vfcli.stages.diagnose import run_diagnose
 
-    result = run_diagnose(ctx, run_name, alpha, n_harmonics, map_path)
+    result = run_diagnose(ctx, run_name, alpha, n_harmonics, map_path, refit)
     click_ctx = click.get_current_context()
     if not click_ctx.params.get("as_json") and not click_ctx.params.get("quiet"):
         for line in result.summary.get("lines", []):

@@ -26,6 +26,7 @@ from vfcli.errors import ConfigError, InputDataError
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.fit import problem_of_store, run_model
+from vfcli.store.refit_run import write_refit_params, write_refit_run
 from vfcli.store.runs import read_run
 
 log = logging.getLogger(__name__)
@@ -42,6 +43,7 @@ class DiagnoseInputs:
     baseline: Baseline
     recording: Recording
     run_config: dict[str, Any]
+    run_attrs: dict[str, Any] | None = None
 
 
 def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], attrs: dict[str, Any],
@@ -96,7 +98,7 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
                     valid=reader.dataset("fields", "valid"), gap_masks=reader.dataset("flow", "gap_mask"),
                     velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
                     window_start=int(cfg.optimize.first_frame), **ldv)
-    return DiagnoseInputs(baseline, rec, stored.config)
+    return DiagnoseInputs(baseline, rec, stored.config, dict(stored.attrs))
 
 
 def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> None:
@@ -147,23 +149,59 @@ def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> Non
                 screening=d.screening_status)
 
 
+def write_confirmation(s: StageWriter, conf) -> None:
+    """The confirmation refit's figures into /diagnose/<run> (:class:`vfcli.diagnose.confirmation.Confirmation`)."""
+    write_refit_params(s, conf.parameter_names, conf.estimate, conf.sd)
+    for h in conf.heldout:
+        s.put(f"heldout_{h.kind}_baseline", np.asarray(h.baseline, dtype=np.float64))
+        s.put(f"heldout_{h.kind}_extended", np.asarray(h.extended, dtype=np.float64))
+    s.set_attrs(refit_candidate=conf.candidate, refit_run=conf.run, confirmation_json=json.dumps(conf.as_dict()))
+
+
+def refit_run_name(run: str, candidate: str) -> str:
+    """The /optimize run of the extended model: ``<run>+<candidate>`` (e.g. ``default+inertia``)."""
+    return f"{run}+{candidate}"
+
+
+def figure_paths(store_path: Path, run: str, map_path: str | Path | None) -> dict[str, Path]:
+    """Where the before/after images go: beside --map when given, else beside the store."""
+    if map_path is not None:
+        m = Path(map_path)
+        return {"after": m.with_name(f"{m.stem}_refit{m.suffix or '.png'}"),
+                "points": m.with_name(f"{m.stem}_points{m.suffix or '.png'}")}
+    base = Path(store_path).with_suffix("")
+    safe = run.replace("/", "_")
+    return {"before": base.with_name(f"{base.name}_{safe}_residual.png"),
+            "after": base.with_name(f"{base.name}_{safe}_refit_residual.png"),
+            "points": base.with_name(f"{base.name}_{safe}_refit_points.png")}
+
+
 def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_harmonics: int = 5,
-                 map_path: str | Path | None = None) -> StageResult:
-    """Locate the residual of /optimize/<run> and store it as /diagnose/<run>.
+                 map_path: str | Path | None = None, refit: str = "auto") -> StageResult:
+    """Locate the residual of /optimize/<run> and store it as /diagnose/<run>; confirm a lead by refit.
 
     map_path : the residual map image (PNG), written when given.
+    refit : "auto" (refit the candidate the screening singles out, if any), "none", or a candidate's
+        name (refit it whatever the screening says).  A refit is stored as its own run
+        /optimize/<run>+<candidate>, with before/after residual maps and velocity-at-point plots
+        (PNG) beside --map, or beside the store without --map.
     """
+    from vfcli.diagnose.candidate import available_candidates
+    from vfcli.diagnose.confirm import choose
+
     dcfg = ctx.config.diagnose
     try:
         settings = LocateSettings(alpha=alpha, n_harmonics=n_harmonics, n_replicates=dcfg.replicates, seed=dcfg.seed)
+        choose([], available_candidates(), refit)
     except ValueError as exc:
         raise ConfigError(f"diagnose: {exc}") from None
-    config_json = json.dumps({"diagnose": {"alpha": alpha, "n_harmonics": n_harmonics,
+    config_json = json.dumps({"diagnose": {"alpha": alpha, "n_harmonics": n_harmonics, "refit": refit,
                                            "replicates": dcfg.replicates, "seed": dcfg.seed}}, sort_keys=True)
     upstream: list[tuple[str, str | None]] = [("optimize", run), ("mesh", None), ("fields", None), ("flow", None)]
     if ctx.store.exists():
         with ctx.store.read() as r:
             upstream += [(name, None) for name in ("ldv", "sync") if r.has_stage(name)]
+    done: dict[str, Any] = {}
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         inputs = read_inputs(reader, ctx.config, run)
@@ -172,11 +210,82 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         except TooFewCycles as exc:
             raise InputDataError(f"diagnose: {exc}; record longer (more glottal cycles around the run's window)",
                                  reader.path) from None
-        write_diagnosis(s, d, inputs.baseline.problem.meas.times)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 
             residual_map(d.located, d.locate.residual.motion, map_path, f"residual of run {run}")
-        return d.summary()
+        cand = choose(d.screening, available_candidates(), refit, alpha)
+        extra: dict[str, Any] = {}
+        if cand is not None:
+            extra, conf = confirm_and_write(s, inputs, d, cand, run, settings,
+                                            figure_paths(reader.path, run, map_path), done)
+            d = redecide(d, {conf.candidate: conf})
+        write_diagnosis(s, d, inputs.baseline.problem.meas.times)
+        summary = d.summary()
+        summary.update(extra, lines=d.lines)
+        return summary
 
-    return run_stage(ctx, "diagnose", config_json=config_json, body=body, run=run, upstream=upstream)
+    result = run_stage(ctx, "diagnose", config_json=config_json, body=body, run=run, upstream=upstream)
+    if "refit" in done:                                 # the extended model as its own run
+        fitted = done["refit"]
+
+        def write_run(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+            write_refit_run(s, fitted, done["sim_time"], done["parameter_names"], run, done["attrs"])
+            return {"refit_of": run, "candidate": fitted.candidate, "E_start": float(fitted.history["total"][0]),
+                    "E_final": float(fitted.history["total"][-1]), "converged": bool(fitted.converged)}
+
+        settings_json = json.dumps({**done["config"], "refit": {"of_run": run, "candidate": fitted.candidate}},
+                                   sort_keys=True)
+        run_stage(ctx, "optimize", config_json=settings_json, body=write_run, run=done["name"],
+                  upstream=[("optimize", run), ("mesh", None), ("fields", None), ("flow", None)])
+    return result
+
+
+def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand, run: str, settings, paths,
+                      done: dict) -> tuple[dict[str, Any], Any]:
+    """Refit ``cand`` (:func:`vfcli.diagnose.confirm.confirm_run`), write its figures and images; fills
+    ``done`` with what the extended model's /optimize run needs.  Returns the summary's additions and
+    the :class:`vfcli.diagnose.confirmation.Confirmation`; its words are appended to ``d.lines``."""
+    import dataclasses
+
+    from vfcli.diagnose.confirm import confirm_run, words
+    from vfcli.diagnose.maps import residual_map
+    from vfcli.diagnose.plots import velocity_at_points
+    from vfcli.diagnose.run import locate_run
+
+    b = inputs.baseline
+    if not np.isfinite(b.f0_hz):
+        b.f0_hz = float(d.located.f0_hz)             # the window's f0 from the gap area's cycle (Locate's)
+    got = confirm_run(b, cand, d.locate.cycles.phase[d.locate.window], lambda ext: locate_run(ext, inputs.recording,
+                                                                                              settings))
+    name = refit_run_name(run, cand.name)
+    conf = dataclasses.replace(got.confirmation, run=name)
+    write_confirmation(s, conf)
+    if "before" in paths:
+        residual_map(d.located, d.locate.residual.motion, paths["before"], f"residual of run {run}")
+    residual_map(got.after.located, got.after.residual.motion, paths["after"], f"residual of run {name}")
+    velocity_at_points(b, b.displacements, got.refit.displacements, paths["points"],
+                       f"velocity at points: measured, run {run}, run {name}", name)
+    d.lines.extend(words(conf))
+    p = b.problem
+    done.update(refit=got.refit, name=name, sim_time=p.sim_times, config=inputs.run_config,
+                attrs=inputs.run_attrs or {},
+                parameter_names=[str(v) for v in getattr(p.response.load_model, "parameter_names", lambda: [])()])
+    return {"refit": conf.as_dict(), "images": {k: str(v) for k, v in paths.items()}}, conf
+
+
+def redecide(d: Diagnosis, confirmations: dict) -> Diagnosis:
+    """The diagnosis with its decision taken again now that a lead's confirmation refit is known
+    (:func:`vfcli.diagnose.decide.decide`); an uncalibrated diagnosis is returned as it is."""
+    import dataclasses
+
+    from vfcli.diagnose.decide import decide
+
+    old = d.decision
+    if old is None:
+        return d
+    new = decide(list(old.names), old.p_family, [r.identifiable for r in d.screening], old.n_replicates,
+                 old.alpha, confirmations)
+    k = d.lines.index(old.lines[0])
+    lines = d.lines[:k] + new.lines + d.lines[k + len(old.lines):]
+    return dataclasses.replace(d, lines=lines, decision=new)

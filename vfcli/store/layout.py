@@ -135,6 +135,22 @@ AXES: dict[str, Axis] = {
     "harmonic": Axis("Harmonic of f0 (0-based index: index k - 1 is the k-th harmonic)"),
     "hotspot": Axis("Tested part of the residual, most significant first (0-based index)"),
     "candidate": Axis("Candidate physics term screened (0-based index; candidate_name names them)"),
+    "refit_param": Axis("Parameter of the candidate term a confirmation refit fitted (0-based index; "
+                        "refit_parameter_name names them)"),
+    "cycle_split": Axis("Held-out split leaving one glottal cycle of the window out (0-based index)"),
+    "instrument_split": Axis("Glottal cycle of the window on which the vertical velocity predicted from the "
+                             "camera is scored (0-based index)"),
+}
+
+#: the datasets of a confirmation refit's candidate parameters (in /optimize/<run>+<candidate> and /diagnose/<run>)
+_REFIT_PARAMS = {
+    "refit_parameter_name": D("text", "Confirmation refit by `vfcli diagnose`: name (with units) of each "
+                              "parameter of the candidate term (attribute refit_candidate names it)",
+                              ("refit_param",)),
+    "refit_theta": D("1", "Confirmation refit: fitted value of each candidate parameter (units in its name)",
+                     ("refit_param",)),
+    "refit_theta_sd": D("1", "Confirmation refit: stated standard deviation of each candidate parameter (the "
+                        "sandwich over frames, vfcli/diagnose/refit.py)", ("refit_param",)),
 }
 
 STAGES: dict[str, Stage] = {
@@ -262,6 +278,9 @@ STAGES: dict[str, Stage] = {
                 "lcurve_weight": D("1/Pa^2", "Tikhonov weights scanned by the L-curve (free-regularised)", ("lcurve",)),
                 "lcurve_misfit": D("1", "Predicted data misfit E_data at each weight", ("lcurve",)),
                 "lcurve_penalty": D("Pa^2", "Penalty x^T Omega x at each weight", ("lcurve",)),
+                "history_theta": D("1", "Confirmation refit: the candidate's parameters at each iteration",
+                                   ("iteration", "refit_param")),
+                **_REFIT_PARAMS,
             },
         ),
         Stage(
@@ -321,6 +340,16 @@ STAGES: dict[str, Stage] = {
                                                      "stretches of the recording", ("candidate",)),
                 "candidate_null_statistic": D("1", "The bootstrap replicates of that statistic under the null",
                                               ("candidate", "replicate")),
+                **_REFIT_PARAMS,
+                "heldout_cycles_baseline": D("mm/s", "RMS velocity error of the baseline on each cycle left out of its "
+                                             "refit", ("cycle_split",)),
+                "heldout_cycles_extended": D("mm/s", "The same for the baseline extended by the refitted candidate",
+                                             ("cycle_split",)),
+                "heldout_instruments_baseline": D("mm/s", "RMS error of the vertical velocity predicted by the baseline "
+                                                  "fitted to the camera, gap and pressure only, per cycle",
+                                                  ("instrument_split",)),
+                "heldout_instruments_extended": D("mm/s", "The same for the baseline extended by the candidate",
+                                                  ("instrument_split",)),
             },
         ),
     ]

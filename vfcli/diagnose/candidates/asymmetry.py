@@ -31,6 +31,13 @@ class StiffnessAsymmetry(DisplacementTerm):
         left = fold_vertices(baseline, 0)
         return np.where(left[None, :, None], baseline.displacements, 0.0)[..., None]
 
+    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
+        """Exact: the left fold's displacement ``U0 / (1 - s)``, a change of ``U0 s / (1 - s)`` there (s < 1)."""
+        s = float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        if not s < 1.0:
+            raise ValueError(f"left_softening must be below 1, got {s}")
+        return self.displacement_jacobian(baseline)[..., 0] * (s / (1.0 - s))
+
 
 class MountingOffset(DisplacementTerm):
     """Lateral (y) mounting offset of each fold, mm; two parameters (left, right)."""

@@ -74,6 +74,14 @@ class DisplacementTerm:
         at ``baseline.problem.sim_times``."""
         raise NotImplementedError
 
+    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
+        """(F + 1, N, 3) change of the vertex displacements (mm) from the baseline's with the term at
+        parameters ``theta`` (n_params,), at ``baseline.problem.sim_times``, for the baseline's controls
+        ``baseline.x``.  Default: the linear term ``displacement_jacobian(baseline) @ theta``; a term whose
+        effect is not linear in theta overrides it with the exact change (the confirmation refit,
+        :mod:`vfcli.diagnose.refit`, fits theta of any size)."""
+        return self.displacement_jacobian(baseline) @ np.asarray(theta, dtype=float)
+
     def jacobian(self, baseline) -> np.ndarray:
         """(n_rows, n_params) Jacobian of the predicted measurement at the baseline
         (:meth:`vfcli.diagnose.candidate.Baseline.measure_linear`)."""

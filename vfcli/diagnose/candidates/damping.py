@@ -30,8 +30,22 @@ class KelvinVoigtDamping(DisplacementTerm):
     signature = ("a phase lag of the motion behind the load that grows with frequency "
                  "(harmonic k delayed by atan(k w0 tau)), and amplitude lost at the higher harmonics")
 
+    def __init__(self, model=None) -> None:
+        from vfcli.diagnose.candidates.inertia import Inertia
+
+        self._modal = Inertia(model)                 # its modal reduction and steady state, shared code
+
     def displacement_jacobian(self, baseline) -> np.ndarray:
         p = baseline.problem
         vel = time_derivative(lambda t: p.response.displacements(baseline.x, t), p.sim_times, 1,
                               derivative_step(baseline))
         return (-MS * vel)[..., None]
+
+    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
+        """Exact change at retardation time theta[0] (ms): the periodic steady state of the
+        viscoelastic folds (each harmonic k of f0 times ``1 / (1 + i k w0 tau)`` per mode, massless)
+        minus the elastic one, from the modal reduction of :class:`Inertia` (built once)."""
+        tau_s = MS * float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        red = self._modal.reduction(baseline)
+        return (self._modal.steady_state(baseline, 0.0, red, retardation_s=tau_s)
+                - self._modal.steady_state(baseline, 0.0, red))

@@ -1,0 +1,114 @@
+"""Confirm a screening lead: refit the baseline extended by the candidate, compare held-out errors.
+
+:func:`choose` picks the candidate to refit (the user's ``--refit NAME``, or with ``auto`` the
+identifiable candidate whose screening p-value is smallest and below the family-wise level);
+:func:`confirm_run` refits it on the whole window (:func:`vfcli.diagnose.refit.refit`), runs the
+held-out comparisons (:mod:`vfcli.diagnose.heldout`) and Locate on the extended model (the
+"after" residual), and returns them in a :class:`Confirmed`.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from vfcli.diagnose.candidate import Baseline
+from vfcli.diagnose.confirmation import Confirmation
+from vfcli.diagnose.heldout import across_instruments, cycle_groups, leave_cycles_out
+from vfcli.diagnose.refit import RefitResult, refit, with_displacements
+
+log = logging.getLogger(__name__)
+
+#: the --refit choices besides a candidate's name
+REFIT_MODES = ("auto", "none")
+
+
+@dataclass(frozen=True)
+class Confirmed:
+    """refit : the extended model's fit on the whole window.  confirmation : its evidence for the decision.
+    after : Locate on the extended model (:class:`vfcli.diagnose.run.LocateResult`), or None.
+    extended : the extended model as a :class:`Baseline` (its x, displacements and frozen raster)."""
+
+    refit: RefitResult
+    confirmation: Confirmation
+    after: object
+    extended: Baseline
+
+
+def choose(screening, candidates, mode: str, alpha: float = 0.05):
+    """The candidate to refit, or None.
+
+    mode : "none" (no refit), "auto" (the calibrated lead: the identifiable candidate with the smallest
+        bootstrap-calibrated family-wise p-value ``p_family`` when it is at most ``alpha``; no refit when
+        the screening could not be calibrated), or a candidate's name.
+
+    Raises
+    ------
+    ValueError
+        ``mode`` names no candidate (the caller turns it into a user error naming the choices).
+    """
+    if mode == "none":
+        return None
+    by_name = {c.name: c for c in candidates}
+    if mode != "auto":
+        if mode not in by_name:
+            raise ValueError(f"--refit {mode!r}: choose one of {', '.join((*REFIT_MODES, *by_name))}")
+        return by_name[mode]
+    leads = [s for s in screening if s.identifiable and np.isfinite(s.p_family) and s.p_family <= alpha]
+    if not leads:
+        return None
+    return by_name.get(min(leads, key=lambda s: (s.p_family, s.p_value)).name)
+
+
+def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:
+    """The extended model at its refit as a :class:`Baseline` (raster frozen at its displacements)."""
+    problem = with_displacements(baseline.problem, result.displacements)
+    ext = Baseline(problem, result.x, result.displacements, problem.freeze(result.x, result.displacements),
+                   baseline.f0_hz)
+    if getattr(baseline, "model", None) is not None:
+        ext.model = baseline.model
+    return ext
+
+
+def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=None,
+                max_iterations: int = 8, heldout_iterations: int = 3, max_splits: int = 4) -> Confirmed:
+    """Refit ``candidate`` on the whole window, then the held-out comparisons and the "after" Locate.
+
+    window_phase : (F,) glottal cycle phase of the window's frames.
+    locate : ``lambda baseline: LocateResult`` (e.g. :func:`vfcli.diagnose.run.locate_run` with the
+        recording), or None to skip the "after" residual.
+    """
+    t0 = time.perf_counter()
+    result = refit(baseline, candidate, max_iterations=max_iterations)
+    t1 = time.perf_counter()
+    groups = cycle_groups(window_phase)
+    cyc = leave_cycles_out(baseline, candidate, result, groups, max_splits, heldout_iterations)
+    t2 = time.perf_counter()
+    inst = across_instruments(baseline, candidate, result, groups, heldout_iterations + 1)
+    t3 = time.perf_counter()
+    log.info("refit of %s: %.0f s (%d iterations); held out cycles %.0f s, instruments %.0f s", candidate.name,
+             t1 - t0, len(result.history["iteration"]) - 1, t2 - t1, t3 - t2)
+    held = tuple(h for h in (cyc, inst) if h is not None)
+    conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, result.sd,
+                        result.uncertainty, held)
+    ext = extended_baseline(baseline, result)
+    return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
+
+
+def words(conf: Confirmation) -> list[str]:
+    """Plain lines: the estimate with its interval, the held-out errors before and after."""
+    est = ", ".join(f"{n} = {e:.3g} (95 % interval {a:.3g} .. {b:.3g}, {conf.uncertainty})"
+                    for n, e, (a, b) in zip(conf.parameter_names, conf.estimate, conf.interval))
+    out = [f"refit with {conf.candidate}{f' (run {conf.run})' if conf.run else ''}: {est}"]
+    names = {"cycles": "leaving frames out (by cycle, or by block in a short window)",
+             "instruments": "vertical velocity predicted from the camera"}
+    for h in conf.heldout:
+        verdict = "beyond the spread over splits" if h.beyond_spread() else "not beyond the spread over splits"
+        out.append(f"held-out error {names[h.kind]}: {np.sqrt(np.mean(h.baseline ** 2)):.3g} -> "
+                   f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({100 * h.reduction:+.0f} % lower, "
+                   f"{h.n_splits} splits, {verdict})")
+    if not conf.heldout:
+        out.append("held-out error: no split possible (too few cycles in the window)")
+    return out

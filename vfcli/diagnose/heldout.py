@@ -1,0 +1,124 @@
+"""Held-out prediction error of the baseline and of the extended model, on the same splits.
+
+A refit always lowers E on the data it was fitted to; a term that is really missing also predicts
+data the fit did not see better.  Two kinds of split, each giving errors per split so that the
+decision can say "beyond the spread" (:class:`vfcli.diagnose.confirmation.HeldOutError`):
+
+* **cycles** (:func:`leave_cycles_out`): the window's frames are grouped by glottal cycle (the
+  phase of :mod:`vfcli.diagnose.cycles`; the cycles cut by the window's ends are groups too,
+  :func:`cycle_groups`; a window with fewer than three cycles is cut into six contiguous blocks instead,
+  the four inner ones held out in turn: then a split is not a cycle).  Split k fits the baseline and the
+  extended model on every frame outside group k and predicts the velocity in group k.
+* **instruments** (:func:`across_instruments`): both models are fitted to the camera's in-plane
+  motion, the gap and the pressure (motion component weights (1, 1, 0)) and predict the vertical
+  velocity (model z, which /fields takes from the vibrometer); the error is taken per cycle group,
+  the groups being the splits.
+
+The prediction error of a group is the RMS over its frames of measured minus predicted velocity
+at the pixels compared in the baseline's frozen raster (the same rows for both models), mm/s.
+Both models start from their fits to the whole window (the baseline's x; the extended refit's
+x and theta) and are refitted on the training frames by :func:`vfcli.diagnose.refit.joint_fit`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from vfcli.diagnose.confirmation import HeldOutError
+from vfcli.diagnose.refit import RefitResult, joint_fit
+
+#: component weights of the camera-only fit (in-plane x, y; no vertical)
+CAMERA_ONLY = (1.0, 1.0, 0.0)
+#: smallest number of frames a cycle group needs to be a split
+MIN_GROUP_FRAMES = 3
+
+
+def cycle_groups(phase: np.ndarray, n_blocks: int = 6) -> np.ndarray:
+    """(F,) group of each window frame: its glottal cycle ``floor(phase)`` (the cycles cut by the
+    window's ends included), renumbered 0..G-1; -1 for a cycle with fewer than
+    :data:`MIN_GROUP_FRAMES` frames in the window.  A window with fewer than three such cycles (a
+    window shorter than two or three cycles: too few splits for a spread) is cut into ``n_blocks`` contiguous blocks of frames instead,
+    the inner ones the groups (the first and last block always stay in the fit: a held-out end
+    would be an extrapolation of the loads' time basis, which neither model constrains).
+
+    phase : (F,) cycle phase of the window's frames (:attr:`vfcli.diagnose.cycles.Cycles.phase`)."""
+    lab = np.floor(np.asarray(phase, dtype=float)).astype(int)
+    out = np.full(lab.shape, -1)
+    g = 0
+    for v in np.unique(lab):
+        sel = lab == v
+        if sel.sum() >= MIN_GROUP_FRAMES:
+            out[sel] = g
+            g += 1
+    if g < 3 and len(lab) >= n_blocks * MIN_GROUP_FRAMES:
+        block = (np.arange(len(lab)) * n_blocks) // len(lab)
+        out = np.where((block > 0) & (block < n_blocks - 1), block - 1, -1)
+    return out
+
+
+def prediction_error(baseline, disp: np.ndarray, frames_of: np.ndarray, components=(0, 1, 2)) -> float:
+    """RMS of measured minus predicted velocity (mm/s) over the frames ``frames_of`` (indices) at the
+    pixels compared in the baseline's frozen raster, for displacements ``disp`` (F + 1, N, 3)."""
+    p = baseline.problem
+    comps = list(components)
+    ss, n = 0.0, 0
+    for f in np.asarray(frames_of, int):
+        fr = baseline.frames[f]
+        if fr.m_both.shape[0] == 0:
+            continue
+        r = (fr.m_both @ (disp[f + 1] - disp[f]) / p.dt - fr.v_both)[:, comps]
+        ss += float(np.sum(r * r))
+        n += r.size
+    return float(np.sqrt(ss / n)) if n else float("nan")
+
+
+def _pick(groups: np.ndarray, max_splits: int) -> np.ndarray:
+    ids = np.unique(groups[groups >= 0])
+    if len(ids) <= max_splits:
+        return ids
+    return ids[np.round(np.linspace(0, len(ids) - 1, max_splits)).astype(int)]
+
+
+def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndarray, max_splits: int = 4,
+                     max_iterations: int = 3) -> HeldOutError | None:
+    """Leave-cycles-out errors of the baseline and of ``candidate``'s extension (module docstring).
+
+    extended : the extended model's refit on the whole window (its start).  groups : (F,) from
+    :func:`cycle_groups`.  Returns None when fewer than two groups exist.
+    """
+    ids = _pick(np.asarray(groups), max_splits)
+    if len(ids) < 2:
+        return None
+    model = getattr(baseline, "model", None)
+    base_err, ext_err = [], []
+    for g in ids:
+        held = np.flatnonzero(groups == g)
+        keep = np.ones(len(groups), bool)
+        keep[held] = False
+        b = joint_fit(baseline.problem, baseline.x, None, baseline.f0_hz, keep=keep,
+                      max_iterations=max_iterations, model=model, stated=False)
+        e = joint_fit(baseline.problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta, keep=keep,
+                      max_iterations=max_iterations, model=model, stated=False)
+        base_err.append(prediction_error(baseline, b.displacements, held))
+        ext_err.append(prediction_error(baseline, e.displacements, held))
+    return HeldOutError("cycles", "mm/s", np.array(base_err), np.array(ext_err))
+
+
+def across_instruments(baseline, candidate, extended: RefitResult, groups: np.ndarray,
+                       max_iterations: int = 4) -> HeldOutError | None:
+    """Fit camera + gap + pressure, predict the vertical velocity, per cycle group (module docstring).
+
+    Returns None when fewer than two groups exist or no compared pixel carries a vertical velocity.
+    """
+    ids = np.unique(np.asarray(groups)[np.asarray(groups) >= 0])
+    if len(ids) < 2:
+        return None
+    if not any(np.any(fr.v_both[:, 2] != 0) for fr in baseline.frames if fr.m_both.shape[0]):
+        return None
+    problem = baseline.problem.with_weights(component_weights=CAMERA_ONLY)
+    model = getattr(baseline, "model", None)
+    b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model, stated=False)
+    e = joint_fit(problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta,
+                  max_iterations=max_iterations, model=model, stated=False)
+    base_err = [prediction_error(baseline, b.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
+    ext_err = [prediction_error(baseline, e.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
+    return HeldOutError("instruments", "mm/s", np.array(base_err), np.array(ext_err))

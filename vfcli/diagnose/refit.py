@@ -1,0 +1,348 @@
+"""Confirmation refit: the baseline extended by one candidate, its loads x and the term's theta fitted jointly.
+
+The extended model's vertex displacements are
+
+    U(x, theta) = U0(x) + D(x, theta)
+
+with U0 the baseline's response and D the candidate's change (``candidate.extension``: exact
+at any theta, e.g. the periodic steady state of the modal reduction for a finite density or
+retardation time; the linear column ``dU/dtheta @ theta`` for a term that is linear).  E is the
+run's own objective (motion, gap, ridge; :mod:`vfcli.inverse.problem`) evaluated at U with the
+raster frozen at U.
+
+Gauss-Newton (:func:`joint_fit`), each iteration at (x, theta):
+
+* dE/dU at U, hence the exact gradient in theta ``g_c = <dE/dU, dU/dtheta>`` (dU/dtheta by central
+  differences of D) and the gradient in x through the baseline response's adjoint;
+* the load block ``H_LL`` of the run's Gauss-Newton Hessian (:func:`vfcli.inverse.linearization.
+  gauss_newton_model`, raster frozen at U), the cross and own blocks ``H_Lc``, ``H_cc``
+  (:func:`vfcli.diagnose.candidates.blocks.candidate_blocks`);
+* the joint step from the Schur complement ``S = H_cc - H_Lc^T H_LL^-1 H_Lc`` and a backtracking
+  line search on E.
+
+The x-columns are those of the baseline response, dU0/dx: the change of D with x is left out of
+the step (D is small next to U0, and the truth remains a fixed point when the residual vanishes,
+since the theta gradient is exact and the x gradient vanishes with the residual).
+
+Stated uncertainty: the **sandwich** over frames, as optimize states its own
+(:func:`sandwich_theta`, :mod:`vfcli.inverse.sandwich`): ``Cov(theta) = S^-1 V S^-1`` with V the
+long-run covariance of theta's per-frame efficient scores.  The Laplace form with the residual's own
+scale (as the screening's one-step estimate, :mod:`vfcli.diagnose.candidates.blocks`:
+``(kappa S)^-1``, ``kappa = (n_eff - dof - p) / (2 E_motion)``) is kept beside it (``sd_laplace``);
+it reads the gap term's silhouettes as if they were as noisy as the velocity, and on a small case
+with pixel-quantised silhouettes it was 3 times too narrow.
+
+A subset of the data (held-out splits, :mod:`vfcli.diagnose.heldout`): ``keep`` (F,) bool frames
+(the others contribute nothing to E), and ``problem.with_weights(component_weights=...)`` for the
+instruments (in-plane camera motion only).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from vfcli.diagnose.candidate import Baseline
+
+#: relative decrease of E per iteration below which the refit has converged
+FTOL = 1e-6
+#: backtracking halvings of a step before the refit stops
+MAX_HALVINGS = 6
+
+
+@dataclass(frozen=True)
+class RefitResult:
+    """The extended model refitted (module docstring).
+
+    candidate : its name ("" for a baseline refit).  parameter_names : (p,).
+    theta : (p,) fitted parameters.  sd : (p,) stated standard deviations (``uncertainty``: the
+        sandwich over frames, :func:`sandwich_theta`).  covariance : (p, p) of theta, the same.
+    x : (n_params,) fitted load controls.  displacements : (F + 1, N, 3) mm, at ``problem.sim_times``.
+    history : {"iteration", "total", "motion", "gap", "ridge", "step", "wall_time": (n_it + 1,),
+        "theta": (n_it + 1, p)}; row 0 is the start.
+    converged : E stopped decreasing (relative change below :data:`FTOL`).
+    kappa : the Laplace scale (1 / (2 sigma^2) per unit E).
+    uncertainty : "sandwich".  sd_laplace : (p,) the Laplace standard deviations, for comparison.
+    """
+
+    candidate: str
+    parameter_names: tuple[str, ...]
+    theta: np.ndarray
+    sd: np.ndarray
+    covariance: np.ndarray
+    x: np.ndarray
+    displacements: np.ndarray
+    history: dict
+    converged: bool
+    kappa: float
+    uncertainty: str = "sandwich"
+    sd_laplace: np.ndarray | None = None
+
+    @property
+    def interval(self) -> np.ndarray:
+        """(p, 2) 95 % interval theta -+ 1.96 sd."""
+        return np.column_stack([self.theta - 1.96 * self.sd, self.theta + 1.96 * self.sd])
+
+
+def blank_frame(frame):
+    """The frozen frame with no rows: it contributes nothing to E (a held-out frame)."""
+    return dataclasses.replace(frame, m_both=frame.m_both[:0], v_both=frame.v_both[:0], const=0.0,
+                               pix_both=frame.pix_both[:0], pix_only=frame.pix_only[:0],
+                               sil=[tuple(a[:0] for a in side) for side in frame.sil])
+
+
+def masked(frames: list, keep: np.ndarray | None) -> list:
+    """``frames`` with the frames not in ``keep`` (F,) bool blanked (:func:`blank_frame`)."""
+    if keep is None:
+        return frames
+    return [fr if k else blank_frame(fr) for fr, k in zip(frames, np.asarray(keep, bool))]
+
+
+def energy(problem, x: np.ndarray, disp: np.ndarray, frames: list):
+    """:class:`vfcli.inverse.terms.Terms` of E at displacements ``disp`` with the frozen ``frames``."""
+    from vfcli.inverse.terms import Evaluation, Terms
+
+    ev = Evaluation(problem, x, disp, frames)
+    return Terms.from_parts({t.name: t.value(ev) for t in problem.terms})
+
+
+@dataclass
+class _State:
+    x: np.ndarray
+    theta: np.ndarray
+    disp: np.ndarray
+    frames: list
+    terms: object
+
+
+class _Extended:
+    """U(x, theta) of the baseline response extended by ``candidate`` (None: the baseline itself)."""
+
+    def __init__(self, problem, candidate, f0_hz: float, model, keep):
+        self.problem, self.candidate, self.f0_hz, self.model, self.keep = problem, candidate, f0_hz, model, keep
+        self.p = int(candidate.n_params) if candidate is not None else 0
+
+    def baseline(self, x, disp, frames) -> Baseline:
+        b = Baseline(self.problem, x, disp, frames, self.f0_hz)
+        if self.model is not None:
+            b.model = self.model
+        return b
+
+    def change(self, x: np.ndarray, u0: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        if self.p == 0:
+            return np.zeros_like(u0)
+        return self.candidate.extension(self.baseline(x, u0, []), theta)
+
+    def state(self, x: np.ndarray, theta: np.ndarray) -> _State:
+        u0 = self.problem.displacements(x)
+        disp = u0 + self.change(x, u0, theta)
+        frames = masked(self.problem.freeze(x, disp), self.keep)
+        return _State(x, theta, disp, frames, energy(self.problem, x, disp, frames))
+
+    def columns(self, st: _State) -> np.ndarray:
+        """(F + 1, N, 3, p) dU/dtheta at the state (central differences of the exact change)."""
+        u0 = self.problem.displacements(st.x)
+        out = np.zeros(st.disp.shape + (self.p,))
+        for j in range(self.p):
+            h = 1e-4 * (1.0 + abs(float(st.theta[j])))
+            e = np.zeros(self.p)
+            e[j] = h
+            out[..., j] = (self.change(st.x, u0, st.theta + e) - self.change(st.x, u0, st.theta - e)) / (2 * h)
+        return out
+
+
+def _blocks(ext: _Extended, st: _State):
+    """(g_L, H_LL model, g_c, H_Lc, H_cc, dU/dtheta) at the state."""
+    from vfcli.diagnose.candidates.blocks import _grad_disp, candidate_blocks
+    from vfcli.inverse.linearization import gauss_newton_model
+
+    p = ext.problem
+    gd, gx = _grad_disp(p, st.x, st.disp, st.frames)
+    g_l = p.response.adjoint(gd, p.sim_times, st.x) + gx
+    model = gauss_newton_model(p, st.x, st.frames, st.disp)
+    if ext.p == 0:
+        return g_l, model, np.zeros(0), np.zeros((p.n_params, 0)), np.zeros((0, 0)), None
+    dudp = ext.columns(st)
+    g_c, h_lc, h_cc = candidate_blocks(ext.baseline(st.x, st.disp, st.frames), dudp)
+    return g_l, model, g_c, h_lc, h_cc, dudp
+
+
+def _pinv_sym(a: np.ndarray, rtol: float = 1e-12) -> np.ndarray:
+    w, v = np.linalg.eigh(0.5 * (a + a.T))
+    keep = w > rtol * max(float(w.max(initial=0.0)), 1e-300)
+    return (v[:, keep] / w[keep]) @ v[:, keep].T
+
+
+def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan"), theta0=None,
+              keep: np.ndarray | None = None, max_iterations: int = 8, model=None,
+              fixed_theta: bool = False, stated: bool = True) -> RefitResult:
+    """Fit the loads x and the candidate's theta jointly by Gauss-Newton (module docstring).
+
+    Parameters
+    ----------
+    problem : the run's :class:`vfcli.inverse.problem.Problem` (or ``with_weights`` of it).
+    x0 : (n_params,) start, the baseline's fitted controls.
+    candidate : a :class:`vfcli.diagnose.candidates.base.DisplacementTerm` (``extension``), or None:
+        refit the baseline alone (theta empty).
+    f0_hz : the window's f0 (candidates whose change is a periodic steady state need it), Hz.
+    theta0 : (p,) start (default 0: the term switched off).
+    keep : (F,) bool frames that count in E (default all).
+    max_iterations : Gauss-Newton iterations at most.
+    model : the :class:`vfcli.model.fem.ElasticModel` of the baseline (the modal terms need its
+        material); default the candidate's own.
+    fixed_theta : keep theta at theta0 (refit the loads only, e.g. a held-out prediction).
+    stated : compute the stated uncertainty (False: NaN sd and kappa, e.g. the held-out fits).
+    """
+    t_start = time.perf_counter()
+    ext = _Extended(problem, candidate, f0_hz, model, keep)
+    theta = np.zeros(ext.p) if theta0 is None else np.asarray(theta0, dtype=float).reshape(ext.p)
+    st = ext.state(np.asarray(x0, dtype=float), theta)
+    hist = {k: [] for k in ("iteration", "total", "motion", "gap", "ridge", "step", "wall_time", "theta")}
+
+    def record(it: int, state: _State, step: float) -> None:
+        for k, v in (("iteration", it), ("total", state.terms.total), ("motion", state.terms.motion),
+                     ("gap", state.terms.gap), ("ridge", state.terms.ridge), ("step", step),
+                     ("wall_time", time.perf_counter() - t_start)):
+            hist[k].append(v)
+        hist["theta"].append(np.array(state.theta, float))
+
+    if theta0 is None and not fixed_theta:
+        st = _best_start(ext, st, getattr(candidate, "start_values", ()))
+    record(0, st, 0.0)
+    converged = False
+    blocks = None
+    for it in range(1, max_iterations + 1):
+        blocks = _blocks(ext, st)
+        g_l, qm, g_c, h_lc, h_cc, _ = blocks
+        solved = qm.hessian.solve(np.column_stack([g_l, h_lc]))
+        if ext.p and not fixed_theta:
+            schur = h_cc - h_lc.T @ solved[:, 1:]
+            dtheta = -_pinv_sym(schur) @ (g_c - h_lc.T @ solved[:, 0])
+            dx = -(solved[:, 0] + solved[:, 1:] @ dtheta)
+        else:
+            dtheta = np.zeros(ext.p)
+            dx = -solved[:, 0]
+        alpha, trial = 1.0, None
+        for _ in range(MAX_HALVINGS + 1):
+            try:
+                trial = ext.state(st.x + alpha * dx, st.theta + alpha * dtheta)
+            except ValueError:                          # e.g. a softening >= 1 on the way: shorter step
+                trial = None
+            if trial is not None and trial.terms.total < st.terms.total:
+                break
+            alpha *= 0.5
+            trial = None
+        if trial is None:
+            converged = True
+            break
+        rel = (st.terms.total - trial.terms.total) / max(abs(st.terms.total), 1e-300)
+        st = trial
+        record(it, st, alpha * float(np.linalg.norm(dx)))
+        blocks = None
+        if rel < FTOL:
+            converged = True
+            break
+    if stated:
+        blocks = _blocks(ext, st) if blocks is None else blocks
+        cov_laplace, kappa = laplace(ext, st, blocks)
+        cov = sandwich_theta(ext, st, blocks)[0] if ext.p else cov_laplace
+    else:
+        cov_laplace = cov = np.full((ext.p, ext.p), np.nan)
+        kappa = float("nan")
+    history = {k: np.asarray(v, dtype=float) for k, v in hist.items()}
+    history["theta"] = history["theta"].reshape(len(hist["iteration"]), ext.p)
+    names = tuple(candidate.parameter_names) if candidate is not None else ()
+    return RefitResult(candidate.name if candidate is not None else "", names, st.theta.copy(),
+                       np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, st.x.copy(), st.disp, history,
+                       bool(converged), float(kappa), "sandwich",
+                       np.sqrt(np.maximum(np.diag(cov_laplace), 0.0)))
+
+
+def _best_start(ext: _Extended, st: _State, values) -> _State:
+    """The best of ``st`` and the candidate's ``start_values`` (each a theta, the loads given one
+    Gauss-Newton step at that theta): a term far from linear in theta (a density that puts a harmonic
+    of f0 above a resonance) is not reached from theta = 0 by Gauss-Newton steps."""
+    best = st
+    for v in values:
+        theta = np.asarray(v, dtype=float).reshape(ext.p)
+        try:
+            trial = ext.state(st.x, theta)
+            g_l, qm, *_ = _blocks(_Extended(ext.problem, None, ext.f0_hz, ext.model, ext.keep), trial)
+            # the loads' step at this theta: the baseline's Hessian with the gradient at the extended U
+            stepped = ext.state(st.x - qm.hessian.solve(g_l), theta)
+        except ValueError:
+            continue
+        for cand in (trial, stepped):
+            if cand.terms.total < best.terms.total:
+                best = cand
+    return best
+
+
+def sandwich_theta(ext: _Extended, st: _State, blocks) -> tuple[np.ndarray, int]:
+    """((p, p) Cov(theta), lag) by the sandwich over frames, as optimize's (:mod:`vfcli.inverse.sandwich`).
+
+    The efficient score of theta per frame, ``s_f = g_c,f - H_Lc^T H_LL^-1 g_L,f`` (the frame's data
+    terms' gradient in theta, its load part projected out), has a long-run covariance S over the
+    frames that count (:func:`vfcli.inverse.sandwich.long_run_covariance`); ``Cov = I^-1 S I^-1``
+    with ``I`` the Schur complement.  It holds when the residual is model error correlated in space
+    and time and when the gap term's silhouettes carry errors the Laplace scale does not see.
+    """
+    from vfcli.inverse.sandwich import _only_frame, linearization_adjoint, long_run_covariance
+    from vfcli.inverse.terms import Evaluation
+
+    g_l, qm, g_c, h_lc, h_cc, dudp = blocks
+    p = ext.problem
+    used = [f for f, fr in enumerate(st.frames) if fr.m_both.shape[0] or any(len(side[0]) for side in fr.sil)]
+    data_terms = [t for t in p.terms if t.data]
+    proj = qm.hessian.solve(h_lc)                                      # H_LL^-1 H_Lc (n, p)
+    scores = np.zeros((len(used), ext.p))
+    for i, f in enumerate(used):
+        ev = Evaluation(p, st.x, st.disp, _only_frame(st.frames, f), np.zeros_like(st.disp), np.zeros(len(st.x)))
+        for term in data_terms:
+            term.value(ev)
+        g_lf = linearization_adjoint(qm.linearization, ev.grad_disp)
+        g_cf = np.array([np.sum(ev.grad_disp * dudp[..., j]) for j in range(ext.p)])
+        scores[i] = g_cf - proj.T @ g_lf
+    lr = long_run_covariance(scores)
+    inv = _pinv_sym(h_cc - h_lc.T @ proj)
+    return inv @ lr.covariance @ inv, lr.lag
+
+
+def laplace(ext: _Extended, st: _State, blocks) -> tuple[np.ndarray, float]:
+    """((p, p) Cov(theta), kappa): ``(kappa S)^-1`` at the state (module docstring)."""
+    from vfcli.diagnose.candidates.blocks import _kappa_after
+    from vfcli.inverse.uncertainty import effective_sample_size, posterior
+
+    g_l, qm, g_c, h_lc, h_cc, _ = blocks
+    p = ext.problem
+    corr = effective_sample_size(with_displacements(p, st.disp).motion_residuals(st.x, st.frames))
+    dof = posterior(qm, corr).dof
+    kappa = _kappa_after(ext.baseline(st.x, st.disp, st.frames), qm, dof, st.disp, ext.p)
+    if ext.p == 0:
+        return np.zeros((0, 0)), kappa
+    schur = h_cc - h_lc.T @ qm.hessian.solve(h_lc)
+    return _pinv_sym(schur) / kappa, kappa
+
+
+def with_displacements(problem, disp: np.ndarray):
+    """A shallow copy of ``problem`` whose model shows ``disp`` (F + 1, N, 3) whatever its controls
+    (an extended model's displacements, for what reads ``problem.displacements``: the motion residual
+    images, Locate and the residual maps)."""
+    import copy
+
+    other = copy.copy(problem)
+    other.displacements = lambda x: disp
+    return other
+
+
+def refit(baseline: Baseline, candidate, keep: np.ndarray | None = None, max_iterations: int = 8,
+          problem=None) -> RefitResult:
+    """Refit ``baseline`` extended by ``candidate`` from its fit (theta = 0), on the frames ``keep``.
+
+    problem : the problem to fit (default the baseline's; e.g. ``with_weights`` for one instrument).
+    """
+    return joint_fit(problem if problem is not None else baseline.problem, baseline.x, candidate,
+                     baseline.f0_hz, keep=keep, max_iterations=max_iterations,
+                     model=getattr(baseline, "model", None))
