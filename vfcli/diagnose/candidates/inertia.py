@@ -51,6 +51,10 @@ class Inertia(DisplacementTerm):
     signature = ("residual content rising with the square of frequency (the higher harmonics of f0 "
                  "under-predicted), with the phase flipping above a resonance of the folds")
 
+    #: densities the confirmation refit tries before its Gauss-Newton steps (:mod:`vfcli.diagnose.refit`):
+    #: above a resonance the change is far from linear in the density
+    start_values = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
+
     def __init__(self, model=None) -> None:
         self.model = model
         self._cache: tuple = (None, None, None)      # (response, model, its mass responses)
@@ -86,6 +90,28 @@ class Inertia(DisplacementTerm):
         z = self.mass_responses(baseline)
         return -np.einsum("ncs,st->tnc", z, c @ b2.T)[..., None]
 
+    def reduction(self, baseline, n_harmonics: int = 6) -> ModalReduction:
+        """The modal/Ritz reduction of the baseline's model and load patterns, with shifted Ritz vectors
+        at the harmonics ``k f0`` (k = 1..n_harmonics; exact there for the density factor 1 without
+        damping), built once per response, model and f0."""
+        response = baseline.problem.response
+        model = self._model(baseline)
+        key = (response, model, float(baseline.f0_hz), int(n_harmonics))
+        cached = getattr(self, "_reduced", (None, None))
+        if cached[0] != key:
+            shifts = baseline.f0_hz * np.arange(1, n_harmonics + 1) if np.isfinite(baseline.f0_hz) else ()
+            cached = (key, ModalReduction(model, response.load_model.spatial_loads(model), shifts_hz=shifts))
+            self._reduced = cached
+        return cached[1]
+
+    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
+        """Change at density factor theta[0]: the periodic steady state with that density minus the one
+        without (both of the same harmonics of the load, so theta = 0 changes nothing), from
+        :meth:`reduction` (accurate at density 1; see :mod:`vfcli.model.response.modal` for other densities)."""
+        rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        red = self.reduction(baseline)
+        return self.steady_state(baseline, rho, red) - self.steady_state(baseline, 0.0, red)
+
     def steady_state(self, baseline, density: float, reduction: ModalReduction | None = None,
                      n_harmonics: int = 6, retardation_s: float = 0.0) -> np.ndarray:
         """(F + 1, N, 3) periodic steady state of the baseline's load with density factor ``density``, mm.
@@ -99,8 +125,7 @@ class Inertia(DisplacementTerm):
             raise ValueError(f"the inertia steady state needs the baseline's f0, got {baseline.f0_hz!r}")
         load_model = p.response.load_model
         if reduction is None:
-            model = self._model(baseline)
-            reduction = ModalReduction(model, load_model.spatial_loads(model))
+            reduction = self.reduction(baseline, n_harmonics)
         amp = load_model.time_basis(p.sim_times) @ load_model.control_matrix(baseline.x).T   # (T, S)
         spec = harmonic_fit(amp, p.sim_times, baseline.f0_hz, n_harmonics)
         return reduction.steady_state(spec, baseline.f0_hz, p.sim_times, density, retardation_s)
