@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vfcli.diagnose.candidates.base import DisplacementTerm, derivative_step, time_derivative
-from vfcli.model.response.modal import ModalReduction, harmonic_fit
+from vfcli.model.response.modal import COMPLETE_MAX_DOFS, ModalReduction, harmonic_fit
 
 log = logging.getLogger(__name__)
 
@@ -91,16 +91,23 @@ class Inertia(DisplacementTerm):
         return -np.einsum("ncs,st->tnc", z, c @ b2.T)[..., None]
 
     def reduction(self, baseline, n_harmonics: int = 6) -> ModalReduction:
-        """The modal/Ritz reduction of the baseline's model and load patterns, with shifted Ritz vectors
-        at the harmonics ``k f0`` (k = 1..n_harmonics; exact there for the density factor 1 without
-        damping), built once per response, model and f0."""
+        """The modal reduction of the baseline's model and load patterns, built once per response,
+        model and f0: the complete modal expansion (exact at any density and retardation time) when
+        each fold has at most :data:`vfcli.model.response.modal.COMPLETE_MAX_DOFS` free DOFs (a run's
+        2.5 mm mesh: 3480), else the Ritz reduction with shifted Ritz vectors at the harmonics ``k f0``
+        (k = 1..n_harmonics; exact there at density factor 1 without damping, not at other densities)."""
         response = baseline.problem.response
         model = self._model(baseline)
         key = (response, model, float(baseline.f0_hz), int(n_harmonics))
         cached = getattr(self, "_reduced", (None, None))
         if cached[0] != key:
-            shifts = baseline.f0_hz * np.arange(1, n_harmonics + 1) if np.isfinite(baseline.f0_hz) else ()
-            cached = (key, ModalReduction(model, response.load_model.spatial_loads(model), shifts_hz=shifts))
+            loads = response.load_model.spatial_loads(model)
+            if max(len(f.free) for f in model.folds) <= COMPLETE_MAX_DOFS:
+                red = ModalReduction.complete(model, loads)
+            else:
+                shifts = baseline.f0_hz * np.arange(1, n_harmonics + 1) if np.isfinite(baseline.f0_hz) else ()
+                red = ModalReduction(model, loads, shifts_hz=shifts)
+            cached = (key, red)
             self._reduced = cached
         return cached[1]
 
