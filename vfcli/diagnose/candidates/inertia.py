@@ -37,6 +37,19 @@ def elastic_model_of(baseline):
     return model
 
 
+def term_model(term, baseline):
+    """The elastic model a term uses: its own ``term.model`` if given, else the baseline's, else a
+    default-material model of the baseline's mesh (kept in ``term._own``, built once per mesh:
+    CANDIDATES' instances are shared)."""
+    if term.model is not None:
+        return term.model
+    if getattr(baseline, "model", None) is not None:
+        return baseline.model
+    if term._own[0] is not baseline.problem.mesh:
+        term._own = (baseline.problem.mesh, elastic_model_of(baseline))
+    return term._own[1]
+
+
 class Inertia(DisplacementTerm):
     """Density factor rho of the folds (1 = tissue density of the elastic model), one parameter.
 
@@ -61,15 +74,7 @@ class Inertia(DisplacementTerm):
         self._own: tuple = (None, None)              # (mesh, the default model built for it)
 
     def _model(self, baseline):
-        """The given model, else the baseline's own, else a default-material model of its mesh (built
-        once per mesh: CANDIDATES' instances are shared)."""
-        if self.model is not None:
-            return self.model
-        if getattr(baseline, "model", None) is not None:
-            return baseline.model
-        if self._own[0] is not baseline.problem.mesh:
-            self._own = (baseline.problem.mesh, elastic_model_of(baseline))
-        return self._own[1]
+        return term_model(self, baseline)
 
     def mass_responses(self, baseline) -> np.ndarray:
         """(N, 3, S) vertex displacement of ``K^-1 M K^-1 L_s`` per spatial load pattern s, mm s^2."""
