@@ -44,6 +44,7 @@ def _diagnose(d, effect: str, seed: int, *extra: str) -> str:
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_the_no_contact_fit_of_a_contact_phantom_crosses_the_midplane_while_closed(tmp_path):
     line = _diagnose(tmp_path, "contact", 41)
     print(line)
@@ -52,6 +53,7 @@ def test_the_no_contact_fit_of_a_contact_phantom_crosses_the_midplane_while_clos
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)
 def test_a_null_phantom_without_pressed_folds_shows_no_crossing_while_closed(tmp_path):
     line = _diagnose(tmp_path, "none", 42, "synth.closed_fraction=0")
     print(line)
