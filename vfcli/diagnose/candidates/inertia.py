@@ -32,7 +32,7 @@ def elastic_model_of(baseline):
     if model is None:
         from vfcli.model.fem import ElasticModel
 
-        log.warning("inertia: the baseline carries no elastic model; using a default-material model of its mesh")
+        log.warning("the baseline carries no elastic model; candidate terms use a default-material model of its mesh")
         model = ElasticModel(baseline.problem.mesh)
     return model
 
