@@ -4,8 +4,9 @@
 exact contact solution) and a null phantom whose glottis closes without the folds being pressed
 past the midplane (closed_fraction = 0), each through ingest, sync, flow, mesh, a short optimize
 (the paper's free force field, 3x3x10 one-sided) and `vfcli diagnose`: the contact line reports the
-no-contact fit's folds crossing the midplane during the closed phase on the contact phantom, and no
-such crossing (nor a lead) on the null.  Seeds 41 and 42 (outside the reserved panels).
+no-contact fit's folds crossing the midplane during the closed phase on the contact phantom (0.5 mm
+on seed 31), and a smaller crossing (0.17 mm on seed 33: the fit's overshoot where the glottis closes)
+and no lead on the null.  Seeds 41 and 42 (outside the reserved panels).
 """
 from __future__ import annotations
 
