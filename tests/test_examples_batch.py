@@ -135,7 +135,9 @@ def test_snakefile_runs_two_recordings_then_nothing_then_only_the_touched_one(tm
     assert after["a"]["a.h5"] == before["a"]["a.h5"]
     assert all(after["a"][k] > before["a"][k] for k in before["a"] if k != "a.h5")
     summary = json.loads((tmp_path / "work" / "a.run.json").read_text())
-    assert {s["action"] for s in summary["stages"]} == {"up to date"}, summary
+    # every stage current; diagnose is skipped (these short phantoms hold too few whole cycles)
+    assert {s["action"] for s in summary["stages"] if s["name"] != "diagnose"} == {"up to date"}, summary
+    assert {s["action"] for s in summary["stages"] if s["name"] == "diagnose"} <= {"skipped", "up to date"}, summary
 
 
 @pytest.mark.slow

@@ -140,6 +140,7 @@ AXES: dict[str, Axis] = {
     "cycle_split": Axis("Held-out split leaving one glottal cycle of the window out (0-based index)"),
     "instrument_split": Axis("Glottal cycle of the window on which the vertical velocity predicted from the "
                              "camera is scored (0-based index)"),
+    "replicate": Axis("Parametric bootstrap replicate of the calibrated screening (0-based index)"),
 }
 
 #: the datasets of a confirmation refit's candidate parameters (in /optimize/<run>+<candidate> and /diagnose/<run>)

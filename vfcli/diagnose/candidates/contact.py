@@ -41,7 +41,7 @@ from scipy.linalg import cho_factor, solve_triangular
 from scipy.optimize import nnls
 
 from vfcli.diagnose.candidates.base import DisplacementTerm
-from vfcli.diagnose.candidates.inertia import elastic_model_of
+from vfcli.diagnose.candidates.inertia import term_model
 from vfcli.model.mesh import TAG_FIXTURE, TAG_MEDIAL, TAG_SUPERIOR
 
 log = logging.getLogger(__name__)
@@ -140,18 +140,9 @@ class Contact(DisplacementTerm):
         self._own: tuple = (None, None)               # (mesh, default model)
         self._ops: tuple = (None, None, None)         # (model, ContactNodes, compliance)
 
-    def _model(self, baseline):
-        if self.model is not None:
-            return self.model
-        if getattr(baseline, "model", None) is not None:
-            return baseline.model
-        if self._own[0] is not baseline.problem.mesh:
-            self._own = (baseline.problem.mesh, elastic_model_of(baseline))
-        return self._own[1]
-
     def operators(self, baseline) -> tuple:
         """(model, :class:`ContactNodes`, compliance G (n_c, n_c)) of the baseline's model (cached)."""
-        model = self._model(baseline)
+        model = term_model(self, baseline)
         if self._ops[0] is not model:
             cn = contact_nodes(model, self.band_mm)
             g = np.empty((len(cn.nodes), len(cn.nodes)))

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vfcli.diagnose.candidates.base import DisplacementTerm, derivative_step, time_derivative
-from vfcli.model.response.modal import ModalReduction, harmonic_fit
+from vfcli.model.response.modal import COMPLETE_MAX_DOFS, ModalReduction, harmonic_fit
 
 log = logging.getLogger(__name__)
 
@@ -32,9 +32,22 @@ def elastic_model_of(baseline):
     if model is None:
         from vfcli.model.fem import ElasticModel
 
-        log.warning("inertia: the baseline carries no elastic model; using a default-material model of its mesh")
+        log.warning("the baseline carries no elastic model; candidate terms use a default-material model of its mesh")
         model = ElasticModel(baseline.problem.mesh)
     return model
+
+
+def term_model(term, baseline):
+    """The elastic model a term uses: its own ``term.model`` if given, else the baseline's, else a
+    default-material model of the baseline's mesh (kept in ``term._own``, built once per mesh:
+    CANDIDATES' instances are shared)."""
+    if term.model is not None:
+        return term.model
+    if getattr(baseline, "model", None) is not None:
+        return baseline.model
+    if term._own[0] is not baseline.problem.mesh:
+        term._own = (baseline.problem.mesh, elastic_model_of(baseline))
+    return term._own[1]
 
 
 class Inertia(DisplacementTerm):
@@ -51,21 +64,17 @@ class Inertia(DisplacementTerm):
     signature = ("residual content rising with the square of frequency (the higher harmonics of f0 "
                  "under-predicted), with the phase flipping above a resonance of the folds")
 
+    #: densities the confirmation refit tries before its Gauss-Newton steps (:mod:`vfcli.diagnose.refit`):
+    #: above a resonance the change is far from linear in the density
+    start_values = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
+
     def __init__(self, model=None) -> None:
         self.model = model
         self._cache: tuple = (None, None, None)      # (response, model, its mass responses)
         self._own: tuple = (None, None)              # (mesh, the default model built for it)
 
     def _model(self, baseline):
-        """The given model, else the baseline's own, else a default-material model of its mesh (built
-        once per mesh: CANDIDATES' instances are shared)."""
-        if self.model is not None:
-            return self.model
-        if getattr(baseline, "model", None) is not None:
-            return baseline.model
-        if self._own[0] is not baseline.problem.mesh:
-            self._own = (baseline.problem.mesh, elastic_model_of(baseline))
-        return self._own[1]
+        return term_model(self, baseline)
 
     def mass_responses(self, baseline) -> np.ndarray:
         """(N, 3, S) vertex displacement of ``K^-1 M K^-1 L_s`` per spatial load pattern s, mm s^2."""
@@ -86,6 +95,35 @@ class Inertia(DisplacementTerm):
         z = self.mass_responses(baseline)
         return -np.einsum("ncs,st->tnc", z, c @ b2.T)[..., None]
 
+    def reduction(self, baseline, n_harmonics: int = 6) -> ModalReduction:
+        """The modal reduction of the baseline's model and load patterns, built once per response,
+        model and f0: the complete modal expansion (exact at any density and retardation time) when
+        each fold has at most :data:`vfcli.model.response.modal.COMPLETE_MAX_DOFS` free DOFs (a run's
+        2.5 mm mesh: 3480), else the Ritz reduction with shifted Ritz vectors at the harmonics ``k f0``
+        (k = 1..n_harmonics; exact there at density factor 1 without damping, not at other densities)."""
+        response = baseline.problem.response
+        model = self._model(baseline)
+        key = (response, model, float(baseline.f0_hz), int(n_harmonics))
+        cached = getattr(self, "_reduced", (None, None))
+        if cached[0] != key:
+            loads = response.load_model.spatial_loads(model)
+            if max(len(f.free) for f in model.folds) <= COMPLETE_MAX_DOFS:
+                red = ModalReduction.complete(model, loads)
+            else:
+                shifts = baseline.f0_hz * np.arange(1, n_harmonics + 1) if np.isfinite(baseline.f0_hz) else ()
+                red = ModalReduction(model, loads, shifts_hz=shifts)
+            cached = (key, red)
+            self._reduced = cached
+        return cached[1]
+
+    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
+        """Change at density factor theta[0]: the periodic steady state with that density minus the one
+        without (both of the same harmonics of the load, so theta = 0 changes nothing), from
+        :meth:`reduction` (accurate at density 1; see :mod:`vfcli.model.response.modal` for other densities)."""
+        rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        red = self.reduction(baseline)
+        return self.steady_state(baseline, rho, red) - self.steady_state(baseline, 0.0, red)
+
     def steady_state(self, baseline, density: float, reduction: ModalReduction | None = None,
                      n_harmonics: int = 6, retardation_s: float = 0.0) -> np.ndarray:
         """(F + 1, N, 3) periodic steady state of the baseline's load with density factor ``density``, mm.
@@ -99,8 +137,7 @@ class Inertia(DisplacementTerm):
             raise ValueError(f"the inertia steady state needs the baseline's f0, got {baseline.f0_hz!r}")
         load_model = p.response.load_model
         if reduction is None:
-            model = self._model(baseline)
-            reduction = ModalReduction(model, load_model.spatial_loads(model))
+            reduction = self.reduction(baseline, n_harmonics)
         amp = load_model.time_basis(p.sim_times) @ load_model.control_matrix(baseline.x).T   # (T, S)
         spec = harmonic_fit(amp, p.sim_times, baseline.f0_hz, n_harmonics)
         return reduction.steady_state(spec, baseline.f0_hz, p.sim_times, density, retardation_s)

@@ -43,6 +43,10 @@ import scipy.sparse as sp
 
 log = logging.getLogger(__name__)
 
+#: largest number of free DOFs per fold for :meth:`ModalReduction.complete` (dense eigenproblem,
+#: about 8 n^2 bytes per matrix: 0.13 GB at 4000)
+COMPLETE_MAX_DOFS = 4000
+
 
 def ritz_vectors(model, loads: np.ndarray, n_blocks: int) -> np.ndarray:
     """Orthonormal basis (n_dofs, <= n_blocks * S) of ``span{K^-1 F, (K^-1 M) K^-1 F, ...}``.
@@ -152,7 +156,61 @@ class ModalReduction:
                 freqs.append(fr)
                 parts.append(shapes)
         self.fold_frequencies_hz_ = np.concatenate(freqs) if freqs else np.zeros(0)
-        basis, _ = np.linalg.qr(np.hstack(parts))
+        self._project(model, np.hstack(parts), f)
+
+    @classmethod
+    def complete(cls, model, loads, max_dofs: int = None) -> "ModalReduction":
+        """The complete modal expansion: every eigenmode of each fold (a dense generalised eigenproblem
+        ``K_ff phi = mu M_ff phi`` per fold), exact at any frequency, density, retardation time and loss
+        to round-off.  Costs O(n^3) per fold and O(n^2) memory (n free DOFs of a fold): for coarse meshes
+        only (at most ``max_dofs`` per fold, default :data:`COMPLETE_MAX_DOFS`; ValueError above)."""
+        f = loads.toarray() if sp.issparse(loads) else np.asarray(loads, dtype=float)
+        limit = COMPLETE_MAX_DOFS if max_dofs is None else int(max_dofs)
+        sizes = [len(fold.free) for fold in model.folds]
+        if f.ndim != 2 or f.shape[0] != model.n_dofs or max(sizes) > limit:
+            raise ValueError(f"complete modal expansion of loads {f.shape} with {sizes} free DOFs per fold "
+                             f"(at most {limit})")
+        out = cls.__new__(cls)
+        mass = model.mass
+        mus, verts, modal_loads = [], [], []
+        mirror = getattr(model, "_mirror", None)                      # fold 0 the mirror image of fold 1
+        solved = {}
+        for k in (1, 0):
+            fold = model.folds[k]
+            idx = model.offsets[k] + fold.free
+            if k == 0 and mirror is not None:
+                perm, sign = mirror                                   # fold-0 DOF i = sign[i] * fold-1 DOF perm[i]
+                mu, phi1 = solved[1]
+                f1 = model.folds[1]
+                full1 = np.zeros((f1.n_dofs, len(mu)))
+                full1[f1.free] = phi1
+                phi = (sign[:, None] * full1[perm])[fold.free]
+                del full1
+            else:
+                mu, phi = sla.eigh(fold.stiffness[fold.free][:, fold.free].toarray(), mass[idx][:, idx].toarray())
+                solved[k] = (mu, phi)
+            row = np.full(fold.n_dofs, -1)
+            row[fold.free] = np.arange(len(fold.free))
+            vert = np.zeros((len(mu), model.mesh.n_nodes, 3))
+            for c in range(3):
+                r = row[fold.vertex_dofs[c]]                      # (N_k,) row of each vertex's DOF, -1: clamped
+                vert[:, fold.nodes[r >= 0], c] = phi[r[r >= 0]].T
+            mus.append(mu)
+            verts.append(vert)
+            modal_loads.append(phi.T @ f[idx])
+        mu = np.concatenate(mus)
+        order = np.argsort(mu, kind="stable")
+        out.eigenvalues_ = mu[order]
+        out.vertex_modes_ = np.concatenate(verts)[order]
+        out.modal_loads_ = np.concatenate(modal_loads)[order]
+        out.fold_frequencies_hz_ = np.sqrt(np.maximum(out.eigenvalues_, 0.0)) / (2 * np.pi)
+        out.n_vertices = int(model.mesh.n_nodes)
+        out.n_spatial = int(f.shape[1])
+        return out
+
+    def _project(self, model, parts: np.ndarray, f: np.ndarray) -> None:
+        """Rayleigh-Ritz on the span of ``parts`` (n_dofs, m): the reduced modes, M-orthonormal."""
+        basis, _ = np.linalg.qr(parts)
         free = np.zeros(model.n_dofs, bool)
         free[model.free_dofs] = True
         basis[~free] = 0.0
@@ -164,7 +222,10 @@ class ModalReduction:
         keep = w > 1e-10 * w.max()
         t = v[:, keep] / np.sqrt(w[keep])
         mu, z = sla.eigh(t.T @ k_r @ t)
-        psi = basis @ (t @ z)                                        # (n_dofs, r) M-orthonormal
+        self._finish(model, basis @ (t @ z), mu, f)                  # (n_dofs, r) M-orthonormal
+
+    def _finish(self, model, psi: np.ndarray, mu: np.ndarray, f: np.ndarray) -> None:
+        """Store the M-orthonormal modes psi (n_dofs, r) with eigenvalues mu (r,) for the loads f."""
         self.eigenvalues_ = mu
         self.vertex_modes_ = model.vertex_displacements(psi)          # (r, N, 3)
         self.modal_loads_ = psi.T @ f                                 # (r, S)
