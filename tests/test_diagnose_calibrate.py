@@ -18,12 +18,15 @@ load span.  Checked, each against an independent reference:
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 from scipy import stats
 
 from vfcli.diagnose.calibrate import NullParts, ScoreBasis, calibrate, quadrature_scores, replicate_statistics
 from vfcli.diagnose.candidates.identifiability import load_basis, project_out
 from vfcli.diagnose.candidates.screening import score_test
+from vfcli.parallel import serial_map
 
 S, T = 12, 40                   # spatial points, samples per cycle
 M = S * T                       # rows per cycle, time-major: row = t * S + s
@@ -124,9 +127,11 @@ def test_replicates_are_reproducible_and_independent_of_the_map():
     parts = NullParts(rng.normal(size=(7, 5)), rng.normal(size=(11, 5)))
     args = (parts, (1, 2, 2), (True, True, False), 150)
     a = replicate_statistics(*args, seed=4)
-    b = replicate_statistics(*args, seed=4, map=lambda f, *xs: [f(*x) for x in zip(*xs)])
+    with ThreadPoolExecutor(2) as pool:                  # a real parallel Mapper (vfcli.parallel)
+        b = replicate_statistics(*args, seed=4, map=pool.map)
     c = replicate_statistics(*args, seed=5)
-    assert a.shape == (3, 150) and np.array_equal(a, b) and not np.allclose(a, c)
+    d = replicate_statistics(*args, seed=4, map=serial_map)
+    assert a.shape == (3, 150) and np.array_equal(a, b) and np.array_equal(a, d) and not np.allclose(a, c)
     assert np.all(a[2] == 0) and np.all(a[:2] > 0)
 
 

@@ -222,6 +222,13 @@ def _replicate_chunk(parts: NullParts, sizes: tuple[int, ...], identifiable: tup
     return out
 
 
+def _replicate_item(parts: NullParts, sizes: tuple[int, ...], identifiable: tuple[bool, ...],
+                    item: tuple[int, int]) -> np.ndarray:
+    """:func:`_replicate_chunk` of one ``(seed, n)`` item (the :class:`vfcli.parallel.Mapper` contract:
+    one item per call)."""
+    return _replicate_chunk(parts, sizes, identifiable, *item)
+
+
 def replicate_statistics(parts: NullParts, sizes: Sequence[int], identifiable: Sequence[bool], n_replicates: int,
                          seed: int, map: Callable = builtins.map) -> np.ndarray:
     """(C, B) studentized statistics of B null replicates, reproducible for a seed.
@@ -230,15 +237,16 @@ def replicate_statistics(parts: NullParts, sizes: Sequence[int], identifiable: S
     pool's score covariance (so the replicate's own covariance estimate has the observed one's K - 1
     degrees of freedom), adds a randomly shifted, randomly signed model error, and studentizes.
     The replicates are drawn in chunks of :data:`CHUNK`, each with its own seed spawned from ``seed``
-    (:class:`numpy.random.SeedSequence`), handed to ``map`` (builtin ``map`` by default; any map that
-    applies the function to the chunks gives the same numbers).
+    (:class:`numpy.random.SeedSequence`), handed to ``map`` as ``(seed, n)`` items (a
+    :class:`vfcli.parallel.Mapper`: builtin ``map`` by default; any map that applies the function to
+    the items gives the same numbers).
     """
     if parts.n_pool < 2:
         raise ValueError(f"the noise needs at least 2 pool stretches, got {parts.n_pool}")
     counts = [min(CHUNK, n_replicates - i) for i in range(0, n_replicates, CHUNK)]
     seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(len(counts))]
-    fn = partial(_replicate_chunk, parts, tuple(sizes), tuple(bool(i) for i in identifiable))
-    chunks = list(map(fn, seeds, counts))
+    fn = partial(_replicate_item, parts, tuple(sizes), tuple(bool(i) for i in identifiable))
+    chunks = list(map(fn, list(zip(seeds, counts))))
     return np.concatenate(chunks, axis=1) if chunks else np.zeros((len(sizes), 0))
 
 

@@ -23,6 +23,7 @@ from vfcli.diagnose.cycles import TooFewCycles
 from vfcli.diagnose.residual import rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
+from vfcli.parallel import serial_map
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.fit import problem_of_store, run_model
@@ -206,7 +207,7 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         inputs = read_inputs(reader, ctx.config, run)
         try:
-            d = diagnose_run(inputs.baseline, inputs.recording, settings)
+            d = diagnose_run(inputs.baseline, inputs.recording, settings, map=ctx.map or serial_map)
         except TooFewCycles as exc:
             raise InputDataError(f"diagnose: {exc}; record longer (more glottal cycles around the run's window)",
                                  reader.path) from None
