@@ -28,7 +28,7 @@ browser:
 	  else echo "error: $(CHROMIUM) missing; install Debian's chromium package as root (apt-get install chromium)" >&2; exit 2; fi; }
 
 test: venv browser
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile  # both cores, each test file on one worker (its fixtures built once)
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15  # both cores, each test file on one worker (its fixtures built once); the 15 slowest steps listed
 
 bench: venv
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -158,8 +158,9 @@ def test_snakemake_slurm_profile_submits_one_job_per_rule_with_its_resources(tmp
         (bin_dir / cmd).write_text(f'#!/bin/sh\necho "{cmd} $*" >> {log}\necho {out}\n'
                                    + ("exit 1\n" if cmd == "sbatch" else ""))
         (bin_dir / cmd).chmod(0o755)
+    # the plugin waits 40 s before its first status check; nothing runs here, so 1 s
     res = _snakemake(tmp_path, "--profile", str(ROOT / "examples" / "slurm" / "snakemake"), "--jobs", "1",
-                     "--retries", "0", path=str(bin_dir), timeout=600)
+                     "--retries", "0", "--slurm-init-seconds-before-status-checks", "1", path=str(bin_dir), timeout=600)
     assert res.returncode != 0  # the stand-in sbatch refuses the job
     (sbatch,) = [line for line in log.read_text().splitlines() if line.startswith("sbatch ")]
     for part in ("-A vocal-lab", "-p normal", "-t 120", "--mem 4000", "--cpus-per-task=1",

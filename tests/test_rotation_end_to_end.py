@@ -1,6 +1,6 @@
 """One rotation convention, applied once, from ingest to optimize (issue 15).
 
-A phantom is rendered through a camera turned by 0, 30, -90 and 180 deg (the synth camera
+A phantom is rendered through a camera turned by 30, -90 and 180 deg (the synth camera
 of the default phantom, turned about the frame centre), ingested, synced and run through
 `flow` and `mesh` by the real command, with the rotation configured (camera.pose =
 'config'). The optimisation problem the store gives must see the measured velocity in the
@@ -39,7 +39,7 @@ def _turned_camera(angle_deg: float):
     return camera
 
 
-@pytest.fixture(scope="module", params=[0.0, 30.0, -90.0, 180.0])
+@pytest.fixture(scope="module", params=[30.0, -90.0, 180.0])
 def turned(request, tmp_path_factory):
     angle = request.param
     d = tmp_path_factory.mktemp(f"rot{int(angle)}")
@@ -87,12 +87,12 @@ def test_the_measured_velocity_is_in_model_axes_and_the_gap_term_has_rays(turned
     assert np.isfinite(m.gap_lo[:, problem.rays]).any()
 
 
-@pytest.mark.parametrize("turned", [0.0], indirect=True)
+@pytest.mark.parametrize("turned", [30.0], indirect=True)
 def test_a_fit_whose_gap_term_is_empty_says_so(turned):
     """A configured pose that puts the model beside the glottis (offset 30 mm off): the gap term has
     no rays, and the stored summary of the run says the fit ignored the gap (with the settings to check)."""
     angle, store, _, _ = turned
-    assert angle == 0.0
+    assert angle == 30.0
     res = run_vfcli("optimize", store, "--setup", "3x3x10-one-sided", "--set", "optimize.first_frame=20",
                     "--set", "optimize.n_frames=6", "--set", "optimize.max_iterations=1", "--set",
                     "optimize.uncertainty=false", "--set", "camera.pose='config'", "--set", "camera.offset_px=[-200, -200]",

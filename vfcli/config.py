@@ -178,6 +178,15 @@ class FlowConfig(_Section):
     )
     grid_step: int = Field(8, ge=2, le=64, json_schema_extra=_SHAPES_FLOW, description="sparse_to_dense: spacing of the Lucas-Kanade match grid, px")
     dis_preset: Literal["ultrafast", "fast", "medium"] = Field("medium", json_schema_extra=_SHAPES_FLOW, description="dis: OpenCV DIS preset")
+    ldv_skip_gap: bool = Field(
+        True, json_schema_extra=_SHAPES_FIELDS,
+        description="LDV spots that look through the gap in a frame (no surface returns the beam) are left out of that frame's "
+        "thin-plate spline; false: every good spot in every frame (the paper)",
+    )
+    ldv_gap_margin_px: float = Field(
+        1.0, ge=0, le=50, json_schema_extra=_SHAPES_FIELDS,
+        description="A spot within this distance of the frame's gap mask looks through the gap (the spot's size, the edge's blur), px",
+    )
     w_inside_hull: bool = Field(
         True, json_schema_extra=_SHAPES_FIELDS, description="Velocity valid only inside the convex hull of the good LDV points (no TPS extrapolation)"
     )

@@ -33,7 +33,7 @@ from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
-from vfcli.flow.velocity_field import LdvTps, combine_fields, hull_mask
+from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
 
 log = logging.getLogger(__name__)
 
@@ -287,7 +287,9 @@ def velocity_fields(chunks: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
     shape : (H, W)
         Frame shape.
     cfg : FlowConfig
-        ``flow.rbf_smoothing`` and ``flow.w_inside_hull``.
+        ``flow.rbf_smoothing``, ``flow.ldv_skip_gap`` and ``flow.ldv_gap_margin_px`` (spots in the gap left out per
+        frame, :class:`GapAwareFill`)
+        and ``flow.w_inside_hull``.
 
     Yields
     ------
@@ -296,5 +298,8 @@ def velocity_fields(chunks: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
     """
     tps = LdvTps(points_px, good, smoothing=cfg.rbf_smoothing).fit_grid(shape)
     inside = hull_mask(points_px[good], shape) if cfg.w_inside_hull else None
+    fill = GapAwareFill(points_px, good, smoothing=cfg.rbf_smoothing) if cfg.ldv_skip_gap else None
     for flow, gap, aligned in chunks:
+        if fill is not None:
+            aligned = fill(aligned, points_in_gap(points_px, gap, cfg.ldv_gap_margin_px))
         yield combine_fields(flow, tps.frames(aligned), gap, inside)

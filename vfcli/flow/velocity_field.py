@@ -135,6 +135,110 @@ class LdvTps:
         return self.operator(query_px, dtype=np.float64) @ self._good_values(w_points).astype(float)
 
 
+def points_in_gap(points_px: np.ndarray, gap: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
+    """Which LDV spots look through the gap in each frame.
+
+    Parameters
+    ----------
+    points_px : (P, 2) float
+        Screen points, (col, row) px.
+    gap : (k, H, W) bool
+        Gap masks of k frames.
+    margin_px : float
+        A spot within this distance of a gap pixel counts as in the gap (the laser spot
+        has a size, the gap edge a blur), px; 0: the spot's own pixel only.
+
+    Returns
+    -------
+    (k, P) bool
+        True where the spot's pixel (rounded) lies within ``margin_px`` of the gap; spots off
+        the frame are never in the gap.
+    """
+    g = np.asarray(gap, bool)
+    k, h, w = g.shape
+    pts = np.rint(np.asarray(points_px, dtype=float)).astype(int)
+    on = (pts[:, 0] >= 0) & (pts[:, 0] < w) & (pts[:, 1] >= 0) & (pts[:, 1] < h)
+    out = np.zeros((k, len(pts)), bool)
+    if not on.any():
+        return out
+    r = int(np.floor(margin_px))
+    if r > 0:
+        from scipy.ndimage import binary_dilation
+
+        yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+        disk = (xx**2 + yy**2) <= margin_px**2
+        g = binary_dilation(g, structure=disk[None, :, :])
+    out[:, on] = g[:, pts[on, 1], pts[on, 0]]
+    return out
+
+
+class GapAwareFill:
+    """Replace, frame by frame, the values of LDV spots that look through the gap.
+
+    Through the gap the beam has no surface to return from: the vibrometer reads noise
+    around zero (or wanders), which a thin-plate spline over all points would pull into
+    the fold's medial edge. In each frame the spots in the gap get the value of the
+    thin-plate spline through the *other* good spots at that frame. With interpolation
+    (smoothing 0) the spline through all spots with these values is exactly the spline
+    through the other spots, so one fixed grid operator (:class:`LdvTps`) still serves
+    every frame. The small fill operators are cached per pattern of spots in the gap.
+
+    Parameters
+    ----------
+    points_px : (P, 2) float
+        Screen positions of all LDV points, (col, row) px.
+    good : (P,) bool
+        Points the spline uses.
+    smoothing : float
+        The spline's smoothing (as :class:`LdvTps`).
+    """
+
+    def __init__(self, points_px: np.ndarray, good: np.ndarray, smoothing: float = 0.0) -> None:
+        self.points_px = np.asarray(points_px, dtype=float)
+        self.good = np.asarray(good, bool)
+        self.smoothing = float(smoothing)
+        self._ops: dict[bytes, np.ndarray | None] = {}
+
+    def _operator(self, lost: np.ndarray) -> np.ndarray | None:
+        key = np.packbits(lost).tobytes()
+        if key not in self._ops:
+            keep = self.good & ~lost
+            if keep.sum() < 3:
+                self._ops[key] = None
+            else:
+                from scipy.interpolate import RBFInterpolator
+
+                rbf = RBFInterpolator(self.points_px[keep], np.eye(int(keep.sum())), kernel="thin_plate_spline",
+                                      smoothing=self.smoothing)
+                self._ops[key] = rbf(self.points_px[lost])
+        return self._ops[key]
+
+    def __call__(self, w_points: np.ndarray, in_gap: np.ndarray) -> np.ndarray:
+        """Values of all points with the gap spots filled.
+
+        Parameters
+        ----------
+        w_points : (P, k) float
+            Velocity of every point at k frames, mm/s.
+        in_gap : (k, P) bool
+            :func:`points_in_gap` of the same frames.
+
+        Returns
+        -------
+        (P, k) float
+            ``w_points`` with the good spots in the gap replaced by the spline through the
+            other good spots of that frame (unchanged when fewer than 3 would remain).
+        """
+        w = np.array(w_points, dtype=float, copy=True)
+        lost_all = np.asarray(in_gap, bool) & self.good[None, :]
+        for j in np.flatnonzero(lost_all.any(axis=1)):
+            lost = lost_all[j]
+            op = self._operator(lost)
+            if op is not None:
+                w[lost, j] = op @ w[self.good & ~lost, j]
+        return w
+
+
 def hull_mask(points_px: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Pixels inside the convex hull of screen points, (H, W) bool."""
     from scipy.spatial import Delaunay
