@@ -100,8 +100,10 @@ def _naive(r: np.ndarray, cols) -> np.ndarray:
     return np.array([score_test(c / sigma, r / sigma, q=np.zeros((M, 0))).p_value for c in cols])
 
 
-def _draws(effect: np.ndarray | None = None, model_error: bool = False, model_error_null: bool = True, seed: int = 1):
+def _draws(effect: np.ndarray | None = None, model_error: bool = False, model_error_null: bool = True, seed: int = 1,
+           one_sided: tuple[bool, ...] = ()):
     jl, q, cands, cols, basis = _problem(0)
+    basis = ScoreBasis(basis.weights, basis.information, basis.identifiable, one_sided)
     rng = np.random.default_rng(seed)
     naive, boot, fam = [], [], []
     for i in range(N_DRAWS):
@@ -176,3 +178,23 @@ def test_an_injected_effect_is_found_and_named_above_the_model_error():
 
 #: variance of the AR(1) noise per row (innovation variance 3 from the three shared points)
 RHO_VAR = 3.0 / (1 - RHO ** 2)
+
+
+def test_a_one_sided_candidate_keeps_its_level_and_counts_only_the_physical_sign():
+    """Candidates 1 and 3 (one parameter each) one-sided, as a retardation time or a contact share: under the
+    null their calibrated p-values still reject at 0.05 within binomial error (the null's atom at 0 gives
+    p = 1); an effect of the unphysical sign on candidate 1 is no lead, the same size with the physical sign
+    on candidate 3 is found."""
+    sided = (False, True, False, True)
+    _, boot, fam, _ = _draws(one_sided=sided, seed=4)
+    rates = np.mean(boot[:, [1, 3]] <= ALPHA, axis=0)
+    print(f"one-sided null rates {rates}, family-wise {np.mean(fam.min(1) <= ALPHA):.3f}")
+    assert np.all(np.abs(rates - ALPHA) < _binomial_band(ALPHA, len(boot))), rates
+    assert np.mean(boot[:, [1, 3]] == 1.0) > 0.35                     # the atom: about half the draws
+    jl, q, cands, cols, basis = _problem(0)
+    size = [8.0 * np.sqrt(RHO_VAR / float(cols[c][:, 0] @ cols[c][:, 0])) for c in (1, 3)]
+    effect = -size[0] * cands[1][:, 0] + size[1] * cands[3][:, 0]
+    _, boot, fam, _ = _draws(effect=effect, one_sided=sided, seed=5)
+    wrong, right = np.mean(fam[:, 1] <= ALPHA), np.mean(fam[:, 3] <= ALPHA)
+    print(f"unphysical sign found {wrong:.3f}, physical sign found {right:.3f}")
+    assert wrong <= ALPHA and right > 0.8, (wrong, right)

@@ -32,6 +32,12 @@ step: a replicate's "refit" is the projection, and costs one inner product.
   in the cycle.  A candidate's own signature is the part of s the candidates explain, which the
   null does not contain: it stays detectable when it stands above the noise and above that lean.
 
+**One-sided terms**: a candidate whose single parameter is physically one-signed (a retardation time, a
+contact share: ``one_sided``) counts only evidence for a positive value, the one-sided score test
+(Silvapulle and Sen 2005, ch. 4): its statistic is ``T_c`` when the one-step estimate ``I_c^-1 U_c`` is
+positive and 0 otherwise, in the observed statistic and in every replicate alike.  A model error
+leaning the wrong way is then no lead, and the test keeps its level (the null's atom at 0 gives p = 1).
+
 **Family-wise**: single-step min-p (Westfall and Young 1993).  Per replicate, each candidate's
 p-value against its own replicate distribution; the minimum over candidates; a candidate's adjusted
 p-value is the share of replicates whose minimum is at most its own p-value.  The replicates keep
@@ -64,11 +70,14 @@ class ScoreBasis:
     weights : per candidate, (m, p_c) ``Omega A_c``: the score on a residual r is ``weights[c].T @ r``.
     information : per candidate, (p_c, p_c) ``I_c = A_c^T Omega A_c`` (per unit parameter^2).
     identifiable : per candidate, False when the loads absorb it (its statistic is then 0, p = 1).
+    one_sided : per candidate, True when only a positive parameter is physical (one parameter; module
+        docstring); default: none.
     """
 
     weights: Sequence[np.ndarray]
     information: Sequence[np.ndarray]
     identifiable: Sequence[bool]
+    one_sided: Sequence[bool] = ()
 
     @property
     def sizes(self) -> list[int]:
@@ -81,7 +90,7 @@ class ScoreBasis:
 
     def statistics(self, u: np.ndarray) -> np.ndarray:
         """(C,) or (C, B) statistics ``U_c^T I_c^+ U_c`` from stacked scores u (sum p_c,) or (sum p_c, B)."""
-        return statistics(u, self.information, self.identifiable)
+        return statistics(u, self.information, self.identifiable, self.one_sided)
 
 
 def pseudo_inverse(info: np.ndarray, rtol: float = INFO_RTOL) -> np.ndarray:
@@ -91,10 +100,13 @@ def pseudo_inverse(info: np.ndarray, rtol: float = INFO_RTOL) -> np.ndarray:
     return (v[:, keep] / w[keep]) @ v[:, keep].T
 
 
-def statistics(u: np.ndarray, information: Sequence[np.ndarray], identifiable: Sequence[bool]) -> np.ndarray:
-    """(C,) or (C, B) ``U_c^T I_c^+ U_c`` of stacked scores u (sum p_c,) or (sum p_c, B); 0 where not identifiable."""
+def statistics(u: np.ndarray, information: Sequence[np.ndarray], identifiable: Sequence[bool],
+               one_sided: Sequence[bool] = ()) -> np.ndarray:
+    """(C,) or (C, B) ``U_c^T I_c^+ U_c`` of stacked scores u (sum p_c,) or (sum p_c, B); 0 where not identifiable,
+    and for a ``one_sided`` candidate (one parameter) 0 where its score, the sign of its one-step estimate, is <= 0."""
     u = np.asarray(u, dtype=float)
     out = np.zeros((len(information),) + u.shape[1:])
+    sided = tuple(one_sided) + (False,) * (len(information) - len(one_sided))
     at = 0
     for c, (info, ok) in enumerate(zip(information, identifiable)):
         p = info.shape[0]
@@ -102,6 +114,10 @@ def statistics(u: np.ndarray, information: Sequence[np.ndarray], identifiable: S
         at += p
         if ok:
             out[c] = np.einsum("i...,ij,j...->...", uc, pseudo_inverse(info), uc)
+            if sided[c]:
+                if p != 1:
+                    raise ValueError(f"a one-sided candidate has one parameter, candidate {c} has {p}")
+                out[c] = np.where(uc[0] > 0, out[c], 0.0)
     return out
 
 
@@ -183,10 +199,11 @@ def noise_covariances(u: np.ndarray, sizes: Sequence[int], centred: bool = False
     return out
 
 
-def studentized(u: np.ndarray, covs: Sequence[np.ndarray], identifiable: Sequence[bool]) -> np.ndarray:
+def studentized(u: np.ndarray, covs: Sequence[np.ndarray], identifiable: Sequence[bool],
+                one_sided: Sequence[bool] = ()) -> np.ndarray:
     """(C,) ``U_c^T S_c^+ U_c`` of stacked scores u (sum p_c,) with per-candidate covariances S_c; 0 where not
-    identifiable."""
-    return statistics(u, covs, identifiable)
+    identifiable or, for a ``one_sided`` candidate, where its score is <= 0."""
+    return statistics(u, covs, identifiable, one_sided)
 
 
 def model_error_covariances(q: np.ndarray, sizes: Sequence[int], weights: np.ndarray | None = None) -> list[np.ndarray]:
@@ -202,7 +219,7 @@ def model_error_covariances(q: np.ndarray, sizes: Sequence[int], weights: np.nda
 
 
 def _replicate_chunk(parts: NullParts, sizes: tuple[int, ...], identifiable: tuple[bool, ...], seed: int,
-                     n: int) -> np.ndarray:
+                     n: int, one_sided: tuple[bool, ...] = ()) -> np.ndarray:
     """(C, n) studentized statistics of n replicates drawn with ``seed`` (module docstring)."""
     rng = np.random.default_rng(seed)
     k = parts.n_pool
@@ -218,20 +235,21 @@ def _replicate_chunk(parts: NullParts, sizes: tuple[int, ...], identifiable: tup
             u = u + rng.standard_normal(len(q)) @ q  # the model error's in-phase lean, bin by bin
             est = model_error_covariances(q, sizes, rng.standard_normal(len(q)) ** 2)   # its fresh estimate
             covs = [a + e for a, e in zip(covs, est)]
-        out[:, b] = studentized(u, covs, identifiable)
+        out[:, b] = studentized(u, covs, identifiable, one_sided)
     return out
 
 
 def _replicate_item(parts: NullParts, sizes: tuple[int, ...], identifiable: tuple[bool, ...],
-                    item: tuple[int, int]) -> np.ndarray:
+                    one_sided: tuple[bool, ...], item: tuple[int, int]) -> np.ndarray:
     """:func:`_replicate_chunk` of one ``(seed, n)`` item (the :class:`vfcli.parallel.Mapper` contract:
     one item per call)."""
-    return _replicate_chunk(parts, sizes, identifiable, *item)
+    return _replicate_chunk(parts, sizes, identifiable, *item, one_sided=one_sided)
 
 
 def replicate_statistics(parts: NullParts, sizes: Sequence[int], identifiable: Sequence[bool], n_replicates: int,
-                         seed: int, map: Callable = builtins.map) -> np.ndarray:
-    """(C, B) studentized statistics of B null replicates, reproducible for a seed.
+                         seed: int, map: Callable = builtins.map, one_sided: Sequence[bool] = ()) -> np.ndarray:
+    """(C, B) studentized statistics of B null replicates, reproducible for a seed (``one_sided``: as
+    :func:`statistics`).
 
     Each replicate draws the window's noise and K fresh pool stretches from the Gaussian with the
     pool's score covariance (so the replicate's own covariance estimate has the observed one's K - 1
@@ -245,7 +263,8 @@ def replicate_statistics(parts: NullParts, sizes: Sequence[int], identifiable: S
         raise ValueError(f"the noise needs at least 2 pool stretches, got {parts.n_pool}")
     counts = [min(CHUNK, n_replicates - i) for i in range(0, n_replicates, CHUNK)]
     seeds = [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(len(counts))]
-    fn = partial(_replicate_item, parts, tuple(sizes), tuple(bool(i) for i in identifiable))
+    fn = partial(_replicate_item, parts, tuple(sizes), tuple(bool(i) for i in identifiable),
+                 tuple(bool(o) for o in one_sided))
     chunks = list(map(fn, list(zip(seeds, counts))))
     return np.concatenate(chunks, axis=1) if chunks else np.zeros((len(sizes), 0))
 
@@ -302,7 +321,7 @@ def calibrate(basis: ScoreBasis, residual: np.ndarray, parts: NullParts, n_repli
     covs = noise_covariances(parts.noise, basis.sizes)
     if len(parts.model_error):
         covs = [a + e for a, e in zip(covs, model_error_covariances(parts.model_error, basis.sizes))]
-    observed = studentized(u, covs, basis.identifiable)
-    null = replicate_statistics(parts, basis.sizes, basis.identifiable, n_replicates, seed, map)
+    observed = studentized(u, covs, basis.identifiable, basis.one_sided)
+    null = replicate_statistics(parts, basis.sizes, basis.identifiable, n_replicates, seed, map, basis.one_sided)
     return Calibration(observed, bootstrap_p_values(observed, null), westfall_young(observed, null), null,
                        int(n_replicates), int(seed), parts.n_pool, int(len(parts.model_error)))

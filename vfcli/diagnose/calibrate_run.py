@@ -213,7 +213,8 @@ def calibrate_run(candidates, baseline, rec, cycles: Cycles, window: np.ndarray,
     omega = row_weights(baseline)
     cols = [baseline.measure_linear(c) for c in columns]
     basis = ScoreBasis([omega[:, None] * c for c in cols], [c.T @ (omega[:, None] * c) for c in cols],
-                       [bool(t.identifiability.identifiable) for t in tests])
+                       [bool(t.identifiability.identifiable) for t in tests],
+                       [bool(getattr(c, "one_sided", False)) for c in candidates])
     r = baseline.residual_vector()
     n_motion = baseline.n_motion_rows
     template, stack = pool_stretches(baseline, rec, cycles, window, shifts)

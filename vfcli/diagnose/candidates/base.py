@@ -64,6 +64,8 @@ class DisplacementTerm:
     name: str = ""
     parameter_names: tuple[str, ...] = ()
     signature: str = ""
+    #: only a positive parameter is physical (one parameter): a one-sided calibrated test
+    one_sided: bool = False
 
     @property
     def n_params(self) -> int:

@@ -131,6 +131,8 @@ class Contact(DisplacementTerm):
     signature = ("clipping at closure: the recording's glottis is closed while the folds of the no-contact "
                  "fit cross the midplane (they would interpenetrate), the medial edge moving on where the "
                  "recorded one stops")
+    #: contact only pushes the folds apart: a negative share (pulling them through) is no contact
+    one_sided = True
     #: the confirmation refit's starting values (:mod:`vfcli.diagnose.refit`): none and full contact
     start_values = (0.0, 1.0)
 

@@ -29,6 +29,8 @@ class KelvinVoigtDamping(DisplacementTerm):
     parameter_names = ("retardation_time_ms",)
     signature = ("a phase lag of the motion behind the load that grows with frequency "
                  "(harmonic k delayed by atan(k w0 tau)), and amplitude lost at the higher harmonics")
+    #: a retardation time is positive: a lead in the motion (tau < 0) is no damping
+    one_sided = True
 
     def __init__(self, model=None) -> None:
         from vfcli.diagnose.candidates.inertia import Inertia
