@@ -1,6 +1,10 @@
 """Optical flow against the exact flow of a synthetic video (no image warping involved)."""
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -14,6 +18,7 @@ from vfcli.flow.optical_flow import (
     flow_stream,
     intensity_range,
     pixel_to_model_velocity,
+    sparse_to_dense,
     split_fold_flow,
     to_uint8,
 )
@@ -194,3 +199,44 @@ def test_unknown_method_or_preset_is_a_value_error():
         FlowEstimator("farneback")
     with pytest.raises(ValueError):
         FlowEstimator("dis", dis_preset="slow")
+
+
+def _textured(shape, shift, seed=0):
+    """A smooth random texture (uint8) and the same texture moved by ``shift`` (d col, d row) px."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    img = cv2.GaussianBlur((rng.random(shape) * 255).astype(np.uint8), (5, 5), 1.5)
+    m = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+    return img, cv2.warpAffine(img, m, (shape[1], shape[0]))
+
+
+def test_sparse_to_dense_is_opencvs_flow_bit_for_bit_where_opencv_is_safe():
+    """256 x 256 frames, grid step 8: 1024 matches, more than k = 128, where the library is sound."""
+    import cv2
+
+    a, b = _textured((256, 256), (1.3, -0.7))
+    ref = cv2.optflow.calcOpticalFlowSparseToDense(a, b, None, 8, 128, 0.05, True, 500.0, 1.5)
+    mine = sparse_to_dense(a, b)
+    assert np.array_equal(mine, ref)
+    assert abs(float(np.median(mine[..., 0])) - 1.3) < 0.05 and abs(float(np.median(mine[..., 1])) + 0.7) < 0.05
+
+
+def test_sparse_to_dense_on_frames_with_fewer_matches_than_k_gives_the_motion_and_never_crashes():
+    """48 x 64 frames, grid step 8: 48 matches < k = 128, where OpenCV reads past its arrays (opencv_contrib
+    issue 4195); 6 x 8: one match. In a subprocess, so a crash is a failure of this test, not of the suite."""
+    code = (
+        "import numpy as np, sys; sys.path.insert(0, 'tests'); from test_opticalflow import _textured\n"
+        "from vfcli.flow.optical_flow import sparse_to_dense\n"
+        "for i in range(20):\n"
+        "    a, b = _textured((48, 64), (0.8, 0.4), seed=i)\n"
+        "    f = sparse_to_dense(a, b)\n"
+        "    c = f[12:36, 16:48]\n"
+        "    assert abs(float(np.median(c[..., 0])) - 0.8) < 0.1 and abs(float(np.median(c[..., 1])) - 0.4) < 0.1\n"
+        "a, b = _textured((6, 8), (0.5, 0.0))\n"
+        "assert not sparse_to_dense(a, b).any()\n"
+        "print('ok')\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert res.returncode == 0 and res.stdout.strip() == "ok", (res.returncode, res.stderr[-2000:])

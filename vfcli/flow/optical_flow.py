@@ -2,7 +2,8 @@
 
 The horizontal surface velocity (u_I, v_I) of the paper (section 3.2): OpenCV's
 sparse-to-dense Lucas-Kanade flow (``cv2.optflow.calcOpticalFlowSparseToDense``, the
-paper's method; needs opencv-contrib) or, as an option, DIS (``cv2.DISOpticalFlow``),
+paper's method, run step by step by :func:`sparse_to_dense` so that small or flat frames cannot crash
+it; needs opencv-contrib) or, as an option, DIS (``cv2.DISOpticalFlow``),
 between consecutive frames; vectors inside the gap set to zero; converted to mm/s.
 
 Conventions
@@ -82,7 +83,7 @@ class FlowEstimator:
     ----------
     method : {'sparse_to_dense', 'dis'}
         ``'sparse_to_dense'``: the paper's ``cv2.optflow.calcOpticalFlowSparseToDense``
-        (pyramidal Lucas-Kanade matches on a grid, locally affine interpolation, fast
+        (:func:`sparse_to_dense`: pyramidal Lucas-Kanade matches on a grid, locally affine interpolation, fast
         global smoother); ``'dis'``: ``cv2.DISOpticalFlow`` with a preset.
     grid_step, k, sigma, use_post_proc, fgs_lambda, fgs_sigma
         Parameters of ``calcOpticalFlowSparseToDense`` (OpenCV's defaults; a finer
@@ -113,9 +114,9 @@ class FlowEstimator:
                            fgs_lambda=float(fgs_lambda), fgs_sigma=float(fgs_sigma))
         self._dis = None
         if method == "sparse_to_dense":
-            if not hasattr(cv2, "optflow"):
+            if not hasattr(cv2, "ximgproc"):
                 raise ConfigError("optical flow: sparse_to_dense needs opencv-contrib-python-headless "
-                                  "(cv2.optflow is missing); install it instead of opencv-python")
+                                  "(cv2.ximgproc is missing); install it instead of opencv-python")
         else:
             if dis_preset not in DIS_PRESETS:
                 raise ValueError(f"optical flow: unknown DIS preset {dis_preset!r} (one of {DIS_PRESETS})")
@@ -129,10 +130,57 @@ class FlowEstimator:
 
         if self._dis is not None:
             return self._dis.calc(prev8, next8, None)
-        p = self.params
-        return cv2.optflow.calcOpticalFlowSparseToDense(
-            prev8, next8, None, p["grid_step"], p["k"], p["sigma"], p["use_post_proc"], p["fgs_lambda"], p["fgs_sigma"]
-        )
+        return sparse_to_dense(prev8, next8, **self.params)
+
+
+#: OpenCV's cap on the grid's matches (SHRT_MAX): a finer grid is coarsened until it fits
+_MAX_MATCHES = 32767
+
+
+def sparse_to_dense(prev8: np.ndarray, next8: np.ndarray, grid_step: int = 8, k: int = 128, sigma: float = 0.05,
+                    use_post_proc: bool = True, fgs_lambda: float = 500.0, fgs_sigma: float = 1.5) -> np.ndarray:
+    """OpenCV's ``optflow.calcOpticalFlowSparseToDense``, step by step, with ``k`` kept to the matches found.
+
+    The same steps as the library (pyramidal Lucas-Kanade matches on a grid, 21 x 21 window; the
+    edge-aware interpolator of ``ximgproc`` with the same parameters), bit for bit the same flow when
+    the grid has at least ``k`` surviving matches (tests/test_optical_flow.py). The library asks the
+    interpolator for ``k`` neighbours whatever the number of matches, and reads past its arrays when
+    there are fewer (opencv_contrib issue 4195: a segfault, or silently wrong flow, on small or flat
+    frames); here ``k`` is at most the number of matches, and with fewer than 3 matches (no affine fit)
+    the flow is zero.
+
+    Parameters
+    ----------
+    prev8, next8 : (H, W) uint8
+        The two frames.
+    grid_step, k, sigma, use_post_proc, fgs_lambda, fgs_sigma
+        As ``calcOpticalFlowSparseToDense``.
+
+    Returns
+    -------
+    (H, W, 2) float32
+        Forward flow, px/frame, (d col, d row).
+    """
+    import cv2
+
+    h, w = prev8.shape[:2]
+    step = int(grid_step)
+    while (w // step) * (h // step) > _MAX_MATCHES:
+        step *= 2
+    rows, cols = np.mgrid[0:h:step, 0:w:step]
+    pts = np.stack([cols.ravel(), rows.ravel()], axis=1).astype(np.float32).reshape(-1, 1, 2)
+    dst, status, _err = cv2.calcOpticalFlowPyrLK(prev8, next8, pts, None, winSize=(21, 21))
+    ok = status.ravel() != 0
+    n = int(ok.sum())
+    if n < 3:
+        return np.zeros((h, w, 2), np.float32)
+    interp = cv2.ximgproc.createEdgeAwareInterpolator()
+    interp.setK(min(int(k), n))
+    interp.setSigma(float(sigma))
+    interp.setUsePostProcessing(bool(use_post_proc))
+    interp.setFGSLambda(float(fgs_lambda))
+    interp.setFGSSigma(float(fgs_sigma))
+    return interp.interpolate(prev8, pts[ok].reshape(-1, 2), next8, dst[ok].reshape(-1, 2))
 
 
 def pixel_to_model_velocity(flow_px: np.ndarray, px_per_mm: float, fps: float, rotation_deg: float = 0.0) -> np.ndarray:
