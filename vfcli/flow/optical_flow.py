@@ -126,8 +126,6 @@ class FlowEstimator:
     def __call__(self, prev8: np.ndarray, next8: np.ndarray) -> np.ndarray:
         """Forward flow from ``prev8`` to ``next8`` (both (H, W) uint8): (H, W, 2) float32
         px/frame, (d col, d row) of the material at each pixel of ``prev8``."""
-        import cv2
-
         if self._dis is not None:
             return self._dis.calc(prev8, next8, None)
         return sparse_to_dense(prev8, next8, **self.params)
