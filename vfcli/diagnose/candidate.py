@@ -128,16 +128,15 @@ class Candidate(Protocol):
     parameter_names : (n_params,) names with units, e.g. ("retardation_time_s",).
     signature : one or two sentences, in plain words, of the residual the term leaves when it
         is missing (e.g. "content rising with the square of frequency, phase flip above resonance").
-    one_sided : True when the term's one parameter is physical only when positive (a retardation
-        time): the calibrated screening counts only evidence for a positive value
-        (:mod:`vfcli.diagnose.calibrate`).
+    one_sided : optional (default False): True when the term's one parameter is physical only when
+        positive (a retardation time): the calibrated screening counts only evidence for a positive
+        value (:mod:`vfcli.diagnose.calibrate`).
     """
 
     name: str
     n_params: int
     parameter_names: tuple[str, ...]
     signature: str
-    one_sided: bool
 
     def jacobian(self, baseline: Baseline) -> np.ndarray:
         """(n_motion_rows + n_gap_rows, n_params) d(predicted measurement)/d(theta) at the baseline
