@@ -70,6 +70,34 @@ def test_inertia_column_is_the_density_derivative_of_its_extension_with_a_noisy_
     assert err < 1e-4, err
 
 
+def test_inertia_says_how_far_its_linearisation_reaches_in_density():
+    """The score test sees densities near 0 only: beyond ``(f_1 / f0)^2`` (the folds' lowest mode f_1 below
+    f0) the column does not predict the steady state's change, well inside it it does (harmonic k of f0
+    reaches only ``(f_1 / (k f0))^2``: the load here has harmonics 1 and 2).  The screening line says so,
+    with the reach computed from the lowest mode."""
+    base = pressure_case(12, 0)
+    load = base.problem.response.load_model
+    red = ModalReduction(base.model, load.spatial_loads(base.model), n_modes=8, n_ritz=6)
+
+    class _Reduced(Inertia):
+        def reduction(self, baseline, n_harmonics=6):
+            return red
+
+    inertia = _Reduced(base.model)
+    f1 = float(np.sqrt(red.eigenvalues_.min()) / (2 * np.pi))
+    reach = (f1 / base.f0_hz) ** 2
+    assert abs(inertia.lowest_mode_hz(base) - f1) < 1e-6 * f1
+    words = inertia.evidence(base)
+    assert f"reaches density factors up to {reach:.2g} at f0" in words and "--refit inertia" in words, words
+    column = inertia.displacement_jacobian(base)[..., 0]
+    off = {}
+    for q in (0.02, 1.0 / reach):
+        d = inertia.extension(base, [q * reach])
+        off[q] = np.linalg.norm(d - q * reach * column) / np.linalg.norm(d)
+    print(f"reach {reach:.3g} (f1 = {f1:.1f} Hz); linear prediction off by {off}")
+    assert off[0.02] < 0.1 and off[1.0 / reach] > 0.5, off
+
+
 @pytest.fixture(scope="module")
 def fractions():
     out = {}

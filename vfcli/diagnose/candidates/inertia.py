@@ -9,11 +9,16 @@ density, linear in the loads).  Its derivative at rho = 0 is the column
     dU/drho = Re sum_k (k w0)^2 / c^2  K^-1 M K^-1 L C beta_k e^{i k w0 t}
 
 (L the load model's spatial loads, C its controls, beta_k the harmonics of f0 of its time basis
-fitted over the window): content rising with the square of frequency.  Without f0 (NaN) the column
-falls back to ``-K^-1 M K^-1 L C b''(t)`` by differences of the time basis, which for the pressure
-load differentiates the *recorded* pressure twice at half a frame interval: its sensor noise then
-dominates the column (on a phantom with 4 Pa of pressure noise at 50 kHz the second difference's RMS
-was 23 times the pressure's own at f0), which is why the screening uses the harmonics.
+fitted over the window): content rising with the square of frequency.  That is the column of a load
+model tied in time to a recorded signal (``measured_time_basis``: the pressure load, whose time basis
+holds the measured subglottal pressure): the screening then tests the very model the refit fits.
+Differences of such a time basis differentiate the *recorded* pressure twice at half a frame
+interval, and its sensor noise dominates (on a phantom with 4 Pa of pressure noise at 50 kHz the
+second difference's RMS was 23 times the pressure's own at f0; the column was 3.5 times its own size
+away from the derivative of the steady state, cosine 0.26).  A load model with a free polynomial time
+basis (the force field) keeps the exact time-domain derivative of that load history,
+``-K^-1 M K^-1 L C b''(t)`` (the periodic extension of a polynomial over the window jumps at its
+ends, which is not that load's inertia); so does any load model when f0 is unknown (NaN).
 
 The derivative at rho = 0 says little about the tissue's own density: the folds' lowest mode lies
 near 50 Hz (E = 4.4 kPa, 1070 kg/m^3), so at f0 = 120 Hz the series in rho converges only for
@@ -108,13 +113,14 @@ class Inertia(DisplacementTerm):
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
         """(F + 1, N, 3, 1) dU/drho at rho = 0 (module docstring), mm per unit density factor: the exact
-        derivative of :meth:`extension` when ``baseline.f0_hz`` is known, else from differences of the
-        load's time basis."""
+        derivative of :meth:`extension` for a load tied to a recorded signal when ``baseline.f0_hz`` is
+        known, else from differences of the load's time basis."""
         p = baseline.problem
         load_model = p.response.load_model
         c = load_model.control_matrix(baseline.x)                                  # (S, n_time)
         z = self.mass_responses(baseline)
-        if not (np.isfinite(baseline.f0_hz) and baseline.f0_hz > 0):
+        periodic = np.isfinite(baseline.f0_hz) and baseline.f0_hz > 0
+        if not (periodic and getattr(load_model, "measured_time_basis", False)):
             b2 = time_derivative(load_model.time_basis, p.sim_times, 2, derivative_step(baseline))   # (T, n_time)
             return -np.einsum("ncs,st->tnc", z, c @ b2.T)[..., None]
         t = p.sim_times
@@ -133,6 +139,33 @@ class Inertia(DisplacementTerm):
         p = baseline.problem
         return SteadyStateResponse(p.response, self.reduction(baseline, self.n_harmonics), baseline.f0_hz,
                                    p.sim_times, density=rho, loss=self.loss, n_harmonics=self.n_harmonics)
+
+    def lowest_mode_hz(self, baseline) -> float:
+        """The folds' lowest natural frequency at the model's density (clamped fixture), Hz: from the
+        modal reduction when it is built, else one shift-invert eigenpair per fold."""
+        cached = getattr(self, "_reduced", (None, None))
+        if cached[1] is not None and cached[0][0] is baseline.problem.response:
+            return float(cached[1].fold_frequencies_hz_.min())
+        model = self._model(baseline)
+        return float(min(model.modes(1, fold=k)[0][0] for k in (0, 1)))
+
+    def evidence(self, baseline) -> str:
+        """Plain words: how far the screening's linearisation reaches in density.  The score test looks at
+        densities near 0; the steady state's series in the density converges for harmonic k of f0 up to
+        ``(f_1 / (k f0))^2`` (f_1 the folds' lowest mode), so where f_1 lies below f0 the model's own
+        density (1) is beyond what the test can see and only the refit (``--refit inertia``) fits it
+        (tests/test_candidates.py: the column predicts the change within 7 % at 0.02 (f_1 / f0)^2 and is
+        16 times off at density 1)."""
+        if not (np.isfinite(baseline.f0_hz) and baseline.f0_hz > 0):
+            return "f0 unknown: the density's reach of the test not assessed"
+        f1 = self.lowest_mode_hz(baseline)
+        r = (f1 / baseline.f0_hz) ** 2
+        if r >= 1.0:
+            return (f"the folds' lowest mode ({f1:.0f} Hz) lies above f0 ({baseline.f0_hz:.0f} Hz): the score test's "
+                    f"linearisation reaches density factors up to {r:.2g} at f0 (less at its harmonics)")
+        return (f"the folds' lowest mode ({f1:.0f} Hz) lies below f0 ({baseline.f0_hz:.0f} Hz): the score test's "
+                f"linearisation reaches density factors up to {r:.2g} at f0 (less at its harmonics), so a missing mass "
+                f"near the model's own density (1) is not seen by it; `--refit inertia` fits it")
 
     def reduction(self, baseline, n_harmonics: int = 6) -> ModalReduction:
         """The modal reduction of the baseline's model and load patterns, built once per response,
