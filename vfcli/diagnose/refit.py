@@ -28,7 +28,8 @@ not small: with the tissue's density the steady state differs from the quasi-sta
 its own size, and loads fitted to the quasi-static model are far from the loads of the extended one
 (on an inertia phantom E at the baseline's loads was 5 to 300 times the baseline's at every start
 density, and 0.48 times it at rho = 1 once the loads were refitted with the dynamics).  Its start
-values are each given :data:`START_STEPS` Gauss-Newton steps of the loads under that response.
+values are each given Gauss-Newton steps of the loads under that response until E settles
+(:data:`START_STEPS`, :data:`START_RTOL`).
 For the other candidates the x-columns are those of the baseline response, dU0/dx: the change of D
 with x is left out of the step (D is small next to U0, and the truth remains a fixed point when the
 residual vanishes, since the theta gradient is exact and the x gradient vanishes with the residual).
@@ -60,8 +61,17 @@ from vfcli.diagnose.candidate import Baseline
 FTOL = 1e-6
 #: backtracking halvings of a step before the refit stops
 MAX_HALVINGS = 6
-#: Gauss-Newton steps of the loads at each start value of a candidate with its own response
-START_STEPS = 2
+#: at most this many Gauss-Newton steps of the loads at each start value of a candidate with its own
+#: response, until E decreases by less than START_RTOL (relative) in a step: from loads fitted without the
+#: term E can be 100 times its minimum at that theta (inertia phantom seed 37, rho = 0.5: 12070 -> 155,
+#: 58.6, 28.8, ..., 25.7 in 1, 2, 3, 5 steps; after 2 steps rho = 0.25 looked better, 52.5)
+START_STEPS = 8
+START_RTOL = 1e-2
+#: golden-section steps of the profile of E over a one-parameter theta (the loads refitted at each value)
+#: between the neighbours of the best start value, for a candidate with its own response: E of the model
+#: with mass is rough in the density at fixed loads (resonances cross the harmonics; with the raster
+#: refrozen a Gauss-Newton step from a start value can fail its line search), its profile is not
+REFINE_STEPS = 6
 
 
 @dataclass(frozen=True)
@@ -292,16 +302,19 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
 
 def _best_start(ext: _Extended, st: _State, values) -> _State:
     """The best of ``st`` and the candidate's ``start_values`` (each a theta, the loads given one
-    Gauss-Newton step at that theta, or :data:`START_STEPS` under the candidate's own response): a term
+    Gauss-Newton step at that theta, or steps until E settles under the candidate's own response): a term
     far from linear in theta (a density that puts a harmonic of f0 above a resonance) is not reached
     from theta = 0 by Gauss-Newton steps."""
     best = st
+    profile = {0.0: st} if ext.p == 1 else {}
     for v in values:
         theta = np.asarray(v, dtype=float).reshape(ext.p)
         try:
             trial = ext.state(st.x, theta)
             if ext.has_response:
-                stepped = _load_steps(ext, trial, START_STEPS)
+                stepped = _load_steps(ext, trial, START_STEPS, START_RTOL)
+                if ext.p == 1:
+                    profile[float(theta[0])] = stepped
             else:
                 g_l, qm, *_ = _blocks(_Extended(ext.problem, None, ext.f0_hz, ext.model, ext.keep), trial)
                 # the loads' step at this theta: the baseline's Hessian with the gradient at the extended U
@@ -311,12 +324,48 @@ def _best_start(ext: _Extended, st: _State, values) -> _State:
         for cand in (trial, stepped):
             if cand.terms.total < best.terms.total:
                 best = cand
+    if ext.has_response and ext.p == 1 and len(profile) > 2 and best is not st:
+        best = _refine_profile(ext, profile, best)
     return best
 
 
-def _load_steps(ext: _Extended, st: _State, n_steps: int) -> _State:
-    """``n_steps`` Gauss-Newton steps of the loads alone at the state's theta, under the extended response
-    (exact x-columns), each with a backtracking line search on E."""
+def _refine_profile(ext: _Extended, profile: dict, best: _State) -> _State:
+    """Golden-section search (:data:`REFINE_STEPS` steps) of the profile ``theta -> E`` (the loads refitted
+    by :func:`_load_steps` from the nearest evaluated state's) between the neighbours of ``best`` among
+    the evaluated thetas ``profile`` {theta: state}; the best state seen."""
+    keys = sorted(profile)
+    i = keys.index(min(keys, key=lambda k: abs(k - float(best.theta[0]))))
+    lo, hi = keys[max(i - 1, 0)], keys[min(i + 1, len(keys) - 1)]
+
+    def at(theta: float) -> _State:
+        near = profile[min(profile, key=lambda k: abs(k - theta))]
+        got = _load_steps(ext, ext.state(near.x, np.array([theta])), START_STEPS, START_RTOL)
+        profile[theta] = got
+        return got
+
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    try:
+        fc, fd = at(c), at(d)
+        for _ in range(int(REFINE_STEPS)):
+            if fc.terms.total < fd.terms.total:
+                b, d, fd = d, c, fc
+                c = b - g * (b - a)
+                fc = at(c)
+            else:
+                a, c, fc = c, d, fd
+                d = a + g * (b - a)
+                fd = at(d)
+    except ValueError:
+        pass
+    return min(profile.values(), key=lambda s_: s_.terms.total)
+
+
+def _load_steps(ext: _Extended, st: _State, n_steps: int, rtol: float = 0.0) -> _State:
+    """Up to ``n_steps`` Gauss-Newton steps of the loads alone at the state's theta, under the extended
+    response (exact x-columns), each with a backtracking line search on E; stops when a step lowers E by
+    less than ``rtol`` (relative)."""
     from vfcli.diagnose.candidates.blocks import _grad_disp
     from vfcli.inverse.linearization import gauss_newton_model
 
@@ -334,7 +383,10 @@ def _load_steps(ext: _Extended, st: _State, n_steps: int) -> _State:
             trial = None
         if trial is None:
             break
+        rel = (st.terms.total - trial.terms.total) / max(abs(st.terms.total), 1e-300)
         st = trial
+        if rel < rtol:
+            break
     return st
 
 
