@@ -26,8 +26,8 @@ A candidate that states its extended model as a response (``candidate.response(b
 x-columns, the load block and the adjoint are those of U(., theta), exact.  This matters where D is
 not small: with the tissue's density the steady state differs from the quasi-static motion by about
 its own size, and loads fitted to the quasi-static model are far from the loads of the extended one
-(on an inertia phantom E at the baseline's loads was 5 to 300 times the baseline's at every start
-density, and 0.48 times it at rho = 1 once the loads were refitted with the dynamics).  Its start
+(on an inertia phantom E at the baseline's loads was 5 to 23 times the baseline's at the start
+densities, and 0.48 times it at rho = 1 once the loads were refitted with the dynamics).  Its start
 values are each given Gauss-Newton steps of the loads under that response until E settles
 (:data:`START_STEPS`, :data:`START_RTOL`).
 For the other candidates the x-columns are those of the baseline response, dU0/dx: the change of D
