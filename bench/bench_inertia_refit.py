@@ -92,7 +92,7 @@ def main() -> None:
             b, e = (sum(v ** 2 for v in h[k]) / len(h[k]) for k in ("baseline", "extended"))
             print(f"  held-out ({h['kind']}): {b ** 0.5:.1f} -> {e ** 0.5:.1f} mm/s, reduction {h['reduction']:+.3f}, "
                   f"{'beyond' if h['beyond_spread'] else 'not beyond'} the spread")
-        print("  decision: " + next((ln for ln in lines if ln.startswith(("decision", "no missing", "missing"))), "-"))
+        print("  " + next((ln for ln in lines if ln.startswith(("decision", "no missing", "missing"))), "decision: -"))
 
 
 if __name__ == "__main__":
