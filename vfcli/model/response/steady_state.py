@@ -33,7 +33,11 @@ def change_transfer(reduction, omega: float, density: float, retardation_s: floa
     unit load pattern, from the modal reduction."""
     d = (reduction.modal_factors(omega, density, retardation_s, loss)
          - reduction.modal_factors(omega, 0.0, 0.0, loss))
-    return np.einsum("jnc,j,js->ncs", reduction.vertex_modes_, d, reduction.modal_loads_)
+    modes = reduction.vertex_modes_                                  # (r, N, 3) real
+    flat = modes.reshape(len(modes), -1).T                           # (3N, r), real products (no complex copy)
+    w = d[:, None] * reduction.modal_loads_                          # (r, S) complex
+    out = flat @ w.real + 1j * (flat @ w.imag)
+    return out.reshape(modes.shape[1], 3, -1)
 
 
 class SteadyStateResponse:
