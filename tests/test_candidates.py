@@ -2,7 +2,9 @@
 
 - the inertia and damping columns are the derivatives (density, retardation time) of the periodic
   steady state of the modal reduction, an independent computation (harmonics of f0 in the
-  frequency domain against time derivatives of the load);
+  frequency domain against time derivatives of the load); inertia's also with sensor noise on the
+  recorded pressure (the refit's own extension), and it says how far in density its linearisation
+  reaches (the folds' lowest mode against f0);
 - identifiability (the reference note "What superior-surface data can and cannot reveal"): under
   the pressure load model a stiffness asymmetry keeps exactly its antisymmetric half (the shared
   load makes only mirror-symmetric motion) and inertia and damping keep a residual, while free
