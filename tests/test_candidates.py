@@ -175,3 +175,19 @@ def test_gauss_newton_screening_raises_no_alarm_on_noise_only_and_agrees_on_iden
             continue
         dense = fractions["pressure"][c.name]
         assert abs(t.identifiability.residual_fraction / dense - 1) < 0.05, (c.name, t.identifiability, dense)
+
+
+def test_damping_column_is_the_retardation_derivative_of_its_extension_with_a_noisy_recorded_pressure():
+    """As inertia's: with sensor noise on the recorded pressure, damping's column is the derivative of
+    its own extension at tau = 0 (a first difference of the response would differentiate the noise)."""
+    base = pressure_case(12, 4, pressure_noise_pa=4.0)
+    load = base.problem.response.load_model
+    red = ModalReduction(base.model, load.spatial_loads(base.model), n_modes=4, n_ritz=4)
+    damping = KelvinVoigtDamping(base.model)
+    damping._modal.reduction = lambda baseline, n_harmonics=6: red
+    delta = 1e-4                                       # ms
+    fd = (damping.extension(base, [delta]) - damping.extension(base, [-delta])) / (2 * delta)
+    column = damping.displacement_jacobian(base)[..., 0]
+    err = np.linalg.norm(column - fd) / np.linalg.norm(fd)
+    print(f"damping column against the derivative of its extension: {err:.2e} relative")
+    assert err < 1e-4, err
