@@ -56,6 +56,8 @@ SETTINGS = ObjectiveSettings(motion_weight=1e-4, gap_weight=1.0, gap_length_mm=0
 class FreeTimePressure(PressureLoad):
     """The pressure shapes with a free Bernstein time profile (no column tied to the recorded pressure)."""
 
+    measured_time_basis = False          # a free polynomial time basis: the inertia column by differences
+
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.n_time = self.time_degree + 1

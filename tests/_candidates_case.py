@@ -42,13 +42,16 @@ def pressure_controls(load: PressureLoad) -> np.ndarray:
 
 
 @lru_cache(maxsize=4)
-def pressure_case(n_frames: int = 12, time_degree: int = 4) -> Baseline:
+def pressure_case(n_frames: int = 12, time_degree: int = 4, pressure_noise_pa: float = 0.0) -> Baseline:
+    """pressure_noise_pa: white noise (Pa RMS, seed 0) on the recorded pressure, sampled at 100 kHz (the
+    loads then carry it; the measurement is their own forward simulation)."""
     model = elastic_model()
     fps = n_frames * F0_HZ
     times = 0.002 + np.arange(n_frames) / fps
     sim = np.append(times, times[-1] + 1.0 / fps)
     tp = np.arange(0.0, 0.02, 1e-5)
-    load = PressureLoad(tp, subglottal_pressure(tp), (sim[0], sim[-1]), time_degree=time_degree)
+    ps = subglottal_pressure(tp) + np.random.default_rng(0).normal(0.0, pressure_noise_pa, tp.shape)
+    load = PressureLoad(tp, ps, (sim[0], sim[-1]), time_degree=time_degree)
     response = QuasiStaticResponse(model, load)
     x = pressure_controls(load)
     meas = synthesize_measurement(model.mesh, CAMERA, response, times, x, SETTINGS)

@@ -20,9 +20,19 @@ Gauss-Newton (:func:`joint_fit`), each iteration at (x, theta):
 * the joint step from the Schur complement ``S = H_cc - H_Lc^T H_LL^-1 H_Lc`` and a backtracking
   line search on E.
 
-The x-columns are those of the baseline response, dU0/dx: the change of D with x is left out of
-the step (D is small next to U0, and the truth remains a fixed point when the residual vanishes,
-since the theta gradient is exact and the x gradient vanishes with the residual).
+A candidate that states its extended model as a response (``candidate.response(baseline, theta)``, a
+:class:`vfcli.model.response.base.Response` linear in x at fixed theta: inertia's steady state,
+:class:`vfcli.model.response.steady_state.SteadyStateResponse`) is fitted with that response: the
+x-columns, the load block and the adjoint are those of U(., theta), exact.  This matters where D is
+not small: with the tissue's density the steady state differs from the quasi-static motion by about
+its own size, and loads fitted to the quasi-static model are far from the loads of the extended one
+(on an inertia phantom E at the baseline's loads was 5 to 23 times the baseline's at the start
+densities, and 0.48 times it at rho = 1 once the loads were refitted with the dynamics).  Its start
+values are each given Gauss-Newton steps of the loads under that response until E settles
+(:data:`START_STEPS`, :data:`START_RTOL`).
+For the other candidates the x-columns are those of the baseline response, dU0/dx: the change of D
+with x is left out of the step (D is small next to U0, and the truth remains a fixed point when the
+residual vanishes, since the theta gradient is exact and the x gradient vanishes with the residual).
 
 Stated uncertainty: the **sandwich** over frames, as optimize states its own
 (:func:`sandwich_theta`, :mod:`vfcli.inverse.sandwich`): ``Cov(theta) = S^-1 V S^-1`` with V the
@@ -38,6 +48,7 @@ instruments (in-plane camera motion only).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from dataclasses import dataclass
@@ -50,6 +61,17 @@ from vfcli.diagnose.candidate import Baseline
 FTOL = 1e-6
 #: backtracking halvings of a step before the refit stops
 MAX_HALVINGS = 6
+#: at most this many Gauss-Newton steps of the loads at each start value of a candidate with its own
+#: response, until E decreases by less than START_RTOL (relative) in a step: from loads fitted without the
+#: term E can be 100 times its minimum at that theta (inertia phantom seed 37, rho = 0.5: 12070 -> 155,
+#: 58.6, 28.8, ..., 25.7 in 1, 2, 3, 5 steps; after 2 steps rho = 0.25 looked better, 52.5)
+START_STEPS = 8
+START_RTOL = 1e-2
+#: golden-section steps of the profile of E over a one-parameter theta (the loads refitted at each value)
+#: between the neighbours of the best start value, for a candidate with its own response: E of the model
+#: with mass is rough in the density at fixed loads (resonances cross the harmonics; with the raster
+#: refrozen a Gauss-Newton step from a start value can fail its line search), its profile is not
+REFINE_STEPS = 6
 
 
 @dataclass(frozen=True)
@@ -123,16 +145,34 @@ class _Extended:
     def __init__(self, problem, candidate, f0_hz: float, model, keep):
         self.problem, self.candidate, self.f0_hz, self.model, self.keep = problem, candidate, f0_hz, model, keep
         self.p = int(candidate.n_params) if candidate is not None else 0
+        #: the candidate states its extended model as a response (linear in x at fixed theta)
+        self.has_response = candidate is not None and callable(getattr(candidate, "response", None))
+        self._problems: dict = {}
 
-    def baseline(self, x, disp, frames) -> Baseline:
-        b = Baseline(self.problem, x, disp, frames, self.f0_hz)
+    def baseline(self, x, disp, frames, problem=None) -> Baseline:
+        b = Baseline(self.problem if problem is None else problem, x, disp, frames, self.f0_hz)
         if self.model is not None:
             b.model = self.model
         return b
 
+    def problem_at(self, theta: np.ndarray):
+        """The problem whose response is U(., theta) (the candidate's own response), or the baseline's."""
+        if not self.has_response:
+            return self.problem
+        key = tuple(np.asarray(theta, dtype=float).ravel())
+        if key not in self._problems:
+            if len(self._problems) > 8:
+                self._problems.clear()
+            other = copy.copy(self.problem)
+            other.response = self.candidate.response(self.baseline(None, None, []), np.asarray(theta, dtype=float))
+            self._problems[key] = other
+        return self._problems[key]
+
     def change(self, x: np.ndarray, u0: np.ndarray, theta: np.ndarray) -> np.ndarray:
         if self.p == 0:
             return np.zeros_like(u0)
+        if self.has_response:
+            return self.problem_at(theta).response.change(x, self.problem.sim_times)
         return self.candidate.extension(self.baseline(x, u0, []), theta)
 
     def state(self, x: np.ndarray, theta: np.ndarray) -> _State:
@@ -158,14 +198,14 @@ def _blocks(ext: _Extended, st: _State):
     from vfcli.diagnose.candidates.blocks import _grad_disp, candidate_blocks
     from vfcli.inverse.linearization import gauss_newton_model
 
-    p = ext.problem
+    p = ext.problem_at(st.theta)                  # the extended response's x-columns when it states one
     gd, gx = _grad_disp(p, st.x, st.disp, st.frames)
     g_l = p.response.adjoint(gd, p.sim_times, st.x) + gx
     model = gauss_newton_model(p, st.x, st.frames, st.disp)
     if ext.p == 0:
         return g_l, model, np.zeros(0), np.zeros((p.n_params, 0)), np.zeros((0, 0)), None
     dudp = ext.columns(st)
-    g_c, h_lc, h_cc = candidate_blocks(ext.baseline(st.x, st.disp, st.frames), dudp)
+    g_c, h_lc, h_cc = candidate_blocks(ext.baseline(st.x, st.disp, st.frames, p), dudp)
     return g_l, model, g_c, h_lc, h_cc, dudp
 
 
@@ -262,22 +302,92 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
 
 def _best_start(ext: _Extended, st: _State, values) -> _State:
     """The best of ``st`` and the candidate's ``start_values`` (each a theta, the loads given one
-    Gauss-Newton step at that theta): a term far from linear in theta (a density that puts a harmonic
-    of f0 above a resonance) is not reached from theta = 0 by Gauss-Newton steps."""
+    Gauss-Newton step at that theta, or steps until E settles under the candidate's own response): a term
+    far from linear in theta (a density that puts a harmonic of f0 above a resonance) is not reached
+    from theta = 0 by Gauss-Newton steps."""
     best = st
+    profile = {0.0: st} if ext.p == 1 else {}
     for v in values:
         theta = np.asarray(v, dtype=float).reshape(ext.p)
         try:
             trial = ext.state(st.x, theta)
-            g_l, qm, *_ = _blocks(_Extended(ext.problem, None, ext.f0_hz, ext.model, ext.keep), trial)
-            # the loads' step at this theta: the baseline's Hessian with the gradient at the extended U
-            stepped = ext.state(st.x - qm.hessian.solve(g_l), theta)
+            if ext.has_response:
+                stepped = _load_steps(ext, trial, START_STEPS, START_RTOL)
+                if ext.p == 1:
+                    profile[float(theta[0])] = stepped
+            else:
+                g_l, qm, *_ = _blocks(_Extended(ext.problem, None, ext.f0_hz, ext.model, ext.keep), trial)
+                # the loads' step at this theta: the baseline's Hessian with the gradient at the extended U
+                stepped = ext.state(st.x - qm.hessian.solve(g_l), theta)
         except ValueError:
             continue
         for cand in (trial, stepped):
             if cand.terms.total < best.terms.total:
                 best = cand
+    if ext.has_response and ext.p == 1 and len(profile) > 2 and best is not st:
+        best = _refine_profile(ext, profile, best)
     return best
+
+
+def _refine_profile(ext: _Extended, profile: dict, best: _State) -> _State:
+    """Golden-section search (:data:`REFINE_STEPS` steps) of the profile ``theta -> E`` (the loads refitted
+    by :func:`_load_steps` from the nearest evaluated state's) between the neighbours of ``best`` among
+    the evaluated thetas ``profile`` {theta: state}; the best state seen."""
+    keys = sorted(profile)
+    i = keys.index(min(keys, key=lambda k: abs(k - float(best.theta[0]))))
+    lo, hi = keys[max(i - 1, 0)], keys[min(i + 1, len(keys) - 1)]
+
+    def at(theta: float) -> _State:
+        near = profile[min(profile, key=lambda k: abs(k - theta))]
+        got = _load_steps(ext, ext.state(near.x, np.array([theta])), START_STEPS, START_RTOL)
+        profile[theta] = got
+        return got
+
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    try:
+        fc, fd = at(c), at(d)
+        for _ in range(int(REFINE_STEPS)):
+            if fc.terms.total < fd.terms.total:
+                b, d, fd = d, c, fc
+                c = b - g * (b - a)
+                fc = at(c)
+            else:
+                a, c, fc = c, d, fd
+                d = a + g * (b - a)
+                fd = at(d)
+    except ValueError:
+        pass
+    return min(profile.values(), key=lambda s_: s_.terms.total)
+
+
+def _load_steps(ext: _Extended, st: _State, n_steps: int, rtol: float = 0.0) -> _State:
+    """Up to ``n_steps`` Gauss-Newton steps of the loads alone at the state's theta, under the extended
+    response (exact x-columns), each with a backtracking line search on E; stops when a step lowers E by
+    less than ``rtol`` (relative)."""
+    from vfcli.diagnose.candidates.blocks import _grad_disp
+    from vfcli.inverse.linearization import gauss_newton_model
+
+    p = ext.problem_at(st.theta)
+    for _ in range(int(n_steps)):
+        gd, gx = _grad_disp(p, st.x, st.disp, st.frames)
+        g_l = p.response.adjoint(gd, p.sim_times, st.x) + gx
+        dx = -gauss_newton_model(p, st.x, st.frames, st.disp).hessian.solve(g_l)
+        alpha, trial = 1.0, None
+        for _ in range(MAX_HALVINGS + 1):
+            trial = ext.state(st.x + alpha * dx, st.theta)
+            if trial.terms.total < st.terms.total:
+                break
+            alpha *= 0.5
+            trial = None
+        if trial is None:
+            break
+        rel = (st.terms.total - trial.terms.total) / max(abs(st.terms.total), 1e-300)
+        st = trial
+        if rel < rtol:
+            break
+    return st
 
 
 def sandwich_theta(ext: _Extended, st: _State, blocks) -> tuple[np.ndarray, int]:

@@ -231,6 +231,9 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
     if not cands:
         status = "not built yet"
         return Diagnosis(loc, [], status, summary_lines(loc.located) + [f"candidate screening: {status}"])
+    if not np.isfinite(baseline.f0_hz):
+        # the window's f0 from the gap area's cycle: the steady-state candidates (inertia) work per harmonic of it
+        baseline.f0_hz = float(loc.located.f0_hz)
     tests, columns, model = screen_run_columns(cands, baseline)
     results = screenings(cands, tests, baseline)
     status = f"{len(results)} candidates screened"

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from vfcli.diagnose.candidates.base import DisplacementTerm, derivative_step, time_derivative
+from vfcli.model.response.modal import harmonic_fit
 
 #: parameter unit: the column is per millisecond of retardation time
 MS = 1e-3
@@ -38,7 +39,21 @@ class KelvinVoigtDamping(DisplacementTerm):
         self._modal = Inertia(model)                 # its modal reduction and steady state, shared code
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
+        """(F + 1, N, 3, 1) dU/dtau at tau = 0, mm per ms: ``-U0'(t)``.  For a load tied to a recorded
+        signal (``measured_time_basis``, the pressure load) and a known f0 the velocity of the harmonics
+        of f0 of the load over the window (the derivative of :meth:`extension` at 0: differences would
+        differentiate the recorded pressure's sensor noise, as for :class:`Inertia`'s column)."""
         p = baseline.problem
+        load_model = getattr(p.response, "load_model", None)
+        if (np.isfinite(baseline.f0_hz) and baseline.f0_hz > 0 and getattr(load_model, "measured_time_basis", False)
+                and hasattr(p.response, "basis_")):
+            t = p.sim_times
+            beta = harmonic_fit(load_model.time_basis(t), t, baseline.f0_hz, self._modal.n_harmonics)
+            w0 = 2 * np.pi * baseline.f0_hz
+            k = np.arange(beta.shape[0])
+            rate = np.real((np.exp(1j * w0 * np.outer(t, k)) * (1j * k * w0)) @ (beta @ load_model.control_matrix(baseline.x).T))
+            vel = np.einsum("ncs,ts->tnc", p.response.basis_, rate)              # (T, N, 3) mm/s
+            return (-MS * vel)[..., None]
         vel = time_derivative(lambda t: p.response.displacements(baseline.x, t), p.sim_times, 1,
                               derivative_step(baseline))
         return (-MS * vel)[..., None]

@@ -74,6 +74,11 @@ class PressureLoad(LoadModel):
     inferior_linear_x : add a linear variation along x on the inferior surface.
     """
 
+    #: the time basis holds a recorded signal (the subglottal pressure, with its sensor noise): a periodic
+    #: measurement that differences must not differentiate (vfcli.diagnose.candidates.inertia uses its
+    #: harmonics of f0 instead)
+    measured_time_basis = True
+
     def __init__(self, pressure_time: np.ndarray, pressure_pa: np.ndarray, t_range: tuple[float, float],
                  time_degree: int = 4, medial_z: int = 3, medial_x: int = 2, inferior_linear_x: bool = False) -> None:
         t = np.asarray(pressure_time, dtype=float).ravel()
