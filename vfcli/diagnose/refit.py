@@ -366,14 +366,10 @@ def _load_steps(ext: _Extended, st: _State, n_steps: int, rtol: float = 0.0) -> 
     """Up to ``n_steps`` Gauss-Newton steps of the loads alone at the state's theta, under the extended
     response (exact x-columns), each with a backtracking line search on E; stops when a step lowers E by
     less than ``rtol`` (relative)."""
-    from vfcli.diagnose.candidates.blocks import _grad_disp
-    from vfcli.inverse.linearization import gauss_newton_model
-
-    p = ext.problem_at(st.theta)
+    loads_only = _Extended(ext.problem_at(st.theta), None, ext.f0_hz, ext.model, ext.keep)
     for _ in range(int(n_steps)):
-        gd, gx = _grad_disp(p, st.x, st.disp, st.frames)
-        g_l = p.response.adjoint(gd, p.sim_times, st.x) + gx
-        dx = -gauss_newton_model(p, st.x, st.frames, st.disp).hessian.solve(g_l)
+        g_l, qm, *_ = _blocks(loads_only, st)
+        dx = -qm.hessian.solve(g_l)
         alpha, trial = 1.0, None
         for _ in range(MAX_HALVINGS + 1):
             trial = ext.state(st.x + alpha * dx, st.theta)
