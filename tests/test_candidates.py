@@ -90,7 +90,7 @@ def test_inertia_says_how_far_its_linearisation_reaches_in_density():
     reach = (f1 / base.f0_hz) ** 2
     assert abs(inertia.lowest_mode_hz(base) - f1) < 1e-6 * f1
     words = inertia.evidence(base)
-    assert f"reaches density factors up to {reach:.2g} at f0" in words and "--refit inertia" in words, words
+    assert f"reaches density factors up to {reach:.2g} at f0" in words and "its profile (the loads refitted" in words, words
     column = inertia.displacement_jacobian(base)[..., 0]
     off = {}
     for q in (0.02, 1.0 / reach):

@@ -44,3 +44,34 @@ def test_a_confirmed_lead_is_a_finding_and_a_failed_confirmation_is_not():
 def test_alpha_out_of_range_is_a_bug():
     with pytest.raises(ValueError):
         decide(NAMES, np.zeros(4), [True] * 4, 199, alpha=1.5)
+
+
+def test_a_profile_lead_is_a_finding_only_with_its_confirmation_and_never_beside_a_calibrated_one():
+    p = np.array([0.6, 0.9, 0.2, 1.0])
+    # no calibrated lead; inertia's profile beats the baseline: refitted and confirmed -> a finding
+    d = decide(NAMES, p, [False, True, True, True], 199, confirmations={"inertia": _Confirmation("inertia", True)},
+               profile_leads=["inertia"])
+    assert d.leads == () and d.profile_leads == ("inertia",) and d.findings == ("inertia",)
+    assert d.verdict == "missing physics: inertia"
+    assert any(line.startswith("inertia: no evidence in the calibrated screening") and "a profile lead" in line
+               and "missing physics found" in line for line in d.lines)
+    # its refit does not predict held-out data better: an unconfirmed lead, nothing found
+    d = decide(NAMES, p, [True] * 4, 199, confirmations={"inertia": _Confirmation("inertia", False)},
+               profile_leads=["inertia"])
+    assert d.findings == () and d.lines[-1] == "no missing physics detected (unconfirmed lead: inertia)"
+    # a calibrated lead that is also a profile lead stays a calibrated lead
+    d = decide(NAMES, np.array([0.005, 0.9, 0.2, 1.0]), [True] * 4, 199, profile_leads=["inertia"])
+    assert d.leads == ("inertia",) and d.profile_leads == ()
+
+
+def test_auto_refits_the_calibrated_lead_first_and_a_profile_lead_only_without_one():
+    from vfcli.diagnose.candidate import Screening
+    from vfcli.diagnose.candidates import CANDIDATES
+    from vfcli.diagnose.confirm import choose
+
+    cands = list(CANDIDATES)
+    quiet = [Screening(c.name, 1.0, 0.5, True, p_family=0.8) for c in cands]
+    assert choose(quiet, cands, "auto", profile_leads=("inertia",)).name == "inertia"
+    assert choose(quiet, cands, "auto") is None and choose(quiet, cands, "none", profile_leads=("inertia",)) is None
+    damped = [Screening(c.name, 1.0, 0.5, True, p_family=0.01 if c.name == "damping" else 0.8) for c in cands]
+    assert choose(damped, cands, "auto", profile_leads=("inertia",)).name == "damping"

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vfcli.diagnose.candidate import Baseline
-from vfcli.diagnose.confirmation import Confirmation
+from vfcli.diagnose.confirmation import Confirmation, heldout_sd
 from vfcli.diagnose.heldout import across_instruments, cycle_groups, leave_cycles_out
 from vfcli.diagnose.refit import RefitResult, refit, with_displacements
 
@@ -37,12 +37,13 @@ class Confirmed:
     extended: Baseline
 
 
-def choose(screening, candidates, mode: str, alpha: float = 0.05):
+def choose(screening, candidates, mode: str, alpha: float = 0.05, profile_leads=()):
     """The candidate to refit, or None.
 
     mode : "none" (no refit), "auto" (the calibrated lead: the identifiable candidate with the smallest
-        bootstrap-calibrated family-wise p-value ``p_family`` when it is at most ``alpha``; no refit when
-        the screening could not be calibrated), or a candidate's name.
+        bootstrap-calibrated family-wise p-value ``p_family`` when it is at most ``alpha``; without one, the
+        first of ``profile_leads`` (:mod:`vfcli.diagnose.profile`); no refit when the screening could not be
+        calibrated), or a candidate's name.
 
     Raises
     ------
@@ -58,7 +59,7 @@ def choose(screening, candidates, mode: str, alpha: float = 0.05):
         return by_name[mode]
     leads = [s for s in screening if s.identifiable and np.isfinite(s.p_family) and s.p_family <= alpha]
     if not leads:
-        return None
+        return next((by_name[n] for n in profile_leads if n in by_name), None)
     return by_name.get(min(leads, key=lambda s: (s.p_family, s.p_value)).name)
 
 
@@ -91,8 +92,8 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     log.info("refit of %s: %.0f s (%d iterations); held out cycles %.0f s, instruments %.0f s", candidate.name,
              t1 - t0, len(result.history["iteration"]) - 1, t2 - t1, t3 - t2)
     held = tuple(h for h in (cyc, inst) if h is not None)
-    conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, result.sd,
-                        result.uncertainty, held)
+    sd, name, dof, _ = heldout_sd(result.theta, result.sd, held)
+    conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof)
     ext = extended_baseline(baseline, result)
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
 

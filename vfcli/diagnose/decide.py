@@ -11,6 +11,12 @@ the answer is then still "no missing physics detected", with the unconfirmed lea
 
 The family-wise false-alarm rate of the leads is alpha (0.05) by construction of the calibration;
 requiring the confirmation as well can only lower the rate of false findings.
+
+A **profile lead** (:mod:`vfcli.diagnose.profile`: a candidate the score test cannot reach, whose fit with
+the loads refitted at one of its start values beats the baseline's) is outside that calibration.  It
+becomes a finding on the same condition, its confirmation refit predicting held-out data better beyond
+the spread; the rate of false findings is then at most alpha plus that of a profile lead passing its
+held-out comparisons on a recording without the term.
 """
 from __future__ import annotations
 
@@ -28,7 +34,7 @@ class Decision:
     """names : the candidates, in screening order.  p_family : (C,) calibrated family-wise p-values.
     leads : names of the calibrated leads (smallest p first).  findings : leads confirmed by refit.
     alpha : the family-wise false-alarm rate.  n_replicates : the bootstrap's replicates.
-    lines : the plain-words lines."""
+    lines : the plain-words lines.  profile_leads : names of the profile leads that are not calibrated leads."""
 
     names: tuple[str, ...]
     p_family: np.ndarray
@@ -37,6 +43,7 @@ class Decision:
     alpha: float
     n_replicates: int
     lines: list[str] = field(default_factory=list)
+    profile_leads: tuple[str, ...] = ()
 
     @property
     def verdict(self) -> str:
@@ -50,12 +57,14 @@ def _p(p: float, n_replicates: int) -> str:
 
 
 def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bool], n_replicates: int,
-           alpha: float = FAMILY_ALPHA, confirmations: Mapping[str, Any] | None = None) -> Decision:
+           alpha: float = FAMILY_ALPHA, confirmations: Mapping[str, Any] | None = None,
+           profile_leads: Sequence[str] = ()) -> Decision:
     """Leads and findings (module docstring).
 
     names : (C,) candidate names.  p_family : (C,) calibrated family-wise p-values.
     identifiable : (C,) whether the loads cannot absorb each.  n_replicates : B of the bootstrap.
     confirmations : candidate name -> its confirmation refit (an object with ``improves``), when one was made.
+    profile_leads : names of the candidates whose profile beats the baseline (:mod:`vfcli.diagnose.profile`).
     """
     if not 0 < alpha < 1:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
@@ -63,15 +72,23 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
     confirmations = dict(confirmations or {})
     order = np.argsort(p, kind="stable")
     leads = tuple(names[i] for i in order if identifiable[i] and p[i] <= alpha)
-    findings = tuple(n for n in leads if n in confirmations and bool(getattr(confirmations[n], "improves", False)))
+    profiled = tuple(n for n in profile_leads if n in names and n not in leads)
+    findings = tuple(n for n in leads + profiled
+                     if n in confirmations and bool(getattr(confirmations[n], "improves", False)))
     head = (f"decision: family-wise false-alarm rate {alpha:g} over {len(names)} candidates, calibrated by "
             f"{n_replicates} bootstrap replicates (noise resampled in whole cycles, periodic model error included)")
     lines = [head]
     for i in order:
         n = names[i]
-        if not identifiable[i]:
+        if not identifiable[i] and n not in profiled:
             continue
-        if n in findings:
+        if n in profiled:
+            why = ("its refit predicts held-out data better than the baseline beyond the spread: missing physics found"
+                   if n in findings else "its refit does not predict held-out data better beyond the spread"
+                   if n in confirmations else "not confirmed: no held-out refit")
+            lines.append(f"{n}: no evidence in the calibrated screening (family-wise {_p(p[i], n_replicates)}), "
+                         f"a profile lead: {why}")
+        elif n in findings:
             lines.append(f"{n}: missing physics found (calibrated family-wise {_p(p[i], n_replicates)}; its refit "
                          "predicts held-out data better than the baseline beyond the spread)")
         elif n in leads:
@@ -81,9 +98,10 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
         else:
             lines.append(f"{n}: no evidence beyond noise and model error (calibrated family-wise "
                          f"{_p(p[i], n_replicates)})")
-    d = Decision(tuple(names), p, leads, findings, float(alpha), int(n_replicates))
+    d = Decision(tuple(names), p, leads, findings, float(alpha), int(n_replicates), profile_leads=profiled)
     tail = d.verdict
-    if not findings and leads:
-        tail += f" (unconfirmed lead{'s' if len(leads) > 1 else ''}: {', '.join(leads)})"
+    open_leads = [n for n in leads + profiled if n not in findings]
+    if not findings and open_leads:
+        tail += f" (unconfirmed lead{'s' if len(open_leads) > 1 else ''}: {', '.join(open_leads)})"
     lines.append(tail)
-    return Decision(d.names, d.p_family, d.leads, d.findings, d.alpha, d.n_replicates, lines)
+    return Decision(d.names, d.p_family, d.leads, d.findings, d.alpha, d.n_replicates, lines, profiled)

@@ -89,7 +89,7 @@ def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndar
     if len(ids) < 2:
         return None
     model = getattr(baseline, "model", None)
-    base_err, ext_err = [], []
+    base_err, ext_err, thetas = [], [], []
     for g in ids:
         held = np.flatnonzero(groups == g)
         keep = np.ones(len(groups), bool)
@@ -100,7 +100,8 @@ def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndar
                       max_iterations=max_iterations, model=model, stated=False)
         base_err.append(prediction_error(baseline, b.displacements, held))
         ext_err.append(prediction_error(baseline, e.displacements, held))
-    return HeldOutError("cycles", "mm/s", np.array(base_err), np.array(ext_err))
+        thetas.append(e.theta)
+    return HeldOutError("cycles", "mm/s", np.array(base_err), np.array(ext_err), np.array(thetas, float))
 
 
 def across_instruments(baseline, candidate, extended: RefitResult, groups: np.ndarray,
@@ -121,4 +122,5 @@ def across_instruments(baseline, candidate, extended: RefitResult, groups: np.nd
                   max_iterations=max_iterations, model=model, stated=False)
     base_err = [prediction_error(baseline, b.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
     ext_err = [prediction_error(baseline, e.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
-    return HeldOutError("instruments", "mm/s", np.array(base_err), np.array(ext_err))
+    return HeldOutError("instruments", "mm/s", np.array(base_err), np.array(ext_err),
+                        np.asarray(e.theta, float)[None])

@@ -443,6 +443,33 @@ def with_displacements(problem, disp: np.ndarray):
     return other
 
 
+def load_profile(baseline: Baseline, candidate, thetas, steps: int = START_STEPS) -> tuple[float, np.ndarray]:
+    """E of the baseline and of the extended model at each theta with the loads refitted, from the baseline's fit.
+
+    Both get the same treatment: up to ``steps`` Gauss-Newton steps of the loads alone (:func:`_load_steps`,
+    stopping when a step gains less than :data:`START_RTOL`), under the baseline's response at theta = 0 and
+    under the candidate's own response (``candidate.response``) at each theta.  The loads fitted without the
+    term are far from those of a model with it (inertia at the tissue's density), so E at fixed loads says
+    nothing; refitted, the profile says whether some theta fits better than none.
+
+    Returns
+    -------
+    (E0, (k,) E(theta)), E as the objective (:func:`vfcli.inverse.problem.energy`); E(theta) is inf where the
+    extended model could not be built or stepped (a ValueError of the candidate).
+    """
+    ext = _Extended(baseline.problem, candidate, baseline.f0_hz, getattr(baseline, "model", None), None)
+    x = np.asarray(baseline.x, dtype=float)
+    e0 = _load_steps(ext, ext.state(x, np.zeros(ext.p)), steps, START_RTOL).terms.total
+    out = []
+    for v in thetas:
+        try:
+            st = _load_steps(ext, ext.state(x, np.asarray(v, dtype=float).reshape(ext.p)), steps, START_RTOL)
+            out.append(st.terms.total)
+        except ValueError:
+            out.append(np.inf)
+    return float(e0), np.asarray(out, dtype=float)
+
+
 def refit(baseline: Baseline, candidate, keep: np.ndarray | None = None, max_iterations: int = 8,
           problem=None) -> RefitResult:
     """Refit ``baseline`` extended by ``candidate`` from its fit (theta = 0), on the frames ``keep``.

@@ -19,6 +19,7 @@ from vfcli.camera.pose import model_axes_velocity
 from vfcli.diagnose.calibrate_run import calibrate_run
 from vfcli.diagnose.candidate import available_candidates, screenings
 from vfcli.diagnose.candidates.blocks import screen_run_columns
+from vfcli.diagnose.profile import profile_screens
 from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles, glottal_cycles
 from vfcli.diagnose.locate import Located, decompose, rank_hotspots
 from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
@@ -184,6 +185,7 @@ class Diagnosis:
     lines: list[str]
     calibration: Any = None
     decision: Any = None
+    profiles: tuple = ()
 
     @property
     def located(self) -> Located:
@@ -205,6 +207,7 @@ class Diagnosis:
                 "above_noise": len(loc.significant), "alpha": loc.alpha,
                 "smallest_p_adjusted": float(f"{loc.hotspots[0].p_adjusted:.4g}") if loc.hotspots else None,
                 "screening": self.screening_status, "lines": self.lines, "hotspots": top,
+                **({"profiles": [p.as_dict() for p in self.profiles]} if self.profiles else {}),
                 **({"candidates": calibration_summary(self)} if self.calibration is not None else {})}
 
 
@@ -221,9 +224,10 @@ def calibration_summary(d: Diagnosis) -> dict[str, Any]:
 
 
 def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None, map: Callable = builtins.map,
-                 confirmations: dict | None = None) -> Diagnosis:
+                 confirmations: dict | None = None, profile: bool = True) -> Diagnosis:
     """Locate the baseline's residual (:func:`locate_run`), screen the candidate physics terms, calibrate
-    their null distribution by bootstrap (:mod:`vfcli.diagnose.calibrate_run`) and decide
+    their null distribution by bootstrap (:mod:`vfcli.diagnose.calibrate_run`), profile the candidates the
+    score test cannot reach (:mod:`vfcli.diagnose.profile`; ``profile=False`` skips it) and decide
     (:mod:`vfcli.diagnose.decide`).  map : applied to the bootstrap's chunks of replicates."""
     settings = settings or LocateSettings()
     loc = locate_run(baseline, rec, settings)
@@ -248,6 +252,9 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
                                                         "run's window"])
     results = [dataclasses.replace(r, p_calibrated=float(pc), p_family=float(pf))
                for r, pc, pf in zip(results, cal.calibration.p_value, cal.calibration.p_family)]
+    profiles = tuple(profile_screens(baseline, cands)) if profile else ()
+    lines += [p.words() for p in profiles]
     decision = decide([c.name for c in cands], cal.calibration.p_family, [r.identifiable for r in results],
-                      cal.calibration.n_replicates, settings.alpha, confirmations)
-    return Diagnosis(loc, results, status, lines + decision.lines, cal, decision)
+                      cal.calibration.n_replicates, settings.alpha, confirmations,
+                      profile_leads=[p.name for p in profiles if p.lead])
+    return Diagnosis(loc, results, status, lines + decision.lines, cal, decision, profiles)

@@ -215,7 +215,8 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             from vfcli.diagnose.maps import residual_map
 
             residual_map(d.located, d.locate.residual.motion, map_path, f"residual of run {run}")
-        cand = choose(d.screening, available_candidates(), refit, alpha)
+        cand = choose(d.screening, available_candidates(), refit, alpha,
+                      d.decision.profile_leads if d.decision is not None else ())
         extra: dict[str, Any] = {}
         if cand is not None:
             extra, conf = confirm_and_write(s, inputs, d, cand, run, settings,
@@ -269,7 +270,9 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
                        f"velocity at points: measured, run {run}, run {name}", name)
     d.lines.extend(words(conf))
     p = b.problem
-    done.update(refit=got.refit, name=name, sim_time=p.sim_times, config=inputs.run_config,
+    # the extended run states the same uncertainty as the diagnosis (with the held-out fits' disagreement)
+    done.update(refit=dataclasses.replace(got.refit, sd=np.asarray(conf.sd, float), uncertainty=conf.uncertainty),
+                name=name, sim_time=p.sim_times, config=inputs.run_config,
                 attrs=inputs.run_attrs or {},
                 parameter_names=[str(v) for v in getattr(p.response.load_model, "parameter_names", lambda: [])()])
     return {"refit": conf.as_dict(), "images": {k: str(v) for k, v in paths.items()}}, conf
@@ -286,7 +289,7 @@ def redecide(d: Diagnosis, confirmations: dict) -> Diagnosis:
     if old is None:
         return d
     new = decide(list(old.names), old.p_family, [r.identifiable for r in d.screening], old.n_replicates,
-                 old.alpha, confirmations)
+                 old.alpha, confirmations, old.profile_leads)
     k = d.lines.index(old.lines[0])
     lines = d.lines[:k] + new.lines + d.lines[k + len(old.lines):]
     return dataclasses.replace(d, lines=lines, decision=new)

@@ -151,7 +151,8 @@ _REFIT_PARAMS = {
     "refit_theta": D("1", "Confirmation refit: fitted value of each candidate parameter (units in its name)",
                      ("refit_param",)),
     "refit_theta_sd": D("1", "Confirmation refit: stated standard deviation of each candidate parameter (the "
-                        "sandwich over frames, vfcli/diagnose/refit.py)", ("refit_param",)),
+                        "sandwich over frames, vfcli/diagnose/refit.py, or the held-out fits' jackknife where larger, "
+                        "plus the camera-only fit's difference: vfcli/diagnose/confirmation.py heldout_sd)", ("refit_param",)),
 }
 
 STAGES: dict[str, Stage] = {

@@ -84,6 +84,10 @@ class Inertia(DisplacementTerm):
     #: densities the confirmation refit tries before its Gauss-Newton steps (:mod:`vfcli.diagnose.refit`):
     #: above a resonance the change is far from linear in the density
     start_values = (0.25, 0.5, 1.0, 1.5, 2.0, 3.0)
+    #: the score test's derivative at density 0 does not reach the tissue's density when the folds' lowest
+    #: mode lies below f0 (:meth:`evidence`): the diagnosis also profiles E over :attr:`start_values` with the
+    #: loads refitted (:mod:`vfcli.diagnose.profile`)
+    profile_screening = True
     #: structural loss factor eta of the steady state (``K (1 + i eta)``): it keeps the resonances of
     #: the folds' dense spectrum bounded (undamped, a harmonic near a mode made the change 100 times
     #: the motion).  An assumption of the term, not fitted; on an inertia phantom (seed 35) the density
@@ -153,7 +157,7 @@ class Inertia(DisplacementTerm):
         """Plain words: how far the screening's linearisation reaches in density.  The score test looks at
         densities near 0; the steady state's series in the density converges for harmonic k of f0 up to
         ``(f_1 / (k f0))^2`` (f_1 the folds' lowest mode), so where f_1 lies below f0 the model's own
-        density (1) is beyond what the test can see and only the refit (``--refit inertia``) fits it
+        density (1) is beyond what the test can see and only its profile (:mod:`vfcli.diagnose.profile`) and refit see it
         (tests/test_candidates.py: the column predicts the change within 7 % at 0.02 (f_1 / f0)^2 and is
         16 times off at density 1)."""
         if not (np.isfinite(baseline.f0_hz) and baseline.f0_hz > 0):
@@ -165,7 +169,8 @@ class Inertia(DisplacementTerm):
                     f"linearisation reaches density factors up to {r:.2g} at f0 (less at its harmonics)")
         return (f"the folds' lowest mode ({f1:.0f} Hz) lies below f0 ({baseline.f0_hz:.0f} Hz): the score test's "
                 f"linearisation reaches density factors up to {r:.2g} at f0 (less at its harmonics), so a missing mass "
-                f"near the model's own density (1) is not seen by it; `--refit inertia` fits it")
+                f"near the model's own density (1) is not seen by it; its profile (the loads refitted at each of "
+                f"{', '.join(f'{v:g}' for v in self.start_values)}) is")
 
     def reduction(self, baseline, n_harmonics: int = 6) -> ModalReduction:
         """The modal reduction of the baseline's model and load patterns, built once per response,
