@@ -52,7 +52,10 @@ def test_refit_recovers_the_hidden_softening_and_predicts_better(effect):
     par = ref["parameters"]["left_softening"]
     print(json.dumps(ref, indent=1))
     assert abs(par["estimate"] - truth) < 0.25 * truth
-    assert par["sd"] > 0 and ref["uncertainty"] == "sandwich"
+    # the sandwich with what the held-out fits say apart (vfcli.diagnose.confirmation.heldout_sd)
+    assert par["sd"] > 0 and ref["uncertainty"].startswith("sandwich") and "jackknife" in ref["uncertainty"]
+    lo, hi = par["interval"]
+    print(f"left_softening {par['estimate']:.4f} ({lo:.4f} .. {hi:.4f}), truth {truth}")
     kinds = {h["kind"]: h for h in ref["heldout"]}
     assert "cycles" in kinds
     assert kinds["cycles"]["reduction"] > 0.1
