@@ -1,9 +1,10 @@
 """A small `vfcli synth` phantom and a store holding its /hsc, for tests of the later stages."""
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
-from conftest import run_vfcli
+from conftest import run_vfcli, shared_product
 
 #: A short, small phantom (200 frames of 112 x 112 px at 6 px/mm; 0.03 s vibrometer epochs).
 SMALL = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
@@ -20,3 +21,11 @@ def phantom_with_hsc(folder: Path, seed: int, sets: list[str]) -> tuple[Path, Pa
                     "--config", raw / "recording.toml")
     assert res.returncode == 0, res.stderr
     return raw, store
+
+
+def shared_phantom_with_hsc(tmp_path_factory, seed: int, sets: list[str]) -> tuple[Path, Path]:
+    """:func:`phantom_with_hsc` built once per test run for each (seed, sets) and shared by the
+    test files that ask for the same one (read-only: tests copy the store before writing)."""
+    key = hashlib.sha256(repr(sorted(sets)).encode()).hexdigest()[:12]
+    d = shared_product(tmp_path_factory, f"hsc-seed{seed}-{key}", lambda f: phantom_with_hsc(f, seed, sets))
+    return d / "raw", d / "hsc.h5"
