@@ -29,3 +29,14 @@ def shared_phantom_with_hsc(tmp_path_factory, seed: int, sets: list[str]) -> tup
     key = hashlib.sha256(repr(sorted(sets)).encode()).hexdigest()[:12]
     d = shared_product(tmp_path_factory, f"hsc-seed{seed}-{key}", lambda f: phantom_with_hsc(f, seed, sets))
     return d / "raw", d / "hsc.h5"
+
+
+def shared_raw(tmp_path_factory, seed: int, sets: list[str]) -> Path:
+    """The raw folder `vfcli synth --seed SEED` with ``--set`` SETS writes, made once per test run
+    for each (seed, sets) and shared by the test files that ask for the same one (read-only)."""
+    def build(d: Path) -> None:
+        res = run_vfcli("synth", "-q", d / "raw", "--seed", str(seed), *sum((["--set", s] for s in sets), []))
+        assert res.returncode == 0, res.stderr
+
+    key = hashlib.sha256(repr(sorted(sets)).encode()).hexdigest()[:12]
+    return shared_product(tmp_path_factory, f"raw-seed{seed}-{key}", build) / "raw"
