@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _small_phantom import shared_raw
+from _small_phantom import SMALL_160, shared_raw
 from tests.conftest import run_vfcli
 from vfcli.errors import InputDataError
 from vfcli.sync.rate import check_ldv_rate
@@ -64,16 +64,14 @@ def test_epochs_too_short_or_without_a_common_f0_are_left_to_sync():
 
 # --------------------------------------------------------------------------- a phantom, real subprocesses
 
-#: tests/test_store_integrity.py's phantom (seed 2): its raw folder is made once per run and shared
-SMALL = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.width_px=160", "synth.height_px=160",
-         "synth.px_per_mm=9", "synth.supersample=1"]
+#: tests/test_store_integrity.py's phantom: its raw folder is made once per run and shared
 SEED = 2
 
 
 @pytest.fixture(scope="module")
 def phantom(tmp_path_factory) -> Path:
     """The raw folder of the phantom (read-only)."""
-    return shared_raw(tmp_path_factory, SEED, SMALL)
+    return shared_raw(tmp_path_factory, SEED, SMALL_160)
 
 
 def _rewrite_rate(raw: Path, fs: float, out: Path) -> Path:
