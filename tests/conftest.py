@@ -3,7 +3,16 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
+# One BLAS thread per process, set before numpy is first imported (here, in every pytest-xdist
+# worker and in every `vfcli` subprocess the tests start, which inherit it): `make test` runs two
+# workers on two cores, and OpenBLAS's default of a thread per core in each of them oversubscribes
+# the CPU; its idle threads spin, which cost a third of the CPU time of the numeric tests
+# (tests/test_response.py and tests/test_fem.py: 77 s of CPU with the default, 50 s with one
+# thread). An explicit setting in the environment is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 VFCLI = [sys.executable, "-m", "vfcli.cli.main"]
