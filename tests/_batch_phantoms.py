@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import ROOT
+from conftest import ROOT, shared_product
 
 #: A phantom small enough for a batch test (about 15 s to make, 10 s to ingest and sync).
 TINY = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.04", "synth.target_edge_mm=2.0", "synth.n_phase=64",
@@ -21,3 +21,13 @@ def synth(out: Path, seed: int) -> subprocess.Popen:
     for s in TINY:
         args += ["--set", s]
     return subprocess.Popen(args, env={**os.environ, "PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE, text=True)
+
+
+def tiny_raw(tmp_path_factory, seed: int) -> Path:
+    """The raw folder ``rec<seed>`` of the tiny phantom ``seed`` (:data:`TINY`), made by `vfcli synth`
+    once per test run and shared by the batch tests (read-only: copy it before changing a file)."""
+    def build(d: Path) -> None:
+        proc = synth(d / f"rec{seed}", seed)
+        assert proc.wait() == 0, proc.stderr.read()
+
+    return shared_product(tmp_path_factory, f"tiny-{seed}", build) / f"rec{seed}"

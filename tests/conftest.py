@@ -3,7 +3,16 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
+# One BLAS thread per process, set before numpy is first imported (here, in every pytest-xdist
+# worker and in every `vfcli` subprocess the tests start, which inherit it): `make test` runs two
+# workers on two cores, and OpenBLAS's default of a thread per core in each of them oversubscribes
+# the CPU; its idle threads spin, which cost a third of the CPU time of the numeric tests
+# (tests/test_response.py and tests/test_fem.py: 77 s of CPU with the default, 50 s with one
+# thread). An explicit setting in the environment is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 VFCLI = [sys.executable, "-m", "vfcli.cli.main"]
@@ -18,3 +27,35 @@ def run_vfcli(*args: str, cwd: Path | None = None, timeout: float = 600) -> subp
 @pytest.fixture
 def vfcli():
     return run_vfcli
+
+
+def shared_product(tmp_path_factory, name: str, build) -> Path:
+    """The folder ``<shared>/<name>`` after ``build(folder)`` filled it, built once per test run.
+
+    A phantom pipeline several test files need (the same seed, options and stages) is built by
+    the first caller and reused by the others, in this process and in every other pytest-xdist
+    worker of the run: the shared folder is the run's base temp folder (the workers' common
+    parent under xdist), and an exclusive ``fcntl.flock`` on ``<name>.lock`` beside the product
+    makes the other callers wait for it (pytest-xdist's documented pattern for session fixtures
+    that run once). ``<name>.done`` (beside, not inside, the product) marks a finished build;
+    a build that raised is started again by the next caller. Callers treat the product as
+    read-only: a test that writes copies it (:func:`vfcli.store.parts.copy_store` for a store,
+    ``shutil.copytree`` for a raw folder).
+    """
+    import fcntl
+    import shutil
+
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    shared = root / "shared"
+    shared.mkdir(exist_ok=True)
+    product, done = shared / name, shared / f"{name}.done"
+    with open(shared / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            shutil.rmtree(product, ignore_errors=True)
+            product.mkdir()
+            build(product)
+            done.touch()
+    return product

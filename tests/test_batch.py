@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from _batch_phantoms import synth
+from _batch_phantoms import tiny_raw
 from conftest import ROOT, run_vfcli
 from vfcli.batch.ledger import Ledger
 from vfcli.batch.manifest import parse_manifest, read_manifest
@@ -30,14 +30,8 @@ SEEDS = (41, 42, 43)
 
 @pytest.fixture(scope="module")
 def raws(tmp_path_factory) -> list[Path]:
-    base = tmp_path_factory.mktemp("batch_raw")
-    outs = [base / f"rec{s}" for s in SEEDS]
-    procs = [synth(o, s) for o, s in zip(outs[:2], SEEDS[:2])]  # two at a time (2 cores)
-    procs[0].wait()
-    procs.append(synth(outs[2], SEEDS[2]))
-    for p in procs:
-        assert p.wait() == 0, p.stderr.read()
-    return outs
+    """The raw folders rec41, rec42, rec43 of three tiny phantoms (shared with other files: read-only)."""
+    return [tiny_raw(tmp_path_factory, s) for s in SEEDS]
 
 
 # ---------------------------------------------------------------- manifests

@@ -20,13 +20,16 @@ import pytest
 
 try:  # tests/ on sys.path (rootdir conftest) or tests as a package
     from _flow_phantom import SlitPhantom
+    from conftest import shared_product
 except ImportError:  # pragma: no cover
     from tests._flow_phantom import SlitPhantom
+    from tests.conftest import shared_product
 from vfcli.stages.base import RunContext
 from vfcli.flow.pipeline import lateral_axis_for, sample_indices
 from vfcli.stages.flow import FIELDS_MANTISSA_BITS, run_flow
 from vfcli.store.precision import round_mantissa
 from vfcli.store import Store
+from vfcli.store.parts import copy_store
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRST, N_FRAMES = 20, 24  # phantom frames 20..43: the gap opens wide, closes, stays closed
@@ -93,12 +96,27 @@ def write_store(path: Path, frames: np.ndarray, fps: float, px_per_mm: float, ro
     return {"coords": coords, "held": held, "time": t}
 
 
+def _write_slit_store(d: Path) -> None:
+    ph = SlitPhantom()
+    truth = write_store(d / "rec.h5", np.stack([ph.render(ph.frame_time(FIRST + k)) for k in range(N_FRAMES)]),
+                        ph.fps, ph.px_per_mm)
+    np.savez(d / "truth.npz", **truth)
+
+
+def slit_store(tmp_path_factory) -> tuple[Path, dict]:
+    """(store, truth of its /sync) with /hsc, /ldv, /sync of the default SlitPhantom's frames
+    FIRST ... FIRST + N_FRAMES - 1 (:func:`write_store`): built once per test run and shared with
+    tests/test_store_commit.py (read-only: copy it with copy_store)."""
+    d = shared_product(tmp_path_factory, "slit_store", _write_slit_store)
+    with np.load(d / "truth.npz") as z:
+        return d / "rec.h5", {k: z[k] for k in z.files}
+
+
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     ph = SlitPhantom()
-    frames = np.stack([ph.render(ph.frame_time(FIRST + k)) for k in range(N_FRAMES)])
-    path = tmp_path_factory.mktemp("flow") / "rec.h5"
-    truth = write_store(path, frames, ph.fps, ph.px_per_mm)
+    shared, truth = slit_store(tmp_path_factory)
+    path = copy_store(shared, tmp_path_factory.mktemp("flow") / "rec.h5")
     res = run_flow_cli(path, "--json")
     assert res.returncode == 0, res.stderr
     with Store(path).read() as r:

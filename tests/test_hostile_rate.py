@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from _small_phantom import SMALL_160, shared_raw
 from tests.conftest import run_vfcli
 from vfcli.errors import InputDataError
 from vfcli.sync.rate import check_ldv_rate
@@ -63,26 +64,24 @@ def test_epochs_too_short_or_without_a_common_f0_are_left_to_sync():
 
 # --------------------------------------------------------------------------- a phantom, real subprocesses
 
-SMALL = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.width_px=160", "synth.height_px=160",
-         "synth.px_per_mm=9", "synth.supersample=1"]
+#: tests/test_store_integrity.py's phantom: its raw folder is made once per run and shared
+SEED = 2
 
 
 @pytest.fixture(scope="module")
 def phantom(tmp_path_factory) -> Path:
-    raw = tmp_path_factory.mktemp("rate") / "raw"
-    r = run_vfcli("synth", "-q", raw, "--seed", "7", *sum((["--set", s] for s in SMALL), []))
-    assert r.returncode == 0, r.stderr
-    return raw
+    """The raw folder of the phantom (read-only)."""
+    return shared_raw(tmp_path_factory, SEED, SMALL_160)
 
 
-def _rewrite_rate(raw: Path, fs: float, name: str) -> Path:
+def _rewrite_rate(raw: Path, fs: float, out: Path) -> Path:
     """The phantom's scan.uff written again with pyuff's dataset writers, its sampling rate stated as ``fs``."""
     from vfcli.io.ldv.read import read_ldv
     from vfcli.io.ldv.write import write_ldv_uff
 
     scan = read_ldv(raw / "scan.uff", expected_grid=None)
     assert scan.fs == FS
-    return write_ldv_uff(raw.parent / name, dataclasses.replace(scan, fs=fs))
+    return write_ldv_uff(out, dataclasses.replace(scan, fs=fs))
 
 
 def _ingest_video(raw: Path, store: Path) -> bytes:
@@ -105,7 +104,7 @@ def _assert_rate_refused(r, name: str, stated: int) -> None:
 def test_phantom_uff_claiming_25_khz_is_refused_at_ingest_ldv(phantom, tmp_path):
     store = tmp_path / "rec.h5"
     before = _ingest_video(phantom, store)
-    bad = _rewrite_rate(phantom, 25_000.0, "scan25k.uff")
+    bad = _rewrite_rate(phantom, 25_000.0, tmp_path / "scan25k.uff")
     r = run_vfcli("ingest-ldv", "-q", store, bad)
     _assert_rate_refused(r, "scan25k.uff", 25_000)
     assert store.read_bytes() == before
@@ -115,12 +114,12 @@ def test_phantom_uff_claiming_25_khz_is_refused_at_ingest_ldv(phantom, tmp_path)
     r = run_vfcli("sync", "--json", store)
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
-    assert out["aligned"] >= 0.95 * out["points"], out                  # the full-size seed-7 phantom: 374 of 374
+    assert out["aligned"] >= 0.95 * out["points"], out                  # the full-size phantom: 374 of 374
 
 
 def test_phantom_uff_ingested_before_the_video_is_refused_by_sync(phantom, tmp_path):
     store = tmp_path / "rec.h5"
-    bad = _rewrite_rate(phantom, 100_000.0, "scan100k.uff")
+    bad = _rewrite_rate(phantom, 100_000.0, tmp_path / "scan100k.uff")
     assert run_vfcli("ingest-ldv", "-q", store, bad).returncode == 0        # no video yet: nothing to check against
     before = _ingest_video(phantom, store)
     r = run_vfcli("sync", "-q", store)

@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from _small_phantom import SMALL, phantom_with_hsc
+from _small_phantom import SMALL, shared_phantom_with_hsc
 from conftest import run_vfcli
 from vfcli.flow.plausibility import ContrastAccumulator, moving_pixels, points_on_folds
 from vfcli.io.ldv.read import read_ldv
@@ -56,7 +56,7 @@ def test_temporal_contrast_of_noise_and_of_a_moving_texture():
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
-    return phantom_with_hsc(tmp_path_factory.mktemp("onfolds"), 4, PHANTOM)
+    return shared_phantom_with_hsc(tmp_path_factory, 4, PHANTOM)
 
 
 def _pipeline(store, scan):

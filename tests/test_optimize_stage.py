@@ -10,35 +10,23 @@ import time
 import numpy as np
 import pytest
 
+from _export_store import meshed_store
 from conftest import ROOT, run_vfcli
 from vfcli.stages.optimize import checkpoint_path
 from vfcli.synth.scoring import interval_coverage
 from vfcli.store import Store, read_truth
+from vfcli.store.parts import copy_store
 
-PHANTOM = [
-    "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-    "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
-]
 FIT = ["--setup", "3x3x10-one-sided", "--set", "optimize.n_frames=12", "--set", "optimize.first_frame=20",
        "--set", "mesh.target_edge_mm=2.5"]
 
 
 @pytest.fixture(scope="module")
 def store(tmp_path_factory):
-    d = tmp_path_factory.mktemp("opt")
-    raw, store = d / "raw", d / "rec.h5"
-    steps = [
-        ["synth", raw, "--seed", "5", *sum((["--set", s] for s in PHANTOM), [])],
-        ["ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms", "--config", raw / "recording.toml"],
-        ["ingest-ldv", store, raw / "scan.uff"],
-        ["sync", store],
-        ["flow", store],
-        ["mesh", store, "--set", "mesh.target_edge_mm=2.5"],
-    ]
-    for args in steps:
-        res = run_vfcli(*args)
-        assert res.returncode == 0, (args[0], res.stderr)
-    return store, raw
+    """(store through /mesh, raw folder) of the phantom seed 5: a copy of the shared meshed store
+    (tests/_export_store.py, the same PHANTOM), the tests add their runs to it."""
+    shared, raw = meshed_store(tmp_path_factory)
+    return copy_store(shared, tmp_path_factory.mktemp("opt") / "rec.h5"), raw
 
 
 def _footprint_px(rotation_deg, offset_px, px_per_mm=9.0, length_mm=15.0, depth_mm=8.0):

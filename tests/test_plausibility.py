@@ -8,30 +8,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from _small_phantom import SMALL, shared_phantom_with_hsc
 from conftest import run_vfcli
 from vfcli.flow.plausibility import points_on_image, pressure_velocity_bound
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.store import Store, copy_store
 
-PHANTOM = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-           "synth.width_px=112", "synth.height_px=112", "synth.px_per_mm=6", "synth.supersample=1"]
-
-
-def _sets(items):
-    return sum((["--set", s] for s in items), [])
-
 
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
-    """A phantom and a store with its /hsc."""
-    d = tmp_path_factory.mktemp("plaus")
-    raw, store = d / "raw", d / "hsc.h5"
-    assert run_vfcli("synth", raw, "--seed", "4", *_sets(PHANTOM)).returncode == 0
-    res = run_vfcli("ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
-                    "--config", raw / "recording.toml")
-    assert res.returncode == 0, res.stderr
-    return raw, store
+    """A phantom and a store with its /hsc (shared with tests/test_sync_short_video.py: the same
+    seed and settings; read-only, the tests copy it)."""
+    return shared_phantom_with_hsc(tmp_path_factory, 4, SMALL)
 
 
 def _copy(store, tmp_path):

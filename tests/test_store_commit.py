@@ -343,14 +343,10 @@ def test_a_store_of_an_earlier_vfcli_moves_its_stages_to_part_files_on_the_first
 @pytest.fixture(scope="module")
 def flow_ready(tmp_path_factory) -> Path:
     """A store with /hsc, /ldv and /sync (tests/test_flow_stage.py's slit phantom, 24 frames of
-    256 x 256): `vfcli flow` writes about 9 MB of /flow and 7.4 MB of /fields."""
-    from _flow_phantom import SlitPhantom
-    from test_flow_stage import FIRST, N_FRAMES, write_store
+    256 x 256, shared with it: read-only): `vfcli flow` writes about 9 MB of /flow and 7.4 MB of /fields."""
+    from test_flow_stage import slit_store
 
-    ph = SlitPhantom()
-    path = tmp_path_factory.mktemp("flow_full") / "r.h5"
-    write_store(path, np.stack([ph.render(ph.frame_time(FIRST + k)) for k in range(N_FRAMES)]), ph.fps, ph.px_per_mm)
-    return path
+    return slit_store(tmp_path_factory)[0]
 
 
 @pytest.mark.parametrize("limit", [300_000, 3_000_000, 8_000_000])

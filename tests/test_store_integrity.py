@@ -19,21 +19,18 @@ from pathlib import Path
 import h5py
 import pytest
 
+from _small_phantom import SMALL_160, shared_raw
 from tests.conftest import ROOT, run_vfcli
 from vfcli.store.provenance import describe_inputs
 from vfcli.store.parts import copy_store, parts_dir
-
-SMALL = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.width_px=160", "synth.height_px=160",
-         "synth.px_per_mm=9", "synth.supersample=1"]
 
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> tuple[Path, Path]:
     """(raw folder, store with /hsc /ldv /sync /mesh) written by the real commands."""
-    d = tmp_path_factory.mktemp("integrity")
-    raw, store = d / "raw", d / "rec.h5"
+    raw = shared_raw(tmp_path_factory, 2, SMALL_160)  # `vfcli synth`'s, shared with tests/test_hostile_rate.py
+    store = tmp_path_factory.mktemp("integrity") / "rec.h5"
     steps = [
-        ["synth", raw, "--seed", "2", *sum((["--set", s] for s in SMALL), [])],
         ["ingest-hsc", "-q", store, raw / "video.cihx", "--pressure", raw / "video_pressure.csv", "--config", raw / "recording.toml"],
         ["ingest-ldv", "-q", store, raw / "scan.uff"],
         ["sync", "-q", store],

@@ -13,7 +13,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from _small_phantom import SMALL, phantom_with_hsc
+from _small_phantom import SMALL, shared_phantom_with_hsc
 from conftest import run_vfcli
 from vfcli.errors import InputDataError
 from vfcli.io.ldv.read import read_ldv
@@ -79,7 +79,7 @@ def test_the_harmonics_of_the_true_f0_explain_the_short_record_and_a_harmonic_do
 @pytest.fixture(scope="module")
 def video(tmp_path_factory):
     """A small phantom and a store with its /hsc."""
-    return phantom_with_hsc(tmp_path_factory.mktemp("syncshort"), 4, SMALL)
+    return shared_phantom_with_hsc(tmp_path_factory, 4, SMALL)     # tests/test_plausibility.py's too
 
 
 def test_a_sync_that_aligns_no_point_fails_with_the_reasons_and_leaves_the_store(video, tmp_path):
