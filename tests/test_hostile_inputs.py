@@ -12,7 +12,6 @@ import os
 import shutil
 import struct
 import subprocess
-import sys
 import zlib
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT, VFCLI, run_vfcli
-from vfcli.errors import ConfigError, InputDataError
+from vfcli.errors import InputDataError
 from vfcli.io._matcheck import check_mat5, inflate_budget
 from vfcli.io.ldv.read import LdvScan, read_ldv
 from vfcli.io.pressure import read_pressure

@@ -12,7 +12,6 @@ import logging
 import numpy as np
 import pytest
 
-from vfcli.camera.camera import Camera
 from vfcli.camera.pose import estimate_pose
 
 PX_PER_MM, LENGTH_MM, HALF_WIDTH_MM = 8.0, 15.0, 0.6

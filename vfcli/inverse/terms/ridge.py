@@ -9,7 +9,6 @@ It is a prior term (a function of x only): exactly quadratic, Hessian
 """
 from __future__ import annotations
 
-import numpy as np
 import scipy.sparse as sp
 
 from vfcli.inverse.terms.base import Evaluation, Term
