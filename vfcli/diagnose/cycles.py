@@ -11,6 +11,13 @@ are read from the area's level and slope:
 
 Whole cycles (between two consecutive crossings) are the units of replication of the noise
 floor (:mod:`vfcli.diagnose.noise`).
+
+An area that opens twice in a cycle (a smaller second opening after a partial closure: folds with mass
+or in contact) rises through half its range twice, and its crossings alone give twice f0 (blind panel
+seed 2007: 240 Hz for a recording at 120 Hz, so the steady-state candidates worked at the wrong
+harmonics).  The recorded subglottal pressure's f0 (``/sync``, the same for every frame) settles it:
+given ``f0_hz``, a crossing less than :data:`MIN_PERIOD_SHARE` of its period after the last kept one is
+the same cycle's.
 """
 from __future__ import annotations
 
@@ -22,6 +29,8 @@ import numpy as np
 PHASE_NAMES = ("opening", "open", "closing", "closed")
 #: area levels (fraction of the range above the minimum) below which a frame is closed, above which open
 CLOSED_LEVEL, OPEN_LEVEL = 0.15, 0.85
+#: with a known f0, upward crossings closer than this share of its period belong to one cycle
+MIN_PERIOD_SHARE = 0.75
 
 
 class TooFewCycles(ValueError):
@@ -58,13 +67,15 @@ def _smooth(a: np.ndarray, width: int) -> np.ndarray:
     return np.convolve(pad, k, mode="valid")
 
 
-def glottal_cycles(area: np.ndarray, dt: float) -> Cycles:
+def glottal_cycles(area: np.ndarray, dt: float, f0_hz: float | None = None) -> Cycles:
     """The cycles of the glottal area waveform (module docstring).
 
     Parameters
     ----------
     area : (F,) glottal area at uniformly spaced frames, mm^2 (any unit).
     dt : frame interval, s.
+    f0_hz : the recording's f0 from another signal (the subglottal pressure, ``/sync``), Hz, or None:
+        crossings closer than :data:`MIN_PERIOD_SHARE` of its period are one cycle's.
 
     Raises
     ------
@@ -89,6 +100,13 @@ def glottal_cycles(area: np.ndarray, dt: float) -> Cycles:
         if armed and level[i - 1] < 0.5 <= level[i]:
             ups.append(i - 1 + (0.5 - level[i - 1]) / (level[i] - level[i - 1]))
             armed = False
+    if f0_hz is not None and np.isfinite(f0_hz) and f0_hz > 0:
+        gap = MIN_PERIOD_SHARE / (float(f0_hz) * dt)        # frames
+        kept: list[float] = []
+        for u in ups:
+            if not kept or u - kept[-1] >= gap:
+                kept.append(u)
+        ups = kept
     if len(ups) < 2:
         raise TooFewCycles(f"the glottal area rises through half its range {len(ups)} time(s): "
                          "no whole glottal cycle in the recording")

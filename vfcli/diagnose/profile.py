@@ -6,7 +6,8 @@ the derivative at density 0 reaches densities up to about (f_1 / f0)^2 = 0.17 an
 density (1) lies beyond it (:meth:`vfcli.diagnose.candidates.inertia.Inertia.evidence`).  A candidate
 that says so (``profile_screening = True``) is also screened by its profile: E with the loads refitted
 under the extended response at each of its ``start_values`` (:func:`vfcli.diagnose.refit.load_profile`),
-against E of the baseline given the same load-only steps.
+against E of the baseline given the same load-only steps (three per value; the best value, when still
+above the baseline, up to eight: the refit's start scan).
 
 It is a **profile lead** when some value fits better than none: E(theta) below E(0), no threshold.  A
 mass the recording does not have makes the fit worse at every density: with the loads refitted the
@@ -32,9 +33,9 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-#: load-only Gauss-Newton steps at each start value (and at theta = 0): enough for the sign of the change
-#: (from the quasi-static loads E at a density's first step can be 100 times its minimum there, and falls
-#: below the baseline's within three steps where the density fits: docs/diagnose.md)
+#: load-only Gauss-Newton steps at each start value; the best value, when still above the baseline, gets
+#: steps on up to the refit's start scan's (:data:`vfcli.diagnose.refit.START_STEPS`, 8): from the
+#: quasi-static loads E at a density's first step can be 100 times its minimum there (docs/diagnose.md)
 PROFILE_STEPS = 3
 
 

@@ -65,6 +65,8 @@ class Recording:
     ldv_velocity : (P, S) raw vibrometer records, mm/s, or None.  ldv_fs_hz : their rate, Hz.
     ldv_used : (P,) bool points the field uses.  ldv_px : (P, 2) their screen positions (col, row) px.
     ldv_record_s : seconds of record averaged per point (n_cycles / f0, median over points).
+    pressure_f0_hz : f0 of the subglottal pressure (``/sync``, median over the points aligned), Hz, or NaN:
+        the cycles are counted with it (:func:`vfcli.diagnose.cycles.glottal_cycles`).
     """
 
     glottal_area: np.ndarray
@@ -78,6 +80,7 @@ class Recording:
     ldv_used: np.ndarray | None = None
     ldv_px: np.ndarray | None = None
     ldv_record_s: float = float("nan")
+    pressure_f0_hz: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -139,7 +142,7 @@ def locate_run(baseline, rec: Recording, settings: LocateSettings | None = None)
     p = baseline.problem
     k = settings.n_harmonics
     res = window_residual(baseline)
-    cycles = glottal_cycles(np.asarray(rec.glottal_area, float), p.dt)
+    cycles = glottal_cycles(np.asarray(rec.glottal_area, float), p.dt, rec.pressure_f0_hz)
     window = np.arange(rec.window_start, rec.window_start + p.n_frames)
     if window[-1] >= len(cycles.phase):
         raise ValueError(f"window frames {window[0]}..{window[-1]} run past the recording ({len(cycles.phase)})")

@@ -59,6 +59,18 @@ def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], at
     return RecordingConfig.model_validate(data)
 
 
+def pressure_f0_hz(reader: StoreReader) -> float:
+    """f0 of the subglottal pressure, Hz: the median of ``/sync``'s f0 over the vibrometer points it aligned
+    (no dropout); NaN without /sync and /ldv.  The glottal cycles are counted with it
+    (:func:`vfcli.diagnose.cycles.glottal_cycles`)."""
+    if not (reader.has_stage("sync") and reader.has_stage("ldv")):
+        return float("nan")
+    used = np.asarray(reader.read("sync", "ok"), bool) & ~np.asarray(reader.read("ldv", "dropout"), bool)
+    f0 = np.asarray(reader.read("sync", "f0_hz"), float)[used]
+    f0 = f0[np.isfinite(f0) & (f0 > 0)]
+    return float(np.median(f0)) if f0.size else float("nan")
+
+
 def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> DiagnoseInputs:
     """The run's baseline and the recording (module docstring).
 
@@ -94,7 +106,8 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
         ok = used & np.isfinite(record) & (record > 0)
         ldv = dict(ldv_velocity=reader.read("ldv", "velocity"), ldv_fs_hz=float(reader.attrs("ldv")["fs_hz"]),
                    ldv_used=used, ldv_px=reader.read("fields", "ldv_px"),
-                   ldv_record_s=float(np.median(record[ok])) if ok.any() else float("nan"))
+                   ldv_record_s=float(np.median(record[ok])) if ok.any() else float("nan"),
+                   pressure_f0_hz=pressure_f0_hz(reader))
     rec = Recording(glottal_area=reader.read("flow", "glottal_area"), velocity=reader.dataset("fields", "velocity"),
                     valid=reader.dataset("fields", "valid"), gap_masks=reader.dataset("flow", "gap_mask"),
                     velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
@@ -215,13 +228,16 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             from vfcli.diagnose.maps import residual_map
 
             residual_map(d.located, d.locate.residual.motion, map_path, f"residual of run {run}")
-        cand = choose(d.screening, available_candidates(), refit, alpha,
-                      d.decision.profile_leads if d.decision is not None else ())
+        cands = available_candidates()
+        profiled = d.decision.profile_leads if d.decision is not None else ()
+        cand = choose(d.screening, cands, refit, alpha, profiled)
         extra: dict[str, Any] = {}
         if cand is not None:
-            extra, conf = confirm_and_write(s, inputs, d, cand, run, settings,
-                                            figure_paths(reader.path, run, map_path), done)
-            d = redecide(d, {conf.candidate: conf})
+            # with auto, a profile lead is refitted too when the calibrated lead's refit is not confirmed
+            tries = [cand] + [c for c in cands if refit == "auto" and c.name in profiled and c.name != cand.name][:1]
+            extra, confs = confirm_and_write(s, inputs, d, tries, run, settings,
+                                             figure_paths(reader.path, run, map_path), done)
+            d = redecide(d, {c.candidate: c for c in confs})
         write_diagnosis(s, d, inputs.baseline.problem.meas.times)
         summary = d.summary()
         summary.update(extra, lines=d.lines)
@@ -243,11 +259,13 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
     return result
 
 
-def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand, run: str, settings, paths,
-                      done: dict) -> tuple[dict[str, Any], Any]:
-    """Refit ``cand`` (:func:`vfcli.diagnose.confirm.confirm_run`), write its figures and images; fills
-    ``done`` with what the extended model's /optimize run needs.  Returns the summary's additions and
-    the :class:`vfcli.diagnose.confirmation.Confirmation`; its words are appended to ``d.lines``."""
+def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cands, run: str, settings, paths,
+                      done: dict) -> tuple[dict[str, Any], list]:
+    """Refit the candidates ``cands`` in turn until one is confirmed (:func:`vfcli.diagnose.confirm.confirm_run`;
+    the first, then the next only when the first's refit does not predict held-out data better), write the
+    confirmed one's figures and images (else the first's); fills ``done`` with what its extended model's
+    /optimize run needs.  Returns the summary's additions and every
+    :class:`vfcli.diagnose.confirmation.Confirmation` made; their words are appended to ``d.lines``."""
     import dataclasses
 
     from vfcli.diagnose.confirm import confirm_run, words
@@ -258,8 +276,13 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     b = inputs.baseline
     if not np.isfinite(b.f0_hz):
         b.f0_hz = float(d.located.f0_hz)             # the window's f0 from the gap area's cycle (Locate's)
-    got = confirm_run(b, cand, d.locate.cycles.phase[d.locate.window], lambda ext: locate_run(ext, inputs.recording,
-                                                                                              settings))
+    tried = []
+    for cand in cands:
+        tried.append((cand, confirm_run(b, cand, d.locate.cycles.phase[d.locate.window],
+                                        lambda ext: locate_run(ext, inputs.recording, settings))))
+        if tried[-1][1].confirmation.improves:
+            break
+    cand, got = tried[-1] if tried[-1][1].confirmation.improves else tried[0]
     name = refit_run_name(run, cand.name)
     conf = dataclasses.replace(got.confirmation, run=name)
     write_confirmation(s, conf)
@@ -268,6 +291,9 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     residual_map(got.after.located, got.after.residual.motion, paths["after"], f"residual of run {name}")
     velocity_at_points(b, b.displacements, got.refit.displacements, paths["points"],
                        f"velocity at points: measured, run {run}, run {name}", name)
+    others = [g.confirmation for c, g in tried if g is not got]
+    for other in others:
+        d.lines.extend(words(other))
     d.lines.extend(words(conf))
     p = b.problem
     # the extended run states the same uncertainty as the diagnosis (with the held-out fits' disagreement)
@@ -275,7 +301,10 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
                 name=name, sim_time=p.sim_times, config=inputs.run_config,
                 attrs=inputs.run_attrs or {},
                 parameter_names=[str(v) for v in getattr(p.response.load_model, "parameter_names", lambda: [])()])
-    return {"refit": conf.as_dict(), "images": {k: str(v) for k, v in paths.items()}}, conf
+    extra = {"refit": conf.as_dict(), "images": {k: str(v) for k, v in paths.items()}}
+    if others:
+        extra["other_refits"] = [o.as_dict() for o in others]
+    return extra, others + [conf]
 
 
 def redecide(d: Diagnosis, confirmations: dict) -> Diagnosis:

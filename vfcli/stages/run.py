@@ -210,17 +210,19 @@ def _run_step(step: str, ctx: RunContext, raw: RawFiles | None) -> list[StageRes
     raise ValueError(f"unknown step {step!r}")
 
 
-def cycles_outside_window(area: np.ndarray, dt: float, first: int, n_frames: int) -> tuple[int, int]:
+def cycles_outside_window(area: np.ndarray, dt: float, first: int, n_frames: int,
+                          f0_hz: float | None = None) -> tuple[int, int]:
     """Whole glottal cycles of a recording: (all of them, those with no frame in the window).
 
     area : (F,) glottal area per frame (any unit).  dt : frame interval, s.
     first, n_frames : the fitted window, frames ``first .. first + n_frames - 1``.
-    The cycles are :func:`vfcli.diagnose.cycles.glottal_cycles`' (0, 0 when there is none).
+    f0_hz : the subglottal pressure's f0 (``/sync``), Hz, or None.
+    The cycles are :func:`vfcli.diagnose.cycles.glottal_cycles`' (0, 0 when there is none), as diagnose counts them.
     """
     from vfcli.diagnose.cycles import TooFewCycles, glottal_cycles
 
     try:
-        cyc = glottal_cycles(np.asarray(area, float), dt)
+        cyc = glottal_cycles(np.asarray(area, float), dt, f0_hz)
     except TooFewCycles:
         return 0, 0
     ids = np.unique(cyc.cycle[cyc.cycle >= 0])
@@ -235,11 +237,14 @@ def diagnose_skip_reason(ctx: RunContext) -> str | None:
     with ctx.store.read() as r:
         if not r.has_stage("flow"):
             return None
+        from vfcli.stages.diagnose import pressure_f0_hz
+
         area, times = r.read("flow", "glottal_area"), r.read("flow", "frame_time")
+        f0 = pressure_f0_hz(r)
     if len(area) < 4:
         return f"the recording holds {len(area)} frames: no glottal cycle to judge a residual against"
     first, n = ctx.config.optimize.first_frame, ctx.config.optimize.n_frames
-    total, outside = cycles_outside_window(area, float(np.median(np.diff(times))), first, n)
+    total, outside = cycles_outside_window(area, float(np.median(np.diff(times))), first, n, f0)
     if outside >= DIAGNOSE_MIN_CYCLES:
         return None
     return (f"the recording holds {outside} whole glottal cycle(s) outside the fitted window (frames {first}-"
