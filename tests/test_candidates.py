@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _candidates_case import force_field_case, pressure_case
+from _candidates_case import force_field_case, pressure_case, reduced_inertia
 from vfcli.diagnose.candidate import Baseline, Candidate
 from vfcli.diagnose.candidates import CANDIDATES, Inertia, KelvinVoigtDamping, StiffnessAsymmetry
 from vfcli.diagnose.candidates.identifiability import identifiability, load_basis
@@ -78,14 +78,7 @@ def test_inertia_says_how_far_its_linearisation_reaches_in_density():
     reaches only ``(f_1 / (k f0))^2``: the load here has harmonics 1 and 2).  The screening line says so,
     with the reach computed from the lowest mode."""
     base = pressure_case(12, 0)
-    load = base.problem.response.load_model
-    red = ModalReduction(base.model, load.spatial_loads(base.model), n_modes=8, n_ritz=6)
-
-    class _Reduced(Inertia):
-        def reduction(self, baseline, n_harmonics=6):
-            return red
-
-    inertia = _Reduced(base.model)
+    inertia, red = reduced_inertia(base)
     f1 = float(np.sqrt(red.eigenvalues_.min()) / (2 * np.pi))
     reach = (f1 / base.f0_hz) ** 2
     assert abs(inertia.lowest_mode_hz(base) - f1) < 1e-6 * f1

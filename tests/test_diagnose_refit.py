@@ -14,14 +14,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from _candidates_case import CAMERA, SETTINGS, pressure_case
-from vfcli.diagnose.candidates import Inertia, KelvinVoigtDamping, MountingOffset, StiffnessAsymmetry
+from _candidates_case import CAMERA, SETTINGS, pressure_case, reduced_inertia
+from vfcli.diagnose.candidates import KelvinVoigtDamping, MountingOffset, StiffnessAsymmetry
 from vfcli.diagnose.confirmation import Confirmation, HeldOutError, heldout_sd
 from vfcli.diagnose.heldout import cycle_groups, leave_cycles_out, prediction_error
 from vfcli.diagnose.refit import joint_fit, refit
 from vfcli.diagnose.candidate import Baseline
 from vfcli.inverse.problem import Problem, synthesize_measurement
-from vfcli.model.response.modal import ModalReduction
 
 
 class _Shown:
@@ -199,14 +198,7 @@ def test_inertia_refit_finds_the_tissue_density_from_a_quasi_static_fit():
     is.  The refit must fit the loads with the mass switched on to find the density: loads fitted to the
     quasi-static model make every start density worse than none."""
     b0 = pressure_case(12, 4)
-    load = b0.problem.response.load_model
-    red = ModalReduction(b0.model, load.spatial_loads(b0.model), n_modes=8, n_ritz=6)
-
-    class _Reduced(Inertia):                           # a Ritz reduction of the case's model (the complete
-        def reduction(self, baseline, n_harmonics=6):  # expansion of this 2 mm mesh takes minutes); the data
-            return red                                 # are simulated with the same one
-
-    cand = _Reduced(b0.model)
+    cand, _ = reduced_inertia(b0)                      # the data are simulated with the same reduction
     data = case_with(cand, (1.0,))
     fitted = joint_fit(data.problem, data.x, None, data.f0_hz, max_iterations=10)
     base = Baseline.at(data.problem, fitted.x, data.f0_hz, model=b0.model)
@@ -224,14 +216,7 @@ def test_the_profile_leads_to_the_tissue_density_with_mass_and_stays_quiet_witho
     from vfcli.diagnose.profile import profile_screens
 
     b0 = pressure_case(12, 4)
-    load = b0.problem.response.load_model
-    red = ModalReduction(b0.model, load.spatial_loads(b0.model), n_modes=8, n_ritz=6)
-
-    class _Reduced(Inertia):
-        def reduction(self, baseline, n_harmonics=6):
-            return red
-
-    cand = _Reduced(b0.model)
+    cand, _ = reduced_inertia(b0)
     out = {}
     for truth in (1.0, 0.0):
         data = case_with(cand, (truth,), noise_mm_s=20.0, seed=3)
