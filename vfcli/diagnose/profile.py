@@ -11,8 +11,9 @@ above the baseline, up to eight: the refit's start scan).
 
 It is a **profile lead** when some value fits better than none: E(theta) below E(0), no threshold.  A
 mass the recording does not have makes the fit worse at every density: with the loads refitted the
-steady state of a massive fold cannot take the quasi-static motion's shape (on a short null phantom E
-rose 12 to 31 times at densities 0.25-3, three load steps each; bench/bench_inertia_refit.py).
+steady state of a massive fold cannot take the quasi-static motion's shape (on the short null phantom of
+bench/bench_inertia_refit.py, seed 36, E rose 12 to 31 times at densities 0.25-3 with up to 8 load steps
+each; on the demo and the blind panel's nulls 4.7 to 14 times at the best density, docs/benchmarks.md).
 
 A profile lead is not a finding.  It is refitted and must predict held-out data better than the
 baseline beyond the spread over splits, in every held-out kind, as a calibrated lead must
