@@ -184,3 +184,21 @@ def test_damping_column_is_the_retardation_derivative_of_its_extension_with_a_no
     err = np.linalg.norm(column - fd) / np.linalg.norm(fd)
     print(f"damping column against the derivative of its extension: {err:.2e} relative")
     assert err < 1e-4, err
+
+
+def test_damping_states_its_extended_model_as_the_steady_state_of_the_modal_reduction():
+    """The damping's response (what its refit fits the loads with) changes the baseline's displacements by
+    the viscoelastic steady state minus the elastic one, computed independently from the reduction's own
+    ``steady_state`` of the load's harmonics; at tau = 0 it changes nothing."""
+    base = pressure_case(time_degree=0)
+    load = base.problem.response.load_model
+    red = ModalReduction(base.model, load.spatial_loads(base.model), n_modes=4, n_ritz=4)
+    damping = KelvinVoigtDamping(base.model)
+    damping._modal.reduction = lambda baseline, n_harmonics=6: red          # the small reduction, not the complete one
+    tau_ms = 0.4
+    got = damping.response(base, [tau_ms]).displacements(base.x, base.problem.sim_times) - base.displacements
+    inertia = Inertia(base.model)
+    ref = (inertia.steady_state(base, 0.0, red, retardation_s=tau_ms * 1e-3) - inertia.steady_state(base, 0.0, red))
+    err = np.linalg.norm(got - ref) / np.linalg.norm(ref)
+    assert np.linalg.norm(ref) > 1e-3 * np.linalg.norm(base.displacements) and err < 1e-9, err
+    assert np.abs(damping.extension(base, [0.0])).max() == 0.0

@@ -228,3 +228,22 @@ def test_the_profile_leads_to_the_tissue_density_with_mass_and_stays_quiet_witho
     assert with_mass.lead and with_mass.best == 1.0 and with_mass.relative.min() < -0.5
     assert not without.lead and without.relative.min() > 0
     assert "a profile lead" in with_mass.words() and "no profile lead" in without.words()
+
+
+def test_a_delay_of_the_load_is_refitted_and_its_column_is_dampings():
+    """The load's delay behind the recorded pressure (LoadDelay, not a screened candidate): data made with
+    the load 0.3 ms late are refitted to 0.3 ms from 0 under the delayed response; its column at 0 is the
+    derivative of its exact change and the same as damping's (one lag, two explanations)."""
+    from vfcli.diagnose.candidates.delay import LoadDelay
+
+    cand = LoadDelay()
+    base = case_with(cand, (0.3,))
+    r = refit(base, cand, max_iterations=10)
+    assert abs(r.theta[0] - 0.3) < 1e-3 * 0.3, r.theta                    # measured 3e-5 relative
+    b0 = pressure_case(12, 4)
+    h = 1e-3
+    fd = (cand.extension(b0, [h]) - cand.extension(b0, [-h])) / (2 * h)
+    column = cand.displacement_jacobian(b0)[..., 0]
+    err = np.linalg.norm(column - fd) / np.linalg.norm(fd)
+    assert err < 0.05, err          # measured 3.4 %: the column takes the load's harmonics of f0 over the window
+    np.testing.assert_array_equal(column, KelvinVoigtDamping().displacement_jacobian(b0)[..., 0])

@@ -33,6 +33,9 @@ values are each given Gauss-Newton steps of the loads under that response until 
 For the other candidates the x-columns are those of the baseline response, dU0/dx: the change of D
 with x is left out of the step (D is small next to U0, and the truth remains a fixed point when the
 residual vanishes, since the theta gradient is exact and the x gradient vanishes with the residual).
+A candidate that states how a gradient in U pulls back through its change (``candidate.pullback``:
+contact, whose forces are piecewise linear in U0) gets the exact gradient in x; the load block stays the
+baseline's, a preconditioner of the step that the line search on E keeps safe.
 
 Stated uncertainty: the **sandwich** over frames, as optimize states its own
 (:func:`sandwich_theta`, :mod:`vfcli.inverse.sandwich`): ``Cov(theta) = S^-1 V S^-1`` with V the
@@ -181,6 +184,15 @@ class _Extended:
         frames = masked(self.problem.freeze(x, disp), self.keep)
         return _State(x, theta, disp, frames, energy(self.problem, x, disp, frames))
 
+    def pull(self, st: _State, grad: np.ndarray) -> np.ndarray:
+        """(F + 1, N, 3) a gradient with respect to U at the state, pulled back to the baseline response's
+        U0 through the candidate's change when it states how (``candidate.pullback``: contact), else as is
+        (the change of D with x left out, module docstring)."""
+        if self.p == 0 or self.has_response or not callable(getattr(self.candidate, "pullback", None)):
+            return grad
+        u0 = self.problem.displacements(st.x)
+        return self.candidate.pullback(self.baseline(st.x, u0, []), grad, st.theta)
+
     def columns(self, st: _State) -> np.ndarray:
         """(F + 1, N, 3, p) dU/dtheta at the state (central differences of the exact change)."""
         u0 = self.problem.displacements(st.x)
@@ -193,16 +205,17 @@ class _Extended:
         return out
 
 
-def _blocks(ext: _Extended, st: _State):
-    """(g_L, H_LL model, g_c, H_Lc, H_cc, dU/dtheta) at the state."""
+def _blocks(ext: _Extended, st: _State, loads_only: bool = False):
+    """(g_L, H_LL model, g_c, H_Lc, H_cc, dU/dtheta) at the state (``loads_only``: the load blocks alone,
+    theta's left empty)."""
     from vfcli.diagnose.candidates.blocks import _grad_disp, candidate_blocks
     from vfcli.inverse.linearization import gauss_newton_model
 
     p = ext.problem_at(st.theta)                  # the extended response's x-columns when it states one
     gd, gx = _grad_disp(p, st.x, st.disp, st.frames)
-    g_l = p.response.adjoint(gd, p.sim_times, st.x) + gx
+    g_l = p.response.adjoint(ext.pull(st, gd), p.sim_times, st.x) + gx
     model = gauss_newton_model(p, st.x, st.frames, st.disp)
-    if ext.p == 0:
+    if ext.p == 0 or loads_only:
         return g_l, model, np.zeros(0), np.zeros((p.n_params, 0)), np.zeros((0, 0)), None
     dudp = ext.columns(st)
     g_c, h_lc, h_cc = candidate_blocks(ext.baseline(st.x, st.disp, st.frames, p), dudp)
@@ -316,7 +329,7 @@ def _best_start(ext: _Extended, st: _State, values) -> _State:
                 if ext.p == 1:
                     profile[float(theta[0])] = stepped
             else:
-                g_l, qm, *_ = _blocks(_Extended(ext.problem, None, ext.f0_hz, ext.model, ext.keep), trial)
+                g_l, qm, *_ = _blocks(ext, trial, loads_only=True)
                 # the loads' step at this theta: the baseline's Hessian with the gradient at the extended U
                 stepped = ext.state(st.x - qm.hessian.solve(g_l), theta)
         except ValueError:
@@ -366,9 +379,8 @@ def _load_steps(ext: _Extended, st: _State, n_steps: int, rtol: float = 0.0) -> 
     """Up to ``n_steps`` Gauss-Newton steps of the loads alone at the state's theta, under the extended
     response (exact x-columns), each with a backtracking line search on E; stops when a step lowers E by
     less than ``rtol`` (relative)."""
-    loads_only = _Extended(ext.problem_at(st.theta), None, ext.f0_hz, ext.model, ext.keep)
     for _ in range(int(n_steps)):
-        g_l, qm, *_ = _blocks(loads_only, st)
+        g_l, qm, *_ = _blocks(ext, st, loads_only=True)
         dx = -qm.hessian.solve(g_l)
         alpha, trial = 1.0, None
         for _ in range(MAX_HALVINGS + 1):
@@ -444,11 +456,12 @@ def with_displacements(problem, disp: np.ndarray):
 
 
 def load_profile(baseline: Baseline, candidate, thetas, steps: int = 3,
-                 best_steps: int = START_STEPS) -> tuple[float, np.ndarray]:
+                 best_steps: int = START_STEPS, rtol: float = START_RTOL) -> tuple[float, np.ndarray]:
     """E of the baseline and of the extended model at each theta with the loads refitted, from the baseline's fit.
 
     Every theta gets up to ``steps`` Gauss-Newton steps of the loads alone (:func:`_load_steps`, stopping
-    when a step gains less than :data:`START_RTOL`) under the candidate's own response
+    when a step gains less than ``rtol``, default :data:`START_RTOL`; 0: all of them) under the candidate's own
+    response (or under the baseline's, the gradient pulled back through a term that states its pullback)
     (``candidate.response``); the best of them, if it is not yet below the baseline, gets steps on up to
     ``best_steps`` in all, the refit's own start scan (:data:`START_STEPS`): from the quasi-static loads E at
     the right density can still be above the baseline's after three steps (panel seed 2007, density 1.07:
@@ -464,11 +477,11 @@ def load_profile(baseline: Baseline, candidate, thetas, steps: int = 3,
     """
     ext = _Extended(baseline.problem, candidate, baseline.f0_hz, getattr(baseline, "model", None), None)
     x = np.asarray(baseline.x, dtype=float)
-    e0 = _load_steps(ext, ext.state(x, np.zeros(ext.p)), max(steps, best_steps), START_RTOL).terms.total
+    e0 = _load_steps(ext, ext.state(x, np.zeros(ext.p)), max(steps, best_steps), rtol).terms.total
     states, out = [], []
     for v in thetas:
         try:
-            st = _load_steps(ext, ext.state(x, np.asarray(v, dtype=float).reshape(ext.p)), steps, START_RTOL)
+            st = _load_steps(ext, ext.state(x, np.asarray(v, dtype=float).reshape(ext.p)), steps, rtol)
             states.append(st)
             out.append(st.terms.total)
         except ValueError:
@@ -478,7 +491,7 @@ def load_profile(baseline: Baseline, candidate, thetas, steps: int = 3,
     k = int(np.argmin(out))
     if best_steps > steps and np.isfinite(out[k]) and out[k] >= e0:
         try:
-            out[k] = _load_steps(ext, states[k], best_steps - steps, START_RTOL).terms.total
+            out[k] = _load_steps(ext, states[k], best_steps - steps, rtol).terms.total
         except ValueError:
             pass
     return float(e0), out

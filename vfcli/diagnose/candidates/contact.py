@@ -141,6 +141,7 @@ class Contact(DisplacementTerm):
         self.band_mm = float(band_mm)
         self._own: tuple = (None, None)               # (mesh, default model)
         self._ops: tuple = (None, None, None)         # (model, ContactNodes, compliance)
+        self._units: tuple = (None, None)             # (model, (n_c, N, 3) unit pushes)
 
     def operators(self, baseline) -> tuple:
         """(model, :class:`ContactNodes`, compliance G (n_c, n_c)) of the baseline's model (cached)."""
@@ -178,6 +179,40 @@ class Contact(DisplacementTerm):
             np.add.at(rhs, (cn.ydof[:, None], np.arange(len(rows))[None]), (cn.side[None] * lam[rows]).T)
             out[rows] = model.vertex_displacements(model.solve(rhs)).reshape(len(rows), -1, 3)
         return out
+
+    def pullback(self, baseline, grad: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """(T, N, 3) gradient with respect to the baseline's displacements U0 of ``sum(grad * U)``, U the
+        extended model's displacements ``U0 + extension(U0, theta)`` and ``grad`` (T, N, 3) a gradient
+        with respect to U (e.g. dE/dU): the chain rule through the contact forces, so that a refit of the
+        loads under contact steps with E's exact gradient.
+
+        On each time's active set A (the nodes pushed, ``lambda > 0``) the forces are
+        ``lambda_A = -G_AA^-1 g0_A`` with ``g0 = s (y_rest + U0_y)``, so ``dU = dU0 - theta W_A G_AA^-1 S_A
+        dU0_y,A`` (W_A: the displacement per unit push at A) and the pullback subtracts
+        ``theta S_A G_AA^-1 W_A^T grad`` from grad's y at A.  Exact where the active set does not change
+        (lambda is piecewise linear in U0).
+        """
+        _, cn, g = self.operators(baseline)
+        lam = self.forces(baseline)
+        th = float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        out = np.array(grad, dtype=float, copy=True)
+        for t in np.flatnonzero(np.any(lam > 0, axis=1)):
+            active = np.flatnonzero(lam[t] > 0)
+            push = self.correction_of_units(baseline, active)            # (n_a, N, 3)
+            w = push.reshape(len(active), -1) @ np.asarray(grad[t], float).ravel()
+            z = np.linalg.solve(g[np.ix_(active, active)], w)
+            out[t, cn.nodes[active], 1] -= th * cn.side[active] * z
+        return out
+
+    def correction_of_units(self, baseline, which: np.ndarray) -> np.ndarray:
+        """(k, N, 3) displacement (mm) of a unit push (Pa mm^2, along the fold's outward y) at each contact
+        node ``which`` (k,) (indices into the contact nodes), cached per model."""
+        model, cn, _ = self.operators(baseline)
+        if self._units[0] is not model:
+            rhs = np.zeros((model.n_dofs, len(cn.nodes)))
+            rhs[cn.ydof, np.arange(len(cn.nodes))] = cn.side
+            self._units = (model, model.vertex_displacements(model.solve(rhs)).reshape(len(cn.nodes), -1, 3))
+        return self._units[1][np.asarray(which)]
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
         return self.correction(baseline, self.forces(baseline))[..., None]

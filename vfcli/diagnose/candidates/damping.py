@@ -18,6 +18,7 @@ import numpy as np
 
 from vfcli.diagnose.candidates.base import DisplacementTerm, derivative_step, time_derivative
 from vfcli.model.response.modal import harmonic_fit
+from vfcli.model.response.steady_state import SteadyStateResponse
 
 #: parameter unit: the column is per millisecond of retardation time
 MS = 1e-3
@@ -58,11 +59,21 @@ class KelvinVoigtDamping(DisplacementTerm):
                               derivative_step(baseline))
         return (-MS * vel)[..., None]
 
-    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
-        """Exact change at retardation time theta[0] (ms): the periodic steady state of the
-        viscoelastic folds (each harmonic k of f0 times ``1 / (1 + i k w0 tau)`` per mode, massless)
-        minus the elastic one, from the modal reduction of :class:`Inertia` (built once)."""
+    def response(self, baseline, theta: np.ndarray) -> SteadyStateResponse:
+        """The extended response at retardation time theta[0] (ms): the baseline's quasi-static response plus
+        the steady-state change of the viscoelastic folds (each harmonic k of f0 times ``1 / (1 + i k w0 tau)``
+        per mode, massless, no structural loss), from the modal reduction of :class:`Inertia` (built once);
+        linear in the loads, so the confirmation refit fits the loads with the damping's lag (exact
+        x-columns, :mod:`vfcli.diagnose.refit`) instead of the elastic model's."""
         tau_s = MS * float(np.asarray(theta, dtype=float).reshape(-1)[0])
-        red = self._modal.reduction(baseline)
-        return (self._modal.steady_state(baseline, 0.0, red, retardation_s=tau_s)
-                - self._modal.steady_state(baseline, 0.0, red))
+        p = baseline.problem
+        return SteadyStateResponse(p.response, self._modal.reduction(baseline, self._modal.n_harmonics),
+                                   baseline.f0_hz, p.sim_times, retardation_s=tau_s,
+                                   n_harmonics=self._modal.n_harmonics)
+
+    def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
+        """Exact change at retardation time theta[0] (ms): :meth:`response`'s steady-state change at the
+        baseline's loads."""
+        if not (np.isfinite(baseline.f0_hz) and baseline.f0_hz > 0):
+            raise ValueError(f"the damping steady state needs the baseline's f0, got {baseline.f0_hz!r}")
+        return self.response(baseline, theta).change(baseline.x, baseline.problem.sim_times)
