@@ -76,8 +76,8 @@ def motion_adjoint(baseline, s: np.ndarray, weights: np.ndarray) -> np.ndarray:
         n = 3 * fr.m_both.shape[0]
         rows = (s[at:at + n] * weights[at:at + n]).reshape(-1, 3)
         gd = fr.m_both.T @ rows / p.dt
-        g[f + 1] += gd
-        g[f] -= gd
+        for k, w in zip(*p.stencil[f]):
+            g[k] += w * gd
         at += n
     return p.response.adjoint(g, p.sim_times, baseline.x)
 

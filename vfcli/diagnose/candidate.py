@@ -12,7 +12,7 @@ residual has, in the same order):
 
 * **motion rows**: per frame f (0..F-1) and compared pixel (the pixels valid in both the
   recording and the simulation at the baseline's frozen raster), the simulated surface
-  velocity ``M_f (U(t_{f+1}) - U(t_f)) / dt`` (mm/s), 3 components (model x, y, z);
+  velocity at the frame time ``M_f V_f`` (``Problem.frame_velocity``, mm/s), 3 components (model x, y, z);
   frame-major, then pixel (in ``Problem.freeze``'s order), then component;
 * **gap rows**: per frame and silhouette crossing (each ray and fold side the baseline's
   frozen silhouettes use), the simulated lateral silhouette position, mm.
@@ -70,8 +70,8 @@ class Baseline:
 
     def motion_vector(self, disp: np.ndarray) -> np.ndarray:
         """(n_motion_rows,) simulated velocity (mm/s) at the compared pixels for displacements disp (F + 1, N, 3)."""
-        dt = self.problem.dt
-        return np.concatenate([(fr.m_both @ (disp[f + 1] - disp[f]) / dt).ravel()
+        p = self.problem
+        return np.concatenate([(fr.m_both @ p.frame_velocity(disp, f)).ravel()
                                for f, fr in enumerate(self.frames)] or [np.zeros(0)])
 
     def measured_motion(self) -> np.ndarray:

@@ -65,7 +65,7 @@ def prediction_error(baseline, disp: np.ndarray, frames_of: np.ndarray, componen
         fr = baseline.frames[f]
         if fr.m_both.shape[0] == 0:
             continue
-        r = (fr.m_both @ (disp[f + 1] - disp[f]) / p.dt - fr.v_both)[:, comps]
+        r = (fr.m_both @ p.frame_velocity(disp, f) - fr.v_both)[:, comps]
         ss += float(np.sum(r * r))
         n += r.size
     return float(np.sqrt(ss / n)) if n else float("nan")

@@ -36,7 +36,7 @@ def point_series(baseline, disps: list[np.ndarray], pixels: np.ndarray) -> tuple
             meas[f, j] = fr.v_both[i]
             row = fr.m_both[i]
             for s, u in zip(sims, disps):
-                s[f, j] = row @ (u[f + 1] - u[f]) / p.dt
+                s[f, j] = row @ p.frame_velocity(u, f)
     return meas, sims
 
 

@@ -8,8 +8,8 @@ Each term of E (:mod:`vfcli.inverse.terms`) then gives its Gauss-Newton Hessian 
 of Kronecker products of (n_spatial, n_spatial) blocks with (n_time, n_time) time factors,
 for example the motion term of frame f::
 
-    r_f = (M_f / dt) (U(t_{f+1}) - U(t_f)) - v_f
-    d^2/dx^2 |r_f|^2 = 2 sum_{j,k} (R_j^T M_f^T M_f R_k) (x) (db_j,f db_k,f^T),   db_j,f = B_j(t_{f+1}) - B_j(t_f)
+    r_f = (M_f / dt) sum_k s_fk U(t_k) - v_f          (s_f: the frame-time stencil, vfcli.inverse.stencil)
+    d^2/dx^2 |r_f|^2 = 2 sum_{j,k} (R_j^T M_f^T M_f R_k) (x) (db_j,f db_k,f^T),   db_j,f = sum_k s_fk B_j(t_k)
 
 so the full (n_params, n_params) Hessian is one contraction of the stacked blocks with
 the stacked outer products.  A quasi-static response has one term (R, b(t)), for which

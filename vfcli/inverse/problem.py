@@ -6,8 +6,10 @@ The measurement has F frames at uniformly spaced ``times`` (dt apart).  The mode
 is evaluated at the F + 1 times ``times`` and ``times[-1] + dt``
 (:attr:`Problem.sim_times`); a force field's time range should be
 ``(sim_times[0], sim_times[-1])``.  Frame f compares the measured v(y, t_f) with
-the forward difference ``(x(u, v, t_f + dt) - x(u, v, t_f)) / dt`` of the
-material point seen in pixel y at t_f (paper, eq. for v-bar).
+the velocity at t_f of the material point seen in pixel y at t_f: the paper's v-bar, with the
+forward difference ``(x(u, v, t_f + dt) - x(u, v, t_f)) / dt`` (the velocity at t_f + dt/2) replaced by
+the frame-time combination of :mod:`vfcli.inverse.stencil` (the measured velocities are the frame
+times', and the forward difference put the model half a frame ahead of them).
 
 E = motion_weight * E_motion + gap_weight * E_gap (both means over the F frames)
 + ridge_weight * x^T Omega x / n_params, the last an optional bound on the loads
@@ -86,6 +88,7 @@ from vfcli.camera.camera import Camera
 from vfcli.camera.raster import rasterize
 from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, surface_edges
 from vfcli.flow.gap.opening import measured_silhouettes
+from vfcli.inverse.stencil import frame_velocity_stencil, stencil_apply
 from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
 from vfcli.model.response.base import Response
@@ -223,6 +226,8 @@ class Problem:
             raise ValueError(f"outside='symmetric' needs the measurement's ({f}, {h}, {w}) gap masks")
         self.dt = float(times[1] - times[0])
         self.sim_times = np.append(times, times[-1] + self.dt)
+        #: per frame, the simulated times and weights of the model's velocity at t_f (vfcli.inverse.stencil)
+        self.stencil = frame_velocity_stencil(f)
         self.n_frames = f
         self.ray_comp = 0 if st.lateral_axis == 0 else 1
         self.n_rays_img = w if st.lateral_axis == 0 else h
@@ -350,9 +355,14 @@ class Problem:
         h, w = self.camera.shape
         out = np.full((self.n_frames, h * w, 3), np.nan)
         for f, fr in enumerate(frames):
-            out[f, fr.pix_both] = fr.m_both @ (u[f + 1] - u[f]) / self.dt - fr.v_both
+            out[f, fr.pix_both] = fr.m_both @ self.frame_velocity(u, f) - fr.v_both
             out[f, fr.pix_only] = -self.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
         return out.reshape(self.n_frames, h, w, 3)
+
+    def frame_velocity(self, u: np.ndarray, f: int) -> np.ndarray:
+        """(N, 3) the model's vertex velocity at frame time t_f, mm/s, from its displacements u (F + 1, N, 3)
+        at :attr:`sim_times` (:mod:`vfcli.inverse.stencil`)."""
+        return stencil_apply(u, self.stencil[f]) / self.dt
 
     def frozen_value(self, x: np.ndarray, frames: list[_Frame]) -> Terms:
         """E at ``x`` with rasters and silhouette edges frozen at an earlier :meth:`freeze`."""
@@ -379,7 +389,7 @@ def synthesize_measurement(mesh: FoldMesh, camera: Camera, response, times: np.n
                            settings: ObjectiveSettings | None = None) -> Measurement:
     """Forward-simulate a measurement from control values (for tests and phantoms).
 
-    The velocity is the model's forward-difference v_bar on the visible surface
+    The velocity is the model's frame-time velocity (:meth:`Problem.frame_velocity`) on the visible surface
     (valid where a surface is visible, the gap mask everywhere else), the gap targets
     are the model's own silhouettes on every ray both folds cross (NaN elsewhere): a
     fit of the same model can reach E = 0.
@@ -398,7 +408,7 @@ def synthesize_measurement(mesh: FoldMesh, camera: Camera, response, times: np.n
     for k in range(f):
         pos = mesh.nodes + u[k]
         raster = rasterize(camera, pos, prob.tri)
-        vel[k, raster.visible_index] = raster.interpolate_visible((u[k + 1] - u[k]) / prob.dt)
+        vel[k, raster.visible_index] = raster.interpolate_visible(prob.frame_velocity(u, k))
         valid[k, raster.visible_index] = True
         (r0, _, s0), (r1, _, s1) = prob.silhouettes(pos)
         common = np.intersect1d(r0, r1)

@@ -82,7 +82,7 @@ def _kappa_after(baseline, model, dof: float, u: np.ndarray, n_extra: int) -> fl
     h, w = p.camera.shape
     images = np.full((p.n_frames, h * w, 3), np.nan)
     for f, fr in enumerate(baseline.frames):
-        images[f, fr.pix_both] = fr.m_both @ (u[f + 1] - u[f]) / p.dt - fr.v_both
+        images[f, fr.pix_both] = fr.m_both @ p.frame_velocity(u, f) - fr.v_both
         images[f, fr.pix_only] = -p.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
     corr = effective_sample_size(images.reshape(p.n_frames, h, w, 3))
     motion = next(t for t in p.terms if t.name == "motion")

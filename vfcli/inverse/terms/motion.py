@@ -4,7 +4,11 @@ Per frame f, with the frozen interpolation rows M_f (n_both, N) of the compared 
 (:meth:`vfcli.inverse.problem.Problem.freeze`), the measured velocity v_f (n_both, 3)
 mm/s and the component weights w_c::
 
-    r_f = M_f (U(t_{f+1}) - U(t_f)) / dt - v_f                             (n_both, 3) mm/s
+    r_f = M_f V_f - v_f                                                       (n_both, 3) mm/s
+
+with V_f the model's vertex velocity at the frame time t_f, ``sum_k s_fk U(t_k) / dt`` over the stencil
+s_f of :mod:`vfcli.inverse.stencil` (central inside the window; the paper's forward difference is the
+velocity half a frame later)
     E_motion = motion_weight / F * sum_f (sum_c w_c |r_f,c|^2 + const_f) / N_f
 
 (const_f: the pixels valid only in the measurement, N_f: the frame's valid pixels).
@@ -14,7 +18,7 @@ Gauss-Newton
 For a frozen raster r_f is linear in U, and with ``dU(t) = sum_j R_j dC B_j(t)``
 (:mod:`vfcli.model.response.base`)::
 
-    J_f = sum_j (M_f R_j / dt) (x) db_j,f^T,        db_j,f = B_j(t_{f+1}) - B_j(t_f)
+    J_f = sum_j (M_f R_j / dt) (x) db_j,f^T,        db_j,f = sum_k s_fk B_j(t_k)
     J_f^T J_f = sum_{j,k} (R_j^T M_f^T M_f R_k) (x) (db_j,f db_k,f^T)
 
 so the Hessian is exact (the motion term is quadratic in x for a linear response) and
@@ -25,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from vfcli.inverse.stencil import stencil_apply
 from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, term_pairs
 
 
@@ -83,12 +88,12 @@ class MotionTerm(FrameTerm):
         u, n_f = ev.disp, p.n_frames
         motion = 0.0
         for f, fr in enumerate(ev.frames):
-            r = fr.m_both @ (u[f + 1] - u[f]) / p.dt - fr.v_both
+            r = fr.m_both @ p.frame_velocity(u, f) - fr.v_both
             motion += (np.sum(r * r @ cw) + fr.const) / fr.n_norm
             if ev.wants_grad and w:
                 gd = (fr.m_both.T @ (r * cw)) * (2.0 * w / (n_f * fr.n_norm * p.dt))
-                ev.grad_disp[f + 1] += gd
-                ev.grad_disp[f] -= gd
+                for k, s in zip(*p.stencil[f]):
+                    ev.grad_disp[k] += s * gd
         return w * motion / n_f
 
     def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
@@ -101,7 +106,7 @@ class MotionTerm(FrameTerm):
         pairs = term_pairs(lin.n_terms)
         b = lin.temporal
         for f, fr in enumerate(ev.frames):
-            db = [bj[f + 1] - bj[f] for bj in b]
+            db = [stencil_apply(bj, p.stencil[f]) for bj in b]
             w = 2.0 * weight / (p.n_frames * fr.n_norm * p.dt ** 2)
             seen, gram = seen_vertex_gram(fr.m_both)
             for i, (j, k) in enumerate(pairs):
