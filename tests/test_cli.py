@@ -70,6 +70,42 @@ def test_info_shows_stages_provenance_and_staleness(vfcli, tmp_path):
     assert "STALE: /mesh was rewritten" in res.stdout
 
 
+def test_a_run_fitted_by_an_older_method_is_stale_with_what_changed(vfcli, tmp_path):
+    """optimize's method version 2 (the model's velocity at the frame times): a run written before
+    vfcli recorded the version (no attribute, i.e. method 1) is stale and says why, and so is the
+    diagnosis of it; the store is not damaged, and a fresh run is current."""
+    import h5py
+
+    from vfcli.store import layout
+
+    path = tmp_path / "r.h5"
+    store = _store_with_two_stages(path)
+    with store.write("vfcli optimize r.h5") as w:
+        with w.stage("optimize", run="default", config_json="{}", upstream=[("mesh", None)]) as s:
+            s.put("controls", np.ones(3))
+    with store.write("vfcli diagnose r.h5") as w:
+        with w.stage("diagnose", run="default", config_json="{}", upstream=[("optimize", "default")]) as s:
+            s.put("frame_time", np.arange(3.0))
+    with store.read() as r:
+        assert r.group("optimize", "default").attrs[layout.METHOD_ATTR] == layout.stage("optimize").method == 2
+        assert r.group("mesh").attrs[layout.METHOD_ATTR] == 1
+        assert not any(st.stale for st in r.statuses())
+        assert r.is_current("optimize", "{}", upstream=[("mesh", None)], run="default")
+    with h5py.File(path, "r") as f:   # the run's part file, as a vfcli before the method version wrote it
+        part = path.parent / f.get("/optimize/default", getlink=True).filename
+    with h5py.File(part, "r+") as f:
+        del f["/optimize/default"].attrs[layout.METHOD_ATTR]
+    res = vfcli("info", path, "--verify")
+    assert res.returncode == 0, res.stderr   # not damaged: the version is not part of the checksums
+    assert ("STALE: method changed: optimize method 1 -> 2 (the model's velocity at the frame times "
+            "(central differences)") in res.stdout
+    assert "STALE: /optimize/default is stale" in res.stdout
+    with store.read() as r:
+        status = {st.path: st for st in r.statuses()}
+        assert not status["/mesh"].stale and not status["/sync"].stale
+        assert not r.is_current("optimize", "{}", upstream=[("mesh", None)], run="default")
+
+
 def test_info_reports_an_interrupted_write(vfcli, tmp_path):
     path = tmp_path / "r.h5"
     _store_with_two_stages(path)

@@ -30,7 +30,7 @@ from vfcli.store import layout
 #: What reading a damaged HDF5 file can raise (h5py turns libhdf5 errors into these).
 H5_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError, IndexError, UnicodeDecodeError)
 
-_NOT_HASHED_ATTRS = frozenset((*layout.PROVENANCE_ATTRS, "complete", layout.MANIFEST_ATTR))
+_NOT_HASHED_ATTRS = frozenset((*layout.PROVENANCE_ATTRS, "complete", layout.MANIFEST_ATTR, layout.METHOD_ATTR))
 
 
 def dataset_sha256(ds: h5py.Dataset) -> str:

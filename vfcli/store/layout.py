@@ -28,6 +28,10 @@ SUMMARY_ATTR = "summary_json"
 #: and the SHA-256 of the group's other attributes (:mod:`vfcli.store.integrity`).
 MANIFEST_ATTR = "manifest_json"
 
+#: Stage-group attribute holding the version of the stage's method that wrote it (:attr:`Stage.method`;
+#: absent in stages written before vfcli recorded it, which count as version 1).
+METHOD_ATTR = "method_version"
+
 #: Stages kept in their own part file beside the store file, external-linked from it
 #: (:mod:`vfcli.store.parts`): every stage whose size grows with the recording (frames, LDV
 #: points and samples). Only /mesh (a few hundred kB) stays in the store file.
@@ -79,6 +83,12 @@ class Stage:
     reads: tuple[str, ...] = ()
     datasets: dict[str, Dataset] = field(default_factory=dict)
     has_runs: bool = False
+    #: Version of the stage's method: raised when a code change alters what the stage computes from
+    #: the same inputs and config, so a stage written by an older method shows as stale
+    #: (:meth:`vfcli.store.reader.StoreReader.status`) and ``vfcli run`` writes it again.
+    method: int = 1
+    #: What changed at each version above 1, ``{version: one line}`` (shown as the reason).
+    method_changes: dict[int, str] = field(default_factory=dict)
 
     def group_path(self, run: str | None = None) -> str:
         """HDF5 path of the stage group (``/optimize/<run>`` for stages with runs)."""
@@ -252,6 +262,9 @@ STAGES: dict[str, Stage] = {
             "One optimisation run: force-field control values, history and the reconstructed motion.",
             reads=("mesh", "fields", "flow", "hsc"),
             has_runs=True,
+            method=2,
+            method_changes={2: "the model's velocity at the frame times (central differences), no longer half a "
+                               "frame later (vfcli 2c4c8b6)"},
             datasets={
                 "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),
                 "displacements": D("mm", "Reconstructed vertex displacements", ("sim_time", "node", "xyz"), True),
@@ -293,6 +306,8 @@ STAGES: dict[str, Stage] = {
             "bootstrap calibration, and the decision (attrs decision, alpha_family).",
             reads=("optimize", "mesh", "fields", "flow", "ldv", "sync"),
             has_runs=True,
+            method=2,
+            method_changes={2: "the model's velocity at the frame times in every motion row (vfcli 2c4c8b6)"},
             datasets={
                 "frame_time": D("s", "Times of the run's window frames", ("frame_time",)),
                 "frame_phase": D("cycles", "Glottal cycle phase of each window frame (from the gap area)", ("frame_time",)),
@@ -449,7 +464,11 @@ def layout_markdown() -> str:
         + f". A complete stage also carries `{SUMMARY_ATTR}`: the figures its command printed and the warnings "
         "it logged (JSON `{\"figures\": {...}, \"warnings\": [...]}`, shown by `vfcli info`), and "
         f"`{MANIFEST_ATTR}`: each dataset's shape, dtype and SHA-256 and the checksum of the group's other "
-        "attributes, which vfcli checks (docs/input-checks.md, \"Store integrity\"). "
+        "attributes, which vfcli checks (docs/input-checks.md, \"Store integrity\"), and "
+        f"`{METHOD_ATTR}`: the version of the stage's method that wrote it (absent: 1). A stage written by "
+        "an older method than the installed vfcli's is stale (`vfcli info` says what changed; `vfcli run` "
+        "writes it again): " + "; ".join(f"`/{st.name}` {v}: {text}" for st in STAGES.values()
+                                         for v, text in sorted(st.method_changes.items())) + ". "
         "Every dataset carries `units` and `description`, and every axis is an HDF5 dimension scale: time "
         "axes are the stage's time datasets, the other axes are stored beside the datasets under their own "
         "name (below), so netCDF readers (xarray) see named dimensions.",

@@ -118,6 +118,18 @@ def _group_size(g: h5py.Group) -> int:
     return total
 
 
+def _method_changes(path: str, written: int) -> list[str]:
+    """Why a stage group at ``path`` written by method version ``written`` is stale under the installed
+    vfcli (:attr:`vfcli.store.layout.Stage.method`): one reason naming what changed since, or none."""
+    st = layout.stage(path.strip("/").split("/")[0])
+    if written == st.method:
+        return []
+    if written > st.method:
+        return [f"method changed: written by a newer vfcli (method {written}, this one has {st.method})"]
+    changes = "; ".join(text for v, text in sorted(st.method_changes.items()) if written < v <= st.method)
+    return [f"method changed: {st.name} method {written} -> {st.method}" + (f" ({changes})" if changes else "")]
+
+
 def _config_diff(had: Any, want: Any, prefix: str = "") -> str:
     """The settings that differ between two config dicts, as ``key: old -> new``."""
     if isinstance(had, dict) and isinstance(want, dict):
@@ -259,7 +271,7 @@ class StoreReader:
         g = self._f[path]
         prov = {k: g.attrs[k] for k in layout.PROVENANCE_ATTRS if k in g.attrs}
         prov = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in prov.items()}
-        stale = []
+        stale = _method_changes(path, int(g.attrs.get(layout.METHOD_ATTR, 1)))
         for up_path, up_digest in json.loads(prov.get("upstream_json", "{}")).items():
             if up_path not in self._f:
                 stale.append(f"{up_path} is gone")

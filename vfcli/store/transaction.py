@@ -158,6 +158,7 @@ class StoreWriter:
             record["digest"] = content_digest(g, hashed)   # the chunks hashed once, for the manifest
             for k, v in record.items():
                 g.attrs[k] = v
+            g.attrs[layout.METHOD_ATTR] = st.method
             g.attrs["complete"] = True
             if part is not None:
                 part.flush()
