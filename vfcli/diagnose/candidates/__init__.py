@@ -22,7 +22,9 @@ from vfcli.diagnose.candidates.delay import LoadDelay
 from vfcli.diagnose.candidates.inertia import Inertia
 
 #: the candidate terms screened by ``vfcli diagnose`` (instances; :func:`vfcli.diagnose.candidate.available_candidates`)
-CANDIDATES = (Inertia(), KelvinVoigtDamping(), StiffnessAsymmetry(), MountingOffset(), Contact())
+_INERTIA = Inertia()
+#: (damping shares inertia's modal reduction: both profiles and refits use the same steady state)
+CANDIDATES = (_INERTIA, KelvinVoigtDamping(modal=_INERTIA), StiffnessAsymmetry(), MountingOffset(), Contact())
 
 __all__ = ["CANDIDATES", "Contact", "Inertia", "KelvinVoigtDamping", "LoadDelay", "MountingOffset",
            "StiffnessAsymmetry"]

@@ -33,11 +33,27 @@ class KelvinVoigtDamping(DisplacementTerm):
                  "(harmonic k delayed by atan(k w0 tau)), and amplitude lost at the higher harmonics")
     #: a retardation time is positive: a lead in the motion (tau < 0) is no damping
     one_sided = True
+    #: retardation times (ms) the profile screening and the confirmation refit's start scan try: loss
+    #: factors ``2 pi f0 tau`` of 0.04-0.6 at 120 Hz (0.05-0.85 at 170 Hz), around silicone's estimated
+    #: 0.1-0.3 (the reference's physical setup); a loss factor far beyond 0.2 is not linear in tau
+    start_values = (0.05, 0.1, 0.2, 0.4, 0.8)
+    #: the score test's column at tau = 0 is also the column of a load that lags the recorded pressure and
+    #: is linear in tau only while ``k w0 tau`` is small at the harmonics that carry the motion: the
+    #: diagnosis also profiles E over :attr:`start_values` with the loads refitted under the viscoelastic
+    #: steady state (:mod:`vfcli.diagnose.profile`; the blind panel's damping phantoms 2008 and 2013, which
+    #: the calibrated score test missed, fit 71 and 77 % better at their best loss factor, docs/diagnose.md)
+    profile_screening = True
 
-    def __init__(self, model=None) -> None:
+    def __init__(self, model=None, modal=None) -> None:
+        """model : the FEM model (default: the baseline's).  modal : an :class:`Inertia` whose modal reduction
+        this term shares (built once per baseline for both), default its own."""
         from vfcli.diagnose.candidates.inertia import Inertia
 
-        self._modal = Inertia(model)                 # its modal reduction and steady state, shared code
+        self._modal = modal if modal is not None else Inertia(model)   # its modal reduction and steady state
+
+    def reduction(self, baseline):
+        """The modal reduction the steady state uses (:meth:`Inertia.reduction`, built once per baseline)."""
+        return self._modal.reduction(baseline, self._modal.n_harmonics)
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
         """(F + 1, N, 3, 1) dU/dtau at tau = 0, mm per ms: ``-U0'(t)``.  For a load tied to a recorded
@@ -67,7 +83,7 @@ class KelvinVoigtDamping(DisplacementTerm):
         x-columns, :mod:`vfcli.diagnose.refit`) instead of the elastic model's."""
         tau_s = MS * float(np.asarray(theta, dtype=float).reshape(-1)[0])
         p = baseline.problem
-        return SteadyStateResponse(p.response, self._modal.reduction(baseline, self._modal.n_harmonics),
+        return SteadyStateResponse(p.response, self.reduction(baseline),
                                    baseline.f0_hz, p.sim_times, retardation_s=tau_s,
                                    n_harmonics=self._modal.n_harmonics)
 
