@@ -69,12 +69,12 @@ def test_joint_fit_finds_a_known_theta_from_zero(candidate, theta, tol):
 def test_damping_refit_at_a_finite_retardation_uses_the_modal_steady_state():
     cand = KelvinVoigtDamping(pressure_case(12, 4).model)
     base = case_with(cand, (0.3,))
-    r = refit(base, cand, max_iterations=3)
-    assert abs(r.theta[0] - 0.3) < 0.01 * 0.3
-    # the term is nonlinear in tau: the linear column at 0 would not reach it in one step, so the refit starts
-    # from the best of its start values (0.2 and 0.4 bracket the truth; the profile's parabola refines it)
+    # from 0.25 (the refit's start scan, which brackets 0.3 between its start values 0.2 and 0.4, is
+    # inertia's test's; here it would repeat 5 x 8 load steps): the steady state's Gauss-Newton steps find it
+    r = joint_fit(base.problem, base.x, cand, base.f0_hz, theta0=np.array([0.25]), max_iterations=4, model=base.model)
     print("damping refit: theta", r.history["theta"].ravel())
-    assert 0.2 <= r.history["theta"][0, 0] <= 0.4
+    assert abs(r.theta[0] - 0.3) < 0.01 * 0.3
+    # the term is nonlinear in tau: the linear column at 0 does not reach it in one step
     fixed = joint_fit(base.problem, base.x, cand, base.f0_hz, theta0=np.zeros(1), max_iterations=1, model=base.model)
     assert abs(fixed.history["theta"][-1, 0] - 0.3) > 1e-3
 

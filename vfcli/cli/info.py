@@ -82,9 +82,9 @@ def info_cmd(files: tuple[str, ...], as_json: bool, verify: bool) -> None:
 
     A stage is STALE when a stage it used was rewritten or is stale itself, when the
     recording config now gives it other settings, or when an older vfcli method wrote it
-    (e.g. an optimize run fitted before the model's velocity moved to the frame times). Reads every group; writes nothing. Exit 4
-    when a stage is damaged (its structure, or with --verify its data, differs from what vfcli
-    wrote), after showing them all.
+    (e.g. an optimize run fitted before the model's velocity moved to the frame times).
+    Reads every group; writes nothing. Exit 4 when a stage is damaged (its structure, or with
+    --verify its data, differs from what vfcli wrote), after showing them all.
     """
     from vfcli.stages.base import expected_configs
     from vfcli.store.info import store_info
