@@ -33,6 +33,7 @@ from vfcli.camera.pose import model_axes_velocity
 from vfcli.diagnose.calibrate import (DEFAULT_REPLICATES, Calibration, NullParts, ScoreBasis, calibrate,
                                       quadrature_scores)
 from vfcli.diagnose.cycles import Cycles
+from vfcli.inverse.stencil import stencil_scatter
 
 #: noise stretches used at most on each side of the window (time and memory stay bounded)
 MAX_POOL_STRETCHES = 8
@@ -76,8 +77,7 @@ def motion_adjoint(baseline, s: np.ndarray, weights: np.ndarray) -> np.ndarray:
         n = 3 * fr.m_both.shape[0]
         rows = (s[at:at + n] * weights[at:at + n]).reshape(-1, 3)
         gd = fr.m_both.T @ rows / p.dt
-        for k, w in zip(*p.stencil[f]):
-            g[k] += w * gd
+        stencil_scatter(g, p.stencil[f], gd)
         at += n
     return p.response.adjoint(g, p.sim_times, baseline.x)
 

@@ -33,3 +33,10 @@ def stencil_apply(u: np.ndarray, stencil: tuple[np.ndarray, np.ndarray]) -> np.n
     """``sum_k w_k u[idx_k]`` of one frame's stencil over the first axis of u (e.g. (F + 1, N, 3) mm -> (N, 3))."""
     idx, w = stencil
     return np.tensordot(w, np.asarray(u)[idx], axes=1)
+
+
+def stencil_scatter(out: np.ndarray, stencil: tuple[np.ndarray, np.ndarray], value: np.ndarray) -> None:
+    """The adjoint of :func:`stencil_apply`: ``out[idx_k] += w_k * value`` for one frame's stencil (in place)."""
+    idx, w = stencil
+    for k, wk in zip(idx, w):
+        out[k] += wk * value

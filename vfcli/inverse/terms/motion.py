@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from vfcli.inverse.stencil import stencil_apply
+from vfcli.inverse.stencil import stencil_apply, stencil_scatter
 from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, term_pairs
 
 
@@ -92,8 +92,7 @@ class MotionTerm(FrameTerm):
             motion += (np.sum(r * r @ cw) + fr.const) / fr.n_norm
             if ev.wants_grad and w:
                 gd = (fr.m_both.T @ (r * cw)) * (2.0 * w / (n_f * fr.n_norm * p.dt))
-                for k, s in zip(*p.stencil[f]):
-                    ev.grad_disp[k] += s * gd
+                stencil_scatter(ev.grad_disp, p.stencil[f], gd)
         return w * motion / n_f
 
     def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
