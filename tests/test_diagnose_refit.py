@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from _candidates_case import CAMERA, SETTINGS, pressure_case, reduced_inertia
+from _candidates_case import CAMERA, SETTINGS, pressure_case, reduced_damping, reduced_inertia
 from vfcli.diagnose.candidates import KelvinVoigtDamping, MountingOffset, StiffnessAsymmetry
 from vfcli.diagnose.confirmation import Confirmation, HeldOutError, heldout_sd
 from vfcli.diagnose.heldout import cycle_groups, leave_cycles_out, prediction_error
@@ -67,7 +67,7 @@ def test_joint_fit_finds_a_known_theta_from_zero(candidate, theta, tol):
 
 
 def test_damping_refit_at_a_finite_retardation_uses_the_modal_steady_state():
-    cand = KelvinVoigtDamping(pressure_case(12, 4).model)
+    cand = reduced_damping(pressure_case(12, 4))
     base = case_with(cand, (0.3,))
     # from 0.25 (the refit's start scan, which brackets 0.3 between its start values 0.2 and 0.4, is
     # inertia's test's; here it would repeat 5 x 8 load steps): the steady state's Gauss-Newton steps find it
@@ -226,7 +226,7 @@ def test_the_profile_leads_to_the_truth_with_the_term_and_stays_quiet_without(te
     from vfcli.diagnose.profile import profile_screens
 
     b0 = pressure_case(12, 4)
-    cand = reduced_inertia(b0)[0] if term == "inertia" else KelvinVoigtDamping(b0.model)
+    cand = reduced_inertia(b0)[0] if term == "inertia" else reduced_damping(b0)
     out = {}
     for theta in (truth, 0.0):
         data = case_with(cand, (theta,), noise_mm_s=20.0, seed=3)
