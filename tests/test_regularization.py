@@ -53,3 +53,47 @@ def test_lcurve_corner_recovers_the_signal_where_no_regularisation_fails(seed, n
         assert eta == pytest.approx(z @ z, rel=1e-8)
     assert np.all(np.diff(curve.misfit) >= -1e-12 * curve.misfit.max())   # misfit grows with the weight
     assert np.all(np.diff(curve.penalty) <= 1e-12 * curve.penalty.max())  # and the penalty falls
+
+
+def _gains_and_correction(seed: int = 0):
+    """A pressure-model-like problem: 3 gains that explain the data (penalty weight 1e-6, as
+    PressureLoad.penalty_operator gives them) and 60 free correction values the data hardly see
+    (column scales 1 .. 1e-4) that can only fit the noise."""
+    rng = np.random.default_rng(seed)
+    m, ng, nf = 400, 3, 60
+    a = np.hstack([10 * rng.normal(size=(m, ng)), rng.normal(size=(m, nf)) @ np.diag(np.logspace(0, -4, nf))])
+    g_true = np.array([1.0, -0.5, 0.3])
+    y = a[:, :ng] @ g_true + 0.05 * rng.normal(size=m)
+    n = ng + nf
+    h = BlockMatrix(n, (np.arange(n),), (2 * a.T @ a,))
+    model = QuadraticModel(Terms(float(y @ y), float(y @ y), 0.0), -2 * a.T @ y, h, h, m)
+    omega = sp.diags(np.r_[np.full(ng, 1e-6), np.ones(nf)])
+    return model, a, y, omega, g_true
+
+
+def test_the_default_scan_reaches_the_corner_where_the_free_correction_gives_way(caplog):
+    """The misfit of such a problem rises by about 10 % over the 8 decades of the former scan (-6 .. 2 about
+    lam_ref) while the penalty falls: that scan's largest curvature was its last interior weight (its
+    "corner" a point of the vertical branch, with a warning now).  The default scan reaches the real
+    corner: an interior maximum of the curvature far above the rest, where the correction has shrunk to
+    the noise's share and the gains are those of the data."""
+    model, a, y, omega, g_true = _gains_and_correction()
+    n = a.shape[1]
+
+    def solution(lam):
+        return np.linalg.solve(2 * a.T @ a + 2 * lam / n * omega.toarray(), 2 * a.T @ y)
+
+    with caplog.at_level("WARNING", logger="vfcli.inverse.regularization"):
+        narrow = lcurve(model, np.zeros(n), omega, n_points=17, decades=(-6.0, 2.0))
+    assert narrow.chosen == narrow.weights[-2] and "the corner is at the end of the scanned weights" in caplog.text
+    assert np.ptp(np.log(narrow.misfit)) < 0.15                             # measured 0.10
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="vfcli.inverse.regularization"):
+        curve = lcurve(model, np.zeros(n), omega)
+    assert not caplog.text
+    k = int(np.flatnonzero(curve.weights == curve.chosen)[0])
+    assert 2 <= k <= len(curve.weights) - 3
+    assert curve.curvature[k] > 100 * np.median(np.abs(curve.curvature))       # measured: 2e4 against 0.01
+    free = lambda lam: np.linalg.norm(solution(lam)[3:])                        # noqa: E731
+    assert free(curve.chosen) < 1e-3 * free(curve.weights[0])
+    np.testing.assert_allclose(solution(curve.chosen)[:3], g_true, atol=2e-3)   # measured 3e-4

@@ -262,9 +262,11 @@ STAGES: dict[str, Stage] = {
             "One optimisation run: force-field control values, history and the reconstructed motion.",
             reads=("mesh", "fields", "flow", "hsc"),
             has_runs=True,
-            method=2,
+            method=3,
             method_changes={2: "the model's velocity at the frame times (central differences), no longer half a "
-                               "frame later (vfcli 2c4c8b6)"},
+                               "frame later (vfcli 2c4c8b6)",
+                            3: "the L-curve scans 16 decades of ridge weight, to its real corner (it stopped on "
+                               "the curve's vertical branch, where the corner is round-off)"},
             datasets={
                 "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),
                 "displacements": D("mm", "Reconstructed vertex displacements", ("sim_time", "node", "xyz"), True),
