@@ -41,7 +41,7 @@ class KelvinVoigtDamping(DisplacementTerm):
     #: is linear in tau only while ``k w0 tau`` is small at the harmonics that carry the motion: the
     #: diagnosis also profiles E over :attr:`start_values` with the loads refitted under the viscoelastic
     #: steady state (:mod:`vfcli.diagnose.profile`; the blind panel's damping phantoms 2008 and 2013, which
-    #: the calibrated score test misses, fit 82 and 86 % better at their best value, docs/benchmarks.md)
+    #: the calibrated score test misses, fit 66 and 76 % better at their best value, docs/benchmarks.md "Session 12")
     profile_screening = True
 
     def __init__(self, model=None, modal=None) -> None:
