@@ -47,7 +47,7 @@ velocity by optical flow) and the vibrometer (vertical velocity) measure the sam
 surface independently, with errors of their own, so the reconstruction each implies
 alone is an independent estimate of the same motion (:func:`instrument_fits`: one
 Gauss-Newton step from the joint fit on E with the motion term of that instrument only,
-gap and ridge kept).  If each has a systematic error of standard deviation s, their
+gap and ridge kept, the ridge centred on the joint fit).  If each has a systematic error of standard deviation s, their
 difference has standard deviation ``sqrt(2) s``; the joint fit is not credited with
 averaging the two (the errors need not be independent of the fit's own), so
 
@@ -56,6 +56,22 @@ averaging the two (the errors need not be independent of the fit's own), so
 is added in quadrature to the posterior standard deviation (:func:`instrument_std`).
 With one pair of instruments this is a one-degree-of-freedom estimate: an order of
 magnitude, stated as such, not a calibrated interval.
+
+Why the ridge is centred on the joint fit in the single-instrument steps: neither instrument
+alone determines the loads as well as both together, so a single-instrument fit leans on the
+ridge in the directions the other instrument fixed, and a ridge centred on 0 pulls the two fits
+apart there by its own bias (``(H_a^-1 - H_b^-1) Lambda x`` for a linear model), which has
+nothing to do with the instruments' errors; the joint fit's own ridge bias is already in the
+MSE of :mod:`vfcli.inverse.sandwich`.  Measured on widened phantoms (seeds 300-302, 305-307,
+the L-curve's ridge, inferior surface, RMS): with the ridge centred on 0 the two fits disagreed by
+0.15-0.40 mm against a joint error of 0.013-0.088 mm; centred on the joint fit, by 0.012-0.054 mm.
+Centred on the joint fit, the step is ``x - H_k^-1 (grad E_k(x) - grad ridge(x))``: for a
+linear model its disagreement is the instruments' errors through each one's own Hessian, plus
+the joint fit's error times ``(H_a^-1 - H_b^-1) Lambda``.  What it cannot see is an instrument's
+error in the directions only that instrument determines (there the other one's step stays at the
+joint fit): on the forward case of tests/test_uncertainty.py with the vibrometer's velocity 30 %
+high, the stated part is 16 % of the motion against an error of 18 % at ridge weight 1e-9, but
+4 % against 16 % at 1e-6 (centred on 0 it said 11 %, the ridge's bias, not the error's).
 """
 from __future__ import annotations
 
@@ -65,6 +81,7 @@ import numpy as np
 
 from vfcli.inverse.block_matrix import BlockMatrix
 from vfcli.inverse.linearization import QuadraticModel, gauss_newton_model
+from vfcli.inverse.terms import Evaluation
 from vfcli.model.response.base import Linearization, SeparableTerm
 
 #: Motion-term component weights (model x, y, z) of each instrument's own data: the
@@ -238,17 +255,29 @@ def instrument_fits(problem, x: np.ndarray, frames: list | None = None,
     Returns
     -------
     {name: (n,) control values} for :data:`INSTRUMENTS`: one Gauss-Newton step from x on
-    E with the motion term of that instrument's velocity components only (gap and ridge
-    kept), ``x - H_k^-1 grad E_k(x)``.
+    E with the motion term of that instrument's velocity components only, gap and ridge
+    kept, the ridge (the prior terms) centred on x: ``x - H_k^-1 (grad E_k(x) - grad prior(x))``
+    (module docstring).
     """
     x = np.asarray(x, dtype=float)
     disp = problem.displacements(x) if disp is None else disp
     frames = problem.freeze(x, disp) if frames is None else frames
+    prior = prior_gradient(problem, x, frames, disp)
     out = {}
     for name, weights in INSTRUMENTS.items():
         model = gauss_newton_model(problem.with_weights(component_weights=weights), x, frames, disp)
-        out[name] = x - model.hessian.solve(model.grad)
+        out[name] = x - model.hessian.solve(model.grad - prior)
     return out
+
+
+def prior_gradient(problem, x: np.ndarray, frames: list, disp: np.ndarray) -> np.ndarray:
+    """(n,) gradient at ``x`` of E's prior terms (those that are a function of x only: the ridge),
+    per unit x; frames, disp : frozen at x."""
+    ev = Evaluation(problem, np.asarray(x, dtype=float), disp, frames, np.zeros_like(disp), np.zeros(len(x)))
+    for term in problem.terms:
+        if not term.data:
+            term.value(ev)
+    return ev.grad_x
 
 
 def instrument_std(displacements: dict[str, np.ndarray]) -> np.ndarray:
