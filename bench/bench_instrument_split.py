@@ -1,0 +1,95 @@
+"""## The instruments' part of the stated uncertainty: what the single-instrument fits disagree by (issue 15).
+
+For each kept store of ``bench/bench_unseen.py --keep DIR`` (a run ``default`` fitted with
+``optimize.uncertainty``), the run's problem is rebuilt from the store (its own settings and ridge
+weight) and the camera-only and vibrometer-only Gauss-Newton steps from the joint fit are taken two
+ways: with the ridge centred on 0 (optimize methods 1-3) and centred on the joint fit (method 4,
+:func:`vfcli.inverse.uncertainty.instrument_fits`). Printed, in mm RMS over the inferior surface and
+the window's frames: the joint fit's error (from the phantom's truth), both disagreements, the
+per-frame scatter of the first (the long-run covariance of each frame's contribution, as
+:mod:`vfcli.inverse.sandwich` measures the fit's own), and the coverage of the 90 % intervals with
+the fit's MSE alone and with each instrument part added (``RMS_t |d_a - d_b| / sqrt(2)`` in quadrature).
+
+Reproduce::
+
+    .venv/bin/python bench/bench_unseen.py 300 301 302 303 304 --duration 0.025 --keep DIR
+    .venv/bin/python bench/bench_instrument_split.py DIR/seed300 DIR/seed301 ...
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from vfcli.config import RecordingConfig  # noqa: E402
+from vfcli.inverse.block_matrix import BlockMatrix  # noqa: E402
+from vfcli.inverse.linearization import gauss_newton_model  # noqa: E402
+from vfcli.inverse.sandwich import frame_scores, long_run_covariance  # noqa: E402
+from vfcli.inverse.uncertainty import INSTRUMENTS, displacement_std, instrument_fits  # noqa: E402
+from vfcli.model.mesh import FoldMesh  # noqa: E402
+from vfcli.stages.diagnose import run_recording_config  # noqa: E402
+from vfcli.store import Store  # noqa: E402
+from vfcli.store.fit import problem_of_store  # noqa: E402
+from vfcli.store.mesh import read_mesh  # noqa: E402
+from vfcli.store.runs import read_run  # noqa: E402
+from vfcli.store.truth import read_truth  # noqa: E402
+from vfcli.synth.scoring import interval_coverage, side_truth  # noqa: E402
+
+MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
+
+
+def split(work: Path) -> dict[str, float]:
+    """The figures of one kept store (module docstring)."""
+    with Store(work / "recording.h5").read() as r:
+        stored = read_run(r, "default")
+        roi = np.asarray(r.attrs("flow").get("roi_origin_px", (0.0, 0.0)), float)
+        cfg = run_recording_config(RecordingConfig(), stored.config, stored.attrs, roi)
+        prob, _ = problem_of_store(r, cfg)
+        mesh = read_mesh(r)
+        std = np.asarray(r.read("optimize", "displacement_std", "default"), float)[:-1]
+        si = np.asarray(r.read("optimize", "displacement_std_instruments", "default"), float)
+    x = stored.controls.ravel()
+    u = prob.displacements(x)
+    frames = prob.freeze(x, u)
+    lin = gauss_newton_model(prob, x, frames, u).linearization
+    old, q = {}, 0.0
+    for sign, (name, weights) in zip((-1.0, 1.0), INSTRUMENTS.items()):
+        pk = prob.with_weights(component_weights=weights)
+        mk = gauss_newton_model(pk, x, frames, u)
+        old[name] = x - mk.hessian.solve(mk.grad)                      # ridge centred on 0
+        q = q + sign * mk.hessian.solve(frame_scores(pk, x, frames, u, lin).T).T
+    new = instrument_fits(prob, x, frames, u)
+    diff = lambda xs: np.mean((prob.displacements(xs["camera"]) - prob.displacements(xs["vibrometer"]))[:-1] ** 2, 0)  # noqa: E731
+    d_old, d_new = diff(old), diff(new)
+    cov = BlockMatrix(len(x), (np.arange(len(x)),), (long_run_covariance(q).covariance,))
+    scatter = np.mean(displacement_std(cov, lin)[:-1] ** 2, axis=0)
+    t, _ = read_truth(work / "raw" / "truth.h5", ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in MESH_KEYS])
+    tm = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
+    true = t["frames/displacement"][np.searchsorted(t["frames/time"], stored.sim_time[:-1] - 1e-9)].astype(float)
+    nodes, ref = side_truth(mesh.uv, mesh.node_side, tm.uv, tm.node_side, true, 1)
+    est = np.asarray(stored.displacements, float)[:-1][:, nodes]
+    post2 = np.maximum(std[:, nodes] ** 2 - si[nodes][None] ** 2, 0.0)
+    rms = lambda a: float(np.sqrt(np.mean(a)))  # noqa: E731
+    return {"error": rms((est - ref) ** 2), "centred on 0": rms(d_old[nodes]), "its scatter": rms(scatter[nodes]),
+            "centred on the fit": rms(d_new[nodes]),
+            "coverage, posterior": interval_coverage(est, np.sqrt(post2), ref),
+            "coverage, centred on 0": interval_coverage(est, np.sqrt(post2 + d_old[nodes][None] / 2), ref),
+            "coverage, centred on the fit": interval_coverage(est, np.sqrt(post2 + d_new[nodes][None] / 2), ref)}
+
+
+def main() -> None:
+    rows = {Path(w).name: split(Path(w)) for w in sys.argv[1:]}
+    keys = list(next(iter(rows.values())))
+    print("| store | " + " | ".join(keys) + " |")
+    print("| --- |" + " ---: |" * len(keys))
+    for name, row in rows.items():
+        print(f"| {name} | " + " | ".join(f"{100 * v:.1f} %" if k.startswith("coverage") else f"{v:.3f}"
+                                         for k, v in row.items()) + " |")
+
+
+if __name__ == "__main__":
+    main()
