@@ -33,6 +33,10 @@ class SubpixelGap:
         Half-window of the edge smoothing along the glottis, px (0: none).
     half_window_frames : int
         Half-window of the edge smoothing in time, frames (0: none).
+    ray_levels : (n_rays,) float, optional
+        Per-ray detection level, counts (:func:`vfcli.flow.gap.subpixel.crease.crease_levels`:
+        darker than the ray's closed crease by its scatter); a ray is detected at the higher of
+        it and ``threshold`` (NaN rays: ``threshold``). None: ``threshold`` everywhere.
     """
 
     threshold: float
@@ -42,6 +46,7 @@ class SubpixelGap:
     lateral_axis: int = 0
     half_window_px: float = 0.0
     half_window_frames: int = 0
+    ray_levels: np.ndarray | None = None
 
 
 def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray]:
@@ -73,12 +78,21 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     e0, e1 : (n_rays,) float
         Lateral px; NaN on closed rays.
     """
-    rough = gap_mask(frame, gap.threshold, gap.median_px, core_fraction=1.0, midline=gap.midline,
+    level = _level_map(np.shape(frame), gap)
+    rough = gap_mask(frame, level, gap.median_px, core_fraction=1.0, midline=gap.midline,
                      min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True)
     e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
     if gap.model is None or not np.isfinite(e0).any():
         return e0, e1
-    fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis)
+    inner = None
+    if gap.ray_levels is not None:
+        # the floor: only pixels darker than both levels are known to lie in the gap (a ray level
+        # above the threshold finds a blurred slit's shallow dip, whose half-depth run is wider
+        # than the slit; the edges inside it are left to the fit)
+        core = rough & (np.asarray(frame) < np.minimum(level, gap.threshold))
+        c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
+        inner = (np.where(np.isfinite(c0), c0 + 0.5, np.inf), np.where(np.isfinite(c1), c1 - 0.5, -np.inf))
+    fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis, inner=inner)
     e0, e1 = fit.e0.copy(), fit.e1.copy()
     closed = ~(e1 > e0)
     # step 3: whole components (a) surely open somewhere and (b) at the gap's level
@@ -93,6 +107,14 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     e0[closed] = np.nan
     e1[closed] = np.nan
     return e0, e1
+
+
+def _level_map(shape: tuple[int, int], gap: SubpixelGap):
+    """Detection level per pixel (H, W) counts, or the scalar threshold without ray levels."""
+    if gap.ray_levels is None:
+        return gap.threshold
+    lv = np.fmax(gap.ray_levels, gap.threshold)   # never below the threshold (NaN: the threshold)
+    return np.broadcast_to(lv[None, :] if gap.lateral_axis == 0 else lv[:, None], shape)
 
 
 def _ray_components(mask: np.ndarray, lateral_axis: int) -> np.ndarray:
