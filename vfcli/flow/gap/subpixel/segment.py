@@ -34,8 +34,9 @@ class SubpixelGap:
     half_window_frames : int
         Half-window of the edge smoothing in time, frames (0: none).
     ray_levels : (n_rays,) float, optional
-        Per-ray detection level, counts (:func:`vfcli.flow.gap.subpixel.crease.crease_levels`:
-        darker than the ray's closed crease by its scatter); a ray is detected at the higher of
+        Per-ray detection level, counts (:func:`vfcli.flow.gap.subpixel.crease.detection_levels`:
+        darker than the ray's closed crease by its scatter, as dark as a one-pixel slit under the
+        PSF); a ray is detected at the higher of
         it and ``threshold`` (NaN rays: ``threshold``). None: ``threshold`` everywhere.
     """
 
@@ -53,7 +54,8 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     """Detection and per-ray sub-pixel edges of one frame, before smoothing.
 
     1. Detection, the paper's intensity segmentation (:func:`gap_mask`): pixels darker
-       than the threshold, median-filtered along the glottis (``median_along_slit``, so
+       than the threshold (or than the ray's level, ``ray_levels``, where that is higher; the
+       edge fit's floor then stays at the pixels darker than the threshold), median-filtered along the glottis (``median_along_slit``, so
        a one-pixel slit survives), dark components on the midline of at least
        ``median_px`` pixels.
     2. Sub-pixel edges on every ray the detection crosses (:func:`fit_ray_edges`); a ray
