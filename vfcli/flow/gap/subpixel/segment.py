@@ -38,6 +38,10 @@ class SubpixelGap:
         darker than the ray's closed crease by its scatter, as dark as a one-pixel slit under the
         PSF); a ray is detected at the higher of
         it and ``threshold`` (NaN rays: ``threshold``). None: ``threshold`` everywhere.
+    ray_crease : (n_rays,) float, optional
+        The closed crease's level on each ray, counts (:func:`vfcli.flow.gap.subpixel.crease.crease_levels`);
+        a component is gap when its fitted gap level is nearer the recording's than this
+        (rule (b) of :func:`raw_edges`). None or NaN: ``threshold`` instead.
     """
 
     threshold: float
@@ -48,6 +52,7 @@ class SubpixelGap:
     half_window_px: float = 0.0
     half_window_frames: int = 0
     ray_levels: np.ndarray | None = None
+    ray_crease: np.ndarray | None = None
 
 
 def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray]:
@@ -65,7 +70,8 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        slit of one pixel or more: a narrower blurred dip cannot be told from a dark line
        of tissue (the contact line of a closed glottis), and a slit under a pixel wide
        holds a pixel centre only by chance; (b) its fitted gap level (median over its
-       rays) is nearer the recording's gap level than the threshold: a dark patch of
+       rays) is nearer the recording's gap level than the threshold (than the closed crease's
+       level on its rays, with ``ray_crease``): a dark patch of
        tissue below the threshold is fitted with its own, brighter level. This replaces
        the dark-core hysteresis of :func:`gap_mask`, whose core a narrow, blurred slit
        never reaches.
@@ -101,10 +107,13 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     component = _ray_components(rough, gap.lateral_axis)
     n_comp = int(component.max()) + 1
     wide = np.bincount(component, weights=(e1 - e0 >= 1.0) & ~closed, minlength=n_comp)
-    level = np.full(n_comp, np.inf)
+    fitted = np.full(n_comp, np.inf)
+    reference = np.full(n_comp, float(gap.threshold))
     for c in np.unique(component[~closed & (component > 0)]):
-        level[c] = np.median(fit.levels[(component == c) & ~closed, 0])
-    dark = level < 0.5 * (gap.model.gap_counts + gap.threshold)
+        fitted[c] = np.median(fit.levels[(component == c) & ~closed, 0])
+        if gap.ray_crease is not None and np.isfinite(gap.ray_crease[component == c]).any():
+            reference[c] = np.nanmedian(gap.ray_crease[component == c])
+    dark = fitted < 0.5 * (gap.model.gap_counts + reference)
     closed |= (component == 0) | (wide[component] < gap.median_px) | ~dark[component]
     e0[closed] = np.nan
     e1[closed] = np.nan
