@@ -7,7 +7,10 @@ averages them with the bright top surface) and on the fold's shape, so it is mea
 the sampled frames: the folds close (or nearly close) in every cycle, so over a sample spread over
 cycles the lightest dips of a ray are its closed phase. A ray is open when its dip is darker than
 that crease level by more than the sampled closed dips scatter, and at least as dark as a
-one-pixel slit makes it under the recording's PSF (:func:`detection_levels`).
+one-pixel slit makes it under the recording's PSF (:func:`detection_levels`); the sub-pixel
+segmentation detects at the higher of that level and the recording's threshold, and keeps a
+component whose fitted gap level is nearer the gap's than the crease's
+(:class:`vfcli.flow.gap.subpixel.segment.SubpixelGap`, ``flow.gap_detection = 'crease'``).
 
 Units: lateral px (pixel centres at integers), counts.
 """
