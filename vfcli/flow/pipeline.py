@@ -32,6 +32,7 @@ from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
+from vfcli.flow.gap.subpixel.crease import crease_levels, detection_levels, dip_minima, search_band
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
 
@@ -207,9 +208,17 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
             log.warning("flow: the %d sampled frames show no gap wide enough to measure the gap level and blur "
                         "on; using the binary gap mask (pixel edges)", len(sample))
         else:
+            ray_levels = ray_crease = None
+            if cfg.gap_detection == "crease":
+                ray_centre, search = search_band(centre, masks, lateral, model.psf_sigma_px)
+                if ray_centre is not None:
+                    minima = dip_minima(sample, ray_centre, search, lateral)
+                    ray_levels = detection_levels(minima, model.gap_counts, model.psf_sigma_px)
+                    ray_crease = crease_levels(minima)[0]
             gap = SubpixelGap(threshold, model, cfg.median_px, midline, lateral,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
-                              half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)))
+                              half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
+                              ray_crease=ray_crease)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap)
 
 

@@ -288,7 +288,8 @@ def ray_windows(
 
 
 def fit_ray_edges(
-    frame: np.ndarray, e0: np.ndarray, e1: np.ndarray, model: EdgeModel, lateral_axis: int = 0, passes: int = 2
+    frame: np.ndarray, e0: np.ndarray, e1: np.ndarray, model: EdgeModel, lateral_axis: int = 0, passes: int = 2,
+    inner: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> SlitFit:
     """Sub-pixel edges of every open ray of one frame, starting from a threshold mask's edges.
 
@@ -308,6 +309,9 @@ def fit_ray_edges(
     lateral_axis : {0, 1}
     passes : int
         Window placements.
+    inner : ((n_rays,) float, (n_rays,) float), optional
+        Bounds ``e0 <= inner[0]``, ``e1 >= inner[1]`` per ray, px (+inf / -inf: none); default:
+        the starting run's outermost pixel centres (the run is a threshold mask's).
 
     Returns
     -------
@@ -319,7 +323,8 @@ def fit_ray_edges(
     sel = np.flatnonzero(np.isfinite(e0) & np.isfinite(e1))
     # the rough run's outermost pixels are darker than the threshold, which lies at most half-way
     # between gap and tissue: their centres are in the gap, so the edges lie at or beyond them
-    inner = (e0[sel] + 0.5, e1[sel] - 0.5)
+    inner = (e0[sel] + 0.5, e1[sel] - 0.5) if inner is None else (np.asarray(inner[0], float)[sel],
+                                                                     np.asarray(inner[1], float)[sel])
     levels = np.full((len(e0), 5), np.nan)
     rms = np.full(len(e0), np.nan)
     cost = np.full(len(e0), np.nan)

@@ -33,6 +33,15 @@ class SubpixelGap:
         Half-window of the edge smoothing along the glottis, px (0: none).
     half_window_frames : int
         Half-window of the edge smoothing in time, frames (0: none).
+    ray_levels : (n_rays,) float, optional
+        Per-ray detection level, counts (:func:`vfcli.flow.gap.subpixel.crease.detection_levels`:
+        darker than the ray's closed crease by its scatter, as dark as a one-pixel slit under the
+        PSF); a ray is detected at the higher of
+        it and ``threshold`` (NaN rays: ``threshold``). None: ``threshold`` everywhere.
+    ray_crease : (n_rays,) float, optional
+        The closed crease's level on each ray, counts (:func:`vfcli.flow.gap.subpixel.crease.crease_levels`);
+        a component is gap when its fitted gap level is nearer the recording's than this
+        (rule (b) of :func:`raw_edges`). None or NaN: ``threshold`` instead.
     """
 
     threshold: float
@@ -42,13 +51,16 @@ class SubpixelGap:
     lateral_axis: int = 0
     half_window_px: float = 0.0
     half_window_frames: int = 0
+    ray_levels: np.ndarray | None = None
+    ray_crease: np.ndarray | None = None
 
 
 def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray]:
     """Detection and per-ray sub-pixel edges of one frame, before smoothing.
 
     1. Detection, the paper's intensity segmentation (:func:`gap_mask`): pixels darker
-       than the threshold, median-filtered along the glottis (``median_along_slit``, so
+       than the threshold (or than the ray's level, ``ray_levels``, where that is higher; the
+       edge fit's floor then stays at the pixels darker than the threshold), median-filtered along the glottis (``median_along_slit``, so
        a one-pixel slit survives), dark components on the midline of at least
        ``median_px`` pixels.
     2. Sub-pixel edges on every ray the detection crosses (:func:`fit_ray_edges`); a ray
@@ -58,7 +70,8 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        slit of one pixel or more: a narrower blurred dip cannot be told from a dark line
        of tissue (the contact line of a closed glottis), and a slit under a pixel wide
        holds a pixel centre only by chance; (b) its fitted gap level (median over its
-       rays) is nearer the recording's gap level than the threshold: a dark patch of
+       rays) is nearer the recording's gap level than the threshold (than the closed crease's
+       level on its rays, with ``ray_crease``): a dark patch of
        tissue below the threshold is fitted with its own, brighter level. This replaces
        the dark-core hysteresis of :func:`gap_mask`, whose core a narrow, blurred slit
        never reaches.
@@ -73,26 +86,46 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     e0, e1 : (n_rays,) float
         Lateral px; NaN on closed rays.
     """
-    rough = gap_mask(frame, gap.threshold, gap.median_px, core_fraction=1.0, midline=gap.midline,
+    level = _level_map(np.shape(frame), gap)
+    rough = gap_mask(frame, level, gap.median_px, core_fraction=1.0, midline=gap.midline,
                      min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True)
     e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
     if gap.model is None or not np.isfinite(e0).any():
         return e0, e1
-    fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis)
+    inner = None
+    if gap.ray_levels is not None:
+        # the floor: only pixels darker than both levels are known to lie in the gap (a ray level
+        # above the threshold finds a blurred slit's shallow dip, whose half-depth run is wider
+        # than the slit; the edges inside it are left to the fit)
+        core = rough & (np.asarray(frame) < np.minimum(level, gap.threshold))
+        c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
+        inner = (np.where(np.isfinite(c0), c0 + 0.5, np.inf), np.where(np.isfinite(c1), c1 - 0.5, -np.inf))
+    fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis, inner=inner)
     e0, e1 = fit.e0.copy(), fit.e1.copy()
     closed = ~(e1 > e0)
     # step 3: whole components (a) surely open somewhere and (b) at the gap's level
     component = _ray_components(rough, gap.lateral_axis)
     n_comp = int(component.max()) + 1
     wide = np.bincount(component, weights=(e1 - e0 >= 1.0) & ~closed, minlength=n_comp)
-    level = np.full(n_comp, np.inf)
+    fitted = np.full(n_comp, np.inf)
+    reference = np.full(n_comp, float(gap.threshold))
     for c in np.unique(component[~closed & (component > 0)]):
-        level[c] = np.median(fit.levels[(component == c) & ~closed, 0])
-    dark = level < 0.5 * (gap.model.gap_counts + gap.threshold)
+        fitted[c] = np.median(fit.levels[(component == c) & ~closed, 0])
+        if gap.ray_crease is not None and np.isfinite(gap.ray_crease[component == c]).any():
+            reference[c] = np.nanmedian(gap.ray_crease[component == c])
+    dark = fitted < 0.5 * (gap.model.gap_counts + reference)
     closed |= (component == 0) | (wide[component] < gap.median_px) | ~dark[component]
     e0[closed] = np.nan
     e1[closed] = np.nan
     return e0, e1
+
+
+def _level_map(shape: tuple[int, int], gap: SubpixelGap):
+    """Detection level per pixel (H, W) counts, or the scalar threshold without ray levels."""
+    if gap.ray_levels is None:
+        return gap.threshold
+    lv = np.fmax(gap.ray_levels, gap.threshold)   # never below the threshold (NaN: the threshold)
+    return np.broadcast_to(lv[None, :] if gap.lateral_axis == 0 else lv[:, None], shape)
 
 
 def _ray_components(mask: np.ndarray, lateral_axis: int) -> np.ndarray:

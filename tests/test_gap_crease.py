@@ -1,0 +1,110 @@
+"""Per-ray detection levels from the closed crease (vfcli.flow.gap.subpixel.crease, issue 15 item 4).
+
+Analytic blurred slits (the slit model of vfcli.flow.gap.subpixel.profile, exact at any blur) with
+Gaussian noise: a video whose folds close into a dark crease and open into slits 1.5-10 px wide
+under a 3 px PSF. At the recording's threshold a narrow blurred slit is too shallow to be found;
+at the crease-based levels it is found and its width comes out right, and the closed frames stay
+closed.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vfcli.flow.gap.detect import gap_threshold
+from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, segment_gap, slit_profile_model
+from vfcli.flow.gap.subpixel.crease import crease_levels, detection_levels, dip_minima, search_band, slit_depth
+
+H, W, MID = 90, 120, 44.3          # rows lateral, one ray per column; glottal midline row
+OPEN_COLS = slice(10, 110)         # the glottis; outside, the folds stay closed
+G, T, SLOPE, NOISE = 150.0, 1500.0, 40.0, 15.0
+WIDTHS = [0.0, 0.0, 0.0, 0.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 6.0, 3.0, 0.0, 0.0, 0.0]  # one cycle, px
+
+
+def _frame(width: float, sigma: float, rng) -> np.ndarray:
+    rows = np.arange(H, dtype=float)
+    img = np.empty((H, W))
+    for c in range(W):
+        w = width if OPEN_COLS.start <= c < OPEN_COLS.stop else 0.0
+        # the medial walls darken towards the gap (the ramp); closed (w = 0): a blurred crease
+        img[:, c] = slit_profile_model(rows, MID - w / 2, MID + w / 2, [G, T - 300, SLOPE, T - 300, SLOPE], sigma)
+    return img + rng.normal(0.0, NOISE, img.shape)
+
+
+@pytest.fixture(scope="module")
+def video_3px():
+    rng = np.random.default_rng(11)
+    frames = np.stack([_frame(w, 3.0, rng) for w in WIDTHS * 2])
+    return frames
+
+
+def _gap(frames, sigma, with_levels):
+    model = EdgeModel(G, sigma)
+    threshold = gap_threshold(frames)
+    masks = np.zeros(frames.shape, bool)
+    masks[:, int(MID) - 1:int(MID) + 2, OPEN_COLS] = np.asarray(WIDTHS * 2)[:, None, None] >= 6  # the sampled rough gap
+    centre = np.full(W, np.nan)
+    centre[OPEN_COLS] = MID
+    levels = None
+    if with_levels:
+        c, half = search_band(centre, masks, 0, sigma)
+        levels = detection_levels(dip_minima(frames, c, half, 0), G, sigma)
+    return SubpixelGap(threshold, model, 5, MID, 0, ray_levels=levels), threshold, levels
+
+
+def test_slit_depth_is_the_blurred_models_centre():
+    rows = np.array([50.0])
+    for w, s in [(1.0, 0.3), (1.0, 3.0), (2.0, 1.5), (5.0, 2.0)]:
+        centre = slit_profile_model(rows, 50 - w / 2, 50 + w / 2, [G, T, 0.0, T, 0.0], s)[0]
+        assert slit_depth(w, s) == pytest.approx((T - centre) / (T - G), rel=1e-6)
+
+
+def test_crease_level_and_scatter_of_the_lightest_quarter():
+    rng = np.random.default_rng(5)
+    k, n = 64, 40
+    open_ = np.tile(np.arange(k) % 8 < 5, (n, 1)).T                     # open 5/8 of each cycle
+    minima = np.where(open_, rng.uniform(200, 700, (k, n)), rng.normal(1000.0, 20.0, (k, n)))
+    level, scatter = crease_levels(minima)
+    # the lightest 16 of 24 closed samples: median about 1000 + 0.43 * 20, scatter a narrowed 20
+    assert np.all((level > 1000) & (level < 1020))
+    assert np.all((scatter > 6) & (scatter < 20))
+
+
+def test_a_narrow_slit_under_3px_blur_is_found_at_the_crease_levels_and_not_at_the_threshold(video_3px):
+    frames = video_3px
+    gap_thr, threshold, _ = _gap(frames, 3.0, False)
+    gap_lv, _, levels = _gap(frames, 3.0, True)
+    assert np.all(levels[OPEN_COLS] > threshold)                       # shallower than the threshold lets through
+    inner = slice(OPEN_COLS.start + 10, OPEN_COLS.stop - 10)
+    for i, w in enumerate(WIDTHS):
+        if w not in (1.5, 2.0, 3.0):
+            continue
+        old = segment_gap(frames[i], gap_thr)
+        new = segment_gap(frames[i], gap_lv)
+        assert np.isfinite(old.e0[inner]).mean() < 0.1                 # the threshold misses it
+        width = (new.e1 - new.e0)[inner]
+        assert np.isfinite(width).mean() > 0.9                          # the crease levels find it (95-100 %)
+        assert abs(np.nanmedian(width) - w) < 0.1 * w                   # measured: within 1 %
+
+
+def test_closed_creases_stay_closed_and_wide_slits_keep_their_width(video_3px):
+    frames = video_3px
+    gap_lv, _, _ = _gap(frames, 3.0, True)
+    inner = slice(OPEN_COLS.start + 10, OPEN_COLS.stop - 10)
+    for i, w in enumerate(WIDTHS * 2):
+        seg = segment_gap(frames[i], gap_lv)
+        if w == 0.0:
+            assert not seg.mask.any()
+        elif w >= 6.0:
+            width = (seg.e1 - seg.e0)[inner]
+            assert np.isfinite(width).all()
+            assert abs(np.median(width) - w) < 0.03 * w                 # measured: within 1 %
+
+
+def test_under_a_sharp_psf_the_levels_stay_at_or_below_the_threshold():
+    rng = np.random.default_rng(12)
+    frames = np.stack([_frame(w, 0.3, rng) for w in WIDTHS * 2])
+    _, threshold, levels = _gap(frames, 0.3, True)
+    ok = np.isfinite(levels)
+    assert ok.sum() >= OPEN_COLS.stop - OPEN_COLS.start - 2
+    assert np.all(levels[ok] <= threshold + 1.0)                        # the threshold decides

@@ -1,0 +1,200 @@
+"""The closed glottis's crease on each ray: how dark a ray gets without a gap, from the recording itself.
+
+Where the folds touch, their medial walls are seen edge-on and darken towards the contact line,
+so a closed ray has a dark dip too (a crease); a gap adds the darkness of the channel seen through
+it. How dark the crease is depends on the optics (a sharp image shows the dark walls, a blurred one
+averages them with the bright top surface) and on the fold's shape, so it is measured per ray from
+the sampled frames: the folds close (or nearly close) in every cycle, so over a sample spread over
+cycles the lightest dips of a ray are its closed phase. A ray is open when its dip is darker than
+that crease level by more than the sampled closed dips scatter, and at least as dark as a
+one-pixel slit makes it under the recording's PSF (:func:`detection_levels`); the sub-pixel
+segmentation detects at the higher of that level and the recording's threshold, and keeps a
+component whose fitted gap level is nearer the gap's than the crease's
+(:class:`vfcli.flow.gap.subpixel.segment.SubpixelGap`, ``flow.gap_detection = 'crease'``).
+
+Units: lateral px (pixel centres at integers), counts.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from vfcli.flow.gap.rays import as_rays, outermost_silhouette
+from vfcli.flow.gap.subpixel.profile import WINDOW_SIGMAS
+
+#: Share of the sampled frames taken as a ray's closed phase: its lightest dips. The glottis of a
+#: phonating larynx is closed (or nearest to closing) for a part of each cycle; a quarter is a
+#: conservative closed quotient (a ray that never closes in the sample reads a darker "crease",
+#: which makes its detection stricter, not looser).
+CLOSED_FRACTION = 0.25
+
+#: Standard deviations of the closed dips' scatter below their median at which a dip is called
+#: open: one-sided normal tail 0.13 % (3 sigma).
+Z_OPEN = 3.0
+
+#: Narrowest slit the detection levels are set to find, px: the sub-pixel segmentation keeps a
+#: gap only where it is at least one pixel wide (a narrower blurred dip cannot be told from a
+#: crease, and it holds a pixel centre only by chance).
+MIN_WIDTH_PX = 1.0
+
+
+def dip_minima(frames: np.ndarray, centre: np.ndarray, half_px: float, lateral_axis: int = 0) -> np.ndarray:
+    """Darkest pixel of each ray within ``half_px`` of its midline, for each frame.
+
+    Parameters
+    ----------
+    frames : (k, H, W) counts
+    centre : (n_rays,) float
+        Midline on each ray, lateral px; NaN: not searched.
+    half_px : float
+    lateral_axis : {0, 1}
+
+    Returns
+    -------
+    (k, n_rays) float, counts; NaN where not searched.
+    """
+    frames = np.asarray(frames)
+    if frames.ndim == 2:
+        frames = frames[None]
+    c = np.asarray(centre, float)
+    ok = np.isfinite(c)
+    n_lat = as_rays(frames[0], lateral_axis).shape[0]
+    h = int(np.ceil(half_px))
+    rows = np.round(np.nan_to_num(c)).astype(int)[None, :] + np.arange(-h, h + 1)[:, None]
+    inside = (rows >= 0) & (rows < n_lat) & ok[None, :]
+    rays = np.arange(len(c))[None, :]
+    out = np.empty((len(frames), len(c)))
+    for i, f in enumerate(frames):
+        img = as_rays(f, lateral_axis).astype(float)
+        vals = np.where(inside, img[np.clip(rows, 0, n_lat - 1), rays], np.inf)
+        out[i] = vals.min(axis=0)
+    return np.where(ok, out, np.nan)
+
+
+def crease_levels(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION,
+                  smooth_rays: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Per-ray crease level and its scatter, counts.
+
+    On each ray the lightest ``closed_fraction`` of the sampled dip minima are its closed phase;
+    their median is the crease level and their scatter (1.4826 MAD; noise, texture and the
+    shading's change with the folds' motion together) says how much darker an open dip must be.
+    Both are smoothed along the glottis by a running median of ``smooth_rays`` rays (the crease
+    changes slowly along the folds; a single ray's few closed samples scatter).
+
+    Parameters
+    ----------
+    minima : (k, n_rays) float
+        :func:`dip_minima` of the sampled frames.
+    closed_fraction : float
+        In (0, 1].
+    smooth_rays : int
+        Odd running-median length along the rays.
+
+    Returns
+    -------
+    level, scatter : (n_rays,) float, counts; NaN on rays not searched.
+    """
+    m = np.asarray(minima, float)
+    if not 0 < closed_fraction <= 1:
+        raise ValueError(f"crease levels: closed_fraction must lie in (0, 1], got {closed_fraction}")
+    n_top = max(2, int(np.ceil(closed_fraction * m.shape[0])))
+    top = -np.sort(-np.where(np.isfinite(m), m, -np.inf), axis=0)[:n_top]      # lightest first
+    ok = np.isfinite(top).all(axis=0)
+    top = np.where(ok[None, :], top, np.nan)
+    med = np.median(top, axis=0)
+    scatter = 1.4826 * np.median(np.abs(top - med[None, :]), axis=0)
+    return _running_median(med, smooth_rays, ok), _running_median(scatter, smooth_rays, ok)
+
+
+def _running_median(x: np.ndarray, n: int, ok: np.ndarray) -> np.ndarray:
+    if n <= 1:
+        return np.where(ok, x, np.nan)
+    h = n // 2
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(np.where(ok, x, np.nan), h, constant_values=np.nan), n)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN windows
+        return np.where(ok, np.nanmedian(win, axis=1), np.nan)
+
+
+def slit_depth(width_px: float, sigma: float) -> float:
+    """Depth of a blurred slit's centre as a fraction of (tissue - gap): ``erf(w / (2 sqrt(2) sigma))``.
+
+    A slit of width ``w`` (px) under a Gaussian PSF of ``sigma`` (px) between tissue T and gap G
+    reads ``T - (T - G) erf(w / (2 sqrt 2 sigma))`` at its centre.
+    """
+    from scipy.special import erf
+
+    return float(erf(width_px / (2.0 * np.sqrt(2.0) * max(sigma, 1e-6))))
+
+
+def detection_levels(minima: np.ndarray, gap_counts: float, sigma: float, *, z: float = Z_OPEN,
+                     min_width_px: float = MIN_WIDTH_PX) -> np.ndarray:
+    """Per-ray level below which a dip is gap, counts: the lower of two bounds.
+
+    * Darker than the ray's closed crease by ``z`` times the closed dips' scatter
+      (:func:`crease_levels`): a closed ray stays above it but for a 0.13 % tail.
+    * Only as shallow as a slit of ``min_width_px`` reaches under the PSF
+      (:func:`slit_depth`, with the crease as the tissue level): a narrower slit cannot be told
+      from the crease (the sub-pixel segmentation's own limit,
+      :func:`vfcli.flow.gap.subpixel.segment.raw_edges` rule (a)). Under a sharp PSF this
+      bound is deep, near the gap level, and the recording's threshold decides; under a blur
+      of a few pixels a narrow slit is shallow and the crease bound decides.
+
+    Parameters
+    ----------
+    minima : (k, n_rays) float
+        :func:`dip_minima` of the sampled frames.
+    gap_counts : float
+        The recording's gap level, counts.
+    sigma : float
+        PSF standard deviation (optics and pixel), px.
+    z : float
+    min_width_px : float
+
+    Returns
+    -------
+    (n_rays,) float, counts; NaN on rays not searched.
+    """
+    level, scatter = crease_levels(minima)
+    below_crease = level - z * scatter
+    one_slit = level - slit_depth(min_width_px, sigma) * (level - gap_counts)
+    return np.fmin(below_crease, one_slit)
+
+
+def search_band(centre: np.ndarray | None, masks: np.ndarray, lateral_axis: int, sigma: float):
+    """Where :func:`dip_runs` looks for the gap: the midline on each ray and the search's half-width.
+
+    Parameters
+    ----------
+    centre : (n_rays,) float or None
+        Per-ray gap centre over the sampled masks (:func:`vfcli.flow.gap.detect.midline_from_masks`),
+        lateral px, NaN where never seen; None: no gap seen.
+    masks : (k, H, W) bool
+        The sampled frames' rough gap masks.
+    lateral_axis : {0, 1}
+    sigma : float
+        PSF standard deviation, px.
+
+    Returns
+    -------
+    centre : (n_rays,) float or None
+        Linearly interpolated between the rays where the gap was seen, NaN outside their range.
+    half_px : float
+        The farthest sampled gap edge from its ray's centre, plus the blur's reach
+        (:data:`vfcli.flow.gap.subpixel.profile.WINDOW_SIGMAS` sigma) and one pixel, px.
+    """
+    if centre is None or not np.isfinite(centre).any():
+        return None, 0.0
+    c = np.asarray(centre, float)
+    seen = np.flatnonzero(np.isfinite(c))
+    rays = np.arange(len(c))
+    inside = (rays >= seen[0]) & (rays <= seen[-1])
+    out = np.where(inside, np.interp(rays, seen, c[seen]), np.nan)
+    reach = 0.0
+    for m in np.asarray(masks, bool):
+        e0, e1 = outermost_silhouette(m, lateral_axis, border_is_edge=True)
+        d = np.fmax(np.abs(e0 - out), np.abs(e1 - out))
+        if np.isfinite(d).any():
+            reach = max(reach, float(np.nanmax(d)))
+    return out, reach + WINDOW_SIGMAS * sigma + 1.0
