@@ -1,4 +1,5 @@
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -16,6 +17,14 @@ import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 VFCLI = [sys.executable, "-m", "vfcli.cli.main"]
+
+
+def sigint_default() -> None:
+    """``preexec_fn`` of a child a test interrupts with SIGINT: SIGINT at its default disposition, as
+    Ctrl-C in a terminal finds it.  A shell without job control (``make test &`` in a script) starts
+    background jobs with SIGINT ignored, the child inherits that, and Python then installs no
+    KeyboardInterrupt handler: the signal would be lost, not the code under test wrong."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def run_vfcli(*args: str, cwd: Path | None = None, timeout: float = 600) -> subprocess.CompletedProcess:

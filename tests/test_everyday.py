@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import ROOT, VFCLI, run_vfcli
+from conftest import ROOT, VFCLI, run_vfcli, sigint_default
 from vfcli.store.transaction import Store
 
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
@@ -252,7 +252,8 @@ def test_ctrl_c_exits_130_with_one_line_and_leaves_the_store(tmp_path):
     fifo = tmp_path / "recording.toml"
     os.mkfifo(fifo)
     proc = subprocess.Popen([*VFCLI, "config", str(store), "--config", str(fifo)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                            preexec_fn=sigint_default)
     deadline = time.monotonic() + 120
     while True:  # opening the FIFO's write end succeeds once the command has opened it to read
         try:

@@ -20,7 +20,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import run_vfcli
+from conftest import run_vfcli, sigint_default
 from store_writer_proc import frames_for
 from vfcli.errors import StoreAccessError, StoreLockedError
 from vfcli.store import Store
@@ -59,7 +59,8 @@ def _env() -> dict[str, str]:
 
 def _writer(path: Path, seed: int, n: int, hold: float = 0.0, **kw) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-c", WRITER, str(path), str(seed), str(n), str(hold)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), **kw)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            preexec_fn=sigint_default, **kw)
 
 
 def _write_mesh(path: Path, value: float = 1.0) -> None:
