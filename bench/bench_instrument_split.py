@@ -8,7 +8,9 @@ ways: with the ridge centred on 0 (optimize methods 1-3) and centred on the join
 the window's frames: the joint fit's error (from the phantom's truth), both disagreements, the
 per-frame scatter of the first (the long-run covariance of each frame's contribution, as
 :mod:`vfcli.inverse.sandwich` measures the fit's own), and the coverage of the 90 % intervals with
-the fit's MSE alone and with each instrument part added (``RMS_t |d_a - d_b| / sqrt(2)`` in quadrature).
+the fit's MSE alone and with each instrument part added (``RMS_t |d_a - d_b| / sqrt(2)`` in quadrature);
+and the fit's MSE split into its scatter (``H^-1 S H^-1``) and the ridge's expected bias, with the
+coverage of the scatter alone (:mod:`vfcli.inverse.sandwich`).
 
 Reproduce::
 
@@ -28,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 from vfcli.config import RecordingConfig  # noqa: E402
 from vfcli.inverse.block_matrix import BlockMatrix  # noqa: E402
 from vfcli.inverse.linearization import gauss_newton_model  # noqa: E402
-from vfcli.inverse.sandwich import frame_scores, long_run_covariance  # noqa: E402
+from vfcli.inverse.sandwich import frame_scores, long_run_covariance, sandwich  # noqa: E402
 from vfcli.inverse.uncertainty import INSTRUMENTS, displacement_std, instrument_fits  # noqa: E402
 from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.stages.diagnose import run_recording_config  # noqa: E402
@@ -55,7 +57,11 @@ def split(work: Path) -> dict[str, float]:
     x = stored.controls.ravel()
     u = prob.displacements(x)
     frames = prob.freeze(x, u)
-    lin = gauss_newton_model(prob, x, frames, u).linearization
+    joint = gauss_newton_model(prob, x, frames, u)
+    lin = joint.linearization
+    mse = sandwich(prob, x, joint, frames, u)
+    mse_std = displacement_std(mse.covariance, lin)[:-1]
+    scatter_std = displacement_std(mse.scatter, lin)[:-1]
     old, q = {}, 0.0
     for sign, (name, weights) in zip((-1.0, 1.0), INSTRUMENTS.items()):
         pk = prob.with_weights(component_weights=weights)
@@ -78,7 +84,10 @@ def split(work: Path) -> dict[str, float]:
             "centred on the fit": rms(d_new[nodes]),
             "coverage, posterior": interval_coverage(est, np.sqrt(post2), ref),
             "coverage, centred on 0": interval_coverage(est, np.sqrt(post2 + d_old[nodes][None] / 2), ref),
-            "coverage, centred on the fit": interval_coverage(est, np.sqrt(post2 + d_new[nodes][None] / 2), ref)}
+            "coverage, centred on the fit": interval_coverage(est, np.sqrt(post2 + d_new[nodes][None] / 2), ref),
+            "MSE: scatter": rms(scatter_std[:, nodes] ** 2),
+            "MSE: ridge bias": rms(np.maximum(mse_std[:, nodes] ** 2 - scatter_std[:, nodes] ** 2, 0.0)),
+            "coverage, scatter only": interval_coverage(est, scatter_std[:, nodes], ref)}
 
 
 def main() -> None:
