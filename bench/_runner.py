@@ -1,4 +1,4 @@
-"""Shared helpers of the benchmarks: run the real CLI, time a callable."""
+"""Shared helpers of the benchmarks: run the real CLI, time a callable, a phantom's truth on a fit's nodes."""
 from __future__ import annotations
 
 import subprocess
@@ -6,6 +6,8 @@ import sys
 import time
 from pathlib import Path
 from typing import Callable
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,3 +30,26 @@ def best(fn: Callable[[], object], repeat: int) -> float:
         fn()
         times.append(time.perf_counter() - t)
     return min(times)
+
+
+#: truth.h5 datasets of the phantom's own mesh.
+TRUTH_MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
+
+
+def side_truth_at(truth_h5: Path, mesh, sim_time: np.ndarray, side: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The phantom's true displacements on one side of a fit's mesh at the fit's window times.
+
+    truth_h5 : the phantom's truth.h5.  mesh : the fit's :class:`vfcli.model.mesh.FoldMesh`.
+    sim_time : (T,) s, the window's frame times.  side : 1 inferior, 2 superior.
+
+    Returns (nodes, ref): the fit's node indices scored and their true displacements (T, n, 3), mm
+    (:func:`vfcli.synth.scoring.side_truth`).
+    """
+    from vfcli.model.mesh import FoldMesh
+    from vfcli.store.truth import read_truth
+    from vfcli.synth.scoring import side_truth
+
+    t, _ = read_truth(truth_h5, ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in TRUTH_MESH_KEYS])
+    tm = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
+    true = t["frames/displacement"][np.searchsorted(t["frames/time"], np.asarray(sim_time) - 1e-9)].astype(float)
+    return side_truth(mesh.uv, mesh.node_side, tm.uv, tm.node_side, true, side)

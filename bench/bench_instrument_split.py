@@ -26,22 +26,21 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from _runner import side_truth_at  # noqa: E402
 
 from vfcli.config import RecordingConfig  # noqa: E402
 from vfcli.inverse.block_matrix import BlockMatrix  # noqa: E402
 from vfcli.inverse.linearization import gauss_newton_model  # noqa: E402
 from vfcli.inverse.sandwich import frame_scores, long_run_covariance, sandwich  # noqa: E402
 from vfcli.inverse.uncertainty import INSTRUMENTS, displacement_std, instrument_fits  # noqa: E402
-from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.stages.diagnose import run_recording_config  # noqa: E402
 from vfcli.store import Store  # noqa: E402
 from vfcli.store.fit import problem_of_store  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.store.runs import read_run  # noqa: E402
-from vfcli.store.truth import read_truth  # noqa: E402
-from vfcli.synth.scoring import interval_coverage, side_truth  # noqa: E402
-
-MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
+from vfcli.synth.scoring import interval_coverage  # noqa: E402
 
 
 def split(work: Path) -> dict[str, float]:
@@ -73,10 +72,7 @@ def split(work: Path) -> dict[str, float]:
     d_old, d_new = diff(old), diff(new)
     cov = BlockMatrix(len(x), (np.arange(len(x)),), (long_run_covariance(q).covariance,))
     scatter = np.mean(displacement_std(cov, lin)[:-1] ** 2, axis=0)
-    t, _ = read_truth(work / "raw" / "truth.h5", ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in MESH_KEYS])
-    tm = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
-    true = t["frames/displacement"][np.searchsorted(t["frames/time"], stored.sim_time[:-1] - 1e-9)].astype(float)
-    nodes, ref = side_truth(mesh.uv, mesh.node_side, tm.uv, tm.node_side, true, 1)
+    nodes, ref = side_truth_at(work / "raw" / "truth.h5", mesh, stored.sim_time[:-1])
     est = np.asarray(stored.displacements, float)[:-1][:, nodes]
     post2 = np.maximum(std[:, nodes] ** 2 - si[nodes][None] ** 2, 0.0)
     rms = lambda a: float(np.sqrt(np.mean(a)))  # noqa: E731

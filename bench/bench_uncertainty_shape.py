@@ -23,15 +23,13 @@ from scipy.stats import spearmanr
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 
-from vfcli.model.mesh import FoldMesh  # noqa: E402
+from _runner import side_truth_at  # noqa: E402
+
 from vfcli.store import Store  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.store.runs import read_run  # noqa: E402
-from vfcli.store.truth import read_truth  # noqa: E402
-from vfcli.synth.scoring import side_truth  # noqa: E402
-
-MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
 
 
 def shape(work: Path) -> str:
@@ -39,10 +37,7 @@ def shape(work: Path) -> str:
     with Store(work / "recording.h5").read() as r:
         stored = read_run(r, "default")
         mesh = read_mesh(r)
-    t, _ = read_truth(work / "raw" / "truth.h5", ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in MESH_KEYS])
-    tm = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
-    true = t["frames/displacement"][np.searchsorted(t["frames/time"], stored.sim_time[:-1] - 1e-9)].astype(float)
-    nodes, ref = side_truth(mesh.uv, mesh.node_side, tm.uv, tm.node_side, true, 1)
+    nodes, ref = side_truth_at(work / "raw" / "truth.h5", mesh, stored.sim_time[:-1])
     est = np.asarray(stored.displacements, float)[:-1][:, nodes]
     sd = np.asarray(stored.displacement_std, float)[:-1][:, nodes]
     err = np.abs(est - ref)
