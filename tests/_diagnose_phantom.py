@@ -1,19 +1,30 @@
 """A short phantom recording taken through the pipeline up to a fitted run, for the diagnose tests.
 
 :func:`fitted_phantom` runs `vfcli synth` (the small settings of :data:`PHANTOM`, the given seed and
-synth options), ingest, sync, flow, mesh and optimize (the given options) as a user does.
+synth options), ingest, sync, flow, mesh and optimize (the given options) as a user does;
+:func:`shared_fitted_phantom` builds each one once per test run for every test file that asks
+for it and hands each caller its own copy.
 """
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
-from conftest import run_vfcli
+from conftest import run_vfcli, shared_product
+from vfcli.store.parts import copy_store
 
-#: a short, small phantom (0.03 s, 160 x 160 px)
+#: a short, small phantom (0.02 s, 160 x 160 px)
 PHANTOM = [
-    "synth.duration_s=0.03", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
+    "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
     "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
 ]
+
+#: the paper's free force field, short (60 frames, 3 iterations) on a coarse mesh, stored as the run "fit"
+#: (tests/test_diagnose_stage.py and tests/test_contact_phantom.py share the fitted seed 41 with contact)
+ONE_SIDED_FIT = ["--setup", "3x3x10-one-sided", "--set", "optimize.n_frames=60", "--set", "optimize.first_frame=120",
+                 "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.max_iterations=3", "--run", "fit"]
+#: the contact phantom both files diagnose: seed 41 (outside the reserved panels), `--effect contact`
+CONTACT_PHANTOM = (41, ("--effect", "contact"))
 
 
 def fitted_phantom(d: Path, seed: int, fit: list[str], synth: tuple[str, ...] = ()) -> Path:
@@ -33,3 +44,13 @@ def fitted_phantom(d: Path, seed: int, fit: list[str], synth: tuple[str, ...] = 
         res = run_vfcli(*args)
         assert res.returncode == 0, (args[0], res.stderr)
     return store
+
+
+def shared_fitted_phantom(tmp_path_factory, seed: int, fit: list[str], synth: tuple[str, ...] = ()) -> Path:
+    """A copy, in a new folder of this caller's, of the store :func:`fitted_phantom` makes of ``seed``
+    with ``fit`` and ``synth``, built once per test run (:func:`conftest.shared_product`) and shared
+    by the test files that ask for the same one; the raw files stay in the shared folder (read-only)."""
+    key = hashlib.sha256(repr((seed, list(fit), list(synth))).encode()).hexdigest()[:12]
+    shared = shared_product(tmp_path_factory, f"fitted-seed{seed}-{key}", lambda d: fitted_phantom(d, seed, fit, synth))
+    mine = tmp_path_factory.mktemp(f"fitted{seed}")
+    return copy_store(shared / "rec.h5", mine / "rec.h5")

@@ -1,4 +1,5 @@
-"""`vfcli diagnose` on a small fitted phantom, as a user runs it: /diagnose/<run> written with its
+"""`vfcli diagnose` on a small fitted phantom (the contact phantom tests/test_contact_phantom.py diagnoses
+too, built once for both), as a user runs it: /diagnose/<run> written with its
 provenance, the findings printed in plain words, --json parses, a rerun is up to date, and a
 missing run or a bad option is one line with its exit code."""
 from __future__ import annotations
@@ -8,17 +9,15 @@ import json
 import numpy as np
 import pytest
 
-from _diagnose_phantom import fitted_phantom
+from _diagnose_phantom import CONTACT_PHANTOM, ONE_SIDED_FIT, shared_fitted_phantom
 from conftest import run_vfcli
 from vfcli.store import Store
-
-FIT = ["--setup", "3x3x10-one-sided", "--set", "optimize.n_frames=60", "--set", "optimize.first_frame=120",
-       "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.max_iterations=3", "--run", "fit"]
 
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
-    return fitted_phantom(tmp_path_factory.mktemp("diag"), 21, FIT)
+    seed, synth = CONTACT_PHANTOM
+    return shared_fitted_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
 
 
 def test_diagnose_writes_the_run_group_and_says_what_it_located(fitted, tmp_path):
