@@ -51,6 +51,7 @@ def shared_fitted_phantom(tmp_path_factory, seed: int, fit: list[str], synth: tu
     with ``fit`` and ``synth``, built once per test run (:func:`conftest.shared_product`) and shared
     by the test files that ask for the same one; the raw files stay in the shared folder (read-only)."""
     key = hashlib.sha256(repr((seed, list(fit), list(synth))).encode()).hexdigest()[:12]
-    shared = shared_product(tmp_path_factory, f"fitted-seed{seed}-{key}", lambda d: fitted_phantom(d, seed, fit, synth))
+    shared = shared_product(tmp_path_factory, f"fitted-seed{seed}-{key}",
+                            lambda d: fitted_phantom(d, seed, fit, synth))
     mine = tmp_path_factory.mktemp(f"fitted{seed}")
     return copy_store(shared / "rec.h5", mine / "rec.h5")

@@ -18,7 +18,8 @@ from _diagnose_phantom import fitted_phantom
 from conftest import run_vfcli
 from vfcli.store import Store
 
-# two phantom pipelines and two diagnoses with a refit (40 frames, 4 iterations on a 0.02 s phantom: 45 s each alone, 70-95 s beside the other worker)
+# two phantom pipelines and two diagnoses with a refit (40 frames, 4 iterations on a 0.02 s phantom):
+# 45 s each alone, 70-95 s beside the other worker
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(3600)]
 
 FIT = ["--set", "optimize.loads=pressure", "--set", "optimize.n_frames=40", "--set", "optimize.first_frame=120",
