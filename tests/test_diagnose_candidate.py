@@ -36,6 +36,27 @@ def test_residual_vanishes_at_the_controls_that_made_the_data(case):
     assert any(n.startswith("right fold, medial edge") for n in names)
 
 
+def test_region_means_are_the_nan_means_over_each_regions_pixels():
+    """Against a loop of np.nanmean over each region's mask: NaN pixels left out, a region with no valid
+    pixel (or none at all) NaN, unlabelled pixels (-1) ignored."""
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=(5, 12, 9, 3))
+    values[rng.random(values.shape) < 0.3] = np.nan
+    labels = rng.integers(-1, 6, size=(12, 9))
+    labels[labels == 4] = 2                                        # region 4: no pixel
+    values[:, labels == 5, 1] = np.nan                             # region 5: component 1 never valid
+    got = region_means(values, labels, 7)
+    assert got.shape == (5, 7, 3)
+    for r in range(7):
+        inside = values[:, labels == r, :]
+        for f in range(5):
+            for c in range(3):
+                x = inside[f, :, c]
+                want = np.nanmean(x) if np.isfinite(x).any() else np.nan
+                np.testing.assert_allclose(got[f, r, c], want, rtol=1e-12, atol=0, equal_nan=True)
+    assert np.isnan(got[:, 4]).all() and np.isnan(got[:, 6]).all() and np.isnan(got[:, 5, 1]).all()
+
+
 def test_jacobian_columns_match_finite_differences(case):
     p = case.problem
     x0 = 0.9 * case.x_true

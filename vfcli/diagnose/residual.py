@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
 
 from vfcli.diagnose.regions import N_REGIONS, thirds, vertex_fold, vertex_regions
 from vfcli.inverse.terms.gap import gap_rows
@@ -43,19 +44,25 @@ def region_means(values: np.ndarray, labels: np.ndarray, n_regions: int) -> np.n
     """(F, R, C) mean over the labelled pixels of each region per frame, NaN where a region has none.
 
     values : (F, ..., C) with NaN where not valid.  labels : (...) region index per pixel, -1 none.
+
+    One sparse (R, P) indicator times the (P, F * C) pixel columns: a stacked dense ``(F, C, P) @ (P, R)``
+    took 0.8 s for 100 frames of 160 x 160 px on a quiet machine and 13 s beside two busy processes (BLAS
+    threads on many small products); this takes 0.2 s either way.
     """
     v = np.asarray(values, dtype=float)
     f, c = v.shape[0], v.shape[-1]
     flat = v.reshape(f, -1, c)
     lab = np.asarray(labels).reshape(-1)
-    keep = lab >= 0
+    keep = np.flatnonzero(lab >= 0)
     flat, lab = flat[:, keep], lab[keep]
     ok = np.isfinite(flat)
-    onehot = np.zeros((lab.size, n_regions))
-    onehot[np.arange(lab.size), lab] = 1.0
-    # (F, C, P) @ (P, R): one matrix product per sum
-    sums = np.moveaxis(np.moveaxis(np.where(ok, flat, 0.0), 2, 1) @ onehot, 1, 2)
-    counts = np.moveaxis(np.moveaxis(ok.astype(float), 2, 1) @ onehot, 1, 2)
+    indicator = sparse.csr_matrix((np.ones(lab.size), (lab, np.arange(lab.size))), shape=(n_regions, lab.size))
+
+    def per_region(a: np.ndarray) -> np.ndarray:                      # (F, P, C) -> (F, R, C) sums
+        columns = np.ascontiguousarray(a.transpose(1, 0, 2)).reshape(lab.size, f * c)
+        return (indicator @ columns).reshape(n_regions, f, c).transpose(1, 0, 2)
+
+    sums, counts = per_region(np.where(ok, flat, 0.0)), per_region(ok.astype(float))
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(counts > 0, sums / counts, np.nan)
 
