@@ -27,8 +27,11 @@ browser:
 	  elif command -v sudo >/dev/null 2>&1; then sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium; \
 	  else echo "error: $(CHROMIUM) missing; install Debian's chromium package as root (apt-get install chromium)" >&2; exit 2; fi; }
 
+# both cores, each test file on one worker (its fixtures built once); the 15 slowest steps listed.
+# One BLAS thread per process: two workers already fill two cores, and OpenBLAS's threads beside
+# another busy process made a diagnose test file 1.6x slower (docs/benchmarks.md, "The suite's time").
 test: venv browser
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15  # both cores, each test file on one worker (its fixtures built once); the 15 slowest steps listed
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15
 
 bench: venv
 	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

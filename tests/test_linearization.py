@@ -105,3 +105,27 @@ def test_tied_folds_give_one_block_and_the_same_hessian_as_dense_assembly():
     np.testing.assert_allclose(model.hessian @ d, model.hessian.dense() @ d, rtol=1e-12)
     assert model.n_motion > 0
 
+
+
+def test_motion_blocks_of_several_terms_are_each_pairs_weighted_gram_product():
+    """Every (j, k) block of :func:`motion_blocks` against the dense ``sum_c w_c R_j,c^T M^T M R_k,c`` over
+    the moved vertices only, on random interpolation rows and three terms of different values."""
+    import scipy.sparse as sp
+
+    from vfcli.inverse.terms.motion import motion_blocks, seen_vertex_gram
+
+    rng = np.random.default_rng(5)
+    n_vert, n_pix, n_s = 40, 60, 4
+    m = sp.random(n_pix, n_vert, density=0.08, random_state=7, format="csr")
+    bases = [rng.normal(size=(n_vert, 3, n_s)) for _ in range(3)]
+    moved = rng.random(n_vert) < 0.7
+    weights = (0.3, 2.0, 0.7)
+    seen, gram = seen_vertex_gram(m)
+    got = motion_blocks(seen, gram, bases, moved, weights)
+    dense = m.toarray() * moved[None, :]                       # rows of the moved vertices only
+    assert got.shape == (3, 3, n_s, n_s)
+    for j in range(3):
+        for k in range(3):
+            want = sum(w * (dense @ bases[j][:, c, :]).T @ (dense @ bases[k][:, c, :]) for c, w in enumerate(weights))
+            np.testing.assert_allclose(got[j, k], want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+    assert np.allclose(got[0, 1], got[1, 0].T) and not np.allclose(got[0, 1], got[0, 2])

@@ -116,8 +116,11 @@ class GapTerm(FrameTerm):
                 # the silhouettes of the group's folds
                 rows = np.flatnonzero(np.any(np.any([qj != 0.0 for qj in qg], axis=0), axis=1)) if len(qg) > 1 \
                     else np.flatnonzero(np.any(qg[0] != 0.0, axis=1))
-                qg = [qj[rows] for qj in qg]
+                # every pair's block from one product of the terms' rows side by side
+                q_all = np.hstack([qj[rows] for qj in qg])
+                n_s = qg[0].shape[1]
+                blocks = (q_all.T @ (curv[rows, None] * q_all)).reshape(len(qg), n_s, len(qg), n_s)
                 for i, (j, k) in enumerate(pairs):
-                    stack[f * len(pairs) + i] = qg[j].T @ (curv[rows, None] * qg[k])
+                    stack[f * len(pairs) + i] = blocks[j, :, k, :]
             for i, (j, k) in enumerate(pairs):
                 out.outers[f * len(pairs) + i] = np.outer(lin.temporal[j][f], lin.temporal[k][f])

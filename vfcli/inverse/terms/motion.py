@@ -45,35 +45,37 @@ def seen_vertex_gram(m_both: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
     return seen, (ms.T @ ms).tocsr()
 
 
-def motion_block(seen: np.ndarray, gram: sp.csr_matrix, basis: np.ndarray,
-                 vertices: np.ndarray | None = None,
-                 weights: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                 other: np.ndarray | None = None) -> np.ndarray:
-    """``sum_c w_c R_c^T M^T M Q_c`` for one frame (Q = R unless ``other`` is given).
+def motion_blocks(seen: np.ndarray, gram: sp.csr_matrix, bases: list[np.ndarray],
+                  vertices: np.ndarray | None = None,
+                  weights: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> np.ndarray:
+    """``sum_c w_c R_j,c^T M^T M R_k,c`` for one frame and every pair (j, k) of linearisation terms.
 
     Parameters
     ----------
     seen, gram : from :func:`seen_vertex_gram`.
-    basis : (N, 3, S) R, vertex displacement per unit spatial control value, mm.
-    vertices : (N,) bool, the only vertices ``basis`` and ``other`` move (saves work; default all).
+    bases : J arrays (N, 3, S), R_j: vertex displacement per unit spatial control value of each term, mm.
+    vertices : (N,) bool, the only vertices the bases move (saves work; default all).
     weights : (3,) weight w_c of each velocity component (``ObjectiveSettings.component_weights``).
-    other : (N, 3, S) Q, a second linearisation term (default R).
 
     Returns
     -------
-    (S, S) float64, mm^2 per (unit control)^2.
+    (J, J, S, S) float64, mm^2 per (unit control)^2.
+
+    The J terms' columns side by side make one ``(J S, J S)`` product per component: with the 14 terms
+    of a steady-state response one call where J^2 = 196 small sparse products were (the inertia refit's
+    Gauss-Newton models on the demo mesh spent 84 s in them).
     """
-    out = np.zeros((basis.shape[2], basis.shape[2]))
+    n_terms, n_s = len(bases), bases[0].shape[2]
+    out = np.zeros((n_terms * n_s, n_terms * n_s))
     keep = np.ones(seen.size, bool) if vertices is None else vertices[seen]
-    if not keep.any():
-        return out
-    k = gram[keep][:, keep] if not keep.all() else gram
-    for c in range(3):
-        if weights[c]:
-            r = basis[seen[keep], c, :]
-            q = r if other is None else other[seen[keep], c, :]
-            out += weights[c] * (r.T @ (k @ q))
-    return out
+    if keep.any():
+        k = gram[keep][:, keep] if not keep.all() else gram
+        rows = seen[keep]
+        for c in range(3):
+            if weights[c]:
+                r = np.hstack([b[rows, c, :] for b in bases]) if n_terms > 1 else bases[0][rows, c, :]
+                out += weights[c] * (r.T @ (k @ r))
+    return out.reshape(n_terms, n_s, n_terms, n_s).transpose(0, 2, 1, 3)
 
 
 class MotionTerm(FrameTerm):
@@ -108,10 +110,10 @@ class MotionTerm(FrameTerm):
             db = [stencil_apply(bj, p.stencil[f]) for bj in b]
             w = 2.0 * weight / (p.n_frames * fr.n_norm * p.dt ** 2)
             seen, gram = seen_vertex_gram(fr.m_both)
+            for g, (stack, mv) in enumerate(zip(out.blocks, lin.moved)):
+                blocks = motion_blocks(seen, gram, [r[g] for r in lin.spatial], mv, st.component_weights)
+                for i, (j, k) in enumerate(pairs):
+                    stack[f * len(pairs) + i] = w * blocks[j, k]
             for i, (j, k) in enumerate(pairs):
-                at = f * len(pairs) + i
-                for stack, rj, rk, mv in zip(out.blocks, lin.spatial[j], lin.spatial[k], lin.moved):
-                    stack[at] = motion_block(seen, gram, rj, mv, st.component_weights, None if j == k else rk)
-                    stack[at] *= w
-                out.outers[at] = np.outer(db[j], db[k])
+                out.outers[f * len(pairs) + i] = np.outer(db[j], db[k])
             out.n_residuals += 3 * fr.m_both.shape[0]
