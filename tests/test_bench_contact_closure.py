@@ -71,3 +71,12 @@ def test_seam_speed_ratio_is_zero_for_a_stopped_band_and_one_for_a_uniform_motio
     assert bc.seam_speed_ratio(gap, visible, vel, closed) == 0.0
     vel[..., 1] = 50.0
     np.testing.assert_allclose(bc.seam_speed_ratio(gap, visible, vel, closed), 1.0)
+
+
+def test_the_clipping_test_keeps_its_level_with_as_few_edges_as_a_recording_has():
+    # under the smooth null the indices are uniform in [-1, 0); a recording gives 9-14 edges
+    rng = np.random.default_rng(7)
+    for n in (9, 14):
+        p = np.array([bc.clipping_test(rng.uniform(-1.0, 0.0, n))[2] for _ in range(4000)])
+        rate = float(np.mean(p < 0.05))
+        assert abs(rate - 0.05) < 3.5 * np.sqrt(0.05 * 0.95 / 4000), (n, rate)
