@@ -20,17 +20,23 @@ PSF_SIGMA_RANGE_PX = (0.2, 3.0)
 
 
 def estimate_edge_model(
-    frames_sample: np.ndarray, masks: np.ndarray, lateral_axis: int = 0, *, min_width_px: float = 3.0, max_rays: int = 1000
+    frames_sample: np.ndarray, masks: np.ndarray, lateral_axis: int = 0, *, min_width_px: float = 3.0, max_rays: int = 1000,
+    gap_counts: float | None = None, sigma_range_px: tuple[float, float] = PSF_SIGMA_RANGE_PX,
 ) -> EdgeModel | None:
     """Gap level and PSF width of a recording, measured on sampled frames and their rough masks.
 
-    * Gap level: median intensity of the mask pixels whose two lateral neighbours are in
-      the mask too (the gap's interior, away from the blurred edges).
+    * Gap level: ``gap_counts`` when the caller knows it (the flow step does not; the bench
+      ``bench/bench_gap_level.py`` passes a phantom's), else the median intensity of the
+      mask pixels whose two lateral neighbours are in the mask too (the gap's interior, away
+      from the blurred edges). On a slit narrower than about 4 PSF widths in every sampled frame
+      that median is the blurred dip's floor, brighter than the gap (docs/benchmarks.md, "A slit
+      narrower than about 2.5 blur widths reads too wide").
     * PSF width: the sigma that minimises the pooled residual of :func:`fit_slit_profiles`
       over the rays where the rough gap is at least ``min_width_px`` wide (on narrower
       slits blur and width cannot be told apart); a log-spaced search over
-      :data:`PSF_SIGMA_RANGE_PX` refined by a parabola, with a window of 3 px beyond each
-      edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF turns out wider.
+      ``sigma_range_px`` (default :data:`PSF_SIGMA_RANGE_PX`) refined by a parabola, with a
+      window of 3 px beyond each edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF
+      turns out wider.
 
     Parameters
     ----------
@@ -42,6 +48,11 @@ def estimate_edge_model(
         Narrowest rough gap used for the PSF, px.
     max_rays : int
         At most this many rays (spread evenly) enter the PSF search.
+    gap_counts : float, optional
+        The gap's level, counts, when known; None: measured (above). With the level known the
+        blur of a slit too narrow to show it is measured right (``tests/test_gap_known_level.py``).
+    sigma_range_px : (float, float)
+        Range of the PSF search, px.
 
     Returns
     -------
@@ -58,8 +69,10 @@ def estimate_edge_model(
         return None
     lat = 1 + lateral_axis  # lateral axis of the (k, H, W) stack
     interior = m & np.roll(m, 1, axis=lat) & np.roll(m, -1, axis=lat)
-    pixels = frames[interior] if interior.sum() >= 16 else frames[m]
-    gap_counts = float(np.median(pixels))
+    if gap_counts is None:
+        pixels = frames[interior] if interior.sum() >= 16 else frames[m]
+        gap_counts = float(np.median(pixels))
+    gap_counts = float(gap_counts)
     rays = []
     for f, mk in zip(frames, m):
         e0, e1 = outermost_silhouette(mk, lateral_axis, border_is_edge=True)
@@ -93,7 +106,7 @@ def estimate_edge_model(
             fit = fit_slit_profiles(prof, rows, a, b, s, gap_counts, inner=(a + 0.5, b - 0.5))
             return float(np.sum(fit.rms**2))
 
-        grid = np.geomspace(*PSF_SIGMA_RANGE_PX, 13)  # steps of 25 %
+        grid = np.geomspace(*sigma_range_px, 13)  # steps of 25 % on the default range
         k = int(np.argmin([cost(s) for s in grid]))
         fine = np.geomspace(grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)], 9)  # steps of about 5 %
         values = np.array([cost(s) for s in fine])

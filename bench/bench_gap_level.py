@@ -1,0 +1,120 @@
+"""## Where a heavy blur's gap error comes from: the edge model's level and blur against the phantom's (issue 15).
+
+For each seed the widened phantom is rendered (or read from ``--cache``) as
+:mod:`bench_gap_optics` does, the flow step calibrates on its sampled frames, and the gap is
+segmented four ways, each scored as there (pooled IoU, total area error):
+
+* ``as is``: the flow step's own edge model (gap level from the rough mask's interior, blur searched);
+* ``level``: the gap level replaced by the phantom's channel level (the renderer's
+  ``gap_level`` above its black level, counts), the blur searched again with it;
+* ``level + blur``: the channel level and the drawn blur;
+* ``+ no inner bound``: as the previous, and the slit fit's edges free of the rough run's pixels
+  (:func:`vfcli.flow.gap.subpixel.fit_ray_edges` with ``inner`` at +-inf, patched in this process).
+
+It also reports the blur the PSF search reads with the channel level over a range widened to
+:data:`SIGMA_RANGE_PX` (the flow step's search stops at 3 px). The phantom's truth (channel level,
+drawn blur) replaces the measured values here only, to find which of them the error follows;
+the flow step never sees it.
+
+Reproduce::
+
+    .venv/bin/python bench/bench_gap_level.py SEED [SEED ...] [--duration 0.025] [--cache /tmp/gap_optics_cache]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+import vfcli.flow.gap.subpixel.segment as segment  # noqa: E402
+from bench_gap_optics import render, score  # noqa: E402
+from vfcli.config import FlowConfig  # noqa: E402
+from vfcli.flow.gap.detect import dark_core_level, gap_mask  # noqa: E402
+from vfcli.flow.gap.subpixel import EdgeModel, estimate_edge_model, segment_stream  # noqa: E402
+from vfcli.flow.pipeline import calibrate, sample_indices  # noqa: E402
+from vfcli.synth.render import RenderSettings  # noqa: E402
+
+#: Range of the PSF search with the channel level, px (twice the flow step's top).
+SIGMA_RANGE_PX = (0.2, 6.0)
+
+
+def channel_counts() -> float:
+    """The phantom's channel level, counts: black level plus ``gap_level`` of the full scale."""
+    s = RenderSettings()
+    return s.black_level_dn + s.gap_level * s.full_scale_dn
+
+
+def sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral_axis: int) -> np.ndarray:
+    """The rough gap masks (k, H, W) the calibration measures its edge model on (its dark-core fallback included)."""
+    masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral_axis) for f in sample])
+    if not masks.any():
+        core = dark_core_level(sample, threshold)
+        masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral_axis, core_level=core) for f in sample])
+    return masks
+
+
+def segment_with(v: dict, gap, free_inner: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Masks (n, H, W) and areas (n,) mm^2 of the video with the sub-pixel gap settings ``gap``."""
+    original = segment.fit_ray_edges
+
+    def unbounded(frame, e0, e1, model, lateral_axis=0, passes=2, inner=None):
+        n = len(e0)
+        return original(frame, e0, e1, model, lateral_axis, passes, inner=(np.full(n, np.inf), np.full(n, -np.inf)))
+
+    if free_inner:
+        segment.fit_ray_edges = unbounded
+    try:
+        masks, areas = [], []
+        for _, seg in segment_stream(iter(v["frames"]), gap):
+            masks.append(seg.mask)
+            areas.append(seg.area_mm2(float(v["px_per_mm"])))
+    finally:
+        segment.fit_ray_edges = original
+    return np.stack(masks), np.asarray(areas)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("seeds", type=int, nargs="+")
+    ap.add_argument("--duration", type=float, default=0.025)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/gap_optics_cache"))
+    args = ap.parse_args()
+    cfg = FlowConfig()
+    level = channel_counts()
+    print(f"channel level {level:.1f} counts; IoU / area error (total) per column")
+    print("| seed | blur drawn / est. (px) | est. gap level | blur with the channel level (px) | as is | level | "
+          "level + blur | + no inner bound |")
+    print("| ---: | --- | ---: | ---: | --- | --- | --- | --- |")
+    for seed in args.seeds:
+        v = render(seed, args.duration, None, None, args.cache)
+        frames, drawn = v["frames"], float(v["psf"])
+        rotation = float(v["rotation"]) if bool(v["stated"]) else 0.0
+        sample = frames[sample_indices(len(frames), cfg.sample_frames)]
+        calib = calibrate(sample, cfg, float(v["fps"]), float(v["px_per_mm"]), rotation, axis_from_gap=True)
+        if calib.gap is None:
+            print(f"| {seed} | {drawn:.2f} / - | no edge model | | | | | |", flush=True)
+            continue
+        masks = sampled_masks(sample, calib.threshold, cfg.median_px, calib.lateral_axis)
+        own = calib.edge_model
+        if estimate_edge_model(sample, masks, calib.lateral_axis) != own:
+            raise RuntimeError(f"seed {seed}: the rough masks here are not the calibration's")
+        at_level = estimate_edge_model(sample, masks, calib.lateral_axis, gap_counts=level)
+        wide = estimate_edge_model(sample, masks, calib.lateral_axis, gap_counts=level, sigma_range_px=SIGMA_RANGE_PX)
+        cells = []
+        for model, free in ((own, False), (at_level, False), (EdgeModel(level, drawn), False),
+                            (EdgeModel(level, drawn), True)):
+            s = score(v, *segment_with(v, replace(calib.gap, model=model), free))
+            cells.append(f"{s['iou']:.3f} / {100 * s['area_total']:+.1f} %")
+        print(f"| {seed} | {drawn:.2f} / {own.psf_sigma_px:.2f} | {own.gap_counts:.0f} | "
+              f"{'-' if wide is None else f'{wide.psf_sigma_px:.2f}'} | " + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
