@@ -46,8 +46,8 @@ def region_means(values: np.ndarray, labels: np.ndarray, n_regions: int) -> np.n
     values : (F, ..., C) with NaN where not valid.  labels : (...) region index per pixel, -1 none.
 
     One sparse (R, P) indicator times the (P, F * C) pixel columns: a stacked dense ``(F, C, P) @ (P, R)``
-    took 0.8 s for 100 frames of 160 x 160 px on a quiet machine and 13 s beside two busy processes (BLAS
-    threads on many small products); this takes 0.2 s either way.
+    took 0.10 s for 100 frames of 160 x 160 px on a quiet machine and 13.5 s beside two busy processes (BLAS
+    threads on many small products); this takes 0.06-0.2 s (bench/bench_diagnose_kernels.py).
     """
     v = np.asarray(values, dtype=float)
     f, c = v.shape[0], v.shape[-1]

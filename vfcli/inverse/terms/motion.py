@@ -63,7 +63,8 @@ def motion_blocks(seen: np.ndarray, gram: sp.csr_matrix, bases: list[np.ndarray]
 
     The J terms' columns side by side make one ``(J S, J S)`` product per component: with the 14 terms
     of a steady-state response one call where J^2 = 196 small sparse products were (the inertia refit's
-    Gauss-Newton models on the demo mesh spent 84 s in them).
+    Gauss-Newton models on the demo mesh spent 84 s in them, loaded machine; 8.6x on one thread in
+    bench/bench_diagnose_kernels.py).
     """
     n_terms, n_s = len(bases), bases[0].shape[2]
     out = np.zeros((n_terms * n_s, n_terms * n_s))
