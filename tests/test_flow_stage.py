@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tracemalloc
@@ -267,6 +268,28 @@ def test_a_warning_of_the_flow_step_is_stored_with_the_stage(tmp_path):
         summary = r.summary("flow")
     assert summary["figures"]["open_frames"] == 12
     assert any("a glottal gap in all 12 frames" in w and "flow.threshold" in w for w in summary["warnings"])
+    # the gap spans cols 4-60 of the 64 px in view: no doubt about its length
+    assert not any("was found over" in w for w in summary["warnings"])
+
+
+def test_a_gap_found_over_a_short_part_of_the_glottis_in_view_is_a_stored_warning(tmp_path):
+    """A slit open over 13 of the 64 px of glottis in view, up to 5 px wide (the folds, 15 mm at 15 px/mm, run
+    past the frame):
+    the stage writes its product and stores one warning with the share found, the threshold and what to check."""
+    ph = SlitPhantom(height=64, width=64, midline_row=31.3, glottis_cols=(26, 38), lam_px=11.0, delta_max_px=(2.5, 2.5))
+    path = tmp_path / "r.h5"
+    write_store(path, np.stack([ph.render(ph.frame_time(k)) for k in range(0, 40, 2)]), ph.fps, ph.px_per_mm)
+    run_flow(RunContext.open(path, overrides=["flow.subpixel_edges=false"]))
+    with Store(path).read() as r:
+        summary = r.summary("flow")
+        cols = np.flatnonzero(r.read("flow", "gap_mask").any(axis=(0, 1)))
+    short = [w for w in summary["warnings"] if "was found over" in w]
+    assert len(short) == 1, summary["warnings"]
+    found, in_view, share = (float(x) for x in re.search(r"over (\d+) px of the (\d+) px of glottis in view \((\d+) %", short[0]).groups())
+    # the stored masks' extent along the (horizontal) glottis: its thin ends below detection, at most the 13 px
+    assert found == pytest.approx(cols[-1] - cols[0] + 1, abs=1) and 5 <= found <= 14
+    assert in_view == 64 and share == pytest.approx(100 * found / in_view, abs=1)
+    assert "threshold" in short[0] and "mesh.length_mm" in short[0]
 
 
 def test_no_gap_in_any_frame_fails_with_advice_and_leaves_the_store(tmp_path):

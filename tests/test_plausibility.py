@@ -10,7 +10,7 @@ import pytest
 
 from _small_phantom import SMALL, shared_phantom_with_hsc
 from conftest import run_vfcli
-from vfcli.flow.plausibility import points_on_image, pressure_velocity_bound
+from vfcli.flow.plausibility import gap_length_share, image_chord_px, points_on_image, pressure_velocity_bound
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.store import Store, copy_store
@@ -75,3 +75,22 @@ def test_velocities_beyond_what_the_pressure_drives_are_a_stored_warning(video, 
         warnings = r.summary("fields")["warnings"]
     hit = [w for w in warnings if "beyond the" in w and "the recorded pressure can drive" in w]
     assert len(hit) == 1, warnings
+
+
+def test_the_chord_of_the_frame_and_the_gaps_share_of_it_by_hand():
+    # a 100 x 200 (H x W) frame: a row through the centre spans 199 px, a column 99, the diagonal 99 * sqrt(2)
+    assert image_chord_px((100.0, 49.5), 0.0, (100, 200)) == pytest.approx(199.0)
+    assert image_chord_px((100.0, 49.5), 90.0, (100, 200)) == pytest.approx(99.0)
+    assert image_chord_px((100.0, 49.5), 45.0, (100, 200)) == pytest.approx(99.0 * np.sqrt(2))
+    assert image_chord_px((20.0, 10.0), 0.0, (100, 200)) == pytest.approx(199.0)
+    assert image_chord_px((-5.0, 10.0), 0.0, (100, 200)) == 0.0
+    # a diagonal slit 1 px wide over 41 pixel centres of a 200 x 200 frame: found 41 px
+    counts = np.zeros((200, 200))
+    for i in range(80, 121):
+        counts[i, i] = 5
+        counts[i, i + 1] = 2
+    found, in_view = gap_length_share(counts, length_px=150.0)
+    assert found == pytest.approx(41 * np.sqrt(2), rel=0.03)
+    assert in_view == 150.0                                       # the folds, shorter than the chord
+    _, in_view = gap_length_share(counts, length_px=1000.0)
+    assert in_view == pytest.approx(199 * np.sqrt(2) + 1, rel=0.02)  # the chord, where the folds run off the frame

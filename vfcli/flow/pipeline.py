@@ -34,6 +34,7 @@ from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midl
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
 from vfcli.flow.gap.subpixel.crease import crease_levels, detection_levels, dip_minima, search_band
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
+from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
 
 log = logging.getLogger(__name__)
@@ -104,8 +105,11 @@ _ALONG = {0: "columns (left-right)", 1: "rows (top-bottom)"}
 _LATERAL = {0: "rows", 1: "columns"}
 
 
-def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration") -> None:
-    """Check the glottal area of every frame (n,) mm^2: fail on no gap at all, warn on a gap in every frame.
+def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_counts: np.ndarray | None = None,
+                       length_px: float | None = None) -> None:
+    """Check the glottal area of every frame (n,) mm^2: fail on no gap at all, warn on a gap in every frame,
+    and (given the gap counts (H, W) over the frames and the folds' length in px) warn when the gap was found
+    over less than :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN` of the glottis in view.
 
     Raises
     ------
@@ -125,6 +129,15 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration") -> None:
         log.warning("flow: a glottal gap in all %d frames; the folds close every cycle, so either they never close "
                     "in this recording or the %s threshold %.1f counts segments a dark fixture or shadow: check "
                     "flow.threshold (counts)", n, how, calib.threshold)
+    if gap_counts is not None and length_px and (np.asarray(gap_counts) > 0).sum() >= 3:
+        found, in_view = gap_length_share(gap_counts, length_px)
+        if in_view > 0 and found < GAP_LENGTH_WARN * in_view:
+            log.warning("flow: the glottal gap was found over %.0f px of the %.0f px of glottis in view (%.0f %%; folds "
+                        "clamped at both ends open over about three quarters of it): its narrow parts are not "
+                        "resolved (a slit one or two pixels wide stays above the %s threshold %.1f counts), or only "
+                        "part of the glottis opens. The glottal area, the gap term and the pose use the part found; "
+                        "check mesh.length_mm and camera.px_per_mm, and for a new recording zoom in or sharpen the "
+                        "focus", found, in_view, 100 * found / in_view, how, calib.threshold)
 
 
 @dataclass(frozen=True)

@@ -13,12 +13,21 @@
   moves in the video: their textured surface slides past the pixels and the gap opens and closes
   at the phonation frequency, while the fixture and the block are static (their pixels show noise
   only). A point is on the folds when moving pixels lie within :data:`FOLD_MARGIN_MM` of it.
+* :func:`gap_length_share`: how much of the glottis in view the gap was found on. Folds clamped at
+  both ends open over their middle (``A sin(pi s / L)``): the gap seen over a recording spans about
+  three quarters of the length L (its thin ends stay below detection). A gap found over less than
+  :data:`GAP_LENGTH_WARN` of the length in view means the slit's narrow parts were not resolved
+  (a slit one or two pixels wide under sharp optics stays above the gap threshold), or an opening
+  that is not the whole glottis (a posterior chink): the glottal area and the gap term then cover
+  only that part.
 """
 from __future__ import annotations
 
 from typing import Iterable
 
 import numpy as np
+
+from vfcli.camera.pose import gap_axis
 
 #: Tissue (or silicone) density used by the velocity bound, kg/m^3.
 TISSUE_DENSITY_KG_M3 = 1000.0
@@ -42,6 +51,9 @@ FOLD_MARGIN_MM = 0.5
 #: Share of the points off the folds above which `fields` warns, and above which it fails.
 OFF_FOLD_WARN = 0.1
 OFF_FOLD_FAIL = 0.5
+#: Share of the glottis length in view below which the gap's extent over the recording is doubtful
+#: (`flow` warns): half, against the three quarters a clamped fold's opening spans (module doc).
+GAP_LENGTH_WARN = 0.5
 
 
 def points_on_image(points_px: np.ndarray, shape: tuple[int, int], margin_px: float = 0.5) -> np.ndarray:
@@ -177,3 +189,38 @@ def points_on_folds_of_video(chunks: Iterable[np.ndarray], points_px: np.ndarray
     if acc.n_blocks < 2:
         return None
     return points_on_folds(points_px, moving_pixels(acc.contrast(), acc.block), FOLD_MARGIN_MM * float(px_per_mm))
+
+
+def image_chord_px(centre_px: np.ndarray, angle_deg: float, shape: tuple[int, int]) -> float:
+    """Length (px) of the line through ``centre_px`` (col, row) at ``angle_deg`` inside an (H, W) frame
+    (between pixel centres 0 and W - 1, H - 1); 0 when the centre lies outside."""
+    c = np.asarray(centre_px, float)
+    h, w = shape
+    if not (0 <= c[0] <= w - 1 and 0 <= c[1] <= h - 1):
+        return 0.0
+    e = np.array([np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))])
+    lo, hi = -np.inf, np.inf
+    for k, limit in ((0, w - 1), (1, h - 1)):
+        if abs(e[k]) > 1e-12:
+            a, b = sorted(((0 - c[k]) / e[k], (limit - c[k]) / e[k]))
+            lo, hi = max(lo, a), min(hi, b)
+    return float(hi - lo)
+
+
+def gap_length_share(gap_counts: np.ndarray, length_px: float) -> tuple[float, float]:
+    """The gap's extent along its principal axis over a recording, and the glottis length in view, px.
+
+    Parameters
+    ----------
+    gap_counts : (H, W) number of frames in which each pixel is gap (at least 3 gap pixels).
+    length_px : the folds' length L times the image scale, px.
+
+    Returns
+    -------
+    found_px : extent of the gap pixels along the axis (first to last pixel centre, plus one pixel).
+    in_view_px : ``min(length_px, chord)``, the chord of the frame along the axis through the gap's centre.
+    """
+    ax = gap_axis(gap_counts)
+    lo, hi = ax.extent_px
+    chord = image_chord_px(ax.centre_px, ax.rotation_deg, np.asarray(gap_counts).shape)
+    return float(hi - lo + 1.0), float(min(length_px, chord + 1.0))

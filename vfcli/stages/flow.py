@@ -53,17 +53,19 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     ds_open = s.create("opening", (n, h, w), np.float32)
     ds_flow = s.create("flow", (n, h, w, 2), np.float32)
     area = np.zeros(n)
+    gap_counts = np.zeros((h, w), np.int32)
     bar = ctx.progress(total=n, desc="flow", unit="frame")
     for fr in stream:
         k = fr.index
         ds_mask[k] = fr.mask
+        gap_counts += fr.mask
         ds_open[k] = fr.opening_px / np.float32(px_per_mm)
         ds_flow[k] = fr.velocity_mm_s
         area[k] = fr.area_mm2
         bar.update(1)
     bar.close()
     try:
-        check_flow_product(area, calib)
+        check_flow_product(area, calib, gap_counts, ctx.config.mesh.length_mm * px_per_mm)
     except InputDataError as exc:
         raise InputDataError(str(exc), reader.path) from None
     s.put("glottal_area", area)
