@@ -29,7 +29,8 @@ browser:
 
 # both cores, each test file on one worker (its fixtures built once); the 15 slowest steps listed.
 # One BLAS thread per process: two workers already fill two cores, and OpenBLAS's threads beside
-# another busy process made a diagnose test file 1.6x slower (docs/benchmarks.md, "The suite's time").
+# other busy processes made a diagnose test file 1.6x slower (docs/benchmarks.md, "The suite's
+# time and diagnose's kernels").
 test: venv browser
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15
 

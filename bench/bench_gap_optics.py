@@ -12,7 +12,10 @@ and only then, the truth (the gap at pixel centres and the glottal area) is scor
 * gap IoU pooled over all frames;
 * glottal area error, total over frames (sum estimated / sum true - 1), and the median relative
   error over frames open more than 10 % of the widest;
-* frames with a gap found / truly open; the estimated blur (px) against the drawn one.
+* frames with a gap found / truly open; the estimated blur (px) against the drawn one;
+* the gap's length share: its extent along its axis over the whole video, found and true, as a share of
+  the glottis in view (:func:`vfcli.flow.plausibility.gap_length_share`, what ``vfcli flow`` warns on
+  below :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN`).
 
 ``--psf`` / ``--fov-rel`` pin the drawn blur (px) and the field of view (x the glottis length)
 of every seed (the rest of the draw is the seed's). Rendered videos are cached in ``--cache``.
@@ -39,6 +42,7 @@ from vfcli.config import FlowConfig, MeshConfig, SynthConfig  # noqa: E402
 from vfcli.flow.gap.subpixel import segment_stream  # noqa: E402
 from vfcli.flow.gap.detect import gap_mask, glottal_area  # noqa: E402
 from vfcli.flow.pipeline import calibrate, sample_indices  # noqa: E402
+from vfcli.flow.plausibility import gap_length_share  # noqa: E402
 from vfcli.synth.scoring import iou  # noqa: E402
 from vfcli.synth.widened import draw_widened  # noqa: E402
 
@@ -112,6 +116,17 @@ def score(v: dict, masks: np.ndarray, areas: np.ndarray) -> dict:
     )
 
 
+def length_shares(v: dict, masks: np.ndarray, seed: int) -> tuple[float, float]:
+    """The gap's length share of the glottis in view over the video: found by ``masks``, and true."""
+    h, w = masks.shape[1:]
+    length_px = draw_widened(seed, w, h, MeshConfig()).length_mm * float(v["px_per_mm"])
+    shares = []
+    for counts in (masks.sum(axis=0), v["gap"].sum(axis=0)):
+        found, in_view = gap_length_share(counts, length_px) if (counts > 0).sum() >= 3 else (0.0, 1.0)
+        shares.append(found / in_view)
+    return shares[0], shares[1]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("seeds", type=int, nargs="+")
@@ -127,8 +142,8 @@ def main() -> None:
         over[k.removeprefix("flow.")] = eval(val)  # noqa: S307 - a bench's own command line
     cfg = FlowConfig(**over)
     print("| seed | blur (px) | est. blur (px) | px/mm | FOV / L | fixture | gap IoU | area error (total) | "
-          "area error (median, open) | frames with gap / open | false | s |")
-    print("| ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+          "area error (median, open) | frames with gap / open | false | length share found / true | s |")
+    print("| ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     for seed in args.seeds:
         v = render(seed, args.duration, args.psf, args.fov_rel, args.cache)
         t = time.perf_counter()
@@ -136,9 +151,11 @@ def main() -> None:
         wall = time.perf_counter() - t
         s = score(v, masks, areas)
         est = calib.edge_model.psf_sigma_px if calib.edge_model is not None else float("nan")
+        found, true = length_shares(v, masks, seed)
         print(f"| {seed} | {float(v['psf']):.2f} | {est:.2f} | {float(v['px_per_mm']):.1f} | {float(v['fov_rel']):.2f} | "
               f"{'yes' if v['fixture'] else 'no'} | {s['iou']:.3f} | {100 * s['area_total']:+.1f}% | "
-              f"{100 * s['area_median']:.1f}% | {s['found']} | {s['false']} | {wall:.0f} |", flush=True)
+              f"{100 * s['area_median']:.1f}% | {s['found']} | {s['false']} | {found:.2f} / {true:.2f} | {wall:.0f} |",
+              flush=True)
 
 
 if __name__ == "__main__":

@@ -74,7 +74,7 @@ def motion_blocks(seen: np.ndarray, gram: sp.csr_matrix, bases: list[np.ndarray]
         rows = seen[keep]
         for c in range(3):
             if weights[c]:
-                r = np.hstack([b[rows, c, :] for b in bases]) if n_terms > 1 else bases[0][rows, c, :]
+                r = np.hstack([b[rows, c, :] for b in bases])
                 out += weights[c] * (r.T @ (k @ r))
     return out.reshape(n_terms, n_s, n_terms, n_s).transpose(0, 2, 1, 3)
 

@@ -79,8 +79,8 @@ def shifted_ritz_vectors(model, loads: np.ndarray, shift_hz: float, n_blocks: in
     """(n_dofs, <= 2 n_blocks S) block Krylov vectors of the loads about the shift ``w_s^2``.
 
     ``span{A^-1 F_k, (A^-1 M) A^-1 F_k, ...}``, ``A = K - w_s^2 M`` factorised once per fold
-    (sparse LU: A is indefinite above the lowest resonance; symmetric ordering), F_k the loads restricted to fold k,
-    0 at the clamped DOFs.  Not orthonormalised (the caller orthonormalises the whole basis).
+    (sparse LU, symmetric ordering: A is indefinite above the lowest resonance), F_k the loads restricted
+    to fold k, 0 at the clamped DOFs.  Not orthonormalised (the caller orthonormalises the whole basis).
 
     Parameters
     ----------
@@ -101,8 +101,7 @@ def shifted_ritz_vectors(model, loads: np.ndarray, shift_hz: float, n_blocks: in
         a = (fold.stiffness[fold.free][:, fold.free] - sigma * m_ff).tocsc()
         # A is symmetric: a symmetric fill-reducing ordering with diagonal pivots preferred (pivoting off
         # the diagonal only below a tenth of the column's largest entry, as A is indefinite) halves the
-        # factor's fill and time (1.5 mm mesh, 14952 free DOFs: 2.2 s against COLAMD's 4.0 s; residual
-        # 3e-10 of the right-hand side against 1e-10)
+        # factor's fill and takes 1.8x less time than COLAMD (bench/bench_diagnose_kernels.py)
         lu = splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1, options={"SymmetricMode": True})
         block = lu.solve(np.ascontiguousarray(loads[idx], dtype=float))
         for _ in range(int(n_blocks)):
