@@ -94,7 +94,8 @@ def flow_gap(v: dict, cfg: FlowConfig) -> tuple[np.ndarray, np.ndarray, object]:
     calib = calibrate(frames[sample_indices(len(frames), cfg.sample_frames)], cfg, float(v["fps"]), px, rotation,
                       axis_from_gap=True)
     if calib.gap is None:
-        masks = np.stack([gap_mask(f, calib.threshold, cfg.median_px, midline=calib.midline,
+        midline = calib.midline if calib.midline_line is None else calib.midline_line
+        masks = np.stack([gap_mask(f, calib.threshold, cfg.median_px, midline=midline,
                                    lateral_axis=calib.lateral_axis) for f in frames])
         return masks, glottal_area(masks, px), calib
     masks, areas = [], []

@@ -163,9 +163,10 @@ class FlowConfig(_Section):
         "smoothed along the glottis and in time (vfcli.flow.gap.detect); false: the paper's binary mask (threshold + median filter)"
     )
     gap_detection: Literal["threshold", "crease"] = Field(
-        "threshold", json_schema_extra=_SHAPES_FLOW, description="How a ray across the glottis is found open (with subpixel_edges): "
-        "'threshold': pixels darker than flow.threshold; 'crease': darker than the ray's own closed crease (its lightest "
-        "sampled dips) by 3 times their scatter, or than flow.threshold where that is higher (vfcli.flow.gap.subpixel.crease)"
+        "crease", json_schema_extra=_SHAPES_FLOW, description="How a ray across the glottis is found open (with subpixel_edges): "
+        "'crease': darker than the ray's own closed crease (its lightest sampled dips) by 3 times their scatter, or than "
+        "flow.threshold where that is higher (vfcli.flow.gap.subpixel.crease; finds the narrow phases of the cycle); "
+        "'threshold': pixels darker than flow.threshold (the paper's)"
     )
     edge_window_mm: float = Field(
         1.0, ge=0, le=20, json_schema_extra=_SHAPES_FLOW, description="Half-window of the sub-pixel edge smoothing along the glottis, mm (0: none)"

@@ -315,7 +315,7 @@ def flow_stream(
     rotation_deg: float = 0.0,
     lateral_axis: int = 0,
     initial_center: np.ndarray | float | None = None,
-    midline: float | None = None,
+    midline: float | np.ndarray | None = None,
     t0_s: float = 0.0,
     estimator: FlowEstimator | None = None,
     split_folds: bool = False,
@@ -348,8 +348,9 @@ def flow_stream(
         Image axis that is lateral (0: rows).
     initial_center : float or (n_rays,) float, optional
         Opening locations assumed before the gap is seen (:func:`vfcli.flow.gap.detect.midline_from_masks`).
-    midline : float, optional
-        Lateral pixel coordinate of the glottal midline for :func:`vfcli.flow.gap.detect.gap_mask`.
+    midline : float or (n_rays,) float, optional
+        Lateral pixel coordinate of the glottal midline (or its coordinate on each ray) for
+        :func:`vfcli.flow.gap.detect.gap_mask`.
     t0_s : float
         Time of the first frame, s.
     estimator : FlowEstimator, optional

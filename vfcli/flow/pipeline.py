@@ -30,9 +30,9 @@ import numpy as np
 from vfcli.camera.pose import gap_axis, lateral_axis_for
 from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
-from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks
+from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks, midline_line
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
-from vfcli.flow.gap.subpixel.crease import crease_levels, detection_levels, dip_minima, search_band
+from vfcli.flow.gap.subpixel.crease import CLOSED_FRACTION, crease_levels, detection_levels, dip_minima, search_band
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
@@ -162,6 +162,9 @@ class FlowCalibration:
         Gap level and blur of the optics (sub-pixel edges; None: off or not measurable).
     gap : SubpixelGap or None
         The sub-pixel gap segmentation (None: the binary mask, pixel edges).
+    midline_line : (n_rays,) float or None
+        The midline on each ray, lateral px (:func:`vfcli.flow.gap.detect.midline_line`: the glottis
+        at any angle to the image axis); the gap's components are kept near it. None: the gap never opens.
     """
 
     threshold: float
@@ -172,6 +175,7 @@ class FlowCalibration:
     midline: float | None
     edge_model: EdgeModel | None
     gap: SubpixelGap | None
+    midline_line: np.ndarray | None = None
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
@@ -212,6 +216,14 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
             lateral, masks = 1 - lateral, other
     check_sampled_gap(masks, threshold, auto, lateral)
     centre = midline_from_masks(masks, lateral)
+    line = midline_line(centre)
+    if line is not None:
+        # again against the midline on each ray: a glottis at an angle to the image axis drifts laterally,
+        # and the parts of its gap near the image's ends lie far from the largest part's centre
+        masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral, core_level=core, midline=line)
+                          for f in sample])
+        centre = midline_from_masks(masks, lateral)
+        line = midline_line(centre)
     seen = np.isfinite(centre)
     midline = float(np.median(centre[seen])) if seen.any() else None
     gap, model = None, None
@@ -222,17 +234,25 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                         "on; using the binary gap mask (pixel edges)", len(sample))
         else:
             ray_levels = ray_crease = None
-            if cfg.gap_detection == "crease":
+            closed = int((~masks.any(axis=(1, 2))).sum())
+            if cfg.gap_detection == "crease" and closed < CLOSED_FRACTION * len(sample):
+                # the crease levels are the lightest quarter of each ray's sampled dips: without a closed
+                # quarter in the sample they are the open gap's own level
+                log.info("flow: the glottis is closed in %d of the %d sampled frames, fewer than the quarter the "
+                         "closed crease is measured on; the gap is detected at the threshold (flow.gap_detection = "
+                         "'threshold')", closed, len(sample))
+            elif cfg.gap_detection == "crease":
                 ray_centre, search = search_band(centre, masks, lateral, model.psf_sigma_px)
                 if ray_centre is not None:
                     minima = dip_minima(sample, ray_centre, search, lateral)
                     ray_levels = detection_levels(minima, model.gap_counts, model.psf_sigma_px)
                     ray_crease = crease_levels(minima)[0]
-            gap = SubpixelGap(threshold, model, cfg.median_px, midline, lateral,
+            gap = SubpixelGap(threshold, model, cfg.median_px, line if line is not None else midline, lateral,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
                               ray_crease=ray_crease)
-    return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap)
+    return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
+                           line)
 
 
 def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: float, rotation_deg: float,
@@ -269,7 +289,8 @@ def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: flo
     stream = flow_stream(
         batches(frames, n), fps=fps, px_per_mm=px_per_mm, threshold=calib.threshold, counts_range=calib.counts_range,
         median_px=cfg.median_px, rotation_deg=rotation_deg, lateral_axis=calib.lateral_axis,
-        initial_center=calib.centre, midline=calib.midline, t0_s=t0_s,
+        initial_center=calib.centre, midline=calib.midline if calib.midline_line is None else calib.midline_line,
+        t0_s=t0_s,
         estimator=estimator, split_folds=cfg.split_folds, gap=calib.gap,
     )
     return calib, stream

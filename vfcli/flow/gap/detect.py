@@ -175,7 +175,7 @@ def gap_mask(
     median_px: int = 5,
     *,
     core_fraction: float = 0.5,
-    midline: float | None = None,
+    midline: float | np.ndarray | None = None,
     band_px: float | None = None,
     min_area_px: int | None = None,
     lateral_axis: int = 0,
@@ -204,7 +204,9 @@ def gap_mask(
        * it has at least ``min_area_px`` pixels (default ``median_px**2``),
        * its centroid lies within ``band_px`` (default 15% of the lateral image size)
          of the glottal midline along the lateral axis; the midline is ``midline``
-         when given, else the lateral centroid of the largest qualifying component.
+         when given (one lateral position, or one per ray for a glottis at an angle to
+         the image axes: :func:`midline_line`), else the lateral centroid of the largest
+         qualifying component.
 
        Several components may be kept (a glottis can open in two places).
 
@@ -218,8 +220,12 @@ def gap_mask(
     core_fraction : float
         Core pixels are darker than ``core_fraction * threshold``; 0 < core_fraction <= 1
         (1 disables the hysteresis).
-    midline : float, optional
-        Lateral pixel coordinate of the glottal midline (row when ``lateral_axis=0``).
+    midline : float or (n_rays,) float, optional
+        Lateral pixel coordinate of the glottal midline (row when ``lateral_axis=0``), or
+        its coordinate on each ray (:func:`midline_line`): a component is then measured
+        against the midline at the ray through its centroid. A glottis at 20 deg to the
+        image axis drifts 90 px laterally over a 256 px image, so one lateral position
+        rejects the parts of the gap near the image's ends.
     band_px : float, optional
         Largest lateral distance of a kept component's centroid from the midline, px.
     min_area_px : int, optional
@@ -268,6 +274,10 @@ def gap_mask(
         return np.zeros(dark.shape, dtype=bool)
     if midline is None:
         midline = float(lateral[int(np.argmax(np.where(keep, area, -1)))])
+    if np.ndim(midline) == 1:
+        line = np.asarray(midline, dtype=float)
+        along = centroids[1:, lateral_axis]   # the ray through each component's centroid
+        midline = np.interp(along, np.arange(len(line), dtype=float), line)
     keep &= np.abs(lateral - midline) <= band_px
     lut = np.concatenate([[False], keep])
     return lut[labels]
@@ -351,6 +361,45 @@ def binary_median_1d(mask: np.ndarray, size: int, axis: int) -> np.ndarray:
 
     counts = correlate1d(np.asarray(mask, dtype=np.int32), np.ones(int(size), np.int32), axis=axis, mode="nearest")
     return counts > int(size) // 2
+
+
+def midline_line(centre: np.ndarray, weights: np.ndarray | None = None, *, clip_px: float = 2.0) -> np.ndarray | None:
+    """The glottal midline on every ray: a straight line fitted to the per-ray gap centres, lateral px.
+
+    The glottis is straight in a superior view but may run at any angle to the image axes
+    (up to 45 deg from the longitudinal one); a least-squares line through the centres
+    (:func:`midline_from_masks`), refitted once without the centres further from it than
+    ``max(clip_px, 3 x`` their median distance``)`` (a speck of texture next to the gap), gives the
+    midline on the rays where the gap was never seen too (extrapolated).
+
+    Parameters
+    ----------
+    centre : (n_rays,) float
+        Gap centre per ray, lateral px; NaN where the gap was never seen.
+    weights : (n_rays,) float, optional
+        Weight of each ray's centre (e.g. its gap pixel count); default equal.
+    clip_px : float
+        Smallest distance from the first line at which a centre is left out, px.
+
+    Returns
+    -------
+    (n_rays,) float, or None when fewer than 2 rays hold a centre.
+    """
+    c = np.asarray(centre, dtype=float)
+    ray = np.arange(len(c), dtype=float)
+    ok = np.isfinite(c)
+    w = np.ones(len(c)) if weights is None else np.asarray(weights, dtype=float)
+    ok &= np.isfinite(w) & (w > 0)
+    if ok.sum() < 2:
+        return None
+    for _ in range(2):
+        slope, offset = np.polyfit(ray[ok], c[ok], 1, w=np.sqrt(w[ok]))
+        dist = np.abs(c - (offset + slope * ray))
+        keep = ok & (dist <= max(clip_px, 3.0 * float(np.median(dist[ok]))))
+        if keep.sum() < 2 or keep.sum() == ok.sum():
+            break
+        ok = keep
+    return offset + slope * ray
 
 
 def glottal_area(mask: np.ndarray, px_per_mm: float) -> np.ndarray | float:

@@ -26,8 +26,9 @@ class SubpixelGap:
         Gap level and PSF (:func:`estimate_edge_model`); None: the detection mask alone.
     median_px : int
         Median window of the detection, px (odd).
-    midline : float, optional
-        Lateral coordinate of the glottal midline, px.
+    midline : float or (n_rays,) float, optional
+        Lateral coordinate of the glottal midline, px, or its coordinate on each ray
+        (:func:`vfcli.flow.gap.detect.midline_line`).
     lateral_axis : {0, 1}
     half_window_px : float
         Half-window of the edge smoothing along the glottis, px (0: none).
@@ -47,7 +48,7 @@ class SubpixelGap:
     threshold: float
     model: EdgeModel | None
     median_px: int = 5
-    midline: float | None = None
+    midline: float | np.ndarray | None = None
     lateral_axis: int = 0
     half_window_px: float = 0.0
     half_window_frames: int = 0
@@ -89,6 +90,7 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     level = _level_map(np.shape(frame), gap)
     rough = gap_mask(frame, level, gap.median_px, core_fraction=1.0, midline=gap.midline,
                      min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True)
+    rough, component = _nearest_component(rough, gap.midline, gap.lateral_axis)
     e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
     if gap.model is None or not np.isfinite(e0).any():
         return e0, e1
@@ -104,7 +106,6 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     e0, e1 = fit.e0.copy(), fit.e1.copy()
     closed = ~(e1 > e0)
     # step 3: whole components (a) surely open somewhere and (b) at the gap's level
-    component = _ray_components(rough, gap.lateral_axis)
     n_comp = int(component.max()) + 1
     wide = np.bincount(component, weights=(e1 - e0 >= 1.0) & ~closed, minlength=n_comp)
     fitted = np.full(n_comp, np.inf)
@@ -128,14 +129,41 @@ def _level_map(shape: tuple[int, int], gap: SubpixelGap):
     return np.broadcast_to(lv[None, :] if gap.lateral_axis == 0 else lv[:, None], shape)
 
 
-def _ray_components(mask: np.ndarray, lateral_axis: int) -> np.ndarray:
-    """(n_rays,) int: the 8-connected component of ``mask`` met first along each ray, 0 if none."""
+def _nearest_component(mask: np.ndarray, midline, lateral_axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each ray's part of the 8-connected component of ``mask`` nearest the midline on it.
+
+    A dark speck of texture beside the gap is a component of its own that may pass the detection's
+    tests; on a ray that crosses both, the edges are the gap's alone. (The component met first along
+    the ray was used before: a speck before the gap closed the ray, and the edges spanned both.)
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    midline : float, (n_rays,) float or None
+        Lateral px (None: the component met first along each ray).
+    lateral_axis : {0, 1}
+
+    Returns
+    -------
+    mask : (H, W) bool
+        ``mask`` with, on each ray, only that component's pixels.
+    component : (n_rays,) int
+        Its label on each ray, 0 where the ray meets none.
+    """
     import cv2
 
     _, labels = cv2.connectedComponents(np.asarray(mask, dtype=np.uint8), connectivity=8)
     lab = as_rays(labels, lateral_axis)
-    first = np.argmax(lab > 0, axis=0)
-    return lab[first, np.arange(lab.shape[1])]
+    n_lat, n_rays = lab.shape
+    if midline is None:
+        pick = np.argmax(lab > 0, axis=0)
+    else:
+        line = np.broadcast_to(np.asarray(midline, dtype=float), (n_rays,))
+        dist = np.abs(np.arange(n_lat, dtype=float)[:, None] - line[None, :])
+        pick = np.argmin(np.where(lab > 0, dist, np.inf), axis=0)
+    component = lab[pick, np.arange(n_rays)]
+    keep = (lab == component[None, :]) & (lab > 0)
+    return (keep if lateral_axis == 0 else keep.T), component
 
 
 def _segmentation(shape, e0, e1, lateral_axis) -> GapSegmentation:
