@@ -60,13 +60,15 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     """Detection and per-ray sub-pixel edges of one frame, before smoothing.
 
     1. Detection, the paper's intensity segmentation (:func:`gap_mask`): pixels darker
-       than the threshold (or than the ray's level, ``ray_levels``, where that is higher; the
-       edge fit's floor then stays at the pixels darker than the threshold), median-filtered along the glottis (``median_along_slit``, so
-       a one-pixel slit survives), dark components on the midline of at least
-       ``median_px`` pixels.
+       than the threshold (or than the ray's level, ``ray_levels``, where that is higher),
+       median-filtered along the glottis (``median_along_slit``, so a one-pixel slit survives),
+       dark components near the midline of at least ``median_px`` pixels; on each ray, the
+       component nearest the midline.
     2. Sub-pixel edges on every ray the detection crosses (:func:`fit_ray_edges`); a ray
-       whose fitted edges cross (width <= 0) is closed. Without a model, the detection's
-       pixel boundaries.
+       whose fitted edges cross (width <= 0) is closed. The edges lie at or beyond the outermost
+       pixel centres surely in the gap: darker than half-way between the gap level and the ray's
+       closed crease (``ray_crease``; else the threshold), and than the detection level. Without
+       a model, the detection's pixel boundaries.
     3. A detected component is kept only if (a) at least ``median_px`` of its rays hold a
        slit of one pixel or more: a narrower blurred dip cannot be told from a dark line
        of tissue (the contact line of a closed glottis), and a slit under a pixel wide
@@ -94,14 +96,20 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
     if gap.model is None or not np.isfinite(e0).any():
         return e0, e1
-    inner = None
-    if gap.ray_levels is not None:
-        # the floor: only pixels darker than both levels are known to lie in the gap (a ray level
-        # above the threshold finds a blurred slit's shallow dip, whose half-depth run is wider
-        # than the slit; the edges inside it are left to the fit)
-        core = rough & (np.asarray(frame) < np.minimum(level, gap.threshold))
-        c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
-        inner = (np.where(np.isfinite(c0), c0 + 0.5, np.inf), np.where(np.isfinite(c1), c1 - 0.5, -np.inf))
+    # the floor of the edges: the outermost pixel centres surely in the gap, more than half covered by it.
+    # Half-way between the gap level and the darkest tissue beside the gap, the ray's closed crease (the
+    # medial walls seen edge-on), or the threshold where no crease is measured; never above the detection
+    # level. (The threshold alone lies above dark walls under sharp optics: widened seed 1030 read its
+    # walls as gap, 1-2 px too wide on each ray and in 62 closed frames.) Beyond the floor the fit decides.
+    g = gap.model.gap_counts
+    tissue = np.full(len(e0), float(gap.threshold))
+    if gap.ray_crease is not None:
+        tissue = np.where(np.isfinite(gap.ray_crease), gap.ray_crease, tissue)
+    half = np.minimum(g + 0.5 * (tissue - g), gap.threshold)
+    floor = np.minimum(level, half[None, :] if gap.lateral_axis == 0 else half[:, None])
+    core = rough & (np.asarray(frame) < floor)
+    c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
+    inner = (np.where(np.isfinite(c0), c0 + 0.5, np.inf), np.where(np.isfinite(c1), c1 - 0.5, -np.inf))
     fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis, inner=inner)
     e0, e1 = fit.e0.copy(), fit.e1.copy()
     closed = ~(e1 > e0)
