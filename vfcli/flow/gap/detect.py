@@ -363,7 +363,7 @@ def binary_median_1d(mask: np.ndarray, size: int, axis: int) -> np.ndarray:
     return counts > int(size) // 2
 
 
-def midline_line(centre: np.ndarray, weights: np.ndarray | None = None, *, clip_px: float = 2.0) -> np.ndarray | None:
+def midline_line(centre: np.ndarray, *, clip_px: float = 2.0) -> np.ndarray | None:
     """The glottal midline on every ray: a straight line fitted to the per-ray gap centres, lateral px.
 
     The glottis is straight in a superior view but may run at any angle to the image axes
@@ -376,8 +376,6 @@ def midline_line(centre: np.ndarray, weights: np.ndarray | None = None, *, clip_
     ----------
     centre : (n_rays,) float
         Gap centre per ray, lateral px; NaN where the gap was never seen.
-    weights : (n_rays,) float, optional
-        Weight of each ray's centre (e.g. its gap pixel count); default equal.
     clip_px : float
         Smallest distance from the first line at which a centre is left out, px.
 
@@ -388,12 +386,10 @@ def midline_line(centre: np.ndarray, weights: np.ndarray | None = None, *, clip_
     c = np.asarray(centre, dtype=float)
     ray = np.arange(len(c), dtype=float)
     ok = np.isfinite(c)
-    w = np.ones(len(c)) if weights is None else np.asarray(weights, dtype=float)
-    ok &= np.isfinite(w) & (w > 0)
     if ok.sum() < 2:
         return None
     for _ in range(2):
-        slope, offset = np.polyfit(ray[ok], c[ok], 1, w=np.sqrt(w[ok]))
+        slope, offset = np.polyfit(ray[ok], c[ok], 1)
         dist = np.abs(c - (offset + slope * ray))
         keep = ok & (dist <= max(clip_px, 3.0 * float(np.median(dist[ok]))))
         if keep.sum() < 2 or keep.sum() == ok.sum():
