@@ -122,3 +122,22 @@ def test_dark_walls_below_the_threshold_are_not_taken_for_gap_under_sharp_optics
         # measured 0.22 px too wide on each side (before: 0.50, held at the walls' first pixel centres); what is
         # left is the fit's window, one pixel beyond each edge under this PSF: too short to pin the walls' ramp
         assert abs(np.median(e0[cols]) - 47.5) < 0.3 and abs(np.median(e1[cols]) - 52.5) < 0.3
+
+
+def test_a_speck_joined_to_the_gap_through_a_neighbouring_ray_leaves_the_gaps_edges_alone():
+    """On each ray only the gap's run counts, though a speck is joined to the gap's component elsewhere."""
+    from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap
+    from vfcli.flow.gap.subpixel.segment import raw_edges
+
+    frac = np.zeros((100, 120))
+    frac[48:54, 10:110] = 1.0            # the gap: rows 47.5-53.5, 6 px
+    frac[36:43, 50:62] = 1.0             # the speck, 5 px of tissue above the gap on its rays
+    for k in range(5):                   # joined to the gap by a slanted band (6 px runs, rows 43-47, columns 58-67),
+        frac[43 + k, 58 + k:64 + k] = 1.0   # which the median along the glottis keeps
+    frame = gaussian_filter(2000.0 - 1900.0 * frac, 0.8)
+    frame += np.random.default_rng(1).normal(0, 10, frame.shape)
+    gap = SubpixelGap(1000.0, EdgeModel(100.0, 0.8), midline=50.5)
+    e0, e1 = raw_edges(frame, gap)
+    cols = np.r_[14:56, 70:106]
+    np.testing.assert_allclose(e0[cols], 47.5, atol=0.15)
+    np.testing.assert_allclose(e1[cols], 53.5, atol=0.15)

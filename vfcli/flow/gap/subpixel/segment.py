@@ -138,11 +138,13 @@ def _level_map(shape: tuple[int, int], gap: SubpixelGap):
 
 
 def _nearest_component(mask: np.ndarray, midline, lateral_axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each ray's part of the 8-connected component of ``mask`` nearest the midline on it.
+    """Each ray's run of the 8-connected component of ``mask`` nearest the midline on it.
 
     A dark speck of texture beside the gap is a component of its own that may pass the detection's
-    tests; on a ray that crosses both, the edges are the gap's alone. (The component met first along
-    the ray was used before: a speck before the gap closed the ray, and the edges spanned both.)
+    tests, or part of the gap's component when it touches the gap on a neighbouring ray; on a ray that
+    crosses both, the edges are the gap's run alone. (The component met first along the ray and all of
+    its pixels on the ray were used before: a speck before the gap closed the ray, and the edges spanned
+    both; widened seed 1038, a glottis at 45 deg with texture beside it: area +6.4 % -> +3.1 %.)
 
     Parameters
     ----------
@@ -154,7 +156,8 @@ def _nearest_component(mask: np.ndarray, midline, lateral_axis: int) -> tuple[np
     Returns
     -------
     mask : (H, W) bool
-        ``mask`` with, on each ray, only that component's pixels.
+        ``mask`` with, on each ray, only that component's run through the pixel nearest the midline
+        (with ``midline`` None: all of the first component's pixels on the ray).
     component : (n_rays,) int
         Its label on each ray, 0 where the ray meets none.
     """
@@ -171,6 +174,12 @@ def _nearest_component(mask: np.ndarray, midline, lateral_axis: int) -> tuple[np
         pick = np.argmin(np.where(lab > 0, dist, np.inf), axis=0)
     component = lab[pick, np.arange(n_rays)]
     keep = (lab == component[None, :]) & (lab > 0)
+    if midline is not None:
+        # on the ray, only the run through that pixel: a speck of texture joined to the gap through a
+        # neighbouring ray (8-connected) is the same component, but on this ray tissue lies between them
+        start = np.vstack([keep[:1], keep[1:] & ~keep[:-1]])
+        run = np.cumsum(start, axis=0)
+        keep &= run == run[pick, np.arange(n_rays)][None, :]
     return (keep if lateral_axis == 0 else keep.T), component
 
 
