@@ -21,7 +21,6 @@ Reproduce::
 from __future__ import annotations
 
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -29,21 +28,12 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
 
 from _forward_case import elastic_model  # noqa: E402
+from _runner import best  # noqa: E402
 from vfcli.diagnose.residual import region_means  # noqa: E402
 from vfcli.inverse.terms.motion import motion_blocks, seen_vertex_gram  # noqa: E402
-
-
-def _best(func, repeat: int = 3) -> float:
-    """Shortest of ``repeat`` wall times of ``func()``, s."""
-    out = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        func()
-        out.append(time.perf_counter() - t0)
-    return min(out)
 
 
 def region_means_dense(values: np.ndarray, labels: np.ndarray, n_regions: int) -> np.ndarray:
@@ -82,7 +72,7 @@ def bench_region_means() -> tuple[float, float]:
     lab = rng.integers(-1, 18, size=(160, 160))
     a, b = region_means_dense(v, lab, 18), region_means(v, lab, 18)
     assert np.array_equal(np.isnan(a), np.isnan(b)) and np.nanmax(np.abs(a - b)) < 1e-12
-    return _best(lambda: region_means_dense(v, lab, 18)), _best(lambda: region_means(v, lab, 18))
+    return best(lambda: region_means_dense(v, lab, 18), 3), best(lambda: region_means(v, lab, 18), 3)
 
 
 def bench_motion_blocks(n_terms: int, n_s: int = 20) -> tuple[float, float]:
@@ -94,7 +84,7 @@ def bench_motion_blocks(n_terms: int, n_s: int = 20) -> tuple[float, float]:
     seen, gram = seen_vertex_gram(m)
     a, b = motion_block_pairwise(seen, gram, bases), motion_blocks(seen, gram, bases)
     assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max()
-    return _best(lambda: motion_block_pairwise(seen, gram, bases)), _best(lambda: motion_blocks(seen, gram, bases))
+    return best(lambda: motion_block_pairwise(seen, gram, bases), 3), best(lambda: motion_blocks(seen, gram, bases), 3)
 
 
 def bench_shifted_lu(edge_mm: float = 1.5) -> tuple[float, float, int]:
@@ -107,7 +97,7 @@ def bench_shifted_lu(edge_mm: float = 1.5) -> tuple[float, float, int]:
     for kw in ({}, sym):
         x = splu(a, **kw).solve(b)
         assert np.abs(a @ x - b).max() < 1e-8 * np.abs(b).max()
-    return _best(lambda: splu(a), 2), _best(lambda: splu(a, **sym), 2), a.shape[0]
+    return best(lambda: splu(a), 2), best(lambda: splu(a, **sym), 2), a.shape[0]
 
 
 def main() -> None:
