@@ -117,6 +117,22 @@ def _running_median(x: np.ndarray, n: int, ok: np.ndarray) -> np.ndarray:
         return np.where(ok, np.nanmedian(win, axis=1), np.nan)
 
 
+def straddled_depth(width_px: float, sigma: float) -> float:
+    """Depth, as a fraction of (tissue - gap), of the darkest pixel of a blurred slit centred on the
+    boundary between two pixels (its worst placement on the pixel grid).
+
+    The slit model samples the blurred slit at pixel centres (:func:`slit_depth`'s model, ``sigma``
+    the PSF of optics and pixel); those lie half a pixel off the slit's centre, so the pixel reads
+    ``T - (T - G) (Phi((w/2 + 1/2) / sigma) - Phi((1/2 - w/2) / sigma))``. Under a sharp PSF a one-pixel
+    slit so placed is only half as deep as its centre (:func:`slit_depth`); under a blur of a few
+    pixels the two agree.
+    """
+    from scipy.special import ndtr
+
+    s = max(sigma, 1e-6)
+    return float(ndtr((0.5 * width_px + 0.5) / s) - ndtr((0.5 - 0.5 * width_px) / s))
+
+
 def slit_depth(width_px: float, sigma: float) -> float:
     """Depth of a blurred slit's centre as a fraction of (tissue - gap): ``erf(w / (2 sqrt(2) sigma))``.
 
@@ -134,12 +150,14 @@ def detection_levels(minima: np.ndarray, gap_counts: float, sigma: float, *, z: 
 
     * Darker than the ray's closed crease by ``z`` times the closed dips' scatter
       (:func:`crease_levels`): a closed ray stays above it but for a 0.13 % tail.
-    * Only as shallow as a slit of ``min_width_px`` reaches under the PSF
-      (:func:`slit_depth`, with the crease as the tissue level): a narrower slit cannot be told
-      from the crease (the sub-pixel segmentation's own limit,
-      :func:`vfcli.flow.gap.subpixel.segment.raw_edges` rule (a)). Under a sharp PSF this
-      bound is deep, near the gap level, and the recording's threshold decides; under a blur
-      of a few pixels a narrow slit is shallow and the crease bound decides.
+    * Only as shallow as a slit of ``min_width_px`` reaches under the PSF, in the darkest
+      pixel of its worst placement on the pixel grid (:func:`straddled_depth`, with the crease
+      as the tissue level): a narrower slit cannot be told from the crease (the sub-pixel
+      segmentation's own limit, :func:`vfcli.flow.gap.subpixel.segment.raw_edges` rule (a)).
+      Under a sharp PSF this bound lies half-way between the crease and the gap level (it lay
+      at the gap level, from the slit's centre, before: a one-pixel slit on a pixel boundary, or a
+      gap whose own level varies along the glottis, was not detected); under a blur of a few
+      pixels a narrow slit is shallow and the crease bound decides.
 
     Parameters
     ----------
@@ -158,7 +176,7 @@ def detection_levels(minima: np.ndarray, gap_counts: float, sigma: float, *, z: 
     """
     level, scatter = crease_levels(minima)
     below_crease = level - z * scatter
-    one_slit = level - slit_depth(min_width_px, sigma) * (level - gap_counts)
+    one_slit = level - straddled_depth(min_width_px, sigma) * (level - gap_counts)
     return np.fmin(below_crease, one_slit)
 
 
