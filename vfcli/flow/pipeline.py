@@ -32,7 +32,8 @@ from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks, midline_line
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
-from vfcli.flow.gap.subpixel.crease import CLOSED_FRACTION, crease_levels, detection_levels, dip_minima, search_band
+from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, crease_levels, detection_levels,
+                                             dip_minima, search_band)
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
@@ -243,6 +244,8 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                          "'threshold')", closed, len(sample))
             elif cfg.gap_detection == "crease":
                 ray_centre, search = search_band(centre, masks, lateral, model.psf_sigma_px)
+                if ray_centre is not None and line is not None:
+                    ray_centre = along_midline(sample, ray_centre, line, search, lateral, model)
                 if ray_centre is not None:
                     minima = dip_minima(sample, ray_centre, search, lateral)
                     ray_levels = detection_levels(minima, model.gap_counts, model.psf_sigma_px)
