@@ -248,8 +248,8 @@ def glottis_extent(minima: np.ndarray, levels: np.ndarray, seen: np.ndarray) -> 
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN rays
-        darkest = np.nanpercentile(np.asarray(minima, float), 100 * OPEN_SHARE, axis=0)
-    reach = (darkest < levels) | np.asarray(seen, bool)
+        open_dip = np.nanpercentile(np.asarray(minima, float), 100 * OPEN_SHARE, axis=0)
+    reach = (open_dip < levels) | np.asarray(seen, bool)
     out = np.zeros(len(reach), bool)
     idx = np.flatnonzero(seen)
     if not len(idx):

@@ -36,7 +36,7 @@ WINDOW_SIGMAS = 2.0
 #: The fit window's least half-width beyond each edge, px. Under a PSF below half a pixel
 #: WINDOW_SIGMAS gives one pixel, which leaves the tissue ramp nearly undetermined (one sample
 #: per side beside the edge): sharp slits read 8-16 % too narrow on widened phantoms (1034,
-#: 1042, 1044), and the analytic walled slit of the tests 0.22 px too wide per edge (0.06 px
+#: 1042, 1044), and the analytic walled slit of the tests 0.22 px too wide per edge (0.05 px
 #: with two).
 MIN_WINDOW_PX = 2
 
