@@ -148,7 +148,7 @@ def _seed1030_gap():
     """Two frames of widened seed 1030 (sharp optics: PSF 0.37 px drawn, 0.39 estimated; dark texture on the
     closed crease), cropped to the 63 columns around the glottis (the lateral axis), and the flow step's
     calibration of that recording: frame 1 opening (a slit under a pixel wide on most of its 61 open rays),
-    frame 62 closed. Written by ``tests/data/make_seed1030_crease.py`` (panel 'widened', seed 1030, 0.025 s, and the
+    frame 62 closed. Written by ``bench/make_seed1030_crease.py`` (panel 'widened', seed 1030, 0.025 s, and the
     flow step's ``calibrate``); ``gap_fraction`` is the renderer's truth."""
     from pathlib import Path
 

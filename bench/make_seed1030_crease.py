@@ -4,12 +4,12 @@ step's calibration of that recording.
 The widened phantom (panel 'widened', seed 1030, 0.025 s) is rendered as ``bench/bench_gap_optics.py`` renders it
 (cached in /tmp/gap_optics_cache), calibrated by :func:`vfcli.flow.pipeline.calibrate` with the default flow
 config, and frames 1 (opening) and 62 (closed) are cropped to the 63 columns around the glottis (the lateral
-axis), with the renderer's gap fraction as truth. Calibrated on the flow step of 3bd96c0 (session 16); the
+axis), with the renderer's gap fraction as truth. Calibrated on the flow step of 3bd96c0 (session 16; b1dd8c4 writes the same arrays); the
 calibration's fields are stored, so the test does not depend on later changes to ``calibrate``.
 
 Reproduce::
 
-    .venv/bin/python tests/data/make_seed1030_crease.py
+    .venv/bin/python bench/make_seed1030_crease.py
 """
 from __future__ import annotations
 
@@ -18,9 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_gap_optics import render  # noqa: E402
 from vfcli.config import FlowConfig  # noqa: E402
@@ -41,7 +40,7 @@ def main() -> None:
     mid = np.asarray(g.midline)
     lo, hi = int(np.floor(np.nanmin(mid))) - HALF_PX, int(np.ceil(np.nanmax(mid))) + HALF_PX
     np.savez_compressed(
-        Path(__file__).parent / "seed1030_crease.npz",
+        ROOT / "tests" / "data" / "seed1030_crease.npz",
         frames=v["frames"][FRAMES][:, :, lo:hi], gap_fraction=v["frac"][FRAMES][:, :, lo:hi].astype(np.float16),
         gap_counts=g.model.gap_counts, psf_sigma_px=g.model.psf_sigma_px, threshold=g.threshold,
         median_px=g.median_px, midline=mid - lo, lateral_axis=g.lateral_axis, ray_levels=g.ray_levels,
