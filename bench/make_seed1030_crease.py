@@ -4,8 +4,10 @@ step's calibration of that recording.
 The widened phantom (panel 'widened', seed 1030, 0.025 s) is rendered as ``bench/bench_gap_optics.py`` renders it
 (cached in /tmp/gap_optics_cache), calibrated by :func:`vfcli.flow.pipeline.calibrate` with the default flow
 config, and frames 1 (opening) and 62 (closed) are cropped to the 63 columns around the glottis (the lateral
-axis), with the renderer's gap fraction as truth. Calibrated on the flow step of 3bd96c0 (session 16; on b1dd8c4, which searches the crease along the whole glottis, the rays' levels and creases differ (38 rays unset instead of 45), the other arrays are the same); the
-calibration's fields are stored, so the test does not depend on later changes to ``calibrate``.
+axis), with the renderer's gap fraction as truth. Calibrated on the flow step of 3bd96c0 (session 16); the
+calibration's fields are stored, so the test does not depend on later changes to ``calibrate``. On b1dd8c4,
+which searches the crease along the whole glottis, the rays' levels and creases differ (38 rays unset instead of
+45); the other arrays are the same.
 
 Reproduce::
 
