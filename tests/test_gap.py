@@ -8,7 +8,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from _flow_phantom import SlitPhantom
-from vfcli.flow.gap.detect import binary_median_1d, gap_mask, gap_threshold, glottal_area, midline_from_masks
+from vfcli.flow.gap.detect import binary_median_line, gap_mask, gap_threshold, glottal_area, midline_from_masks
 from vfcli.flow.gap.subpixel import (
     EdgeModel,
     SubpixelGap,
@@ -361,6 +361,6 @@ def test_median_along_the_slit_keeps_a_one_pixel_slit_a_square_median_erases():
     m = gap_mask(frame, 1000.0, 5, core_fraction=1.0, min_area_px=5, median_along_slit=True)
     assert m[20, 6:54].all() and m.sum() <= 50 and not m[8, 30]
     dark = frame < 1000
-    along = binary_median_1d(dark, 5, axis=1)  # the window runs along the slit: the slit stays
+    along = binary_median_line(dark, 5, axis=1)  # the window runs along the slit: the slit stays
     assert along[20, 7:53].all() and not along[8, 30]
-    assert not binary_median_1d(dark, 5, axis=0).any()  # across the slit: a one-pixel slit goes
+    assert not binary_median_line(dark, 5, axis=0).any()  # across the slit: a one-pixel slit goes
