@@ -187,3 +187,58 @@ def test_the_crease_is_searched_along_the_whole_glottis_when_the_masks_see_only_
             # measured: 2 px -25 %, 3 px -3 to -4 %, 4-10 px -0.3 to -2.2 %; the fit's gap-level prior is the
             # recording's one level (130), which pulls a narrow slit seen at 290 narrower
             assert abs(np.median(width) - w) < (0.3 if w == 2.0 else 0.05) * w
+
+
+def test_a_dark_crease_in_stretches_still_counts_the_closed_frames_and_the_crease_is_measured():
+    """Under sharp optics the closed crease (the medial walls seen edge-on) falls below the threshold in
+    stretches along the glottis, so the rough masks of the closed frames are not empty. Counting only empty
+    masks as closed (before) found no closed frame, so the crease was never measured and the gap was detected
+    as with ``flow.gap_detection = 'threshold'`` (widened seed 298: 1 closed frame counted of the 19 sampled;
+    66 closed frames of 250 with a gap). Now a frame whose mask crosses fewer than half of the glottis' rays
+    counts as closed (closed_frames), the crease is measured, and the closed frames show less than half the
+    false gap the threshold detection shows."""
+    from vfcli.config import FlowConfig
+    from vfcli.flow.pipeline import calibrate
+
+    rng = np.random.default_rng(31)
+    rows = np.arange(H, dtype=float)
+    dark = (np.arange(W) // 12) % 3 == 0                   # a third of the crease, in stretches of 12 rays
+
+    def frame(w):
+        img = np.empty((H, W))
+        for c in range(W):
+            wc = w if OPEN_COLS.start <= c < OPEN_COLS.stop else 0.0
+            t0, s = (300.0, 80.0) if dark[c] else (1000.0, 150.0)   # the walls' level at the contact line, slope
+            img[:, c] = slit_profile_model(rows, MID - wc / 2, MID + wc / 2, [G, t0, s, t0, s], 0.3)
+        return img + rng.normal(0.0, NOISE, img.shape)
+
+    frames = np.stack([frame(w) for w in WIDTHS * 4])
+    closed = [i for i, w in enumerate(WIDTHS * 4) if w == 0.0]
+    cal = calibrate(frames, FlowConfig(threshold=700.0), 1e4, 15.0, 0.0)
+    at_threshold = calibrate(frames, FlowConfig(threshold=700.0, gap_detection="threshold"), 1e4, 15.0, 0.0)
+    assert cal.gap.ray_crease is not None and np.isfinite(cal.gap.ray_crease[OPEN_COLS]).all()
+
+    def false_area(gap):
+        return sum(float(np.nansum(np.fmax((seg := segment_gap(frames[i], gap)).e1 - seg.e0, 0.0))) for i in closed)
+
+    crease, threshold = false_area(cal.gap), false_area(at_threshold.gap)
+    assert crease < 0.5 * threshold                        # measured: 2720 px against 6686 px over 28 frames
+    inner = slice(OPEN_COLS.start + 10, OPEN_COLS.stop - 10)
+    for i, w in enumerate(WIDTHS):
+        if w >= 3.0:
+            seg = segment_gap(frames[i], cal.gap)
+            assert abs(np.median((seg.e1 - seg.e0)[inner]) - w) < 0.1 * w    # measured: +2.5 to +10 %
+
+
+def test_closed_frames_counts_empty_masks_and_masks_across_less_than_half_the_glottis():
+    from vfcli.flow.gap.subpixel.crease import closed_frames
+
+    masks = np.zeros((6, 30, 100), bool)
+    masks[0, 14:16, 10:90] = True          # open along the whole glottis (80 rays)
+    masks[1, 13:17, 20:80] = True          # open on 60 of them
+    masks[2, 14:16, 30:45] = True          # a dark stretch of the closed crease: 15 rays
+    masks[3, 14:16, 30:45] = masks[3, 14:16, 60:80] = True    # two stretches: 35 rays
+    # masks[4], masks[5]: empty
+    assert closed_frames(masks, 0) == 4
+    assert closed_frames(np.swapaxes(masks, 1, 2), 1) == 4
+    assert closed_frames(masks[4:], 0) == 2 and closed_frames(masks[:2], 0) == 0

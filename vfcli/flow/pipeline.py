@@ -32,8 +32,8 @@ from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks, midline_line
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
-from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, crease_levels, detection_levels,
-                                             dip_minima, search_band)
+from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, closed_frames, crease_levels,
+                                             detection_levels, dip_minima, search_band)
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
@@ -235,7 +235,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                         "on; using the binary gap mask (pixel edges)", len(sample))
         else:
             ray_levels = ray_crease = None
-            closed = int((~masks.any(axis=(1, 2))).sum())
+            closed = closed_frames(masks, lateral)
             if cfg.gap_detection == "crease" and closed < CLOSED_FRACTION * len(sample):
                 # the crease levels are the lightest quarter of each ray's sampled dips: without a closed
                 # quarter in the sample they are the open gap's own level
