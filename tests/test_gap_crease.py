@@ -156,7 +156,8 @@ def test_the_crease_is_searched_along_the_whole_glottis_when_the_masks_see_only_
     threshold (266, as the gap-core fallback gives on widened seed 1060) lies between. The calibration's masks see the
     dark half only. Before, the crease was searched on the rays they saw, so the bright half had no detection level
     and was detected at the threshold: never. Now the search runs along the fitted midline as far as the sampled dips
-    reach a one-pixel slit's depth (glottis_extent), and the bright half is found with its width."""
+    reach a one-pixel slit's depth (glottis_extent), and the bright half is found with its width, since each ray's
+    edge fit has that ray's own gap level as its prior (ray_gap_levels)."""
     from vfcli.config import FlowConfig
     from vfcli.flow.pipeline import calibrate
 
@@ -177,6 +178,8 @@ def test_the_crease_is_searched_along_the_whole_glottis_when_the_masks_see_only_
     gap = cal.gap
     half = slice(70, 100)                                   # inside the bright half, away from its ends
     assert np.isfinite(gap.ray_levels[half]).all() and np.all(gap.ray_levels[half] > 290.0 + 3 * NOISE)
+    # each ray's gap level, from the sampled frames where its slit is resolved: measured 265 and 130.5
+    assert abs(np.median(gap.ray_gap[half]) - 290.0) < 30.0 and abs(np.median(gap.ray_gap[20:50]) - 130.0) < 5.0
     for i, w in enumerate(WIDTHS):
         seg = segment_gap(frames[i], gap)
         width = (seg.e1 - seg.e0)[half]
@@ -184,9 +187,10 @@ def test_the_crease_is_searched_along_the_whole_glottis_when_the_masks_see_only_
             assert not seg.mask.any()
         elif w >= 2.0:
             assert np.isfinite(width).all()
-            # measured: 2 px -25 %, 3 px -3 to -4 %, 4-10 px -0.3 to -2.2 %; the fit's gap-level prior is the
-            # recording's one level (130), which pulls a narrow slit seen at 290 narrower
-            assert abs(np.median(width) - w) < (0.3 if w == 2.0 else 0.05) * w
+            # measured: 2 px -3.1 %, 3-10 px within 0.9 %. Before the rays' own gap levels (ray_gap_levels) the
+            # fit's prior was the recording's one level (130), which pulled a narrow slit seen at 290 narrower:
+            # 2 px -25 %, 3 px -3 to -4 %, 4-10 px -0.3 to -2.2 %
+            assert abs(np.median(width) - w) < (0.05 if w == 2.0 else 0.015) * w
 
 
 def test_a_dark_crease_in_stretches_still_counts_the_closed_frames_and_the_crease_is_measured():
@@ -242,3 +246,20 @@ def test_closed_frames_counts_empty_masks_and_masks_across_less_than_half_the_gl
     assert closed_frames(masks, 0) == 4
     assert closed_frames(np.swapaxes(masks, 1, 2), 1) == 4
     assert closed_frames(masks[4:], 0) == 2 and closed_frames(masks[:2], 0) == 0
+
+
+def test_ray_gap_levels_come_from_resolved_slits_below_the_upper_bound_and_nowhere_else():
+    from vfcli.flow.gap.subpixel.gap_level import ray_gap_levels
+
+    n = 40
+    level = np.where(np.arange(n) < 20, 100.0, 250.0)           # the channel looks brighter on one half
+    widths = np.full((6, n), 8.0)
+    widths[:, 30:] = 1.5                                          # never resolved there (6 sigma = 3 px)
+    levels = np.tile(level, (6, 1)) + np.random.default_rng(0).normal(0, 5, (6, n))
+    levels[:, 10] = 900.0                                         # a dark patch of tissue fitted as a slit
+    out = ray_gap_levels(widths, levels, 0.5, upper=np.full(n, 500.0))
+    assert np.all(np.abs(out[:9] - 100.0) < 10) and np.all(np.abs(out[21:30] - 250.0) < 10)
+    assert np.isnan(out[10])                                      # the patch does not count: the recording's level
+    assert np.isnan(out[30:]).all()                               # the caller keeps the recording's level there
+    assert ray_gap_levels(np.full((6, n), 2.0), levels, 0.5) is None      # no ray resolved
+    assert ray_gap_levels(widths, levels, 2.0) is None            # 6 sigma = 12 px: no 8 px slit is resolved

@@ -22,7 +22,7 @@ the one the model's y axis is closest to: rows when ``|cos(rotation)| >= |sin(ro
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Iterable, Iterator, Protocol
 
 import numpy as np
@@ -34,6 +34,8 @@ from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midl
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
 from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, closed_frames, crease_levels,
                                              detection_levels, dip_minima, search_band)
+from vfcli.flow.gap.subpixel.gap_level import ray_gap_levels
+from vfcli.flow.gap.subpixel.segment import ray_fits
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
@@ -254,8 +256,23 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
                               ray_crease=ray_crease)
+            gap = _with_ray_gap_levels(sample, gap)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
                            line)
+
+
+def _with_ray_gap_levels(sample: np.ndarray, gap: SubpixelGap) -> SubpixelGap:
+    """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
+    frames: the edge fit's prior and rule (b)'s reference on that ray. The detection levels keep the
+    recording's one level (set from the rays' own, the 52 widened seeds of docs/benchmarks.md moved by at most
+    0.006 in IoU)."""
+    fits = [ray_fits(f, gap) for f in sample]
+    n = len(fits[0][0])
+    reference = np.full(n, float(gap.threshold)) if gap.ray_crease is None else np.where(
+        np.isfinite(gap.ray_crease), gap.ray_crease, gap.threshold)
+    levels = ray_gap_levels(np.stack([e1 - e0 for e0, e1, _ in fits]), np.stack([g for *_, g in fits]),
+                            gap.model.psf_sigma_px, 0.5 * (gap.model.gap_counts + reference))
+    return gap if levels is None else replace(gap, ray_gap=levels)
 
 
 def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: float, rotation_deg: float,

@@ -179,8 +179,8 @@ def fit_slit_profiles(
         Initial edges, px (within a pixel or so of the answer).
     sigma : float
         PSF standard deviation, px.
-    gap_counts : float
-        Prior gap level, counts.
+    gap_counts : float or (n,) float
+        Prior gap level, counts (one per ray, or the recording's).
     gap_weight : float
         Weight of that prior, in samples.
     iterations : int
@@ -218,6 +218,7 @@ def fit_slit_profiles(
         lo1 = np.maximum(lo, np.asarray(inner[1], float))
         e0, e1 = np.minimum(e0, hi0), np.maximum(e1, lo1)
     ridge = 1e-12
+    gap_counts = np.broadcast_to(np.asarray(gap_counts, dtype=float), (n,))
 
     x, res, cost, aux = _slit_levels((r, y, w, sw, sigma, gap_counts, gap_weight, ridge), e0, e1)
     aux = list(aux)
@@ -237,7 +238,7 @@ def fit_slit_profiles(
         c = np.linalg.solve(lhs, bw.transpose(0, 2, 1) @ jac)          # (m, 5, k)
         jac = jac - bw @ c
         prior_row = -np.sqrt(gap_weight) * c[:, :1, :]                  # (m, 1, k)
-        prior_res = (np.sqrt(gap_weight) * (xa[:, 0] - gap_counts))[:, None]
+        prior_res = (np.sqrt(gap_weight) * (xa[:, 0] - gap_counts[act]))[:, None]
         jt = jac.transpose(0, 2, 1)
         jtj = jt @ jac + prior_row.transpose(0, 2, 1) @ prior_row
         grad = (jt @ res[act][..., None])[..., 0] + (prior_row.transpose(0, 2, 1) @ prior_res[..., None])[..., 0]
@@ -248,7 +249,7 @@ def fit_slit_profiles(
         step = np.clip(step, -0.5, 0.5)
         a = np.clip(e0[act] + step[:, 0], lo[act], hi0[act])
         b = a if closed else np.clip(e1[act] + step[:, 1], lo1[act], hi[act])
-        sub = (r[act], y[act], w[act], swa, sigma, gap_counts, gap_weight, ridge)
+        sub = (r[act], y[act], w[act], swa, sigma, gap_counts[act], gap_weight, ridge)
         nx, nres, ncost, naux = _slit_levels(sub, a, b)
         better = ncost < cost[act]
         damping[act] = np.where(better, damp * 0.3, damp * 10.0)
@@ -296,7 +297,7 @@ def ray_windows(
 
 def fit_ray_edges(
     frame: np.ndarray, e0: np.ndarray, e1: np.ndarray, model: EdgeModel, lateral_axis: int = 0, passes: int = 2,
-    inner: tuple[np.ndarray, np.ndarray] | None = None,
+    inner: tuple[np.ndarray, np.ndarray] | None = None, gap_counts: np.ndarray | None = None,
 ) -> SlitFit:
     """Sub-pixel edges of every open ray of one frame, starting from a threshold mask's edges.
 
@@ -320,6 +321,9 @@ def fit_ray_edges(
     inner : ((n_rays,) float, (n_rays,) float), optional
         Bounds ``e0 <= inner[0]``, ``e1 >= inner[1]`` per ray, px (+inf / -inf: none); default:
         the starting run's outermost pixel centres (the run is a threshold mask's).
+    gap_counts : (n_rays,) float, optional
+        Prior gap level of each ray, counts (:func:`vfcli.flow.gap.subpixel.gap_level.ray_gap_levels`);
+        default: the model's one level.
 
     Returns
     -------
@@ -333,13 +337,13 @@ def fit_ray_edges(
     # between gap and tissue: their centres are in the gap, so the edges lie at or beyond them
     inner = (e0[sel] + 0.5, e1[sel] - 0.5) if inner is None else (np.asarray(inner[0], float)[sel],
                                                                      np.asarray(inner[1], float)[sel])
+    prior = np.broadcast_to(np.asarray(model.gap_counts if gap_counts is None else gap_counts, float), e0.shape)[sel]
     levels = np.full((len(e0), 5), np.nan)
     rms = np.full(len(e0), np.nan)
     cost = np.full(len(e0), np.nan)
     for _ in range(max(1, passes)):
         prof, rows = ray_windows(frame, e0, e1, margin, lateral_axis)
-        fit = fit_slit_profiles(prof[sel], rows[sel], e0[sel], e1[sel], model.psf_sigma_px, model.gap_counts,
-                                inner=inner)
+        fit = fit_slit_profiles(prof[sel], rows[sel], e0[sel], e1[sel], model.psf_sigma_px, prior, inner=inner)
         e0[sel], e1[sel] = fit.e0, fit.e1
         levels[sel], rms[sel], cost[sel] = fit.levels, fit.rms, fit.cost
     return SlitFit(e0, e1, levels, rms, cost)

@@ -43,6 +43,9 @@ class SubpixelGap:
         The closed crease's level on each ray, counts (:func:`vfcli.flow.gap.subpixel.crease.crease_levels`);
         a component is gap when its fitted gap level is nearer the recording's than this
         (rule (b) of :func:`raw_edges`). None or NaN: ``threshold`` instead.
+    ray_gap : (n_rays,) float, optional
+        The gap level seen on each ray, counts (:func:`vfcli.flow.gap.subpixel.gap_level.ray_gap_levels`): the
+        edge fit's prior and rule (b)'s reference on that ray. None: ``model.gap_counts`` on every ray.
     """
 
     threshold: float
@@ -54,6 +57,14 @@ class SubpixelGap:
     half_window_frames: int = 0
     ray_levels: np.ndarray | None = None
     ray_crease: np.ndarray | None = None
+    ray_gap: np.ndarray | None = None
+
+    def gap_levels(self, n_rays: int) -> np.ndarray:
+        """(n_rays,) the gap level of each ray, counts (``ray_gap``, else the model's one level)."""
+        if self.ray_gap is not None:
+            g = np.asarray(self.ray_gap, float)
+            return np.where(np.isfinite(g), g, float(self.model.gap_counts))
+        return np.full(n_rays, float(self.model.gap_counts))
 
 
 def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +84,7 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        itself (:func:`_held_rays`): (a) the fitted slit covers a whole pixel: a narrower
        blurred dip cannot be told from a dark line of tissue (the contact line of a closed
        glottis), its width and level trade against each other; and (b) on the same ray, the
-       fitted gap level is nearer the recording's gap level than the threshold (than the ray's
+       fitted gap level is nearer the ray's gap level (``ray_gap``) than the threshold (than the ray's
        closed crease, with ``ray_crease``): a dark patch of tissue below the threshold is
        fitted with its own, brighter level. This replaces the dark-core hysteresis of
        :func:`gap_mask`, whose core a narrow, blurred slit never reaches.
@@ -88,19 +99,25 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     e0, e1 : (n_rays,) float
         Lateral px; NaN on closed rays.
     """
+    e0, e1, _ = ray_fits(frame, gap)
+    return e0, e1
+
+
+def ray_fits(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`raw_edges` and each open ray's fitted gap level, counts ((n_rays,), NaN on closed rays)."""
     level = _level_map(np.shape(frame), gap)
     rough = gap_mask(frame, level, gap.median_px, core_fraction=1.0, midline=gap.midline,
                      min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True)
     rough, component = _nearest_component(rough, gap.midline, gap.lateral_axis)
     e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
     if gap.model is None or not np.isfinite(e0).any():
-        return e0, e1
+        return e0, e1, np.full(len(e0), np.nan)
     # the floor of the edges: the outermost pixel centres surely in the gap, more than half covered by it.
     # Half-way between the gap level and the darkest tissue beside the gap, the ray's closed crease (the
     # medial walls seen edge-on), or the threshold where no crease is measured; never above the detection
     # level. (The threshold alone lies above dark walls under sharp optics: widened seed 1030 read its
     # walls as gap, 1-2 px too wide on each ray and in 62 closed frames.) Beyond the floor the fit decides.
-    g = gap.model.gap_counts
+    g = gap.gap_levels(len(e0))
     tissue = np.full(len(e0), float(gap.threshold))
     if gap.ray_crease is not None:
         tissue = np.where(np.isfinite(gap.ray_crease), gap.ray_crease, tissue)
@@ -109,21 +126,21 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     core = rough & (np.asarray(frame) < floor)
     c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
     inner = (np.where(np.isfinite(c0), c0 + 0.5, np.inf), np.where(np.isfinite(c1), c1 - 0.5, -np.inf))
-    fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis, inner=inner)
+    fit = fit_ray_edges(frame, e0, e1, gap.model, gap.lateral_axis, inner=inner, gap_counts=g)
     e0, e1 = fit.e0.copy(), fit.e1.copy()
     closed = ~(e1 > e0)
     # step 3: whole components with enough rays that hold a pixel of the gap, at the gap's level
     closed |= (component == 0) | (_held_rays(e0, e1, fit.levels[:, 0], component, gap)[component] < gap.median_px)
     e0[closed] = np.nan
     e1[closed] = np.nan
-    return e0, e1
+    return e0, e1, np.where(closed, np.nan, fit.levels[:, 0])
 
 
 def _held_rays(e0: np.ndarray, e1: np.ndarray, level: np.ndarray, component: np.ndarray, gap: SubpixelGap) -> np.ndarray:
     """Per detected component, the number of its rays that show the gap itself (rules (a), (b) of
     :func:`raw_edges`): the fitted slit covers a whole pixel (the pixel's area, not just its centre, lies
-    between the edges), and the ray's fitted gap level is nearer the recording's gap level than the
-    ray's closed crease (else the threshold).
+    between the edges), and the ray's fitted gap level is nearer the ray's gap level (``gap.ray_gap``, else
+    the recording's) than the ray's closed crease (else the threshold).
 
     Both are judged per ray. A slit that covers no whole pixel only shares pixels with the tissue beside
     it; its width and level trade against each other, so the level is the prior's (the recording's gap
@@ -147,7 +164,7 @@ def _held_rays(e0: np.ndarray, e1: np.ndarray, level: np.ndarray, component: np.
     reference = np.full(len(e0), float(gap.threshold))
     if gap.ray_crease is not None:
         reference = np.where(np.isfinite(gap.ray_crease), gap.ray_crease, reference)
-    dark = level < 0.5 * (gap.model.gap_counts + reference)
+    dark = level < 0.5 * (gap.gap_levels(len(e0)) + reference)
     return np.bincount(component, weights=whole & dark, minlength=int(component.max()) + 1).astype(int)
 
 

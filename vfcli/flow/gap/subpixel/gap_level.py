@@ -1,0 +1,76 @@
+"""The gap level seen on each ray: what the channel below looks like through each part of the glottis.
+
+The edge fit of a ray (:mod:`vfcli.flow.gap.subpixel.profile`) pins the gap level of a slit too narrow
+to show it by a prior; with one level for the whole recording (:class:`EdgeModel`) a glottis whose
+channel looks brighter in one part than another reads too narrow there and too wide in the other,
+since on a narrow slit width and depth trade against each other ((tissue - gap) x width is what the
+image holds). The channel seen through the gap is fixed in the image (far below the folds, lit by
+the same light), so each ray's level is measured where the gap shows it: on the sampled frames in
+which the ray's fitted slit is wide enough for the fit's level to come from the data rather than
+the prior (:data:`RESOLVED_SIGMAS` PSF widths, at least :data:`RESOLVED_MIN_PX`), then smoothed
+along the glottis; a ray never seen that wide keeps the recording's level.
+
+Units: counts; rays along the glottis (:mod:`vfcli.flow.gap.rays`).
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+#: A ray's fitted gap level counts when its slit is at least this many PSF standard deviations wide: its
+#: centre lies 3 sigma from either edge, where the blurred slit reaches the gap level to within 0.3 %
+#: (erf(3 / sqrt 2)); the level then comes from the gap's own pixels, not from the ramps beside it
+RESOLVED_SIGMAS = 6.0
+#: ... and at least this many pixels (two whole pixels of gap beside the edges' pixels)
+RESOLVED_MIN_PX = 3.0
+#: Running median along the glottis, rays (odd)
+SMOOTH_RAYS = 9
+#: Fewest rays with a measured level for a per-ray level at all (else the recording's one level)
+MIN_RAYS = 5
+
+
+def ray_gap_levels(widths: np.ndarray, levels: np.ndarray, sigma: float,
+                   upper: np.ndarray | None = None) -> np.ndarray | None:
+    """Each ray's gap level from the edge fits of sampled frames, counts.
+
+    Parameters
+    ----------
+    widths : (k, n_rays) float
+        Fitted slit width of each ray in each sampled frame, px (NaN: closed).
+    levels : (k, n_rays) float
+        The same fits' gap levels, counts.
+    sigma : float
+        PSF standard deviation, px.
+    upper : (n_rays,) float, optional
+        A fitted level counts only below this, counts: the flow step passes rule (b) of
+        :func:`vfcli.flow.gap.subpixel.segment.raw_edges` (half-way from the recording's gap level to the
+        ray's closed crease), so a dark patch of tissue fitted as a wide slit with its own, brighter level
+        does not set the ray's gap level (widened seed 293, 2.7 px blur: fitted "gap" levels up to 810
+        counts where the gap reads 315).
+
+    Returns
+    -------
+    (n_rays,) float, or None when fewer than :data:`MIN_RAYS` rays were ever resolved.
+        Per ray the median level over the frames where it was resolved (at least two), then a running
+        median of :data:`SMOOTH_RAYS` rays along the glottis; NaN on rays never resolved (the caller uses
+        the recording's one level there: under a heavy blur only the widest part of the glottis is ever
+        resolved, and carrying its level along the glottis read the narrow parts wrong).
+    """
+    w = np.asarray(widths, float)
+    g = np.asarray(levels, float)
+    resolved = np.isfinite(w) & (w >= max(RESOLVED_MIN_PX, RESOLVED_SIGMAS * sigma)) & np.isfinite(g)
+    if upper is not None:
+        resolved &= g < np.asarray(upper, float)[None, :]
+    n = resolved.sum(axis=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # rays never resolved
+        per_ray = np.where(n >= 2, np.nanmedian(np.where(resolved, g, np.nan), axis=0), np.nan)
+    if np.isfinite(per_ray).sum() < MIN_RAYS:
+        return None
+    h = SMOOTH_RAYS // 2
+    win = np.lib.stride_tricks.sliding_window_view(np.pad(per_ray, h, constant_values=np.nan), SMOOTH_RAYS)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        smooth = np.where(np.isfinite(per_ray), np.nanmedian(win, axis=1), np.nan)
+    return smooth
