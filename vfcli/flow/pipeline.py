@@ -256,17 +256,23 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
                               ray_crease=ray_crease)
-            gap = _with_ray_gap_levels(sample, gap)
+            gap = _with_ray_gap_levels(sample, masks, gap)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
                            line)
 
 
-def _with_ray_gap_levels(sample: np.ndarray, gap: SubpixelGap) -> SubpixelGap:
+#: The rays' gap levels are measured on at most this many sampled frames, those whose rough gap is largest
+#: (the open phase, where the slits are resolved; each frame costs one edge fit of every ray)
+RAY_GAP_FRAMES = 16
+
+
+def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> SubpixelGap:
     """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
-    frames: the edge fit's prior and rule (b)'s reference on that ray. The detection levels keep the
-    recording's one level (set from the rays' own, the 52 widened seeds of docs/benchmarks.md moved by at most
-    0.006 in IoU)."""
-    fits = [ray_fits(f, gap) for f in sample]
+    frames with the largest rough gaps (``masks``, :data:`RAY_GAP_FRAMES`): the edge fit's prior and rule (b)'s
+    reference on that ray. The detection levels keep the recording's one level (set from the rays' own, the 52
+    widened seeds of docs/benchmarks.md moved by at most 0.006 in IoU)."""
+    widest = np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES]
+    fits = [ray_fits(sample[i], gap) for i in np.sort(widest)]
     n = len(fits[0][0])
     reference = np.full(n, float(gap.threshold)) if gap.ray_crease is None else np.where(
         np.isfinite(gap.ray_crease), gap.ray_crease, gap.threshold)
