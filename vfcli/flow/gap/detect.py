@@ -383,18 +383,19 @@ def binary_median_line(mask: np.ndarray, size: int, axis: int, slope: float = 0.
     (H, W) bool
         True where more than half of the window is True (the border pixel is repeated).
     """
-    from scipy.ndimage import correlate
+    import cv2
 
     h = int(size) // 2
     k = np.arange(-h, h + 1)
     off = np.round(k * float(slope)).astype(int)
     reach = int(np.abs(off).max(initial=0))
-    kernel = np.zeros((2 * h + 1, 2 * reach + 1), np.int32)
-    kernel[k + h, off + reach] = 1
+    kernel = np.zeros((2 * h + 1, 2 * reach + 1), np.float32)
+    kernel[k + h, off + reach] = 1.0
     if axis == 1:
         kernel = kernel.T
-    counts = correlate(np.asarray(mask, dtype=np.int32), kernel, mode="nearest")
-    return counts > h
+    # a correlation (cv2.filter2D does not flip the kernel), the border pixel repeated; the counts are exact
+    counts = cv2.filter2D(np.asarray(mask, dtype=np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
+    return counts > h + 0.5
 
 
 def midline_line(centre: np.ndarray, *, clip_px: float = 2.0) -> np.ndarray | None:
