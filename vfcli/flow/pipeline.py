@@ -269,15 +269,13 @@ RAY_GAP_FRAMES = 16
 def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> SubpixelGap:
     """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
     frames with the largest rough gaps (``masks``, :data:`RAY_GAP_FRAMES`): the edge fit's prior and rule (b)'s
-    reference on that ray. The detection levels keep the recording's one level (set from the rays' own, the 52
-    widened seeds of docs/benchmarks.md moved by at most 0.006 in IoU)."""
+    reference on that ray. The detection levels keep the recording's one level (set from the rays' own, in a
+    trial with an earlier form of these levels, the 52 widened seeds of docs/benchmarks.md moved by at most 0.006
+    in IoU)."""
     widest = np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES]
     fits = [ray_fits(sample[i], gap) for i in np.sort(widest)]
-    n = len(fits[0][0])
-    reference = np.full(n, float(gap.threshold)) if gap.ray_crease is None else np.where(
-        np.isfinite(gap.ray_crease), gap.ray_crease, gap.threshold)
     levels = ray_gap_levels(np.stack([e1 - e0 for e0, e1, _ in fits]), np.stack([g for *_, g in fits]),
-                            gap.model.psf_sigma_px, 0.5 * (gap.model.gap_counts + reference))
+                            gap.model.psf_sigma_px, gap.gap_like_below(len(fits[0][0])))
     return gap if levels is None else replace(gap, ray_gap=levels)
 
 

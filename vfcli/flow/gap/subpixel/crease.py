@@ -62,8 +62,10 @@ def closed_frames(masks: np.ndarray, lateral_axis: int = 0, share: float = CLOSE
     share : float, in (0, 1].
     """
     m = np.asarray(masks, bool)
-    rays = np.stack([as_rays(f, lateral_axis).any(axis=0) for f in m]) if len(m) else np.zeros((0, 0), bool)
-    seen = int(rays.any(axis=0).sum()) if len(m) else 0
+    if not len(m):
+        return 0
+    rays = np.stack([as_rays(f, lateral_axis).any(axis=0) for f in m])
+    seen = int(rays.any(axis=0).sum())
     return int((rays.sum(axis=1) < share * seen).sum()) if seen else len(m)
 
 
@@ -132,10 +134,11 @@ def crease_levels(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION,
     top = np.where(ok[None, :], top, np.nan)
     med = np.median(top, axis=0)
     scatter = 1.4826 * np.median(np.abs(top - med[None, :]), axis=0)
-    return _running_median(med, smooth_rays, ok), _running_median(scatter, smooth_rays, ok)
+    return running_median(med, smooth_rays, ok), running_median(scatter, smooth_rays, ok)
 
 
-def _running_median(x: np.ndarray, n: int, ok: np.ndarray) -> np.ndarray:
+def running_median(x: np.ndarray, n: int, ok: np.ndarray) -> np.ndarray:
+    """Running median of ``n`` (odd) entries of ``x`` along the rays, NaN ignored; NaN where not ``ok``."""
     if n <= 1:
         return np.where(ok, x, np.nan)
     h = n // 2

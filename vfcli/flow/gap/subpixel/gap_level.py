@@ -18,6 +18,8 @@ import warnings
 
 import numpy as np
 
+from vfcli.flow.gap.subpixel.crease import running_median
+
 #: A ray's fitted gap level counts when its slit is at least this many PSF standard deviations wide: its
 #: centre lies 3 sigma from either edge, where the blurred slit reaches the gap level to within 0.3 %
 #: (erf(3 / sqrt 2)); the level then comes from the gap's own pixels, not from the ramps beside it
@@ -68,9 +70,4 @@ def ray_gap_levels(widths: np.ndarray, levels: np.ndarray, sigma: float,
         per_ray = np.where(n >= 2, np.nanmedian(np.where(resolved, g, np.nan), axis=0), np.nan)
     if np.isfinite(per_ray).sum() < MIN_RAYS:
         return None
-    h = SMOOTH_RAYS // 2
-    win = np.lib.stride_tricks.sliding_window_view(np.pad(per_ray, h, constant_values=np.nan), SMOOTH_RAYS)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        smooth = np.where(np.isfinite(per_ray), np.nanmedian(win, axis=1), np.nan)
-    return smooth
+    return running_median(per_ray, SMOOTH_RAYS, np.isfinite(per_ray))

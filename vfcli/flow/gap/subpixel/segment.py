@@ -66,6 +66,19 @@ class SubpixelGap:
             return np.where(np.isfinite(g), g, float(self.model.gap_counts))
         return np.full(n_rays, float(self.model.gap_counts))
 
+    def tissue_levels(self, n_rays: int) -> np.ndarray:
+        """(n_rays,) the darkest tissue beside the gap on each ray, counts: the closed crease
+        (``ray_crease``), else the threshold."""
+        tissue = np.full(n_rays, float(self.threshold))
+        if self.ray_crease is not None:
+            tissue = np.where(np.isfinite(self.ray_crease), self.ray_crease, tissue)
+        return tissue
+
+    def gap_like_below(self, n_rays: int) -> np.ndarray:
+        """(n_rays,) rule (b) of :func:`raw_edges`: a fitted gap level below this (half-way from the ray's
+        gap level to its tissue, :meth:`tissue_levels`) is the gap's, counts."""
+        return 0.5 * (self.gap_levels(n_rays) + self.tissue_levels(n_rays))
+
 
 def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray]:
     """Detection and per-ray sub-pixel edges of one frame, before smoothing.
@@ -118,10 +131,7 @@ def ray_fits(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarra
     # level. (The threshold alone lies above dark walls under sharp optics: widened seed 1030 read its
     # walls as gap, 1-2 px too wide on each ray and in 62 closed frames.) Beyond the floor the fit decides.
     g = gap.gap_levels(len(e0))
-    tissue = np.full(len(e0), float(gap.threshold))
-    if gap.ray_crease is not None:
-        tissue = np.where(np.isfinite(gap.ray_crease), gap.ray_crease, tissue)
-    half = np.minimum(g + 0.5 * (tissue - g), gap.threshold)
+    half = np.minimum(gap.gap_like_below(len(e0)), gap.threshold)
     floor = np.minimum(level, half[None, :] if gap.lateral_axis == 0 else half[:, None])
     core = rough & (np.asarray(frame) < floor)
     c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
@@ -161,10 +171,7 @@ def _held_rays(e0: np.ndarray, e1: np.ndarray, level: np.ndarray, component: np.
     """
     a, b = np.nan_to_num(e0, nan=np.inf), np.nan_to_num(e1, nan=-np.inf)
     whole = np.floor(b - 0.5) >= np.ceil(a + 0.5)     # a pixel [c - 1/2, c + 1/2] inside [e0, e1]
-    reference = np.full(len(e0), float(gap.threshold))
-    if gap.ray_crease is not None:
-        reference = np.where(np.isfinite(gap.ray_crease), gap.ray_crease, reference)
-    dark = level < 0.5 * (gap.gap_levels(len(e0)) + reference)
+    dark = level < gap.gap_like_below(len(e0))
     return np.bincount(component, weights=whole & dark, minlength=int(component.max()) + 1).astype(int)
 
 
