@@ -341,7 +341,9 @@ def true_parameter(effect: str, strength: float, attrs: dict[str, Any]) -> float
     damping : the retardation time tau (ms) of ``1 + i w tau``: the phantom's loss factor at f0 over
         ``2 pi f0``.
     asymmetry : the left softening s of ``E_left = (1 - s) E_right`` (the strength itself).
-    contact, none : None (the phantom's adduction factor has no counterpart parameter).
+    contact : 1, the share of the rigid contact (the phantom's folds never interpenetrate: its contact is
+        the rigid contact of the linear folds at the midplane, whatever its adduction factor).
+    none : None.
     """
     from vfcli.config import MeshConfig
 
@@ -354,6 +356,8 @@ def true_parameter(effect: str, strength: float, attrs: dict[str, Any]) -> float
         return 1e3 * strength / (2 * np.pi * float(attrs["f0_hz"]))
     if effect == "asymmetry":
         return float(strength)
+    if effect == "contact":
+        return 1.0
     return None
 
 

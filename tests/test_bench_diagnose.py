@@ -113,7 +113,7 @@ def test_the_true_parameter_in_the_candidates_units():
     # inertia: rho / E at the nominal E
     assert bd.true_parameter("inertia", 1.5, attrs) == pytest.approx(1.5 * 1.02 / 0.85)
     assert bd.true_parameter("asymmetry", 0.3, attrs) == 0.3
-    assert bd.true_parameter("contact", 1.0, attrs) is None and bd.true_parameter("none", 0.0, attrs) is None
+    assert bd.true_parameter("contact", 0.6, attrs) == 1.0 and bd.true_parameter("none", 0.0, attrs) is None
 
 
 def test_refit_figures_read_the_confirmation_as_the_diagnosis_states_it():

@@ -176,6 +176,20 @@ def test_confirmation_records_say_beyond_spread_only_when_it_is():
         HeldOutError("bogus", "mm/s", np.ones(2), np.ones(2))
 
 
+def test_the_held_out_change_is_said_with_its_direction_not_as_minus_zero_lower():
+    """66.5 -> 67.6 mm/s reads "1.7 % higher" (it read "-2 % lower"), 66.5 -> 66.7 "0.3 % higher" (it read
+    "-0 % lower"), 315 -> 89.2 "72 % lower"."""
+    from vfcli.diagnose.confirm import words
+
+    lines = {}
+    for b, e in ((66.5, 67.6), (66.5, 66.7), (315.0, 89.2)):
+        h = HeldOutError("cycles", "mm/s", np.full(4, b), np.full(4, e))
+        c = Confirmation("asymmetry", ("left_softening",), np.array([0.2]), np.array([0.01]), heldout=(h,))
+        lines[e] = words(c)[1]
+    assert "66.5 -> 67.6 mm/s (1.7 % higher, 4 splits" in lines[67.6], lines[67.6]
+    assert "(0.3 % higher, 4 splits" in lines[66.7] and "(72 % lower, 4 splits" in lines[89.2], lines
+
+
 def test_choose_takes_the_smallest_identifiable_lead_below_the_family_level_or_the_named_one():
     from vfcli.diagnose.candidate import Screening
     from vfcli.diagnose.candidates import CANDIDATES
@@ -257,3 +271,13 @@ def test_a_delay_of_the_load_is_refitted_and_its_column_is_dampings():
     err = np.linalg.norm(column - fd) / np.linalg.norm(fd)
     assert err < 0.05, err          # measured 3.4 %: the column takes the load's harmonics of f0 over the window
     np.testing.assert_array_equal(column, KelvinVoigtDamping().displacement_jacobian(b0)[..., 0])
+
+
+def test_a_profile_lead_below_one_percent_is_printed_with_its_size_not_as_minus_zero():
+    """A lead of 0.04 % (E 0.12787 against 0.12793) reads "-0.044 %", not "-0 %" beside "a profile lead"."""
+    from vfcli.diagnose.profile import ProfileScreen
+
+    small = ProfileScreen("contact", "contact_share", np.array([1.0]), 0.12793, np.array([0.127874]))
+    large = ProfileScreen("inertia", "density_factor", np.array([0.5, 1.0]), 1.0, np.array([1.3, 0.6]))
+    assert small.lead and "E -0.044 % at 1 against the baseline's, a profile lead" in small.words(), small.words()
+    assert "E -40 % at 1 against" in large.words(), large.words()

@@ -98,6 +98,13 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
 
 
+def _percent(reduction: float) -> str:
+    """A held-out error's change in words: "7 % lower", "0.4 % higher" (not "-0 % lower")."""
+    pct = abs(100 * float(reduction))
+    size = f"{pct:.0f}" if pct >= 9.5 else f"{pct:.2g}"
+    return f"{size} % {'lower' if reduction >= 0 else 'higher'}"
+
+
 def words(conf: Confirmation) -> list[str]:
     """Plain lines: the estimate with its interval, the held-out errors before and after."""
     est = ", ".join(f"{n} = {e:.3g} (95 % interval {a:.3g} .. {b:.3g}, {conf.uncertainty})"
@@ -108,7 +115,7 @@ def words(conf: Confirmation) -> list[str]:
     for h in conf.heldout:
         verdict = "beyond the spread over splits" if h.beyond_spread() else "not beyond the spread over splits"
         out.append(f"held-out error {names[h.kind]}: {np.sqrt(np.mean(h.baseline ** 2)):.3g} -> "
-                   f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({100 * h.reduction:+.0f} % lower, "
+                   f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({_percent(h.reduction)}, "
                    f"{h.n_splits} splits, {verdict})")
     if not conf.heldout:
         out.append("held-out error: no split possible (too few cycles in the window)")

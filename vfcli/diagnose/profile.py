@@ -72,8 +72,9 @@ class ProfileScreen:
     def words(self) -> str:
         rel = self.relative
         k = int(np.argmin(self.e))
+        change = f"{100 * rel[k]:+.0f}" if abs(rel[k]) >= 0.01 else f"{100 * rel[k]:+.2g}"   # not "-0 %" for a lead
         head = (f"{self.name}: profile with the loads refitted at {self.parameter} = "
-                f"{', '.join(f'{t:g}' for t in self.thetas)}: E {100 * rel[k]:+.0f} % at {self.thetas[k]:g}")
+                f"{', '.join(f'{t:g}' for t in self.thetas)}: E {change} % at {self.thetas[k]:g}")
         if self.lead:
             return head + " against the baseline's, a profile lead (refitted and checked on held-out data)"
         return head + ", worse than the baseline's at every value (no profile lead)"

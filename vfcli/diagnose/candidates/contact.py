@@ -133,7 +133,9 @@ class Contact(DisplacementTerm):
                  "recorded one stops")
     #: contact only pushes the folds apart: a negative share (pulling them through) is no contact
     one_sided = True
-    #: the confirmation refit's starting values (:mod:`vfcli.diagnose.refit`): none and full contact
+    #: the confirmation refit's starting values (:mod:`vfcli.diagnose.refit`): none and full contact.  Not
+    #: profiled (no ``profile_screening``): the profile at full contact with the loads refitted named a null
+    #: of the blind panel as readily as a contact phantom (docs/diagnose.md, "A contact profile at full contact")
     start_values = (0.0, 1.0)
 
     def __init__(self, model=None, band_mm: float = CONTACT_BAND_MM) -> None:
