@@ -18,6 +18,7 @@ from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.confirmation import Confirmation, heldout_sd
 from vfcli.diagnose.heldout import across_instruments, cycle_groups, leave_cycles_out
 from vfcli.diagnose.refit import RefitResult, refit, with_displacements
+from vfcli.diagnose.words import percent_size
 
 log = logging.getLogger(__name__)
 
@@ -98,13 +99,6 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
 
 
-def _percent(reduction: float) -> str:
-    """A held-out error's change in words: "7 % lower", "0.4 % higher" (not "-0 % lower")."""
-    pct = abs(100 * float(reduction))
-    size = f"{pct:.0f}" if pct >= 9.5 else f"{pct:.2g}"
-    return f"{size} % {'lower' if reduction >= 0 else 'higher'}"
-
-
 def words(conf: Confirmation) -> list[str]:
     """Plain lines: the estimate with its interval, the held-out errors before and after."""
     est = ", ".join(f"{n} = {e:.3g} (95 % interval {a:.3g} .. {b:.3g}, {conf.uncertainty})"
@@ -115,7 +109,7 @@ def words(conf: Confirmation) -> list[str]:
     for h in conf.heldout:
         verdict = "beyond the spread over splits" if h.beyond_spread() else "not beyond the spread over splits"
         out.append(f"held-out error {names[h.kind]}: {np.sqrt(np.mean(h.baseline ** 2)):.3g} -> "
-                   f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({_percent(h.reduction)}, "
+                   f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({percent_size(h.reduction)} % {'lower' if h.reduction >= 0 else 'higher'}, "
                    f"{h.n_splits} splits, {verdict})")
     if not conf.heldout:
         out.append("held-out error: no split possible (too few cycles in the window)")

@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vfcli.diagnose.words import percent_size
+
 log = logging.getLogger(__name__)
 
 #: load-only Gauss-Newton steps at each start value; the best value, when still above the baseline, gets
@@ -72,7 +74,7 @@ class ProfileScreen:
     def words(self) -> str:
         rel = self.relative
         k = int(np.argmin(self.e))
-        change = f"{100 * rel[k]:+.0f}" if abs(rel[k]) >= 0.01 else f"{100 * rel[k]:+.2g}"   # not "-0 %" for a lead
+        change = ("-" if rel[k] < 0 else "+") + percent_size(rel[k])   # not "-0 %" for a lead
         head = (f"{self.name}: profile with the loads refitted at {self.parameter} = "
                 f"{', '.join(f'{t:g}' for t in self.thetas)}: E {change} % at {self.thetas[k]:g}")
         if self.lead:

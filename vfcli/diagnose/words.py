@@ -11,6 +11,13 @@ def ordinal(k: int) -> str:
     return f"{k}{suffix}"
 
 
+def percent_size(fraction: float) -> str:
+    """The size of a relative change in per cent, without sign: whole per cent from 9.5 % up, else two
+    significant digits ("72", "1.7", "0.044"; never "0" for a change that is there)."""
+    pct = abs(100.0 * float(fraction))
+    return f"{pct:.0f}" if pct >= 9.5 else f"{pct:.2g}"
+
+
 def p_text(p: float) -> str:
     """A p-value as text: two significant digits, '< 1e-6' below."""
     return "p < 1e-6" if p < 1e-6 else f"p = {p:.2g}"
