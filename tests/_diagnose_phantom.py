@@ -2,8 +2,8 @@
 
 :func:`fitted_phantom` runs `vfcli synth` (the small settings of :data:`PHANTOM`, the given seed and
 synth options), ingest, sync, flow, mesh and optimize (the given options) as a user does;
-:func:`shared_fitted_phantom` builds each one once per test run for every test file that asks
-for it and hands each caller its own copy.
+:func:`shared_diagnosed_phantom` builds one, and its diagnosis, once per test run for every test
+file that asks for it.
 """
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ import hashlib
 from pathlib import Path
 
 from conftest import run_vfcli, shared_product
-from vfcli.store.parts import copy_store
 
 #: a short, small phantom (0.02 s, 160 x 160 px)
 PHANTOM = [
@@ -46,12 +45,18 @@ def fitted_phantom(d: Path, seed: int, fit: list[str], synth: tuple[str, ...] = 
     return store
 
 
-def shared_fitted_phantom(tmp_path_factory, seed: int, fit: list[str], synth: tuple[str, ...] = ()) -> Path:
-    """A copy, in a new folder of this caller's, of the store :func:`fitted_phantom` makes of ``seed``
-    with ``fit`` and ``synth``, built once per test run (:func:`conftest.shared_product`) and shared
-    by the test files that ask for the same one; the raw files stay in the shared folder (read-only)."""
+def shared_diagnosed_phantom(tmp_path_factory, seed: int, fit: list[str], synth: tuple[str, ...] = ()) -> Path:
+    """The folder of the store :func:`fitted_phantom` makes of ``seed`` with ``fit`` (which stores the
+    run "fit", as :data:`ONE_SIDED_FIT` does) and ``synth``, then `vfcli diagnose --run fit --map
+    map.png` of it: rec.h5 (fitted and diagnosed), map.png, the raw files, and the diagnosis' standard
+    output in stdout.txt. Built once per test run (:func:`conftest.shared_product`) for every test file
+    that asks for the same one; read-only (a test that writes copies the store with
+    :func:`vfcli.store.parts.copy_store`)."""
+    def build(d: Path) -> None:
+        store = fitted_phantom(d, seed, fit, synth)
+        res = run_vfcli("diagnose", store, "--run", "fit", "--map", d / "map.png", timeout=3000)
+        assert res.returncode == 0, res.stderr
+        (d / "stdout.txt").write_text(res.stdout)
+
     key = hashlib.sha256(repr((seed, list(fit), list(synth))).encode()).hexdigest()[:12]
-    shared = shared_product(tmp_path_factory, f"fitted-seed{seed}-{key}",
-                            lambda d: fitted_phantom(d, seed, fit, synth))
-    mine = tmp_path_factory.mktemp(f"fitted{seed}")
-    return copy_store(shared / "rec.h5", mine / "rec.h5")
+    return shared_product(tmp_path_factory, f"diagnosed-seed{seed}-{key}", build)

@@ -14,18 +14,17 @@ import re
 
 import pytest
 
-from _diagnose_phantom import CONTACT_PHANTOM, ONE_SIDED_FIT, shared_fitted_phantom
-from conftest import run_vfcli
+from _diagnose_phantom import CONTACT_PHANTOM, ONE_SIDED_FIT, shared_diagnosed_phantom
 
 CROSSING = re.compile(r"cross the midplane (?:by up to ([0-9.e-]+) mm|not at all) during the closed phase")
 
 
 def _diagnose(tmp_path_factory) -> str:
-    seed, synth = CONTACT_PHANTOM      # built once, shared with tests/test_diagnose_stage.py (each diagnoses its copy)
-    store = shared_fitted_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
-    res = run_vfcli("diagnose", store, "--run", "fit", timeout=3000)
-    assert res.returncode == 0, res.stderr
-    return next(line for line in res.stdout.splitlines() if line.startswith("contact: "))
+    """The contact line `vfcli diagnose --run fit` prints: the one diagnosis of the fitted phantom,
+    run once and shared with tests/test_diagnose_stage.py."""
+    seed, synth = CONTACT_PHANTOM
+    out = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth) / "stdout.txt"
+    return next(line for line in out.read_text().splitlines() if line.startswith("contact: "))
 
 
 @pytest.mark.slow

@@ -1,5 +1,5 @@
-"""`vfcli diagnose` on a small fitted phantom (the contact phantom tests/test_contact_phantom.py diagnoses
-too, built once for both), as a user runs it: /diagnose/<run> written with its
+"""`vfcli diagnose` on a small fitted phantom (the contact phantom tests/test_contact_phantom.py reads
+too: fitted and diagnosed once for both), as a user runs it: /diagnose/<run> written with its
 provenance, the findings printed in plain words, --json parses, a rerun is up to date, and a
 missing run or a bad option is one line with its exit code."""
 from __future__ import annotations
@@ -9,23 +9,31 @@ import json
 import numpy as np
 import pytest
 
-from _diagnose_phantom import CONTACT_PHANTOM, ONE_SIDED_FIT, shared_fitted_phantom
+from _diagnose_phantom import CONTACT_PHANTOM, ONE_SIDED_FIT, shared_diagnosed_phantom
 from conftest import run_vfcli
 from vfcli.store import Store
+from vfcli.store.parts import copy_store
 
 
 @pytest.fixture(scope="module")
-def fitted(tmp_path_factory):
+def diagnosed(tmp_path_factory):
+    """The folder of `vfcli diagnose FITTED --run fit --map map.png` (rec.h5, map.png, stdout.txt),
+    shared with tests/test_contact_phantom.py (read-only)."""
     seed, synth = CONTACT_PHANTOM
-    return shared_fitted_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
+    return shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
 
 
-def test_diagnose_writes_the_run_group_and_says_what_it_located(fitted, tmp_path):
-    png = tmp_path / "map.png"
-    res = run_vfcli("diagnose", fitted, "--run", "fit", "--map", png)
-    assert res.returncode == 0, res.stderr
-    lines = res.stdout.splitlines()
-    print(res.stdout)
+@pytest.fixture(scope="module")
+def fitted(diagnosed, tmp_path_factory):
+    """This file's copy of the diagnosed store, for the commands that write."""
+    return copy_store(diagnosed / "rec.h5", tmp_path_factory.mktemp("diagnosed") / "rec.h5")
+
+
+def test_diagnose_writes_the_run_group_and_says_what_it_located(diagnosed):
+    png, fitted = diagnosed / "map.png", diagnosed / "rec.h5"
+    stdout = (diagnosed / "stdout.txt").read_text()
+    lines = stdout.splitlines()
+    print(stdout)
     assert lines[0].startswith("f0 ") and "whole glottal cycles" in lines[0]
     assert any(line.startswith("the residual sits on the ") or line.startswith("no part of the residual")
                for line in lines)

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from conftest import ROOT, run_vfcli
-from _batch_phantoms import SMALL_OPTIMIZE, tiny_raw
+from _batch_phantoms import small_fit_raw
 from vfcli.batch.cluster import job_script
 from vfcli.batch.manifest import read_manifest
 
@@ -41,13 +41,11 @@ needs_snakemake = pytest.mark.skipif(importlib.util.find_spec("snakemake") is No
 
 @pytest.fixture(scope="module")
 def raw_pair(tmp_path_factory) -> Path:
-    """Two tiny phantoms raw/a, raw/b with a small optimize (each test copies them): copies of the
-    shared tiny phantoms 41 and 42 (tests/test_batch.py's), their recording.toml extended."""
+    """Two tiny phantoms raw/a, raw/b with a small fit (each test copies them): copies of the
+    shared tiny phantoms 41 and 42 (tests/test_batch.py's), their recording.toml set for it."""
     raw = tmp_path_factory.mktemp("examples") / "raw"
     for name, seed in (("a", 41), ("b", 42)):
-        shutil.copytree(tiny_raw(tmp_path_factory, seed), raw / name)
-        with (raw / name / "recording.toml").open("a") as fh:
-            fh.write(SMALL_OPTIMIZE)
+        small_fit_raw(tmp_path_factory, seed, raw / name)
     return raw
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import functools
 import os
-import shutil
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from vfcli.stages.run import run_recording
 from vfcli.store import Store
 from vfcli.store.parts import copy_store
 
-from _batch_phantoms import SMALL_OPTIMIZE, tiny_raw
+from _batch_phantoms import small_fit_raw
 
 try:
     from _forward_case import elastic_model
@@ -84,13 +83,10 @@ _CLOCKS = ("history_wall_time",)
 
 @pytest.fixture(scope="module")
 def meshed(tmp_path_factory) -> tuple[Path, Path]:
-    """A tiny phantom's raw folder (small optimize settings) and a store of it through mesh: a copy of
+    """A tiny phantom's raw folder (small fit settings) and a store of it through mesh: a copy of
     the shared tiny phantom 43 (tests/test_batch.py's)."""
     base = tmp_path_factory.mktemp("map_run")
-    raw = base / "raw" / "rec43"
-    shutil.copytree(tiny_raw(tmp_path_factory, 43), raw)
-    with (raw / "recording.toml").open("a") as fh:
-        fh.write(SMALL_OPTIMIZE)
+    raw = small_fit_raw(tmp_path_factory, 43, base / "raw" / "rec43")
     store = base / "mesh.h5"
     assert run_recording(store, raw, until="mesh").ok
     return raw, store
