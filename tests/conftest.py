@@ -34,10 +34,23 @@ def run_vfcli(*args: str, cwd: Path | None = None, timeout: float = 600) -> subp
 
 
 #: the test files that take longest (`make test --durations`), started first: pytest-xdist's
-#: loadfile scheduling hands out files in collection order, and with the slowest last one worker
-#: ran test_diagnose_refit_phantom.py alone for its last three minutes (10 min 8 s on a quiet machine)
+#: loadfile scheduling hands out files in collection order (see :func:`pytest_configure`), and with
+#: the slowest last one worker ran test_diagnose_refit_phantom.py alone for its last three minutes
+#: (10 min 8 s on a quiet machine). The last five: the next largest in CPU time (31-40 s of CPU
+#: each), which the alphabetical order left in the suite's second half.
 SLOW_FIRST = ("test_diagnose_refit_phantom.py", "test_examples_batch.py", "test_run.py", "test_contact_phantom.py",
-              "test_batch.py", "test_diagnose_stage.py", "test_loads_widened.py", "test_diagnose_refit.py")
+              "test_batch.py", "test_diagnose_stage.py", "test_loads_widened.py", "test_diagnose_refit.py",
+              "test_rotation_end_to_end.py", "test_store_integrity.py", "test_hostile_fuzz_files.py",
+              "test_ldv_on_folds.py", "test_store_sharing.py")
+
+
+def pytest_configure(config):
+    """pytest-xdist (3.7 on) reorders the files of ``--dist loadfile`` by their number of tests, most
+    first, unless ``--no-loadscope-reorder``: that put :data:`SLOW_FIRST`'s files, which hold few tests
+    each, among the last ones handed out. Here the collection order is kept unless
+    ``--loadscope-reorder`` is given."""
+    if hasattr(config.option, "loadscopereorder") and "--loadscope-reorder" not in config.invocation_params.args:
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(config, items):
