@@ -108,8 +108,9 @@ def words(conf: Confirmation) -> list[str]:
              "instruments": "vertical velocity predicted from the camera"}
     for h in conf.heldout:
         verdict = "beyond the spread over splits" if h.beyond_spread() else "not beyond the spread over splits"
+        direction = "lower" if h.reduction >= 0 else "higher"
         out.append(f"held-out error {names[h.kind]}: {np.sqrt(np.mean(h.baseline ** 2)):.3g} -> "
-                   f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({percent_size(h.reduction)} % {'lower' if h.reduction >= 0 else 'higher'}, "
+                   f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({percent_size(h.reduction)} % {direction}, "
                    f"{h.n_splits} splits, {verdict})")
     if not conf.heldout:
         out.append("held-out error: no split possible (too few cycles in the window)")
