@@ -178,33 +178,38 @@ def test_asymmetry_makes_the_left_fold_move_more(motions):
     assert left / right == pytest.approx(1 / (1 - 0.2), rel=1e-6)
 
 
-def test_ritz_inertia_agrees_with_a_direct_dense_solve():
-    """The Ritz-space harmonic response against a dense complex solve of the full system."""
-    mesh = build_mesh(M5Params(length_mm=6.0, depth_mm=4.0), 2.0)
-    model = ElasticModel(mesh)
+def test_inertia_agrees_with_a_dense_solve_at_harmonics_above_the_folds_modes():
+    """The phantom's steady state against a dense complex solve of both folds, at f0 = 300 Hz on a
+    small fold whose lowest modes lie at 122-276 Hz: harmonics 2 and 3 sit above eight modes.  The
+    Ritz space of the loads that synth used until session 21 missed them by 64 % and 110 %."""
     params = M5Params(length_mm=6.0, depth_mm=4.0)
+    mesh = build_mesh(params, 2.0)
+    model = ElasticModel(mesh)
     grid = aero.medial_grid(params.length_mm, -params.thickness_mm, -params.exit_radius_mm, 4, 3)
     pat = effects.load_patterns(model, grid)
     phase = np.arange(32) / 32
-    c = 800 * (1 + 0.4 * np.cos(2 * np.pi * phase))[:, None] * np.ones((1, pat.loads.shape[1]))
-    c[:, 1:] *= (0.5 + 0.5 * np.sin(2 * np.pi * phase + 1))[:, None]
-    f0 = 150.0
-    ritz = effects.harmonic_response(model, pat, c, f0)
+    shape = 1 + 0.4 * np.cos(2 * np.pi * phase) + 0.3 * np.cos(6 * np.pi * phase + 0.5)
+    c = 800 * shape[:, None] * np.ones((1, pat.loads.shape[1]))
+    c[:, 1:] *= (0.5 + 0.5 * np.sin(2 * np.pi * phase + 1) + 0.2 * np.sin(4 * np.pi * phase))[:, None]
+    f0 = 300.0
+    u = effects.harmonic_response(model, pat, c, f0)
     free = model.free_dofs
     k_ff, m_ff = (a.toarray() for a in model.reduced_matrices())
     spec = np.fft.rfft(c, axis=0)
     out = np.zeros((spec.shape[0], model.mesh.n_nodes, 3), complex)
-    for k in range(3):  # c has harmonics 0..2 only
-        a = k_ff * (1 + 1j * effects.STRUCTURAL_LOSS) - (2 * np.pi * f0 * k) ** 2 * m_ff
+    for k in range(4):  # c has harmonics 0..3 only; the mean is static
+        loss = effects.STRUCTURAL_LOSS if k else 0.0
+        a = k_ff * (1 + 1j * loss) - (2 * np.pi * f0 * k) ** 2 * m_ff
         x = np.zeros(model.n_dofs, complex)
         x[free] = np.linalg.solve(a, pat.loads[free] @ spec[k])
         out[k] = model.vertex_displacements(x.real) + 1j * model.vertex_displacements(x.imag)
     direct = np.fft.irfft(out, n=32, axis=0)
-    err = np.linalg.norm(ritz - direct) / np.linalg.norm(direct - direct.mean(0))
+    d_spec, u_spec = np.fft.rfft(direct, axis=0), np.fft.rfft(u, axis=0)
+    errors = [np.linalg.norm(u_spec[k] - d_spec[k]) / np.linalg.norm(d_spec[k]) for k in range(4)]
     quasi = effects.quasi_static(pat, c)
     size = np.linalg.norm(direct - quasi) / np.linalg.norm(quasi - quasi.mean(0))
-    print(f"Ritz vs direct: {err:.2e} relative; inertia changes the motion by {100 * size:.0f}%")
-    assert err < 1e-3 and size > 0.05
+    print(f"per harmonic relative error {errors}; inertia changes the motion by {100 * size:.0f}%")
+    assert max(errors) < 1e-8 and size > 0.5
 
 
 def test_bernoulli_profile_cases():
