@@ -45,6 +45,9 @@ class Baseline:
     model : the run's own :class:`vfcli.model.fem.ElasticModel` (its mesh, E, nu and density: the
         one the run was fitted with, :func:`vfcli.store.fit.run_model`), or None when unknown (then a
         candidate that needs K or M builds a default-material model of the mesh, which scales its columns).
+    finer_model : None, or a callable returning the run's folds and material on a finer mesh
+        (:func:`vfcli.model.refine.finer_model`; the stage sets it): a term states from it how far the fit
+        mesh's discretisation moves its parameter (:meth:`vfcli.diagnose.candidates.inertia.Inertia.mesh_sd`).
     """
 
     problem: object
@@ -53,6 +56,7 @@ class Baseline:
     frames: list
     f0_hz: float = float("nan")
     model: object | None = None
+    finer_model: object | None = None
 
     @classmethod
     def at(cls, problem, x: np.ndarray, f0_hz: float = float("nan"), model=None) -> "Baseline":

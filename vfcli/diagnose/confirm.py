@@ -93,7 +93,12 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     log.info("refit of %s: %.0f s (%d iterations); held out cycles %.0f s, instruments %.0f s", candidate.name,
              t1 - t0, len(result.history["iteration"]) - 1, t2 - t1, t3 - t2)
     held = tuple(h for h in (cyc, inst) if h is not None)
-    sd, name, dof, _ = heldout_sd(result.theta, result.sd, held)
+    mesh_sd = getattr(candidate, "mesh_sd", None)
+    t4 = time.perf_counter()
+    mesh = mesh_sd(baseline, result.theta) if callable(mesh_sd) else None
+    if mesh is not None:
+        log.info("mesh part of %s: %s (%.0f s)", candidate.name, np.round(mesh, 6), time.perf_counter() - t4)
+    sd, name, dof, _ = heldout_sd(result.theta, result.sd, held, mesh)
     conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof)
     ext = extended_baseline(baseline, result)
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)

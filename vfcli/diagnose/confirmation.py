@@ -84,7 +84,8 @@ class HeldOutError:
                 **({"theta": np.asarray(self.theta, float).tolist()} if self.theta is not None else {})}
 
 
-def heldout_sd(theta: np.ndarray, sd: np.ndarray, heldout) -> tuple[np.ndarray, str, float, dict]:
+def heldout_sd(theta: np.ndarray, sd: np.ndarray, heldout, mesh_sd: np.ndarray | None = None
+               ) -> tuple[np.ndarray, str, float, dict]:
     """The refitted parameters' stated standard deviation with what the held-out fits say apart, and its name.
 
     The sandwich over frames (:func:`vfcli.diagnose.refit.sandwich_theta`) measures how the noise moves
@@ -100,10 +101,16 @@ def heldout_sd(theta: np.ndarray, sd: np.ndarray, heldout) -> tuple[np.ndarray, 
       difference is what the vibrometer alone moves; its square is added (one sample of that
       disagreement, as optimize states the instruments' part of its uncertainty).
 
+    and a bias no refit on the same mesh sees:
+
+    * **mesh** (``mesh_sd``, the term's :meth:`mesh_sd`): how far the fit mesh's discretisation moves theta,
+      from the same folds on a finer mesh; its square is added.
+
     Parameters
     ----------
     theta : (p,) the refit on the whole window.  sd : (p,) its sandwich standard deviation.
     heldout : the :class:`HeldOutError` records (those without ``theta`` are ignored).
+    mesh_sd : (p,) the mesh part, or None (not stated).
 
     With G groups the jackknife's variance has G - 1 degrees of freedom (exactly so for a location model
     with normal group effects): where it sets the sd, the 95 % interval is Student's t with G - 1 degrees
@@ -111,14 +118,14 @@ def heldout_sd(theta: np.ndarray, sd: np.ndarray, heldout) -> tuple[np.ndarray, 
 
     Returns
     -------
-    sd : (p,) stated standard deviation ``sqrt(max(sd^2, var_J) + (theta_camera - theta)^2)``.
-    name : which parts entered, e.g. "sandwich, cycles jackknife and instruments".
+    sd : (p,) stated standard deviation ``sqrt(max(sd^2, var_J) + (theta_camera - theta)^2 + mesh_sd^2)``.
+    name : which parts entered, e.g. "sandwich, cycles jackknife, instruments and mesh".
     dof : degrees of freedom of sd (infinite unless the jackknife exceeds the sandwich for some parameter).
-    parts : {"sandwich", "jackknife", "instruments": (p,) standard deviations or None}.
+    parts : {"sandwich", "jackknife", "instruments", "mesh": (p,) standard deviations or None}.
     """
     theta, sd = np.asarray(theta, float).reshape(-1), np.asarray(sd, float).reshape(-1)
     var = np.where(np.isfinite(sd), sd, 0.0) ** 2
-    parts: dict = {"sandwich": sd, "jackknife": None, "instruments": None}
+    parts: dict = {"sandwich": sd, "jackknife": None, "instruments": None, "mesh": None}
     names = ["sandwich"] if np.all(np.isfinite(sd)) else []
     dof = float("inf")
     for h in heldout:
@@ -138,6 +145,11 @@ def heldout_sd(theta: np.ndarray, sd: np.ndarray, heldout) -> tuple[np.ndarray, 
             var = var + d * d
             parts["instruments"] = np.abs(d)
             names.append("instruments")
+    if mesh_sd is not None and np.all(np.isfinite(mesh_sd)):
+        m = np.asarray(mesh_sd, float).reshape(theta.shape)
+        var = var + m * m
+        parts["mesh"] = np.abs(m)
+        names.append("mesh")
     name = ", ".join(names[:-1]) + (" and " if len(names) > 1 else "") + names[-1] if names else "none"
     out = np.sqrt(var) if names else np.full(theta.shape, np.nan)
     return out, name, dof, parts

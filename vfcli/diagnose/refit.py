@@ -29,7 +29,9 @@ its own size, and loads fitted to the quasi-static model are far from the loads 
 (on an inertia phantom E at the baseline's loads was 5 to 23 times the baseline's at the start
 densities, and 0.48 times it at rho = 1 once the loads were refitted with the dynamics).  Its start
 values are each given Gauss-Newton steps of the loads under that response until E settles
-(:data:`START_STEPS`, :data:`START_RTOL`).
+(:data:`START_STEPS`, :data:`START_RTOL`).  When its steps settle, a candidate with ``recentre(baseline,
+theta)`` (inertia: the Ritz reduction's shifts, exact at one density only) may rebuild its response about the
+estimate; the steps then continue from the same (x, theta), at most :data:`MAX_RECENTRES` times.
 For the other candidates the x-columns are those of the baseline response, dU0/dx: the change of D
 with x is left out of the step (D is small next to U0, and the truth remains a fixed point when the
 residual vanishes, since the theta gradient is exact and the x gradient vanishes with the residual).
@@ -64,6 +66,8 @@ from vfcli.diagnose.candidate import Baseline
 FTOL = 1e-6
 #: backtracking halvings of a step before the refit stops
 MAX_HALVINGS = 6
+#: rounds of ``candidate.recentre`` (a response rebuilt about the estimate) after the Gauss-Newton steps
+MAX_RECENTRES = 3
 #: at most this many Gauss-Newton steps of the loads at each start value of a candidate with its own
 #: response, until E decreases by less than START_RTOL (relative) in a step: from loads fitted without the
 #: term E can be 100 times its minimum at that theta (inertia phantom seed 37, rho = 0.5: 12070 -> 155,
@@ -264,9 +268,41 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
     if theta0 is None and not fixed_theta:
         st = _best_start(ext, st, getattr(candidate, "start_values", ()))
     record(0, st, 0.0)
+    st, blocks, converged, it = _gauss_newton(ext, st, max_iterations, fixed_theta, record, 0)
+    recentre = getattr(candidate, "recentre", None)
+    for _round in range(MAX_RECENTRES if ext.p and theta0 is None and not fixed_theta and callable(recentre) else 0):
+        # the candidate's response rebuilt about the estimate (inertia's shifted Ritz vectors): the same
+        # (x, theta) under it, then Gauss-Newton again, until the estimate stays near the centre.  Fits that
+        # start at a given theta (the held-out fits, from the refit's estimate) keep the centre they find
+        if not recentre(ext.baseline(None, None, []), st.theta):
+            break
+        ext._problems.clear()
+        st = ext.state(st.x, st.theta)
+        record(it, st, 0.0)
+        st, blocks, converged, it = _gauss_newton(ext, st, max_iterations, fixed_theta, record, it)
+    if stated:
+        blocks = _blocks(ext, st) if blocks is None else blocks
+        cov_laplace, kappa = laplace(ext, st, blocks)
+        cov = sandwich_theta(ext, st, blocks)[0] if ext.p else cov_laplace
+    else:
+        cov_laplace = cov = np.full((ext.p, ext.p), np.nan)
+        kappa = float("nan")
+    history = {k: np.asarray(v, dtype=float) for k, v in hist.items()}
+    history["theta"] = history["theta"].reshape(len(hist["iteration"]), ext.p)
+    names = tuple(candidate.parameter_names) if candidate is not None else ()
+    return RefitResult(candidate.name if candidate is not None else "", names, st.theta.copy(),
+                       np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, st.x.copy(), st.disp, history,
+                       bool(converged), float(kappa), "sandwich",
+                       np.sqrt(np.maximum(np.diag(cov_laplace), 0.0)))
+
+
+def _gauss_newton(ext: _Extended, st: _State, max_iterations: int, fixed_theta: bool, record, it0: int):
+    """Gauss-Newton steps of (x, theta) from ``st`` (module docstring): (state, its blocks or None,
+    converged, last iteration number); ``record(it, state, step)`` after each accepted step."""
     converged = False
     blocks = None
-    for it in range(1, max_iterations + 1):
+    it = it0
+    for it in range(it0 + 1, it0 + max_iterations + 1):
         blocks = _blocks(ext, st)
         g_l, qm, g_c, h_lc, h_cc, _ = blocks
         solved = qm.hessian.solve(np.column_stack([g_l, h_lc]))
@@ -297,20 +333,7 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
         if rel < FTOL:
             converged = True
             break
-    if stated:
-        blocks = _blocks(ext, st) if blocks is None else blocks
-        cov_laplace, kappa = laplace(ext, st, blocks)
-        cov = sandwich_theta(ext, st, blocks)[0] if ext.p else cov_laplace
-    else:
-        cov_laplace = cov = np.full((ext.p, ext.p), np.nan)
-        kappa = float("nan")
-    history = {k: np.asarray(v, dtype=float) for k, v in hist.items()}
-    history["theta"] = history["theta"].reshape(len(hist["iteration"]), ext.p)
-    names = tuple(candidate.parameter_names) if candidate is not None else ()
-    return RefitResult(candidate.name if candidate is not None else "", names, st.theta.copy(),
-                       np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, st.x.copy(), st.disp, history,
-                       bool(converged), float(kappa), "sandwich",
-                       np.sqrt(np.maximum(np.diag(cov_laplace), 0.0)))
+    return st, blocks, converged, it
 
 
 def _best_start(ext: _Extended, st: _State, values) -> _State:

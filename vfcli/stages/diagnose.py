@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +24,7 @@ from vfcli.diagnose.cycles import TooFewCycles
 from vfcli.diagnose.residual import rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
+from vfcli.model.refine import finer_model
 from vfcli.parallel import serial_map
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
@@ -91,6 +93,7 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
                              f"controls, {len(problem.sim_times)} times against {len(stored.controls)}, "
                              f"{len(stored.sim_time)}); rerun `vfcli optimize --run {run}`", reader.path)
     baseline = Baseline.at(problem, stored.controls, model=run_model(reader))
+    baseline.finer_model = partial(finer_model, cfg.mesh, baseline.model)
     worst = float(np.max(np.abs(baseline.displacements - stored.displacements)))
     scale = float(np.max(np.abs(stored.displacements))) or 1.0
     if worst > _REBUILD_TOL_MM + 1e-5 * scale:

@@ -40,6 +40,16 @@ from vfcli.model.response.steady_state import SteadyStateResponse
 
 log = logging.getLogger(__name__)
 
+#: largest relative distance in frequency, ``|sqrt(rho / centre) - 1|``, between the refit's density and the
+#: density the shifted Ritz vectors are centred on before :meth:`Inertia.recentre` rebuilds them
+RECENTRE_TOL = 0.01
+
+
+def complete_expansion(model) -> bool:
+    """True when every fold of ``model`` is small enough for the complete modal expansion (at most
+    :data:`vfcli.model.response.modal.COMPLETE_MAX_DOFS` free DOFs), exact at any density."""
+    return max(len(f.free) for f in model.folds) <= COMPLETE_MAX_DOFS
+
 
 def elastic_model_of(baseline):
     """The baseline's :class:`vfcli.model.fem.ElasticModel`: ``baseline.model`` (the run's own: its
@@ -100,6 +110,8 @@ class Inertia(DisplacementTerm):
         self.model = model
         self._cache: tuple = (None, None, None)      # (response, model, its mass responses)
         self._own: tuple = (None, None)              # (mesh, the default model built for it)
+        self._reduced: list = []                     # [(key, reduction)]: centre 1 and at most one other
+        self._centre: tuple = (None, 1.0)            # (response, the density the refit re-centred on)
 
     def _model(self, baseline):
         return term_model(self, baseline)
@@ -141,15 +153,16 @@ class Inertia(DisplacementTerm):
         loss :attr:`loss`), linear in the loads (the confirmation refit fits the loads with it)."""
         rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
         p = baseline.problem
-        return SteadyStateResponse(p.response, self.reduction(baseline, self.n_harmonics), baseline.f0_hz,
+        red = self.reduction(baseline, self.n_harmonics, self.centre(baseline))
+        return SteadyStateResponse(p.response, red, baseline.f0_hz,
                                    p.sim_times, density=rho, loss=self.loss, n_harmonics=self.n_harmonics)
 
     def lowest_mode_hz(self, baseline) -> float:
         """The folds' lowest natural frequency at the model's density (clamped fixture), Hz: from the
         modal reduction when it is built, else one shift-invert eigenpair per fold."""
-        cached = getattr(self, "_reduced", (None, None))
-        if cached[1] is not None and cached[0][0] is baseline.problem.response:
-            return float(cached[1].fold_frequencies_hz_.min())
+        for key, red in self._reduced:
+            if key[0] is baseline.problem.response and len(red.fold_frequencies_hz_):
+                return float(red.fold_frequencies_hz_.min())
         model = self._model(baseline)
         return float(min(model.modes(1, fold=k)[0][0] for k in (0, 1)))
 
@@ -172,26 +185,79 @@ class Inertia(DisplacementTerm):
                 f"near the model's own density (1) is not seen by it; its profile (the loads refitted at each of "
                 f"{', '.join(f'{v:g}' for v in self.start_values)}) is")
 
-    def reduction(self, baseline, n_harmonics: int = 6) -> ModalReduction:
+    def reduction(self, baseline, n_harmonics: int = 6, centre: float = 1.0) -> ModalReduction:
         """The modal reduction of the baseline's model and load patterns, built once per response,
-        model and f0: the complete modal expansion (exact at any density and retardation time) when
-        each fold has at most :data:`vfcli.model.response.modal.COMPLETE_MAX_DOFS` free DOFs (a run's
-        2.5 mm mesh: 3480), else the Ritz reduction with shifted Ritz vectors at the harmonics ``k f0``
-        (k = 1..n_harmonics; exact there at density factor 1 without damping, not at other densities)."""
+        model, f0 and centre: the complete modal expansion (exact at any density and retardation time)
+        when each fold has at most :data:`vfcli.model.response.modal.COMPLETE_MAX_DOFS` free DOFs (a run's
+        2.5 mm mesh: 3480), else the Ritz reduction with shifted Ritz vectors at the harmonics
+        ``k f0 sqrt(centre)`` (k = 1..n_harmonics): exact there at density factor ``centre`` without
+        damping, not at other densities (:meth:`recentre`)."""
         response = baseline.problem.response
         model = self._model(baseline)
-        key = (response, model, float(baseline.f0_hz), int(n_harmonics))
-        cached = getattr(self, "_reduced", (None, None))
-        if cached[0] != key:
-            loads = response.load_model.spatial_loads(model)
-            if max(len(f.free) for f in model.folds) <= COMPLETE_MAX_DOFS:
-                red = ModalReduction.complete(model, loads)
-            else:
-                shifts = baseline.f0_hz * np.arange(1, n_harmonics + 1) if np.isfinite(baseline.f0_hz) else ()
-                red = ModalReduction(model, loads, shifts_hz=shifts)
-            cached = (key, red)
-            self._reduced = cached
-        return cached[1]
+        complete = complete_expansion(model)
+        centre = 1.0 if complete else float(centre)
+        key = (response, model, float(baseline.f0_hz), int(n_harmonics), centre)
+        for k, red in self._reduced:
+            if k == key:
+                return red
+        loads = response.load_model.spatial_loads(model)
+        if complete:
+            red = ModalReduction.complete(model, loads)
+        else:
+            shifts = (baseline.f0_hz * np.sqrt(centre) * np.arange(1, n_harmonics + 1)
+                      if np.isfinite(baseline.f0_hz) else ())
+            red = ModalReduction(model, loads, shifts_hz=shifts)
+        # keep the one at centre 1 (the profile's and damping's) and the newest other one
+        self._reduced = [(k, r) for k, r in self._reduced if k[:4] == key[:4] and k[4] == 1.0][:1] + [(key, red)]
+        return red
+
+    def centre(self, baseline) -> float:
+        """The density factor the reduction of this baseline's response is centred on (1 until :meth:`recentre`)."""
+        response, centre = self._centre
+        return centre if response is baseline.problem.response else 1.0
+
+    def recentre(self, baseline, theta: np.ndarray) -> bool:
+        """Centre the Ritz reduction's shifts on the density factor theta[0] (the refit's estimate) when
+        the harmonics at that density lie more than :data:`RECENTRE_TOL` (relative, in frequency) from the
+        shifts; True if the response changed (the refit then steps again, :mod:`vfcli.diagnose.refit`).
+
+        The shifted Ritz vectors make the steady state exact at their own density only: on a widened
+        phantom's 1.5 mm mesh with shifts at density 1, the 3rd and 4th harmonics of 120 Hz were 0.45 %
+        and 24 % off at density 1.5, 13 % and 88 % at 2 (docs/diagnose.md).  The complete expansion is
+        exact at every density: never re-centred."""
+        rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        if complete_expansion(self._model(baseline)) or not rho > 0:
+            return False
+        if abs(np.sqrt(rho / self.centre(baseline)) - 1.0) <= RECENTRE_TOL:
+            return False
+        self._centre = (baseline.problem.response, rho)
+        return True
+
+    #: lowest modes per fold whose eigenvalues :meth:`mesh_sd` compares
+    n_mesh_modes = 6
+
+    def mesh_sd(self, baseline, theta: np.ndarray) -> np.ndarray | None:
+        """(1,) the mesh part of the density's stated sd: ``|theta| |mean_j (w_j^2 / w'_j^2) - 1|`` over the
+        lowest :attr:`n_mesh_modes` modes of each fold, ``w_j`` on the run's mesh and ``w'_j`` on the same
+        folds ``baseline.finer_model()`` (:mod:`vfcli.model.refine`); None without one.
+
+        The fit finds the density that puts the folds' resonances where the recording has them: a mesh
+        whose omega^2 are stiff by a factor 1 + d needs 1 + d times the density.  On widened phantom 2002's
+        folds d is 0.7 % from 1.5 to 1.25 mm edges (another 0.5 % to 1.0 mm), while the refit's noise-based
+        interval was +-1.4 %: the panel's density estimates came out 1-2 % high, outside it (docs/diagnose.md)."""
+        make = getattr(baseline, "finer_model", None)
+        if not callable(make):
+            return None
+        fine = make()
+        if fine is None:
+            return None
+        model = self._model(baseline)
+        k = self.n_mesh_modes
+        folds = (1,) if model.is_mirrored and fine.is_mirrored else (0, 1)      # mirror images: one is enough
+        ratios = [(model.modes(k, fold=f)[0] / fine.modes(k, fold=f)[0]) ** 2 for f in folds]
+        d = float(np.mean(ratios)) - 1.0
+        rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
+        return np.array([abs(rho) * abs(d)])
 
     def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
         """(F + 1, N, 3) change at density factor theta[0], mm: the periodic steady state with that density
