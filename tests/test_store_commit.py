@@ -349,6 +349,25 @@ def flow_ready(tmp_path_factory) -> Path:
     return slit_store(tmp_path_factory)[0]
 
 
+def test_synth_that_finds_no_room_is_one_line_exit_4_and_leaves_nothing(tmp_path):
+    """`vfcli synth` under a real file-size limit below the size of its truth.h5: it printed libhdf5's
+    traceback and crashed at exit (SIGSEGV, flushing the truth file whose close had failed), as it did on
+    session 21's full /tmp.  Now: one line naming the folder and the limit, exit 4, no folder, no temporary."""
+    out = tmp_path / "raw"
+
+    def limited() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (2_000_000, 2_000_000))
+
+    res = subprocess.run([sys.executable, "-m", "vfcli.cli.main", "synth", str(out), "--seed", "3",
+                          "--set", "synth.duration_s=0.01"], capture_output=True, text=True, env=_env(),
+                         preexec_fn=limited, timeout=600)
+    assert res.returncode == 4, res.stderr[-3000:]
+    assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, res.stderr[-3000:]
+    assert "not enough disk space" in res.stderr and "file-size limit" in res.stderr and str(out) in res.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("limit", [300_000, 3_000_000, 8_000_000])
 def test_flow_that_finds_no_room_is_one_line_exit_4_and_leaves_nothing(flow_ready, tmp_path, limit):
     """`vfcli flow` under a real file-size limit (EFBIG, as ENOSPC on a full disk) below the size

@@ -39,6 +39,7 @@ from vfcli.io.video.base import open_video
 from vfcli.io.video.tiff_avi import write_tiff
 from vfcli.progress import Progress, no_progress
 from vfcli.store import write_truth
+from vfcli.store.parts import is_no_room, no_room_error
 from vfcli.synth.phantom import Recording, make_recording
 from vfcli.stages.base import StageResult
 
@@ -165,8 +166,11 @@ def run_synth(out_dir: str | Path, cfg: RecordingConfig, *, force: bool = False,
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
-    except BaseException:
+    except BaseException as exc:
+        written = sum(f.stat().st_size for f in tmp.rglob("*") if f.is_file()) if tmp.is_dir() else 0
         shutil.rmtree(tmp, ignore_errors=True)
+        if is_no_room(exc):   # a full disk or a file-size limit: one line, exit 4 (not libhdf5's traceback)
+            raise no_room_error(out, written, what=str(out)) from None
         raise
     return StageResult(str(out), "written", {
         "frames": int(rec.frame_times.size),

@@ -266,11 +266,13 @@ def _mb(n: float) -> str:
     return f"{n / 1e6:.1f} MB"
 
 
-def no_room_error(store: Path, needed_bytes: int, free: int | None = None) -> StoreSpaceError:
+def no_room_error(store: Path, needed_bytes: int, free: int | None = None, what: str = "the store"
+                  ) -> StoreSpaceError:
     """The one-line error of a write that ran out of space: about how much it needs, how much
     is free (``free``: measured before the write began, what is free again once the command
     has exited; the files of an aborted write may stay allocated until then, held open by
-    libhdf5 through objects still alive; default: measured now)."""
+    libhdf5 through objects still alive; default: measured now).  ``what``: the thing the command
+    left unchanged (e.g. synth's output folder)."""
     if free is None:
         free = shutil.disk_usage(store.parent).free
     limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
@@ -278,7 +280,7 @@ def no_room_error(store: Path, needed_bytes: int, free: int | None = None) -> St
             f"the process's file-size limit (ulimit -f) is {_mb(limit)}")
     return StoreSpaceError(
         f"not enough disk space for this write: it needs at least {_mb(needed_bytes)}, {room}; "
-        "free some space and run the command again (the store is unchanged and the temporary data are removed)",
+        f"free some space and run the command again ({what} is unchanged and the temporary data are removed)",
         store)
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from vfcli import __version__
 from vfcli.store import layout
 from vfcli.store.frames import COMPRESSIONS
+from vfcli.store.parts import writing
 
 _COMPRESSION = COMPRESSIONS["gzip"]
 
@@ -45,14 +46,13 @@ class TruthWriter:
 
 @contextmanager
 def write_truth(path: str | Path) -> Iterator[TruthWriter]:
-    """Create ``truth.h5`` (overwrites)."""
-    f = h5py.File(path, "w", libver=("v110", "latest"))
-    try:
+    """Create ``truth.h5`` (overwrites).  A failed write (e.g. a full disk) closes the file with
+    :func:`vfcli.store.parts.close_discarding` (libhdf5 would otherwise crash at exit flushing it
+    again); the caller removes it."""
+    with writing(Path(path), libver=("v110", "latest")) as f:
         f.attrs["format"] = "vfcli-phantom-truth"
         f.attrs["generated_by"] = f"vfcli {__version__}"
         yield TruthWriter(f)
-    finally:
-        f.close()
 
 
 def read_truth(path: str | Path, keys: list[str] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
