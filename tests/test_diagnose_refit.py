@@ -262,7 +262,7 @@ def _direct_steady_state(base, density: float, loss: float) -> np.ndarray:
 def test_inertia_refit_recentres_its_reduction_on_the_estimate():
     """Data with twice the folds' density, made by a direct solve per harmonic (the pressure case, 2 mm mesh:
     7029 free DOFs per fold, so inertia uses the Ritz reduction with shifted vectors at k f0, exact at density 1
-    only).  Undamped, that reduction misses the steady state at density 2 by 260 % (measured), the one
+    only).  Undamped, that reduction misses the steady state at density 2 by 245 % (measured), the one
     re-centred there is exact; the refit, re-centring on its estimate, finds 2 within its interval, where it
     stopped at 2.080 +- 0.004 with the reduction at density 1 (measured; 2 re-centrings: 2.073, 2.006)."""
     b0 = pressure_case(24, 4)
