@@ -1,12 +1,12 @@
 """The run's folds on a finer mesh: how far the fit mesh's discretisation moves a fitted parameter.
 
 A P2 model on a tetgen mesh is slightly stiffer than the folds it discretises: the lowest eigenvalues
-(omega^2) of a widened phantom's folds fall by 0.7 % from a 1.5 mm to a 1.25 mm mesh and by another 0.5 %
-to 1.0 mm (docs/diagnose.md, the *mesh* part of the stated uncertainty).  A term whose parameter trades against the stiffness
-(inertia's density factor: the resonances sit at omega^2 ~ K / (rho M)) inherits that bias, and no
-noise-based interval sees it.  :func:`finer_model` builds the same folds with edges
-:data:`REFINEMENT` times shorter; the term compares the two spectra (:meth:`vfcli.diagnose.candidates.
-inertia.Inertia.mesh_sd`).
+(omega^2) of a widened phantom's folds fall by 0.7 % from a 1.5 mm to a 1.25 mm mesh and by another
+0.5 % to 1.0 mm (docs/diagnose.md, the *mesh* part of the stated uncertainty).  A term whose parameter
+trades against the stiffness (inertia's density factor: the resonances sit at omega^2 ~ K / (rho M))
+inherits that bias, and no noise-based interval sees it.  :func:`finer_model` builds the same folds
+with edges :data:`REFINEMENT` times shorter; the term compares the two spectra
+(:meth:`vfcli.diagnose.candidates.inertia.Inertia.mesh_sd`).
 """
 from __future__ import annotations
 
