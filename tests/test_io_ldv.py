@@ -272,6 +272,41 @@ def test_infer_grid_on_a_rotated_jittered_grid_with_the_expected_shape():
     assert np.array_equal(fit.index, np.column_stack([rr.ravel(), cc.ravel()])[perm])
 
 
+@pytest.mark.parametrize("angle", [90.0, -90.0, 60.0, -120.0, 150.0, 170.0])
+def test_a_grid_turned_by_more_than_45_deg_reads_in_the_expected_shape_as_a_rotation(angle):
+    # a 17 x 22 scan registered to a camera turned about its axis: modulo 90 deg its rows are the columns
+    rng = np.random.default_rng(1)
+    rr, cc = np.meshgrid(np.arange(17), np.arange(22), indexing="ij")
+    pts = np.column_stack([cc.ravel() * 0.3, rr.ravel() * 0.3]) + rng.normal(0, 0.02, (374, 2))
+    a = np.radians(angle)
+    rot = pts @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]])
+    fit = infer_grid(rot)
+    assert fit.shape == (17, 22) and fit.complete and fit.message == ""
+    assert fit.turned == (45.0 < angle % 180.0 < 135.0)
+    # each found (row, col) is the drawn one turned by a multiple of 180 deg within the grid
+    idx = np.column_stack([rr.ravel(), cc.ravel()])
+    same = np.array_equal(fit.index, idx)
+    half = np.array_equal(fit.index, [16, 21] - idx)
+    assert same or half
+    # orientation kept: neighbours along a row are one column apart, along the drawn row direction
+    step = rot[1] - rot[0]                                   # drawn col 0 -> col 1 of row 0
+    found = np.radians(fit.angle_deg)
+    along = np.array([np.cos(found), np.sin(found)]) @ step
+    assert abs(abs(along) - 0.3) < 0.06
+
+
+def test_a_square_or_unrelated_grid_is_not_turned():
+    rr, cc = np.meshgrid(np.arange(12), np.arange(10), indexing="ij")
+    fit = infer_grid(np.column_stack([cc.ravel(), rr.ravel()]).astype(float), expected=(10, 12))
+    assert fit.turned and fit.shape == (10, 12)
+    rr, cc = np.meshgrid(np.arange(11), np.arange(10), indexing="ij")
+    fit = infer_grid(np.column_stack([cc.ravel(), rr.ravel()]).astype(float), expected=(10, 12))
+    assert not fit.turned and fit.shape == (11, 10) and "expected 10 x 12" in fit.message
+    rr, cc = np.meshgrid(np.arange(6), np.arange(6), indexing="ij")
+    fit = infer_grid(np.column_stack([cc.ravel(), rr.ravel()]).astype(float), expected=(6, 6))
+    assert not fit.turned and fit.shape == (6, 6) and fit.message == ""
+
+
 def test_infer_grid_reports_an_unexpected_shape():
     rr, cc = np.meshgrid(np.arange(10), np.arange(12), indexing="ij")
     fit = infer_grid(np.column_stack([cc.ravel(), rr.ravel()]).astype(float))

@@ -53,13 +53,15 @@ def turned(request, tmp_path_factory):
     assert attrs["camera_rotation_deg"] == pytest.approx(angle)
     cam = ["--set", "camera.pose='config'", "--set", f"camera.rotation_deg={angle}",
            "--set", f"camera.offset_px=[{offset[0]}, {offset[1]}]"]
-    # the scan grid turns with the camera: at +-90 deg its rows are the camera's columns
-    grid = ["--set", "ingest_ldv.grid_rows=22", "--set", "ingest_ldv.grid_cols=17"] if abs(angle) == 90 else []
+    # the scan grid turns with the camera: at +-90 deg its rows are the camera's columns, and the rig's
+    # 17 x 22 grid is still read as one (vfcli.io.ldv.grid), with the default config
     for args in (["ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms"],
-                 ["ingest-ldv", store, raw / "scan.uff", *grid], ["sync", store], ["flow", store],
+                 ["ingest-ldv", store, raw / "scan.uff"], ["sync", store], ["flow", store],
                  ["mesh", store, "--set", "mesh.target_edge_mm=2.5"]):
         res = run_vfcli(*args, "--config", raw / "recording.toml", *cam)
         assert res.returncode == 0, (args[0], res.stderr)
+    with Store(store).read() as r:
+        assert tuple(r.attrs("ldv")["grid_shape"]) == (17, 22)
     _, config = load_config(raw / "recording.toml", overrides=list(cam[1::2]) + ["optimize.n_frames=40",
                                                                                  "optimize.first_frame=20"])
     return angle, store, config, truth

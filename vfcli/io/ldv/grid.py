@@ -7,6 +7,12 @@ of the nearest-neighbour directions modulo 90 degrees; after rotating the
 points by minus that angle, each axis is split into levels wherever sorted
 coordinates jump by more than ``d / 2``. Columns run along the rotated x,
 rows along the rotated y (the camera convention: columns follow x).
+
+The orientation is found modulo 90 degrees, so a grid turned by about 90 degrees in the
+coordinates' plane (a scan registered to a camera turned by more than 45 degrees about its axis)
+reads with rows and columns swapped.  When that is the expected shape transposed, the other of
+the equivalent orientations is taken (90 degrees on: the found columns become rows, counted
+backwards, a rotation, not a mirror), so the rig's 17 x 22 grid reads as 17 x 22 at any angle.
 """
 from __future__ import annotations
 
@@ -28,11 +34,15 @@ class GridFit:
     spacing : float
         Median nearest-neighbour distance, input units.
     angle_deg : float
-        Grid rotation in the (x, y) plane, degrees in (-45, 45].
+        Grid rotation in the (x, y) plane, degrees in (-45, 45], or in (45, 135] when the grid
+        was turned to the expected shape (``turned``).
     complete : bool
         Every (row, col) cell holds exactly one point.
     message : str
         Empty when the grid has the expected shape and is complete, else what was found.
+    turned : bool
+        The rows and columns first found were the expected shape's columns and rows, and the grid
+        was read 90 degrees on (module docstring).
     """
 
     index: np.ndarray
@@ -41,6 +51,7 @@ class GridFit:
     angle_deg: float
     complete: bool
     message: str
+    turned: bool = False
 
 
 def _levels(v: np.ndarray, gap: float) -> np.ndarray:
@@ -60,8 +71,9 @@ def infer_grid(coords: np.ndarray, expected: tuple[int, int] | None = (17, 22)) 
     coords : (P, 2) or (P, 3) float
         Point coordinates; only x and y are used (z is the height of the surface).
     expected : (rows, cols) or None
-        Expected grid shape (default 17 x 22 = 374 points); a mismatch is
-        reported in ``message``, not raised.
+        Expected grid shape (default 17 x 22 = 374 points); a grid found as its transpose
+        is read 90 degrees on (module docstring); any other mismatch is reported in
+        ``message``, not raised.
 
     Returns
     -------
@@ -96,6 +108,10 @@ def infer_grid(coords: np.ndarray, expected: tuple[int, int] | None = (17, 22)) 
     col = _levels(u, 0.5 * spacing)
     row = _levels(v, 0.5 * spacing)
     shape = (int(row.max()) + 1, int(col.max()) + 1)
+    turned = expected is not None and expected[0] != expected[1] and shape == (expected[1], expected[0])
+    if turned:                        # theta + 90 deg: u' = v, v' = -u
+        row, col = col.max() - col, row
+        shape, theta = (shape[1], shape[0]), theta + 0.5 * np.pi
     cells = row * shape[1] + col
     complete = np.unique(cells).size == p == shape[0] * shape[1]
     msg = ""
@@ -106,4 +122,4 @@ def infer_grid(coords: np.ndarray, expected: tuple[int, int] | None = (17, 22)) 
         msg = (f"scan grid {shape[0]} x {shape[1]} is incomplete or has shared cells "
                f"({p} points, {np.unique(cells).size} distinct cells)")
     return GridFit(np.column_stack([row, col]), shape, spacing, float(np.degrees(theta)),
-                   bool(complete), msg)
+                   bool(complete), msg, bool(turned))
