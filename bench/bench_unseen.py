@@ -40,7 +40,8 @@ Reproduce::
 ``--until flow --keep DIR`` runs the stages up to ``flow`` only; ``--resume --keep DIR`` later runs
 the rest on the same stores (the records of the stages already run are kept), then scores.
 
-``--duration`` must hold optimize's window (``optimize.n_frames``, 84 frames at 10 kHz by default).
+``--duration`` must hold optimize's window (``optimize.n_frames``, one glottal cycle by default: 84 frames at 120 Hz
+and 10 kHz).
 """
 from __future__ import annotations
 

@@ -250,7 +250,9 @@ class OptimizeConfig(_Section):
         "model), 'lbfgs' (exact gradients), 'paper' (finite-difference gradient descent)")
     max_iterations: int = Field(60, ge=1, le=100000, description="Iteration limit")
     first_frame: int = Field(0, ge=0, le=10**9, description="First video frame of the window [T1, T2] (index)")
-    n_frames: int = Field(84, ge=2, le=100000, description="Frames in the window (84: one cycle at 120 Hz, 10 kHz)")
+    n_frames: int | None = Field(
+        None, ge=2, le=100000, description="Frames in the window; null (default): one glottal cycle of the video, "
+        "ceil(frame rate / f0) with the video's f0 from sync (84 at 120 Hz and 10 kHz)")
     motion_weight: float = Field(1e-4, ge=0, le=1e6, description="Weight of the motion term, 1/(mm/s)^2")
     gap_weight: float = Field(1.0, ge=0, le=1e6, description="Weight of the arctan gap term (1)")
     gap_length_mm: float = Field(0.25, gt=0, le=10, description="Length scale of the gap term's arctan((d/l)^2), mm")

@@ -238,12 +238,14 @@ def diagnose_skip_reason(ctx: RunContext) -> str | None:
         if not r.has_stage("flow"):
             return None
         from vfcli.stages.diagnose import pressure_f0_hz
+        from vfcli.store.fit import window_frames
 
         area, times = r.read("flow", "glottal_area"), r.read("flow", "frame_time")
         f0 = pressure_f0_hz(r)
-    if len(area) < 4:
-        return f"the recording holds {len(area)} frames: no glottal cycle to judge a residual against"
-    first, n = ctx.config.optimize.first_frame, ctx.config.optimize.n_frames
+        if len(area) < 4:
+            return f"the recording holds {len(area)} frames: no glottal cycle to judge a residual against"
+        n = window_frames(r, ctx.config, float(np.median(np.diff(times))))
+    first = ctx.config.optimize.first_frame
     total, outside = cycles_outside_window(area, float(np.median(np.diff(times))), first, n, f0)
     if outside >= DIAGNOSE_MIN_CYCLES:
         return None

@@ -5,6 +5,8 @@ Shared by the stages that build a run's :class:`vfcli.inverse.problem.Problem` f
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from vfcli.config import RecordingConfig
@@ -15,6 +17,41 @@ from vfcli.model.fem import ElasticModel
 from vfcli.parallel import Mapper
 from vfcli.store.mesh import read_stored_mesh
 from vfcli.store.reader import StoreReader
+
+
+def window_frames(reader: StoreReader, config: RecordingConfig, frame_interval_s: float) -> int:
+    """Frames in the optimize window: ``optimize.n_frames`` when it is set, else one glottal cycle of the
+    video, ``ceil(1 / (f0 dt))`` frames (84 at 120 Hz and 10 kHz), f0 the video's: /sync's
+    ``f0_video_hz``, or without /sync the f0 of /hsc's pressure (:func:`vfcli.sync.f0.estimate_f0` in
+    ``sync.f0_min_hz`` .. ``sync.f0_max_hz``).
+
+    frame_interval_s : dt, the video's frame interval, s.
+
+    Raises
+    ------
+    ConfigError
+        n_frames is not set and the store holds no f0 to count a cycle with.
+    """
+    n = config.optimize.n_frames
+    if n is not None:
+        return int(n)
+    f0 = float("nan")
+    if reader.has_stage("sync"):
+        f0 = float(reader.attrs("sync").get("f0_video_hz", float("nan")))
+    if not (np.isfinite(f0) and f0 > 0) and reader.has_stage("hsc") and "pressure" in reader.group("hsc"):
+        from vfcli.sync.f0 import estimate_f0        # scipy: only when /sync has no f0
+
+        sync = config.sync
+        try:
+            f0 = estimate_f0(reader.read("hsc", "pressure"), float(reader.attrs("hsc")["pressure_fs_hz"]),
+                             (sync.f0_min_hz, sync.f0_max_hz), source="/hsc/pressure")
+        except InputDataError:
+            f0 = float("nan")
+    if not (np.isfinite(f0) and f0 > 0 and frame_interval_s > 0):
+        raise ConfigError("optimize.n_frames is not set and the recording's f0 (one glottal cycle, the default "
+                          "window) cannot be measured: no /sync and no f0 in the video's pressure; set "
+                          "optimize.n_frames")
+    return max(2, math.ceil(1.0 / (f0 * frame_interval_s) - 1e-6))
 
 
 def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> OptimizeInputs:
@@ -32,7 +69,8 @@ def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> Optimi
     cfg = config.optimize
     stored = read_stored_mesh(reader)
     times_all = reader.read("fields", "frame_time")
-    f0, n = cfg.first_frame, cfg.n_frames
+    f0 = cfg.first_frame
+    n = window_frames(reader, config, float(np.median(np.diff(times_all))) if len(times_all) > 1 else 0.0)
     if f0 + n > len(times_all):
         raise ConfigError(f"optimize window: frames {f0}..{f0 + n} but the recording has {len(times_all)}; "
                           "set optimize.first_frame / optimize.n_frames")
