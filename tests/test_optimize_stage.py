@@ -50,6 +50,7 @@ def test_optimize_stores_a_decreasing_history_and_the_motion(store, tmp_path):
         n_nodes = r.read("mesh", "nodes").shape[0]
     assert len(total) == 5 and np.all(np.diff(total) <= 0) and total[-1] < 0.8 * total[0]
     assert disp.shape == (13, n_nodes, 3) and np.abs(disp).max() > 0.01
+    assert (attrs["window_first_frame"], attrs["window_frames"]) == (20, 12)
     assert len(names) == 780 and names[0].startswith("fold0/inferior/x")
     assert plot.stat().st_size > 1000
     truth = read_truth(raw / "truth.h5", [])[1]
@@ -272,3 +273,21 @@ def test_a_configured_pose_with_an_roi_gives_the_fit_of_the_full_frame(tmp_path)
     np.testing.assert_allclose(a_roi["camera_offset_px"], CAMERA.offset_px, atol=1e-12)
     np.testing.assert_allclose(a_full["camera_offset_px"], offset_full, atol=1e-12)
     assert a_roi["pose_source"] == "config"
+
+
+def test_the_default_window_is_one_glottal_cycle_of_the_recording(store):
+    """No optimize.n_frames: the run fits ceil(fps / f0) frames with sync's f0 of the video (the phantom's
+    120 Hz at 10 kHz: 84), reported in its summary and attributes."""
+    path, _ = store
+    res = run_vfcli("optimize", path, "--setup", "3x3x10-one-sided", "--set", "mesh.target_edge_mm=2.5",
+                    "--set", "optimize.max_iterations=1", "--set", "optimize.uncertainty=false", "--run", "cycle",
+                    "--json")
+    assert res.returncode == 0, res.stderr
+    with Store(path).read() as r:
+        attrs = r.attrs("optimize", "cycle")
+        f0 = float(r.attrs("sync")["f0_video_hz"])
+        dt = float(np.median(np.diff(r.read("fields", "frame_time"))))
+        n_sim = len(r.read("optimize", "sim_time", "cycle"))
+    assert abs(f0 - 120.0) < 0.5
+    assert attrs["window_frames"] == int(np.ceil(1.0 / (f0 * dt) - 1e-6)) == 84 == n_sim - 1
+    assert '"window": "frames 0-83"' in res.stdout

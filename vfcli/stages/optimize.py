@@ -205,7 +205,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         s.put("kept_controls", np.asarray(result.kept_x))
         for key in ("iteration", "total", "motion", "gap", "ridge", "step", "wall_time", "n_evals"):
             s.put(f"history_{key}", np.asarray(h[key]))
-        s.set_attrs(setup=cfg.setup if cfg.loads != "pressure" else "pressure", loads=cfg.loads,
+        s.set_attrs(window_first_frame=int(cfg.first_frame), window_frames=int(problem.n_frames),
+                    setup=cfg.setup if cfg.loads != "pressure" else "pressure", loads=cfg.loads,
                     ridge_weight=problem.settings.ridge_weight, motion_outside=problem.settings.outside,
                     method=cfg.method, converged=bool(result.converged),
                     message=str(result.message), px_per_mm=problem.camera.px_per_mm, **setup_summary(setup), **unc)
@@ -217,6 +218,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             "E_start": float(h["total"][0]),
             "evaluations": int(h["n_evals"][-1]),
             "wall_time_s": round(float(h["wall_time"][-1]), 1),
+            "window": f"frames {cfg.first_frame}-{cfg.first_frame + problem.n_frames - 1}",
             "converged": bool(result.converged),
             "pose": setup.pose_source,
             "ridge_weight": problem.settings.ridge_weight,
