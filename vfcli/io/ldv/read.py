@@ -222,7 +222,7 @@ def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_uni
         notes.append(grid.message)
     if grid.turned:
         logger.info("%s: scan grid read as %d x %d with its rows along the coordinates' x axis (turned by %.0f deg)",
-                 path, grid.shape[0], grid.shape[1], grid.angle_deg)
+                    path, grid.shape[0], grid.shape[1], grid.angle_deg)
     flags, reasons = detect_dropouts(vel, fs)
     if flags.any():
         notes.append(f"{int(flags.sum())} of {p} points flagged for signal dropout")
