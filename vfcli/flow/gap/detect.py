@@ -161,8 +161,9 @@ def gap_threshold(
     if separation < MIN_SEPARATION:
         log.warning(
             "gap threshold: no distinct edge between gap and surface (Otsu separation %.2f < %.1f, "
-            "e.g. dark medial walls seen edge-on); using the gap-core level %.1f counts instead of %.1f. "
-            "Set flow.threshold by hand if the gap mask looks wrong",
+            "e.g. dark medial walls seen edge-on, or a blurred slit); using the gap-core level %.1f counts instead "
+            "of %.1f. Check the detected gap outlined on four frames of a cycle in `vfcli report`'s page; set "
+            "flow.threshold by hand only if it misses the gap",
             separation, MIN_SEPARATION, core_threshold, threshold,
         )
         return core_threshold
