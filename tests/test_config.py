@@ -64,6 +64,16 @@ def test_file_then_overrides(tmp_path):
     assert again == stored
 
 
+def test_null_unsets_a_field_that_may_be_unset_and_is_refused_for_one_that_may_not(tmp_path):
+    cfg = tmp_path / "rec.toml"
+    cfg.write_text("[optimize]\nn_frames = 50\n")
+    stored, effective = load_config(cfg, None, ["optimize.n_frames=null", "name='null'"])
+    assert stored.optimize.n_frames == 50 and effective.optimize.n_frames is None     # one glottal cycle
+    assert effective.name == "null"                                                  # quoted: the string
+    with pytest.raises(ConfigError, match="camera.px_per_mm = None"):
+        load_config(cfg, None, ["camera.px_per_mm=null"])
+
+
 @pytest.mark.parametrize(
     "text, needle",
     [

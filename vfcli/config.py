@@ -423,7 +423,11 @@ def _validate(data: dict[str, Any], source: str) -> RecordingConfig:
 
 
 def _parse_value(text: str) -> Any:
-    """A ``--set`` value: TOML/JSON literal when it parses as one, else the plain string."""
+    """A ``--set`` value: TOML/JSON literal when it parses as one, ``null`` for none (a field that may be
+    unset, e.g. ``optimize.n_frames=null``: one glottal cycle; TOML has no null), else the plain string
+    (``'"null"'`` for the string)."""
+    if text == "null":
+        return None
     try:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:

@@ -31,7 +31,7 @@ def run_options(func: Callable[..., Any]) -> Callable[..., Any]:
     """--config, --set, --force, --quiet, --json, -v: the options every command that runs work shares."""
     for option in reversed([
         click.option("--config", "config_path", type=click.Path(dir_okay=False), help="recording.toml; stored with the recording (replaces the stored config)."),
-        click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value for this run (repeatable)."),
+        click.option("--set", "overrides", multiple=True, metavar="SECTION.FIELD=VALUE", help="Override one config value for this run (repeatable; null unsets a field that may be unset)."),
         click.option("--force", is_flag=True, help="Rerun even when inputs and config are unchanged."),
         click.option("--quiet", "-q", is_flag=True, help="Print errors only (no progress bars, summary or warnings)."),
         click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary (JSON) on stdout."),
