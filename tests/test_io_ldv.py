@@ -295,7 +295,7 @@ def test_a_grid_turned_by_more_than_45_deg_reads_in_the_expected_shape_as_a_rota
     assert abs(abs(along) - 0.3) < 0.06
 
 
-def test_a_square_or_unrelated_grid_is_not_turned():
+def test_only_the_expected_shape_transposed_is_turned_not_a_square_or_other_grid():
     rr, cc = np.meshgrid(np.arange(12), np.arange(10), indexing="ij")
     fit = infer_grid(np.column_stack([cc.ravel(), rr.ravel()]).astype(float), expected=(10, 12))
     assert fit.turned and fit.shape == (10, 12)

@@ -244,9 +244,10 @@ def diagnose_skip_reason(ctx: RunContext) -> str | None:
         f0 = pressure_f0_hz(r)
         if len(area) < 4:
             return f"the recording holds {len(area)} frames: no glottal cycle to judge a residual against"
-        n = window_frames(r, ctx.config, float(np.median(np.diff(times))))
+        dt = float(np.median(np.diff(times)))
+        n = window_frames(r, ctx.config, dt)
     first = ctx.config.optimize.first_frame
-    total, outside = cycles_outside_window(area, float(np.median(np.diff(times))), first, n, f0)
+    total, outside = cycles_outside_window(area, dt, first, n, f0)
     if outside >= DIAGNOSE_MIN_CYCLES:
         return None
     return (f"the recording holds {outside} whole glottal cycle(s) outside the fitted window (frames {first}-"
