@@ -13,6 +13,8 @@ and only then, the truth (the gap at pixel centres and the glottal area) is scor
 * glottal area error, total over frames (sum estimated / sum true - 1), and the median relative
   error over frames open more than 10 % of the widest;
 * frames with a gap found / truly open; the estimated blur (px) against the drawn one;
+* whether the flow step found the gap resolved (``FlowCalibration.gap_resolved``: wide enough to show its
+  own level; where not, ``vfcli flow`` warns that the gap is not determined by the video);
 * the gap's length share: its extent along its axis over the whole video, found and true, as a share of
   the glottis in view (:func:`vfcli.flow.plausibility.gap_length_share`, what ``vfcli flow`` warns on
   below :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN`).
@@ -143,8 +145,8 @@ def main() -> None:
         over[k.removeprefix("flow.")] = eval(val)  # noqa: S307 - a bench's own command line
     cfg = FlowConfig(**over)
     print("| seed | blur (px) | est. blur (px) | px/mm | FOV / L | fixture | gap IoU | area error (total) | "
-          "area error (median, open) | frames with gap / open | false | length share found / true | s |")
-    print("| ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
+          "area error (median, open) | frames with gap / open | false | length share found / true | resolved | s |")
+    print("| ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |")
     for seed in args.seeds:
         v = render(seed, args.duration, args.psf, args.fov_rel, args.cache)
         t = time.perf_counter()
@@ -155,7 +157,8 @@ def main() -> None:
         found, true = length_shares(v, masks, seed)
         print(f"| {seed} | {float(v['psf']):.2f} | {est:.2f} | {float(v['px_per_mm']):.1f} | {float(v['fov_rel']):.2f} | "
               f"{'yes' if v['fixture'] else 'no'} | {s['iou']:.3f} | {100 * s['area_total']:+.1f}% | "
-              f"{100 * s['area_median']:.1f}% | {s['found']} | {s['false']} | {found:.2f} / {true:.2f} | {wall:.0f} |",
+              f"{100 * s['area_median']:.1f}% | {s['found']} | {s['false']} | {found:.2f} / {true:.2f} | "
+              f"{'yes' if calib.gap_resolved else 'no'} | {wall:.0f} |",
               flush=True)
 
 

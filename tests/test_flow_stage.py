@@ -161,6 +161,7 @@ def test_gap_iou_and_area_against_the_exact_slit(recording):
     attrs = out["flow_attrs"]
     assert attrs["subpixel_edges"] and 0.1 < attrs["psf_sigma_px"] < 0.5  # 2 x 2 samples, no optics blur: 0.21
     assert abs(attrs["gap_level_counts"] - ph.gap_counts) < 0.1 * ph.gap_counts
+    assert attrs["gap_level_resolved"]          # a 24 px slit shows its own level (tests/test_gap_blur.py: one that does not)
     assert attrs["edge_window_px"] == 15.0 and attrs["edge_window_frames"] == 2  # 1 mm at 15 px/mm, 0.2 ms at 10 kHz
 
 
@@ -422,11 +423,13 @@ def test_a_dark_fixture_border_is_not_taken_for_the_gap(tmp_path, caplog, border
     write_store(path, frames, ph.fps, ph.px_per_mm)
     with caplog.at_level("WARNING", logger="vfcli.flow.pipeline"):
         run_flow(RunContext.open(path, overrides=["flow.threshold=1000"]))
-    warned = [r for r in caplog.records if "sampled frames" in r.getMessage()]
+    # the sample's warnings on the threshold and the fixture (not the unresolved gap's: these 8 frames open once,
+    # to 3.6 px, too seldom to measure the gap's level on each ray)
+    warned = [r for r in caplog.records if "sampled frames" in r.getMessage() and "never resolved" not in r.getMessage()]
     assert not warned
     with Store(path).read() as r:
         masks = r.read("flow", "gap_mask")
-        assert not [w for w in r.summary("flow")["warnings"] if "sampled frames" in w]
+        assert not [w for w in r.summary("flow")["warnings"] if "sampled frames" in w and "never resolved" not in w]
     assert not masks.any(axis=(1, 2)).all()  # closed frames have no gap
     assert masks.any()  # open frames do
     if border:

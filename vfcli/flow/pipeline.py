@@ -34,7 +34,8 @@ from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midl
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
 from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, closed_frames, crease_levels,
                                              detection_levels, dip_minima, search_band)
-from vfcli.flow.gap.subpixel.gap_level import ray_gap_levels
+from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, ray_gap_levels,
+                                               resolved_width_px)
 from vfcli.flow.gap.subpixel.segment import ray_fits
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
@@ -168,6 +169,10 @@ class FlowCalibration:
     midline_line : (n_rays,) float or None
         The midline on each ray, lateral px (:func:`vfcli.flow.gap.detect.midline_line`: the glottis
         at any angle to the image axis); the gap's components are kept near it. None: the gap never opens.
+    gap_resolved : bool
+        The sampled gap is wide enough to show its own level (the channel's darkness) in two frames on at least
+        :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays (:func:`warn_unresolved_gap`); False also
+        without sub-pixel edges.
     """
 
     threshold: float
@@ -179,6 +184,7 @@ class FlowCalibration:
     edge_model: EdgeModel | None
     gap: SubpixelGap | None
     midline_line: np.ndarray | None = None
+    gap_resolved: bool = False
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
@@ -229,7 +235,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
         line = midline_line(centre)
     seen = np.isfinite(centre)
     midline = float(np.median(centre[seen])) if seen.any() else None
-    gap, model = None, None
+    gap, model, resolved = None, None, False
     if cfg.subpixel_edges:
         model = estimate_edge_model(sample, masks, lateral)
         if model is None:
@@ -256,9 +262,9 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
                               ray_crease=ray_crease)
-            gap = _with_ray_gap_levels(sample, masks, gap)
+            gap, resolved = _with_ray_gap_levels(sample, masks, gap)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
-                           line)
+                           line, resolved)
 
 
 #: The rays' gap levels are measured on at most this many sampled frames, those whose rough gap is largest
@@ -266,17 +272,50 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
 RAY_GAP_FRAMES = 16
 
 
-def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> SubpixelGap:
-    """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
+def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> tuple[SubpixelGap, bool]:
+    """(``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
     frames with the largest rough gaps (``masks``, :data:`RAY_GAP_FRAMES`): the edge fit's prior and rule (b)'s
     reference on that ray. The detection levels keep the recording's one level (set from the rays' own, in a
     trial with an earlier form of these levels, the 52 widened seeds of docs/benchmarks.md moved by at most 0.006
-    in IoU)."""
+    in IoU), whether the slit is resolved).
+
+    Where the slit is never resolved (wide enough to show the gap's own level in two of those frames on fewer
+    than :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level), it warns
+    (:func:`warn_unresolved_gap`)."""
     widest = np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES]
     fits = [ray_fits(sample[i], gap) for i in np.sort(widest)]
-    levels = ray_gap_levels(np.stack([e1 - e0 for e0, e1, _ in fits]), np.stack([g for *_, g in fits]),
-                            gap.model.psf_sigma_px, gap.gap_like_below(len(fits[0][0])))
-    return gap if levels is None else replace(gap, ray_gap=levels)
+    widths = np.stack([e1 - e0 for e0, e1, _ in fits])
+    levels = ray_gap_levels(widths, np.stack([g for *_, g in fits]), gap.model.psf_sigma_px,
+                            gap.gap_like_below(len(fits[0][0])))
+    if levels is None:
+        warn_unresolved_gap(widths, gap.model, len(fits))
+        return gap, False
+    return replace(gap, ray_gap=levels), True
+
+
+def warn_unresolved_gap(widths: np.ndarray, model: EdgeModel, n_frames: int) -> None:
+    """Warn that the glottal gap is never resolved: its width and the blur cannot be told apart.
+
+    A slit shows the channel's own darkness only where it is several blur widths wide
+    (:func:`vfcli.flow.gap.subpixel.gap_level.resolved_width_px`); narrower, the image holds only the
+    product of its width and its depth, so edges fitted with the blurred dip's floor as the gap level
+    (the recording's level, :func:`estimate_edge_model`, is then that floor) are not the slit's: on widened
+    phantoms whose gap was never resolved the glottal area read -15 to +256 %, where the resolved ones read
+    within about 10 % (docs/benchmarks.md, "A gap never resolved"), and the analytic slit of
+    tests/test_gap_blur.py under a 3 px blur reads -77 %.
+
+    widths : (k, n_rays) fitted slit widths of the sampled frames with the widest gaps, px (NaN: closed).
+    """
+    need = resolved_width_px(model.psf_sigma_px)
+    w = np.asarray(widths, float)
+    widest = float(np.nanmax(w)) if np.isfinite(w).any() else 0.0
+    log.warning("flow: the glottal gap is never resolved: in the %d sampled frames with the widest gap it opens "
+                "wider than %.1f px (%g blur widths of %.2f px, at least %g px), where a slit shows its own "
+                "darkness, in two frames at fewer than %d places along the glottis (widest fit %.1f px); its edges are fitted to "
+                "the blurred dip, whose floor (%.0f counts) is brighter than the gap, so the gap masks, the glottal "
+                "area and the gap term are not determined by this video (they can be off by a large factor either "
+                "way). For a new recording zoom in or sharpen the focus", n_frames, need, RESOLVED_SIGMAS, model.psf_sigma_px,
+                RESOLVED_MIN_PX, MIN_RAYS, widest, model.gap_counts)
 
 
 def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: float, rotation_deg: float,

@@ -87,6 +87,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         subpixel_edges=gap is not None,
         gap_level_counts=np.nan if model is None else model.gap_counts,
         psf_sigma_px=np.nan if model is None else model.psf_sigma_px,
+        gap_level_resolved=calib.gap_resolved,
         edge_window_px=np.nan if gap is None else float(gap.half_window_px),
         edge_window_frames=-1 if gap is None else int(gap.half_window_frames),
     )
@@ -96,6 +97,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         "threshold": "auto" if calib.auto else "config",
         "method": cfg.method,
         "psf_sigma_px": None if model is None else round(model.psf_sigma_px, 3),
+        "gap_resolved": calib.gap_resolved,
         "open_frames": int((area > 0).sum()),
         "max_area_mm2": round(float(area.max()), 3),
     }

@@ -32,6 +32,12 @@ SMOOTH_RAYS = 9
 MIN_RAYS = 5
 
 
+def resolved_width_px(sigma: float) -> float:
+    """Narrowest slit whose fitted gap level comes from its own pixels, px: :data:`RESOLVED_SIGMAS` PSF
+    standard deviations ``sigma`` (px), at least :data:`RESOLVED_MIN_PX`."""
+    return max(RESOLVED_MIN_PX, RESOLVED_SIGMAS * float(sigma))
+
+
 def ray_gap_levels(widths: np.ndarray, levels: np.ndarray, sigma: float,
                    upper: np.ndarray | None = None) -> np.ndarray | None:
     """Each ray's gap level from the edge fits of sampled frames, counts.
@@ -61,7 +67,7 @@ def ray_gap_levels(widths: np.ndarray, levels: np.ndarray, sigma: float,
     """
     w = np.asarray(widths, float)
     g = np.asarray(levels, float)
-    resolved = np.isfinite(w) & (w >= max(RESOLVED_MIN_PX, RESOLVED_SIGMAS * sigma)) & np.isfinite(g)
+    resolved = np.isfinite(w) & (w >= resolved_width_px(sigma)) & np.isfinite(g)
     if upper is not None:
         resolved &= g < np.asarray(upper, float)[None, :]
     n = resolved.sum(axis=0)
