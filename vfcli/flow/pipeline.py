@@ -273,15 +273,15 @@ RAY_GAP_FRAMES = 16
 
 
 def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> tuple[SubpixelGap, bool]:
-    """(``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
+    """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
     frames with the largest rough gaps (``masks``, :data:`RAY_GAP_FRAMES`): the edge fit's prior and rule (b)'s
     reference on that ray. The detection levels keep the recording's one level (set from the rays' own, in a
     trial with an earlier form of these levels, the 52 widened seeds of docs/benchmarks.md moved by at most 0.006
-    in IoU), whether the slit is resolved).
+    in IoU).
 
-    Where the slit is never resolved (wide enough to show the gap's own level in two of those frames on fewer
-    than :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level), it warns
-    (:func:`warn_unresolved_gap`)."""
+    Returns (gap, resolved). Where the slit is never resolved (wide enough to show the gap's own level in two of
+    those frames on fewer than :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level),
+    ``gap`` is returned unchanged, ``resolved`` is False and it warns (:func:`warn_unresolved_gap`)."""
     widest = np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES]
     fits = [ray_fits(sample[i], gap) for i in np.sort(widest)]
     widths = np.stack([e1 - e0 for e0, e1, _ in fits])
@@ -300,9 +300,9 @@ def warn_unresolved_gap(widths: np.ndarray, model: EdgeModel, n_frames: int) -> 
     (:func:`vfcli.flow.gap.subpixel.gap_level.resolved_width_px`); narrower, the image holds only the
     product of its width and its depth, so edges fitted with the blurred dip's floor as the gap level
     (the recording's level, :func:`estimate_edge_model`, is then that floor) are not the slit's: on widened
-    phantoms whose gap was never resolved the glottal area read -15 to +256 %, where the resolved ones read
-    within about 10 % (docs/benchmarks.md, "A gap never resolved"), and the analytic slit of
-    tests/test_gap_blur.py under a 3 px blur reads -77 %.
+    phantoms whose gap was never resolved the glottal area read -38 to +790 %, and on none within 10 %
+    (docs/benchmarks.md, "A gap never resolved"); the analytic slit of tests/test_gap_blur.py under a 3 px
+    blur reads -77 %.
 
     widths : (k, n_rays) fitted slit widths of the sampled frames with the widest gaps, px (NaN: closed).
     """
@@ -311,11 +311,12 @@ def warn_unresolved_gap(widths: np.ndarray, model: EdgeModel, n_frames: int) -> 
     widest = float(np.nanmax(w)) if np.isfinite(w).any() else 0.0
     log.warning("flow: the glottal gap is never resolved: in the %d sampled frames with the widest gap it opens "
                 "wider than %.1f px (%g blur widths of %.2f px, at least %g px), where a slit shows its own "
-                "darkness, in two frames at fewer than %d places along the glottis (widest fit %.1f px); its edges are fitted to "
-                "the blurred dip, whose floor (%.0f counts) is brighter than the gap, so the gap masks, the glottal "
-                "area and the gap term are not determined by this video (they can be off by a large factor either "
-                "way). For a new recording zoom in or sharpen the focus", n_frames, need, RESOLVED_SIGMAS, model.psf_sigma_px,
-                RESOLVED_MIN_PX, MIN_RAYS, widest, model.gap_counts)
+                "darkness, in two frames at fewer than %d places along the glottis (widest fit %.1f px); its edges "
+                "are fitted to the blurred dip, whose floor (%.0f counts) is brighter than the gap, so the gap "
+                "masks, the glottal area and the gap term are not determined by this video (they can be off by a "
+                "large factor either way). For a new recording zoom in or sharpen the focus",
+                n_frames, need, RESOLVED_SIGMAS, model.psf_sigma_px, RESOLVED_MIN_PX, MIN_RAYS, widest,
+                model.gap_counts)
 
 
 def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: float, rotation_deg: float,
