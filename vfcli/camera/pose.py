@@ -55,6 +55,7 @@ MAX_TRIMS = 5
 
 
 def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The weighted median of values (n,) with weights (n,) >= 0."""
     order = np.argsort(values)
     cum = np.cumsum(weights[order])
     return float(values[order][np.searchsorted(cum, 0.5 * cum[-1])])
@@ -91,15 +92,15 @@ def gap_axis(gap_counts: np.ndarray, prior_deg: float = 0.0, end_px: float = 2.0
     wgt = counts[rows, cols]
     pts = np.stack([cols, rows], axis=1).astype(float)
     keep = np.ones(len(pts), bool)
-    for _ in range(MAX_TRIMS + 1):
+    for _ in range(MAX_TRIMS):
         centre, e = _principal_axis(pts[keep], wgt[keep])
         lateral = np.abs((pts - centre) @ np.array([-e[1], e[0]]))
-        reach = max(TRIM_FACTOR * _weighted_median(lateral[keep], wgt[keep]), TRIM_MIN_PX)
-        again = lateral <= reach
+        again = lateral <= max(TRIM_FACTOR * _weighted_median(lateral[keep], wgt[keep]), TRIM_MIN_PX)
         if np.array_equal(again, keep) or again.sum() < 3:
             break
         keep = again
     rows, cols, pts = rows[keep], cols[keep], pts[keep]
+    centre, e = _principal_axis(pts, wgt[keep])           # the axis of the pixels kept
     d = pts - centre
     angle = np.degrees(np.arctan2(e[1], e[0]))
     angle = prior_deg + ((angle - prior_deg + 90.0) % 180.0) - 90.0   # in [prior - 90, prior + 90)
