@@ -304,6 +304,7 @@ def test_no_gap_in_any_frame_fails_with_advice_and_leaves_the_store(tmp_path):
     line = [x for x in res.stderr.splitlines() if "error" in x]
     assert len(line) == 1 and "no glottal gap in any of the 10 frames" in line[0]
     assert "camera.rotation_deg" in line[0] and "flow.threshold" in line[0] and "Traceback" not in res.stderr
+    assert "never opens wider than about a pixel" in line[0] and "film it closer" in line[0]
     assert path.read_bytes() == before
 
 

@@ -128,7 +128,9 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_count
             f"flow: no glottal gap in any of the {n} frames ({how} threshold {calib.threshold:.1f} counts, gap "
             f"searched along image {_ALONG[calib.lateral_axis]}); check that the glottis opens in view, "
             "camera.rotation_deg with camera.pose (a glottis along the other image axis needs a rotation near "
-            "+-90 deg) and flow.threshold (counts between the gap's and the folds' brightness)")
+            "+-90 deg) and flow.threshold (counts between the gap's and the folds' brightness); a glottis that "
+            "never opens wider than about a pixel (a dark line in every frame) cannot be measured at this zoom: "
+            "film it closer")
     if n >= 8 and open_frames == n:
         log.warning("flow: a glottal gap in all %d frames; the folds close every cycle, so either they never close "
                     "in this recording or the %s threshold %.1f counts segments a dark fixture or shadow: check "
