@@ -37,6 +37,7 @@ from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, clos
 from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, ray_gap_levels,
                                                resolved_width_px)
 from vfcli.flow.gap.subpixel.segment import ray_fits
+from vfcli.flow.gap.subpixel.taper import taper_limits
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
@@ -277,18 +278,20 @@ RAY_GAP_FRAMES = 16
 def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> tuple[SubpixelGap, bool]:
     """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
     frames with the largest rough gaps (``masks``, :data:`RAY_GAP_FRAMES`): the edge fit's prior and rule (b)'s
-    reference on that ray. The detection levels keep the recording's one level (set from the rays' own, in a
-    trial with an earlier form of these levels, the 52 widened seeds of docs/benchmarks.md moved by at most 0.006
-    in IoU).
+    reference on that ray; and, from the same fits, the widest gap each ray may show (:func:`taper_limits`). The
+    detection levels keep the recording's one level (set from the rays' own, in a trial with an earlier form of
+    these levels, the 52 widened seeds of docs/benchmarks.md moved by at most 0.006 in IoU).
 
     Returns (gap, resolved). Where the slit is never resolved (wide enough to show the gap's own level in two of
     those frames on fewer than :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level),
-    ``gap`` is returned unchanged, ``resolved`` is False and it warns (:func:`warn_unresolved_gap`)."""
+    ``gap`` has no per-ray levels (its widths' limits only), ``resolved`` is False and it warns
+    (:func:`warn_unresolved_gap`)."""
     widest = np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES]
     fits = [ray_fits(sample[i], gap) for i in np.sort(widest)]
     widths = np.stack([e1 - e0 for e0, e1, _ in fits])
     levels = ray_gap_levels(widths, np.stack([g for *_, g in fits]), gap.model.psf_sigma_px,
                             gap.gap_like_below(len(fits[0][0])))
+    gap = replace(gap, ray_max_width=taper_limits(widths))
     if levels is None:
         warn_unresolved_gap(widths, gap.model, len(fits))
         return gap, False

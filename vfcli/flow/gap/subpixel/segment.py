@@ -46,6 +46,10 @@ class SubpixelGap:
     ray_gap : (n_rays,) float, optional
         The gap level seen on each ray, counts (:func:`vfcli.flow.gap.subpixel.gap_level.ray_gap_levels`): the
         edge fit's prior and rule (b)'s reference on that ray. None: ``model.gap_counts`` on every ray.
+    ray_max_width : (n_rays,) float, optional
+        The widest gap each ray may show, px (:func:`vfcli.flow.gap.subpixel.taper.taper_limits`: the glottis
+        tapers toward its clamped ends); a ray fitted wider is closed (rule (c) of :func:`raw_edges`). None
+        or inf: no limit.
     """
 
     threshold: float
@@ -58,6 +62,7 @@ class SubpixelGap:
     ray_levels: np.ndarray | None = None
     ray_crease: np.ndarray | None = None
     ray_gap: np.ndarray | None = None
+    ray_max_width: np.ndarray | None = None
 
     def gap_levels(self, n_rays: int) -> np.ndarray:
         """(n_rays,) the gap level of each ray, counts (``ray_gap``, else the model's one level)."""
@@ -101,6 +106,8 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        closed crease, with ``ray_crease``): a dark patch of tissue below the threshold is
        fitted with its own, brighter level. This replaces the dark-core hysteresis of
        :func:`gap_mask`, whose core a narrow, blurred slit never reaches.
+    4. Rule (c): a ray fitted wider than ``ray_max_width`` allows (outside the middle of the glottis, wider
+       than its middle opens) is closed: a dark patch or shadow touching the gap's tip, not the gap.
 
     Parameters
     ----------
@@ -141,6 +148,8 @@ def ray_fits(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarra
     closed = ~(e1 > e0)
     # step 3: whole components with enough rays that hold a pixel of the gap, at the gap's level
     closed |= (component == 0) | (_held_rays(e0, e1, fit.levels[:, 0], component, gap)[component] < gap.median_px)
+    if gap.ray_max_width is not None:
+        closed |= (e1 - e0) > gap.ray_max_width       # rule (c): the glottis tapers toward its ends
     e0[closed] = np.nan
     e1[closed] = np.nan
     return e0, e1, np.where(closed, np.nan, fit.levels[:, 0])
