@@ -80,6 +80,7 @@ def test_a_dark_streak_touching_the_gaps_tip_is_not_gap_and_the_area_holds():
         found += float(np.nansum(seg.e1 - seg.e0))
         true += float(frac.sum())
     band = np.stack(masks)[:, STREAK_ROWS[0] + 3:STREAK_ROWS[1], STREAK_COLS[0]:STREAK_COLS[1]]
-    print(f"frames with the band in the gap mask: {int(band.any(axis=(1, 2)).sum())}; area {100 * (found / true - 1):+.1f} %")
+    print(f"frames with the band in the gap mask: {int(band.any(axis=(1, 2)).sum())}; "
+          f"area {100 * (found / true - 1):+.1f} %")
     assert not band.any()
     assert abs(found / true - 1) < 0.05
