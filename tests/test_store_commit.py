@@ -359,8 +359,12 @@ def test_synth_that_finds_no_room_is_one_line_exit_4_and_leaves_nothing(tmp_path
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         resource.setrlimit(resource.RLIMIT_FSIZE, (2_000_000, 2_000_000))
 
+    # a small phantom (3 s to make, 19 s at the synth's default size): its truth.h5 (12 MB) and scan.uff
+    # (10 MB) are still far above the limit
+    small = ["synth.duration_s=0.01", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
+             "synth.width_px=112", "synth.height_px=112", "synth.px_per_mm=6", "synth.supersample=1"]
     res = subprocess.run([sys.executable, "-m", "vfcli.cli.main", "synth", str(out), "--seed", "3",
-                          "--set", "synth.duration_s=0.01"], capture_output=True, text=True, env=_env(),
+                          *sum((["--set", s_] for s_ in small), [])], capture_output=True, text=True, env=_env(),
                          preexec_fn=limited, timeout=600)
     assert res.returncode == 4, res.stderr[-3000:]
     assert res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, res.stderr[-3000:]
