@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 
 import h5py
+import numpy as np
 import pytest
 
 from _diagnose_phantom import fitted_phantom
@@ -109,3 +110,41 @@ def test_an_unknown_refit_name_is_one_line_and_leaves_the_store_alone(null):
     assert "--refit 'gravity': choose one of auto, none, inertia, damping, asymmetry, offset, contact" in res.stderr
     assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
     assert Store(store).path.stat().st_mtime_ns == before
+
+
+def test_a_leave_cycles_out_fit_leaves_its_start_and_predicts_frames_it_did_not_see(effect):
+    """Each split's baseline refit starts at the whole window's fit.  With the raster refrozen at each
+    trial none of them moved (E rose along every load step), so its "held-out" error was the whole
+    window's fit's own on those frames; with the raster frozen at the start (``frozen``) it reaches the
+    minimum of its own frames' E, and predicts the left-out frames differently."""
+    from vfcli.config import RecordingConfig
+    from vfcli.diagnose.heldout import cycle_groups, prediction_error
+    from vfcli.diagnose.refit import _blocks, _Extended, joint_fit
+    from vfcli.stages.diagnose import read_inputs
+
+    store, _, _, _ = effect
+    with Store(store).read() as r:
+        base = read_inputs(r, RecordingConfig(), "fit").baseline
+    n = base.problem.n_frames
+    groups = cycle_groups(np.zeros(n))            # one "cycle": six blocks, the four inner ones held out
+    assert list(np.unique(groups)) == [-1, 0, 1, 2, 3]
+    for g in (0, 2):
+        held = np.flatnonzero(groups == g)
+        keep = groups != g
+        fit = joint_fit(base.problem, base.x, None, base.f0_hz, keep=keep, max_iterations=3, model=base.model,
+                        stated=False, frozen=True)
+        start, end = fit.history["total"][0], fit.history["total"][-1]
+        print(f"split {g}: E of the kept frames {start:.5g} -> {end:.5g}, |dx| / |x| "
+              f"{np.linalg.norm(fit.x - base.x) / np.linalg.norm(base.x):.3g}")
+        assert end < (1 - 1e-4) * start
+        # at its end the gradient of the kept frames' E (raster frozen at the start) is gone
+        ext = _Extended(base.problem, None, base.f0_hz, base.model, keep)
+        ext.frames = ext.state(np.asarray(base.x, float), np.zeros(0)).frames
+        g0 = _blocks(ext, ext.state(np.asarray(base.x, float), np.zeros(0)), loads_only=True)[0]
+        g1 = _blocks(ext, ext.state(fit.x, np.zeros(0)), loads_only=True)[0]
+        assert np.linalg.norm(g1) < 1e-3 * np.linalg.norm(g0)
+        # and the frames left out are predicted by a fit that did not see them
+        seen = prediction_error(base, base.displacements, held)
+        unseen = prediction_error(base, fit.displacements, held)
+        print(f"  held-out frames: error of the whole window's fit {seen:.4g} mm/s, of the split's fit {unseen:.4g}")
+        assert abs(unseen - seen) > 1e-4 * seen

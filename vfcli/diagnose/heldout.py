@@ -17,7 +17,9 @@ decision can say "beyond the spread" (:class:`vfcli.diagnose.confirmation.HeldOu
 The prediction error of a group is the RMS over its frames of measured minus predicted velocity
 at the pixels compared in the baseline's frozen raster (the same rows for both models), mm/s.
 Both models start from their fits to the whole window (the baseline's x; the extended refit's
-x and theta) and are refitted on the training frames by :func:`vfcli.diagnose.refit.joint_fit`.
+x and theta) and are refitted on the training frames by :func:`vfcli.diagnose.refit.joint_fit`; the
+leave-cycles-out fits with the raster frozen at that start (``frozen``: refrozen at each trial they
+could not leave it, so the held-out frames were predicted by a fit that had seen them).
 """
 from __future__ import annotations
 
@@ -95,9 +97,9 @@ def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndar
         keep = np.ones(len(groups), bool)
         keep[held] = False
         b = joint_fit(baseline.problem, baseline.x, None, baseline.f0_hz, keep=keep,
-                      max_iterations=max_iterations, model=model, stated=False)
+                      max_iterations=max_iterations, model=model, stated=False, frozen=True)
         e = joint_fit(baseline.problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta, keep=keep,
-                      max_iterations=max_iterations, model=model, stated=False)
+                      max_iterations=max_iterations, model=model, stated=False, frozen=True)
         base_err.append(prediction_error(baseline, b.displacements, held))
         ext_err.append(prediction_error(baseline, e.displacements, held))
         thetas.append(e.theta)

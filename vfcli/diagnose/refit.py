@@ -49,7 +49,14 @@ with pixel-quantised silhouettes it was 3 times too narrow.
 
 A subset of the data (held-out splits, :mod:`vfcli.diagnose.heldout`): ``keep`` (F,) bool frames
 (the others contribute nothing to E), and ``problem.with_weights(component_weights=...)`` for the
-instruments (in-plane camera motion only).
+instruments (in-plane camera motion only).  With ``frozen`` the raster stays where it was at the start
+for the whole fit: E is then the Gauss-Newton model's own (quadratic in x at fixed theta for a candidate
+with a response), so a fit that starts at the whole window's fit and leaves frames out reaches the
+minimum of its own data.  Refrozen at each trial it could not move from there: along the load step of a
+split E rose by 1.1-3.1 % (its frozen model predicted a fall of 0.09-0.34 %, and with the raster frozen E
+fell by that much), so every leave-cycles-out fit stopped at its start and its "held-out" error was the
+whole window's fit's (test phantom seed 31, 8 of 8 such fits; docs/benchmarks.md, "Held-out fits that
+did not move (session 25)").
 """
 from __future__ import annotations
 
@@ -156,6 +163,8 @@ class _Extended:
 
     def __init__(self, problem, candidate, f0_hz: float, model, keep):
         self.problem, self.candidate, self.f0_hz, self.model, self.keep = problem, candidate, f0_hz, model, keep
+        #: the frames every state uses when the raster is frozen for the whole fit (None: frozen at each state)
+        self.frames = None
         self.p = int(candidate.n_params) if candidate is not None else 0
         #: the candidate states its extended model as a response (linear in x at fixed theta)
         self.has_response = candidate is not None and callable(getattr(candidate, "response", None))
@@ -190,7 +199,7 @@ class _Extended:
     def state(self, x: np.ndarray, theta: np.ndarray) -> _State:
         u0 = self.problem.displacements(x)
         disp = u0 + self.change(x, u0, theta)
-        frames = masked(self.problem.freeze(x, disp), self.keep)
+        frames = self.frames if self.frames is not None else masked(self.problem.freeze(x, disp), self.keep)
         return _State(x, theta, disp, frames, energy(self.problem, x, disp, frames))
 
     def pull(self, st: _State, grad: np.ndarray) -> np.ndarray:
@@ -239,7 +248,7 @@ def _pinv_sym(a: np.ndarray, rtol: float = 1e-12) -> np.ndarray:
 
 def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan"), theta0=None,
               keep: np.ndarray | None = None, max_iterations: int = 8, model=None,
-              fixed_theta: bool = False, stated: bool = True) -> RefitResult:
+              fixed_theta: bool = False, stated: bool = True, frozen: bool = False) -> RefitResult:
     """Fit the loads x and the candidate's theta jointly by Gauss-Newton (module docstring).
 
     Parameters
@@ -256,11 +265,15 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
         material); default the candidate's own.
     fixed_theta : keep theta at theta0 (refit the loads only, e.g. a held-out prediction).
     stated : compute the stated uncertainty (False: NaN sd and kappa, e.g. the held-out fits).
+    frozen : keep the raster frozen at the start for the whole fit (module docstring; the leave-cycles-out
+        fits).
     """
     t_start = time.perf_counter()
     ext = _Extended(problem, candidate, f0_hz, model, keep)
     theta = np.zeros(ext.p) if theta0 is None else np.asarray(theta0, dtype=float).reshape(ext.p)
     st = ext.state(np.asarray(x0, dtype=float), theta)
+    if frozen:
+        ext.frames = st.frames
     hist = {k: [] for k in ("iteration", "total", "motion", "gap", "ridge", "step", "wall_time", "theta")}
 
     def record(it: int, state: _State, step: float) -> None:
