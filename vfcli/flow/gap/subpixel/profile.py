@@ -86,16 +86,18 @@ def _phi(z: np.ndarray) -> np.ndarray:
 
 
 def _slit_basis(rows: np.ndarray, e0: np.ndarray, e1: np.ndarray, sigma: float):
-    """Basis (n, L, 5) of the blurred slit model and the normalised distances to the edges."""
+    """Basis (n, L, 5) of the blurred slit model, the normal densities and CDFs at the normalised distances
+    to the edges (phi(z0), phi(z1), Phi(z0), Phi(z1), each (n, L))."""
     from scipy.special import ndtr
 
     za = (e0[:, None] - rows) / sigma
     zb = (rows - e1[:, None]) / sigma
     pa, pb = ndtr(za), ndtr(zb)
-    ra = za * pa + _phi(za)
-    rb = zb * pb + _phi(zb)
+    fa, fb = _phi(za), _phi(zb)
+    ra = za * pa + fa
+    rb = zb * pb + fb
     basis = np.stack([1.0 - pa - pb, pa, sigma * ra, pb, sigma * rb], axis=-1)
-    return basis, za, zb, pa, pb
+    return basis, fa, fb, pa, pb
 
 
 def slit_profile_model(rows: np.ndarray, e0: float, e1: float, levels, sigma: float) -> np.ndarray:
@@ -122,9 +124,9 @@ def slit_profile_model(rows: np.ndarray, e0: float, e1: float, levels, sigma: fl
 
 def _slit_levels(data: tuple, e0: np.ndarray, e1: np.ndarray):
     """Linear levels of the slit model for fixed edges: (levels (n, 5), weighted residuals (n, L),
-    cost (n,), (z0, z1, P0, P1, weighted basis (n, L, 5), normal matrix (n, 5, 5)))."""
+    cost (n,), (phi(z0), phi(z1), P0, P1, weighted basis (n, L, 5), normal matrix (n, 5, 5)))."""
     r, y, w, sw, sigma, gap_counts, gap_weight, ridge = data
-    basis, za, zb, pa, pb = _slit_basis(r, e0, e1, sigma)
+    basis, fa, fb, pa, pb = _slit_basis(r, e0, e1, sigma)
     bt = (basis * w[..., None]).transpose(0, 2, 1)
     lhs = bt @ basis
     rhs = (bt @ y[..., None])[..., 0]
@@ -134,7 +136,7 @@ def _slit_levels(data: tuple, e0: np.ndarray, e1: np.ndarray):
     x = np.linalg.solve(lhs, rhs[..., None])[..., 0]
     res = ((basis @ x[..., None])[..., 0] - y) * sw
     cost = (res**2).sum(axis=1) + gap_weight * (x[:, 0] - gap_counts) ** 2
-    return x, res, cost, (za, zb, pa, pb, basis * sw[..., None], lhs)
+    return x, res, cost, (fa, fb, pa, pb, basis * sw[..., None], lhs)
 
 
 def fit_slit_profiles(
@@ -227,11 +229,11 @@ def fit_slit_profiles(
     for _ in range(iterations):
         if act.size == 0:
             break
-        za, zb, pa, pb, bw, lhs = (v[act] for v in aux)
+        fa, fb, pa, pb, bw, lhs = (v[act] for v in aux)
         swa, xa = sw[act], x[act]
         g_lvl, t0, s0, t1, s1 = xa.T
-        d0 = ((t0 - g_lvl)[:, None] * _phi(za) / sigma + s0[:, None] * pa) * swa
-        d1 = (-(t1 - g_lvl)[:, None] * _phi(zb) / sigma - s1[:, None] * pb) * swa
+        d0 = ((t0 - g_lvl)[:, None] * fa / sigma + s0[:, None] * pa) * swa
+        d1 = (-(t1 - g_lvl)[:, None] * fb / sigma - s1[:, None] * pb) * swa
         jac = (d0 + d1)[..., None] if closed else np.stack([d0, d1], axis=-1)
         # variable projection (Kaufman): the Jacobian of the residual with the levels re-solved
         # is the edge derivative projected off the basis (the prior on G is one more row)
