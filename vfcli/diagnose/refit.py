@@ -72,11 +72,11 @@ from vfcli.diagnose.candidate import Baseline
 #: relative decrease of E per iteration below which the refit has converged
 FTOL = 1e-6
 #: backtracking halvings of a step before the refit stops (the shortest step tried: 1/8 of the Gauss-Newton
-#: step).  E is refrozen at each trial (the raster moves with x), so it is rough on a small scale: a step
-#: along which it does not fall at 1/8 of its length is one the linearisation cannot take.  With 6 halvings
-#: (to 1/64) the held-out fits of a refit spent most of their time in such searches (13 of 25 Gauss-Newton
-#: iterations tried 7 steps, 10 of them in vain; the others gained 1e-5 of E) for the same estimates and
-#: held-out errors to 0.05 % (test phantom seed 31, docs/benchmarks.md "The suite's time (session 25)")
+#: step).  E is refrozen at each trial (the raster moves with x): near a minimum it rises along a step the
+#: frozen model says lowers it, and is rough on the scale of single pixels.  With 6 halvings (to 1/64) the
+#: held-out fits of a refit spent most of their time in such searches (13 of 25 Gauss-Newton iterations tried
+#: 7 steps, 10 of them in vain; the others gained 1-3e-5 of E) for the same estimates and held-out errors to
+#: 0.05 % (test phantom seed 31; docs/benchmarks.md, "Held-out fits that did not move (session 25)")
 MAX_HALVINGS = 3
 #: rounds of ``candidate.recentre`` (a response rebuilt about the estimate) after the Gauss-Newton steps
 MAX_RECENTRES = 3
