@@ -139,8 +139,9 @@ def test_a_leave_cycles_out_fit_leaves_its_start_and_predicts_frames_it_did_not_
         assert end < (1 - 1e-4) * start
         # at its end the gradient of the kept frames' E (raster frozen at the start) is gone
         ext = _Extended(base.problem, None, base.f0_hz, base.model, keep)
-        ext.frames = ext.state(np.asarray(base.x, float), np.zeros(0)).frames
-        g0 = _blocks(ext, ext.state(np.asarray(base.x, float), np.zeros(0)), loads_only=True)[0]
+        start_state = ext.state(np.asarray(base.x, float), np.zeros(0))
+        ext.frames = start_state.frames
+        g0 = _blocks(ext, start_state, loads_only=True)[0]
         g1 = _blocks(ext, ext.state(fit.x, np.zeros(0)), loads_only=True)[0]
         assert np.linalg.norm(g1) < 1e-3 * np.linalg.norm(g0)
         # and the frames left out are predicted by a fit that did not see them
