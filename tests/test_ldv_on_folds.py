@@ -59,6 +59,16 @@ def video(tmp_path_factory):
     return shared_phantom_with_hsc(tmp_path_factory, 4, PHANTOM)
 
 
+@pytest.fixture(scope="module")
+def flowed(video, tmp_path_factory):
+    """The phantom's store through `flow` with its own scan: (raw folder, store, flow's result).  /flow
+    reads /hsc only, so the shifted scans below, ingested into copies of it, rerun /fields alone."""
+    raw, hsc = video
+    store = copy_store(hsc, tmp_path_factory.mktemp("ldv_on_folds") / "own.h5")
+    res, _ = _pipeline(store, raw / "scan.uff")
+    return raw, store, res
+
+
 def _pipeline(store, scan):
     """ingest-ldv and sync, then flow: (flow's result, the store's bytes before flow)."""
     for args in (["ingest-ldv", store, scan], ["sync", store]):
@@ -75,18 +85,16 @@ def _shifted(raw, tmp_path, dx_mm: float):
     return write_ldv_uff(tmp_path / f"scan_dx{dx_mm:g}.uff", replace(scan, coords_mm=coords))
 
 
-def test_the_phantoms_own_scan_is_on_the_folds(video, tmp_path):
-    raw, hsc = video
-    store = copy_store(hsc, tmp_path / "rec.h5")
-    res, _ = _pipeline(store, raw / "scan.uff")
+def test_the_phantoms_own_scan_is_on_the_folds(flowed):
+    _, store, res = flowed
     assert res.returncode == 0, res.stderr
     with Store(store).read() as r:
         assert not [w for w in r.summary("fields")["warnings"] if OFF in w]
 
 
-def test_a_scan_shifted_half_past_the_folds_end_is_a_stored_warning(video, tmp_path):
-    raw, hsc = video
-    store = copy_store(hsc, tmp_path / "rec.h5")
+def test_a_scan_shifted_half_past_the_folds_end_is_a_stored_warning(flowed, tmp_path):
+    raw, own, _ = flowed
+    store = copy_store(own, tmp_path / "rec.h5")
     res, _ = _pipeline(store, _shifted(raw, tmp_path, 7.0))
     assert res.returncode == 0, res.stderr
     with Store(store).read() as r:
@@ -100,9 +108,9 @@ def test_a_scan_shifted_half_past_the_folds_end_is_a_stored_warning(video, tmp_p
     assert info.returncode == 0 and OFF in info.stdout
 
 
-def test_a_scan_mostly_off_the_folds_fails_and_leaves_the_store(video, tmp_path):
-    raw, hsc = video
-    store = copy_store(hsc, tmp_path / "rec.h5")
+def test_a_scan_mostly_off_the_folds_fails_and_leaves_the_store(flowed, tmp_path):
+    raw, own, _ = flowed
+    store = copy_store(own, tmp_path / "rec.h5")
     res, before = _pipeline(store, _shifted(raw, tmp_path, 11.0))
     assert res.returncode == 3, res.stderr
     line = res.stderr.strip().splitlines()[-1]
