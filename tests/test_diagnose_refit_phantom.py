@@ -112,6 +112,18 @@ def test_an_unknown_refit_name_is_one_line_and_leaves_the_store_alone(null):
     assert Store(store).path.stat().st_mtime_ns == before
 
 
+def _gradient_left(base, problem, keep, x) -> float:
+    """|grad E(x)| / |grad E(base.x)| of ``problem``'s E on the ``keep`` frames, raster frozen at the baseline's fit."""
+    from vfcli.diagnose.refit import _blocks, _Extended
+
+    ext = _Extended(problem, None, base.f0_hz, base.model, keep)
+    start = ext.state(np.asarray(base.x, float), np.zeros(0))
+    ext.frames = start.frames
+    g0 = _blocks(ext, start, loads_only=True)[0]
+    g1 = _blocks(ext, ext.state(np.asarray(x, float), np.zeros(0)), loads_only=True)[0]
+    return float(np.linalg.norm(g1) / np.linalg.norm(g0))
+
+
 def test_a_leave_cycles_out_fit_leaves_its_start_and_predicts_frames_it_did_not_see(effect):
     """Each split's baseline refit starts at the whole window's fit.  With the raster refrozen at each
     trial none of them moved (E rose along every load step), so its "held-out" error was the whole
@@ -119,7 +131,7 @@ def test_a_leave_cycles_out_fit_leaves_its_start_and_predicts_frames_it_did_not_
     minimum of its own frames' E, and predicts the left-out frames differently."""
     from vfcli.config import RecordingConfig
     from vfcli.diagnose.heldout import cycle_groups, prediction_error
-    from vfcli.diagnose.refit import _blocks, _Extended, joint_fit
+    from vfcli.diagnose.refit import joint_fit
     from vfcli.stages.diagnose import read_inputs
 
     store, _, _, _ = effect
@@ -138,14 +150,37 @@ def test_a_leave_cycles_out_fit_leaves_its_start_and_predicts_frames_it_did_not_
               f"{np.linalg.norm(fit.x - base.x) / np.linalg.norm(base.x):.3g}")
         assert end < (1 - 1e-4) * start
         # at its end the gradient of the kept frames' E (raster frozen at the start) is gone
-        ext = _Extended(base.problem, None, base.f0_hz, base.model, keep)
-        start_state = ext.state(np.asarray(base.x, float), np.zeros(0))
-        ext.frames = start_state.frames
-        g0 = _blocks(ext, start_state, loads_only=True)[0]
-        g1 = _blocks(ext, ext.state(fit.x, np.zeros(0)), loads_only=True)[0]
-        assert np.linalg.norm(g1) < 1e-3 * np.linalg.norm(g0)
+        assert _gradient_left(base, base.problem, keep, fit.x) < 1e-3
         # and the frames left out are predicted by a fit that did not see them
         seen = prediction_error(base, base.displacements, held)
         unseen = prediction_error(base, fit.displacements, held)
         print(f"  held-out frames: error of the whole window's fit {seen:.4g} mm/s, of the split's fit {unseen:.4g}")
         assert abs(unseen - seen) > 1e-4 * seen
+
+
+def test_the_camera_only_fit_reaches_its_own_minimum_and_predicts_the_vibrometer_afresh(effect):
+    """The across-instruments check fits the camera, gap and pressure from the whole window's fit, which saw
+    the vibrometer, and predicts the vertical velocity.  A fit that stayed near that start would predict the
+    vibrometer with loads fitted to it; with the raster frozen at the start it reaches the minimum of the
+    camera's own E (the gradient gone, as the leave-cycles-out fits), and its vertical velocity is its own."""
+    from vfcli.config import RecordingConfig
+    from vfcli.diagnose.heldout import CAMERA_ONLY, prediction_error
+    from vfcli.diagnose.refit import joint_fit
+    from vfcli.stages.diagnose import read_inputs
+
+    store, _, _, _ = effect
+    with Store(store).read() as r:
+        base = read_inputs(r, RecordingConfig(), "fit").baseline
+    camera = base.problem.with_weights(component_weights=CAMERA_ONLY)
+    fit = joint_fit(camera, base.x, None, base.f0_hz, max_iterations=4, model=base.model, stated=False, frozen=True)
+    start, end = fit.history["total"][0], fit.history["total"][-1]
+    left = _gradient_left(base, camera, None, fit.x)
+    frames = np.arange(base.problem.n_frames)
+    seen = prediction_error(base, base.displacements, frames, (2,))
+    unseen = prediction_error(base, fit.displacements, frames, (2,))
+    print(f"camera-only fit: E {start:.5g} -> {end:.5g} in {len(fit.history['total']) - 1} steps, gradient left {left:.2e}; "
+          f"vertical velocity error {seen:.4g} mm/s (whole fit) -> {unseen:.4g} (camera only)")
+    assert end < 0.99 * start
+    assert left < 1e-3
+    assert unseen > seen      # the vibrometer's own data, fitted by the whole window's loads only
+

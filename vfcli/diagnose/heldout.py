@@ -17,9 +17,12 @@ decision can say "beyond the spread" (:class:`vfcli.diagnose.confirmation.HeldOu
 The prediction error of a group is the RMS over its frames of measured minus predicted velocity
 at the pixels compared in the baseline's frozen raster (the same rows for both models), mm/s.
 Both models start from their fits to the whole window (the baseline's x; the extended refit's
-x and theta) and are refitted on the training frames by :func:`vfcli.diagnose.refit.joint_fit`; the
-leave-cycles-out fits with the raster frozen at that start (``frozen``: refrozen at each trial they
-could not leave it, so the held-out frames were predicted by a fit that had seen them).
+x and theta) and are refitted on the training data by :func:`vfcli.diagnose.refit.joint_fit` with the
+raster frozen at that start (``frozen``).  Refrozen at each trial the leave-cycles-out fits could not
+leave it, so the held-out frames were predicted by a fit that had seen them; the camera-only fits did
+move refrozen (2-4 steps on four panel recordings) and gave the same held-out changes within 0.01, but a
+fit that stalls at its start would predict the vibrometer with loads fitted to it, and frozen they
+cost a third less (docs/benchmarks.md, "Held-out fits that did not move").
 """
 from __future__ import annotations
 
@@ -119,9 +122,10 @@ def across_instruments(baseline, candidate, extended: RefitResult, groups: np.nd
         return None
     problem = baseline.problem.with_weights(component_weights=CAMERA_ONLY)
     model = getattr(baseline, "model", None)
-    b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model, stated=False)
+    b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model, stated=False,
+                  frozen=True)
     e = joint_fit(problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta,
-                  max_iterations=max_iterations, model=model, stated=False)
+                  max_iterations=max_iterations, model=model, stated=False, frozen=True)
     base_err = [prediction_error(baseline, b.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
     ext_err = [prediction_error(baseline, e.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
     return HeldOutError("instruments", "mm/s", np.array(base_err), np.array(ext_err),

@@ -265,8 +265,7 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
         material); default the candidate's own.
     fixed_theta : keep theta at theta0 (refit the loads only, e.g. a held-out prediction).
     stated : compute the stated uncertainty (False: NaN sd and kappa, e.g. the held-out fits).
-    frozen : keep the raster frozen at the start for the whole fit (module docstring; the leave-cycles-out
-        fits).
+    frozen : keep the raster frozen at the start for the whole fit (module docstring; the held-out fits).
     """
     t_start = time.perf_counter()
     ext = _Extended(problem, candidate, f0_hz, model, keep)
