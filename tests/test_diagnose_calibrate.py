@@ -23,7 +23,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy import stats
 
-from vfcli.diagnose.calibrate import NullParts, ScoreBasis, calibrate, quadrature_scores, replicate_statistics
+from vfcli.diagnose.calibrate import (NullParts, ScoreBasis, calibrate, detection_thresholds, quadrature_scores,
+                                     replicate_statistics, smallest_detectable, statistics, westfall_young)
 from vfcli.diagnose.candidates.identifiability import load_basis, project_out
 from vfcli.diagnose.candidates.screening import score_test
 from vfcli.parallel import serial_map
@@ -198,3 +199,47 @@ def test_a_one_sided_candidate_keeps_its_level_and_counts_only_the_physical_sign
     wrong, right = np.mean(fam[:, 1] <= ALPHA), np.mean(fam[:, 3] <= ALPHA)
     print(f"unphysical sign found {wrong:.3f}, physical sign found {right:.3f}")
     assert wrong <= ALPHA and right > 0.8, (wrong, right)
+
+
+def test_the_smallest_detectable_size_is_named_about_half_the_time():
+    """:func:`smallest_detectable`: the size of a one-parameter candidate at which the calibrated screening
+    names it about half the time (the noise-only null; its threshold and studentizing covariance do not depend
+    on the window's residual).  Per draw: the limit of candidates 1 (two-sided) and 3 (one-sided), then each
+    present at 0.5, 1 and 2 times it in the window's score (``I_c theta``, the linear model), decided by
+    :func:`westfall_young` against the same replicates.  At the limit itself the one-sided candidate is named
+    when the window's noise score is positive, the two-sided one also far on the other side: 0.5 within
+    binomial error; at twice it nearly always, at half rarely.  And :func:`detection_thresholds` is the edge
+    of the adjusted p-value: just above it a lead, just below not."""
+    jl, q, cands, cols, basis = _problem(0)
+    sided = (False, False, False, True)
+    basis = ScoreBasis(basis.weights, basis.information, basis.identifiable, sided)
+    rng = np.random.default_rng(6)
+    named = {(c, k): [] for c in (1, 3) for k in (0.5, 1.0, 2.0)}
+    limits = []
+    for i in range(N_DRAWS):
+        data = np.repeat((jl @ rng.normal(scale=5.0, size=(jl.shape[1], 1))).T, N_CYCLES, axis=0) + _noise(rng, N_CYCLES)
+        r, cal = _calibrated(data, q, cols, basis, seed=i, model_error_null=False)
+        lim = smallest_detectable(cal, basis.information, ALPHA)
+        assert (lim[[0, 1, 3]] > 0).all() and np.isnan(lim[2])          # candidate 2 has two parameters
+        limits.append(lim)
+        t_star = detection_thresholds(cal.null_statistics, ALPHA)
+        for c in range(4):
+            obs = cal.statistic.copy()
+            for eps, lead in ((1e-9, True), (-1e-9, False)):
+                obs[c] = t_star[c] * (1 + eps)
+                assert (westfall_young(obs, cal.null_statistics)[c] <= ALPHA) == lead, (i, c, eps)
+        u = basis.scores(r)
+        for c in (1, 3):
+            for k in (0.5, 1.0, 2.0):
+                uc = u.copy()
+                at = sum(basis.sizes[:c])                              # its entry in the stacked scores
+                uc[at] += basis.information[c][0, 0] * k * lim[c]      # the candidate present at k times its limit
+                obs = statistics(uc, cal.covariances, basis.identifiable, sided)
+                named[(c, k)].append(westfall_young(obs, cal.null_statistics)[c] <= ALPHA)
+    rate = {key: float(np.mean(v)) for key, v in named.items()}
+    print("named at 0.5, 1, 2 times the limit:", rate, "limits (median):", np.median(limits, axis=0))
+    band = _binomial_band(0.5, N_DRAWS)
+    for c in (1, 3):
+        assert abs(rate[(c, 1.0)] - 0.5) < band, rate
+        assert rate[(c, 2.0)] > 0.9 and rate[(c, 0.5)] < 0.25, rate
+

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from vfcli.diagnose.decide import decide
+from vfcli.diagnose.decide import decide, detection_words
 
 
 @dataclass(frozen=True)
@@ -75,3 +75,24 @@ def test_auto_refits_the_calibrated_lead_first_and_a_profile_lead_only_without_o
     assert choose(quiet, cands, "auto") is None and choose(quiet, cands, "none", profile_leads=("inertia",)) is None
     damped = [Screening(c.name, 1.0, 0.5, True, p_family=0.01 if c.name == "damping" else 0.8) for c in cands]
     assert choose(damped, cands, "auto", profile_leads=("inertia",)).name == "damping"
+
+
+def test_a_term_the_recording_cannot_show_is_said_so_not_called_absent():
+    """The smallest detectable size (vfcli.diagnose.calibrate.smallest_detectable) goes on the line of a candidate
+    that is no lead: beyond the physical full strength, the recording cannot show the term; a lead's line has
+    none of it."""
+    names = ("asymmetry", "contact")
+    limits = {"contact": detection_words("contact_share", 3.2, 1.0, "rigid contact, no interpenetration", True),
+              "asymmetry": detection_words("left_softening", 0.123, one_sided=False)}
+    assert limits["contact"] == ("the screening would name about half the time a contact_share of 3.2 (1: rigid contact, "
+                                 "no interpenetration): this recording cannot show it")
+    assert limits["asymmetry"] == "the screening would name about half the time a left_softening of +-0.123"
+    assert detection_words("contact_share", 0.4, 1.0, "rigid contact", True).endswith("(1: rigid contact)")
+    assert detection_words("x", float("nan")) == "" and "of any size" in detection_words("x", float("inf"))
+    d = decide(names, np.array([0.6, 0.47]), [True, True], 199, limits=limits)
+    line = next(x for x in d.lines if x.startswith("contact:"))
+    assert line.endswith("this recording cannot show it") and "p = 0.47" in line
+    assert d.verdict == "no missing physics detected" and d.limits == limits
+    d = decide(names, np.array([0.01, 0.47]), [True, True], 199, limits=limits)
+    assert "half the time" not in next(x for x in d.lines if x.startswith("asymmetry:"))
+

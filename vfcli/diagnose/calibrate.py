@@ -277,6 +277,8 @@ class Calibration:
     p_family : (C,) family-wise (Westfall-Young min-p) adjusted p-values.
     null_statistics : (C, B) the replicates' statistics.  n_replicates : B.  seed : the bootstrap's seed.
     n_pool_cycles : whole cycles the noise was resampled from.  n_shifts : time shifts of the model error.
+    covariances : per candidate, (p_c, p_c) the covariance the observed scores are studentized by (noise and
+        model error).
     """
 
     statistic: np.ndarray
@@ -287,6 +289,7 @@ class Calibration:
     seed: int
     n_pool_cycles: int
     n_shifts: int
+    covariances: tuple = ()
 
 
 def bootstrap_p_values(observed: np.ndarray, null: np.ndarray) -> np.ndarray:
@@ -309,6 +312,49 @@ def westfall_young(observed: np.ndarray, null: np.ndarray) -> np.ndarray:
     return (1.0 + np.sum(min_p[None, :] <= p_obs[:, None], axis=1)) / (b + 1.0)
 
 
+def detection_thresholds(null: np.ndarray, alpha: float) -> np.ndarray:
+    """(C,) per candidate the statistic its family-wise p-value (:func:`westfall_young` against ``null`` (C, B))
+    falls to ``alpha`` above (an observed statistic larger than it is a lead); inf where no statistic does.
+
+    The adjusted p-value of a statistic T is ``(1 + #{b: min_p_b <= p_c(T)}) / (B + 1)`` with
+    ``p_c(T) = (1 + k) / (B + 1)``, k the replicates of c at or above T: it is at most alpha for the largest
+    k whose p_c still lets at most ``alpha (B + 1) - 1`` replicates' min-p below it, and T must then exceed
+    the (k + 1)-th largest replicate of c."""
+    null = np.asarray(null, dtype=float)
+    c_n, b = null.shape
+    out = np.full(c_n, np.inf)
+    if b == 0:
+        return out
+    srt = -np.sort(-null, axis=1)
+    ge = np.stack([np.searchsorted(-srt[c], -null[c], side="right") for c in range(c_n)])
+    min_p = np.sort(((1.0 + ge) / (b + 1.0)).min(axis=0))
+    k = np.arange(b)
+    family = (1.0 + np.searchsorted(min_p, (1.0 + k) / (b + 1.0), side="right")) / (b + 1.0)   # (B,) at k
+    ok = np.flatnonzero(family <= alpha + 1e-12)
+    if ok.size:
+        out[:] = srt[:, int(ok.max())]
+    return out
+
+
+def smallest_detectable(cal: Calibration, information: Sequence[np.ndarray], alpha: float) -> np.ndarray:
+    """(C,) the smallest size of each one-parameter candidate the calibrated screening names at family-wise
+    ``alpha`` about half the time, in the candidate's units; NaN for a candidate of several parameters or
+    without information, inf where no statistic is a lead.
+
+    In the linearised model a candidate present at theta adds ``I_c theta`` to its score (``A_c`` is the
+    effect's column after the loads' refit), so its studentized statistic gains ``I_c^2 theta^2 / S_c``
+    (S_c: :attr:`Calibration.covariances`): it crosses the threshold T* (:func:`detection_thresholds`) at
+    ``theta = sqrt(T* S_c) / I_c``, the one-step estimate's calibrated sd times sqrt(T*)."""
+    t = detection_thresholds(cal.null_statistics, alpha)
+    out = np.full(len(information), np.nan)
+    for c, info in enumerate(information):
+        info = np.asarray(info, float)
+        if info.shape != (1, 1) or not info[0, 0] > 0 or c >= len(cal.covariances):
+            continue
+        out[c] = np.sqrt(t[c] * float(np.asarray(cal.covariances[c])[0, 0])) / info[0, 0]
+    return out
+
+
 def calibrate(basis: ScoreBasis, residual: np.ndarray, parts: NullParts, n_replicates: int = DEFAULT_REPLICATES,
               seed: int = 0, map: Callable = builtins.map) -> Calibration:
     """Calibrated p-values of every candidate on ``residual`` (m,) against the null replicates (module docstring).
@@ -324,4 +370,4 @@ def calibrate(basis: ScoreBasis, residual: np.ndarray, parts: NullParts, n_repli
     observed = studentized(u, covs, basis.identifiable, basis.one_sided)
     null = replicate_statistics(parts, basis.sizes, basis.identifiable, n_replicates, seed, map, basis.one_sided)
     return Calibration(observed, bootstrap_p_values(observed, null), westfall_young(observed, null), null,
-                       int(n_replicates), int(seed), parts.n_pool, int(len(parts.model_error)))
+                       int(n_replicates), int(seed), parts.n_pool, int(len(parts.model_error)), tuple(covs))

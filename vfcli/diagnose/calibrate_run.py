@@ -42,11 +42,13 @@ MAX_POOL_STRETCHES = 8
 @dataclass(frozen=True)
 class RunCalibration:
     """calibration : the bootstrap result.  names : candidate names, in its order.
-    naive_p : (C,) the uncalibrated score test's p-values (chi2, white noise of the estimated scale)."""
+    naive_p : (C,) the uncalibrated score test's p-values (chi2, white noise of the estimated scale).
+    information : per candidate, (p_c, p_c) ``I_c`` of its efficient columns (:class:`vfcli.diagnose.calibrate.ScoreBasis`)."""
 
     calibration: Calibration
     names: tuple[str, ...]
     naive_p: np.ndarray
+    information: tuple = ()
 
 
 def row_weights(baseline) -> np.ndarray:
@@ -241,4 +243,5 @@ def calibrate_run(candidates, baseline, rec, cycles: Cycles, window: np.ndarray,
     model_error = q
     parts = NullParts(np.stack(noise), model_error)
     cal = calibrate(basis, r, parts, n_replicates, seed, map)
-    return RunCalibration(cal, tuple(c.name for c in candidates), np.array([t.p_value for t in tests]))
+    return RunCalibration(cal, tuple(c.name for c in candidates), np.array([t.p_value for t in tests]),
+                          tuple(basis.information))

@@ -34,7 +34,9 @@ class Decision:
     """names : the candidates, in screening order.  p_family : (C,) calibrated family-wise p-values.
     leads : names of the calibrated leads (smallest p first).  findings : leads confirmed by refit.
     alpha : the family-wise false-alarm rate.  n_replicates : the bootstrap's replicates.
-    lines : the plain-words lines.  profile_leads : names of the profile leads that are not calibrated leads."""
+    lines : the plain-words lines.  profile_leads : names of the profile leads that are not calibrated leads.
+    limits : candidate name -> the words on the smallest size the screening would have named (appended to
+    its line when it is no lead; :func:`detection_words`)."""
 
     names: tuple[str, ...]
     p_family: np.ndarray
@@ -44,6 +46,7 @@ class Decision:
     n_replicates: int
     lines: list[str] = field(default_factory=list)
     profile_leads: tuple[str, ...] = ()
+    limits: Mapping[str, str] = field(default_factory=dict)
 
     @property
     def verdict(self) -> str:
@@ -56,20 +59,39 @@ def _p(p: float, n_replicates: int) -> str:
     return f"p <= {floor:.2g}" if p <= floor + 1e-12 else f"p = {p:.2g}"
 
 
+def detection_words(parameter: str, limit: float, full_value: float | None = None, full_meaning: str = "",
+                    one_sided: bool = False) -> str:
+    """The words on a candidate's smallest detectable size ``limit`` (:func:`vfcli.diagnose.calibrate.smallest_detectable`;
+    "" when it is not a number): the size, and with a physical full strength ``full_value`` whether even that
+    would have been seen."""
+    if not np.isfinite(limit):
+        return "" if np.isnan(limit) else f"no {parameter} of any size would have been named here"
+    size = f"{parameter} of {'' if one_sided else '+-'}{limit:.3g}"
+    text = f"the screening would name about half the time a {size}"
+    if full_value is not None:
+        text += f" ({full_value:g}: {full_meaning})"
+        if limit > full_value:
+            text += ": this recording cannot show it"
+    return text
+
+
 def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bool], n_replicates: int,
            alpha: float = FAMILY_ALPHA, confirmations: Mapping[str, Any] | None = None,
-           profile_leads: Sequence[str] = ()) -> Decision:
+           profile_leads: Sequence[str] = (), limits: Mapping[str, str] | None = None) -> Decision:
     """Leads and findings (module docstring).
 
     names : (C,) candidate names.  p_family : (C,) calibrated family-wise p-values.
     identifiable : (C,) whether the loads cannot absorb each.  n_replicates : B of the bootstrap.
     confirmations : candidate name -> its confirmation refit (an object with ``improves``), when one was made.
     profile_leads : names of the candidates whose profile beats the baseline (:mod:`vfcli.diagnose.profile`).
+    limits : candidate name -> :func:`detection_words`, added to its line when it is neither a lead nor a
+        profile lead ("no evidence" is then not "absent" when the recording could not show the term).
     """
     if not 0 < alpha < 1:
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
     p = np.asarray(p_family, dtype=float)
     confirmations = dict(confirmations or {})
+    limits = {k: v for k, v in (limits or {}).items() if v}
     order = np.argsort(p, kind="stable")
     leads = tuple(names[i] for i in order if identifiable[i] and p[i] <= alpha)
     profiled = tuple(n for n in profile_leads if n in names and n not in leads)
@@ -97,11 +119,11 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
             lines.append(f"{n}: a calibrated lead (family-wise {_p(p[i], n_replicates)}), {why}")
         else:
             lines.append(f"{n}: no evidence beyond noise and model error (calibrated family-wise "
-                         f"{_p(p[i], n_replicates)})")
+                         f"{_p(p[i], n_replicates)})" + (f"; {limits[n]}" if n in limits else ""))
     d = Decision(tuple(names), p, leads, findings, float(alpha), int(n_replicates), profile_leads=profiled)
     tail = d.verdict
     open_leads = [n for n in leads + profiled if n not in findings]
     if not findings and open_leads:
         tail += f" (unconfirmed lead{'s' if len(open_leads) > 1 else ''}: {', '.join(open_leads)})"
     lines.append(tail)
-    return Decision(d.names, d.p_family, d.leads, d.findings, d.alpha, d.n_replicates, lines, profiled)
+    return Decision(d.names, d.p_family, d.leads, d.findings, d.alpha, d.n_replicates, lines, profiled, limits)

@@ -26,7 +26,8 @@ from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_dens
 from vfcli.diagnose.regions import (COMPONENT_NAMES, GAP_COMPONENT_NAMES, N_GAP_REGIONS, N_REGIONS,
                                     gap_region_names, region_names)
 from vfcli.diagnose.residual import WindowResidual, medial_silhouettes, region_means, window_residual
-from vfcli.diagnose.decide import decide
+from vfcli.diagnose.calibrate import smallest_detectable
+from vfcli.diagnose.decide import decide, detection_words
 from vfcli.diagnose.words import summary_lines
 from vfcli.flow.gap.opening import measured_silhouettes
 
@@ -215,15 +216,30 @@ class Diagnosis:
 
 
 def calibration_summary(d: Diagnosis) -> dict[str, Any]:
-    """The calibrated screening's figures (JSON-ready): per candidate the naive and calibrated p-values."""
+    """The calibrated screening's figures (JSON-ready): per candidate the naive and calibrated p-values, and the
+    smallest size the screening would name (:func:`detection_limits`'s candidates)."""
     cal = d.calibration.calibration
+    limits = smallest_detectable(cal, d.calibration.information, d.decision.alpha)
     return {"alpha_family": d.decision.alpha, "replicates": cal.n_replicates, "seed": cal.seed,
             "pool_cycles": cal.n_pool_cycles, "verdict": d.decision.verdict, "leads": list(d.decision.leads),
             "findings": list(d.decision.findings),
             "tests": [{"name": n, "p_naive": float(f"{pn:.4g}"), "p_calibrated": float(f"{pc:.4g}"),
-                       "p_family": float(f"{pf:.4g}"), "statistic": float(f"{st:.4g}")}
-                      for n, pn, pc, pf, st in zip(d.calibration.names, d.calibration.naive_p, cal.p_value,
-                                                   cal.p_family, cal.statistic)]}
+                       "p_family": float(f"{pf:.4g}"), "statistic": float(f"{st:.4g}"),
+                       **({"smallest_detectable": None if not np.isfinite(lim) else float(f"{lim:.4g}")}
+                          if n in d.decision.limits else {})}
+                      for n, pn, pc, pf, st, lim in zip(d.calibration.names, d.calibration.naive_p, cal.p_value,
+                                                        cal.p_family, cal.statistic, limits)]}
+
+
+def detection_limits(cands, cal, alpha: float) -> dict[str, str]:
+    """Candidate name -> :func:`vfcli.diagnose.decide.detection_words` for the one-parameter candidates the
+    calibrated screening decides (those screened by their profile, inertia and damping, are found there, not by
+    the score test); from :func:`vfcli.diagnose.calibrate.smallest_detectable` at family-wise ``alpha``."""
+    limit = smallest_detectable(cal.calibration, cal.information, alpha)
+    return {c.name: detection_words(c.parameter_names[0], float(lim), getattr(c, "full_value", None),
+                                    getattr(c, "full_meaning", ""), bool(getattr(c, "one_sided", False)))
+            for c, lim in zip(cands, limit)
+            if len(c.parameter_names) == 1 and not getattr(c, "profile_screening", False)}
 
 
 def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None, map: Callable = builtins.map,
@@ -259,5 +275,6 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
     lines += [p.words() for p in profiles]
     decision = decide([c.name for c in cands], cal.calibration.p_family, [r.identifiable for r in results],
                       cal.calibration.n_replicates, settings.alpha, confirmations,
-                      profile_leads=[p.name for p in profiles if p.lead])
+                      profile_leads=[p.name for p in profiles if p.lead],
+                      limits=detection_limits(cands, cal, settings.alpha))
     return Diagnosis(loc, results, status, lines + decision.lines, cal, decision, profiles)

@@ -321,7 +321,7 @@ def redecide(d: Diagnosis, confirmations: dict) -> Diagnosis:
     if old is None:
         return d
     new = decide(list(old.names), old.p_family, [r.identifiable for r in d.screening], old.n_replicates,
-                 old.alpha, confirmations, old.profile_leads)
+                 old.alpha, confirmations, old.profile_leads, old.limits)
     k = d.lines.index(old.lines[0])
     lines = d.lines[:k] + new.lines + d.lines[k + len(old.lines):]
     return dataclasses.replace(d, lines=lines, decision=new)

@@ -66,6 +66,11 @@ class DisplacementTerm:
     signature: str = ""
     #: only a positive parameter is physical (one parameter): a one-sided calibrated test
     one_sided: bool = False
+    #: the parameter's value at the effect's physical full strength, and what it means (one parameter; None:
+    #: no such value): the decision says when the recording could not show even that much
+    #: (:func:`vfcli.diagnose.calibrate.smallest_detectable`)
+    full_value: float | None = None
+    full_meaning: str = ""
 
     @property
     def n_params(self) -> int:

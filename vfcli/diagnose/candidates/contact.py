@@ -133,6 +133,8 @@ class Contact(DisplacementTerm):
                  "recorded one stops")
     #: contact only pushes the folds apart: a negative share (pulling them through) is no contact
     one_sided = True
+    full_value = 1.0
+    full_meaning = "rigid contact, no interpenetration"
     #: the confirmation refit's starting values (:mod:`vfcli.diagnose.refit`): none and full contact.  Not
     #: profiled (no ``profile_screening``): the profile at full contact with the loads refitted named a null
     #: of the blind panel as readily as a contact phantom (docs/diagnose.md, "A contact profile at full contact")
