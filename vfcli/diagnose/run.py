@@ -232,14 +232,18 @@ def calibration_summary(d: Diagnosis) -> dict[str, Any]:
 
 
 def detection_limits(cands, cal, alpha: float) -> dict[str, str]:
-    """Candidate name -> :func:`vfcli.diagnose.decide.detection_words` for the one-parameter candidates the
-    calibrated screening decides (those screened by their profile, inertia and damping, are found there, not by
-    the score test); from :func:`vfcli.diagnose.calibrate.smallest_detectable` at family-wise ``alpha``."""
+    """Candidate name -> :func:`vfcli.diagnose.decide.detection_words` for the one-parameter candidates with a
+    physical full strength (``full_value``: contact) that only the calibrated screening can find (not screened by
+    a profile); from :func:`vfcli.diagnose.calibrate.smallest_detectable` at family-wise ``alpha``.  Others get
+    no such line: asymmetry's limit in the calibration's linear model (0.001-0.005 of softening on three panel
+    recordings) says nothing of the in-phase model error that raises its leads on nulls, which only the
+    confirmation refit rejects (docs/diagnose.md)."""
     limit = smallest_detectable(cal.calibration, cal.information, alpha)
-    return {c.name: detection_words(c.parameter_names[0], float(lim), getattr(c, "full_value", None),
-                                    getattr(c, "full_meaning", ""), bool(getattr(c, "one_sided", False)))
+    return {c.name: detection_words(c.parameter_names[0], float(lim), c.full_value, c.full_meaning,
+                                    bool(getattr(c, "one_sided", False)))
             for c, lim in zip(cands, limit)
-            if len(c.parameter_names) == 1 and not getattr(c, "profile_screening", False)}
+            if len(c.parameter_names) == 1 and getattr(c, "full_value", None) is not None
+            and not getattr(c, "profile_screening", False)}
 
 
 def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None, map: Callable = builtins.map,
