@@ -242,4 +242,3 @@ def test_the_smallest_detectable_size_is_named_about_half_the_time():
     for c in (1, 3):
         assert abs(rate[(c, 1.0)] - 0.5) < band, rate
         assert rate[(c, 2.0)] > 0.9 and rate[(c, 0.5)] < 0.25, rate
-

@@ -95,4 +95,3 @@ def test_a_term_the_recording_cannot_show_is_said_so_not_called_absent():
     assert d.verdict == "no missing physics detected" and d.limits == limits
     d = decide(names, np.array([0.01, 0.47]), [True, True], 199, limits=limits)
     assert "half the time" not in next(x for x in d.lines if x.startswith("asymmetry:"))
-

@@ -183,4 +183,3 @@ def test_the_camera_only_fit_reaches_its_own_minimum_and_predicts_the_vibrometer
     assert end < 0.99 * start
     assert left < 1e-3
     assert unseen > seen      # the vibrometer's own data, fitted by the whole window's loads only
-
