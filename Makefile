@@ -10,8 +10,10 @@ DEMO   ?= demo
 # Python's own bytecode cache, even where the environment turns it off (PYTHONDONTWRITEBYTECODE=1 in
 # many container images): every `vfcli` process and test worker otherwise compiles vfcli's modules
 # again, 0.13 s of each command's start and 4-6 s of each worker's collection (docs/benchmarks.md,
-# "The suite's time (session 26)"). The caches go to __pycache__/ (git ignores them).
+# "The suite's time (session 26)"). The caches go under the venv, not into the source tree
+# (`make clean` removes them with it).
 unexport PYTHONDONTWRITEBYTECODE
+export PYTHONPYCACHEPREFIX := $(abspath $(VENV))/pycache
 
 venv: $(STAMP)
 
