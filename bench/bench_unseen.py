@@ -297,7 +297,9 @@ def main() -> None:
         s = score(work / "raw", store, stages) if stages["synth"][0] == 0 else {}
         results.append((seed, stages, empty, s))
 
-    print(f"Widened phantoms, effect none, {int(round(args.duration * 1e4))} frames at 10 kHz; work folder {base}\n")
+    fps = next((float(x.split("=", 1)[1]) for x in reversed(args.sets) if x.startswith("synth.fps_hz=")), 1e4)
+    print(f"Widened phantoms, effect none, {int(round(args.duration * fps))} frames at {fps / 1e3:g} kHz; "
+          f"work folder {base}\n")
     print("| seed | rotation (deg), stated | field of view / glottis length | blur (px) | fixture | UFF units | E / nominal |")
     print("| ---: | --- | ---: | ---: | --- | --- | ---: |")
     for seed, _, _, s in results:
