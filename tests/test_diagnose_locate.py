@@ -190,6 +190,30 @@ def test_too_few_cycles_is_said_as_such():
         cycle_floor(np.zeros((150, 2, 3)), short, 3)
 
 
+def test_too_few_cycles_advice_tells_a_missed_gap_from_a_short_recording():
+    """A sharp widened phantom whose slit stays under two pixels (seed 1113 at f0 250 Hz, 750 frames) had its gap
+    found in 2 frames, and diagnose told the user to record longer: it held 12 cycles of the pressure."""
+    from vfcli.diagnose.cycles import too_few_advice
+
+    missed = area_waveform()
+    missed[np.arange(missed.size) % 700 != 5] = 0.0            # the gap found in 2 of 1400 frames
+    advice = too_few_advice(missed, DT, F0)
+    assert "spans 16.5 cycles in these 1400 frames" in advice and "shows 0 whole one(s)" in advice
+    assert "found in 2 of 1400 frames" in advice and "flow.threshold" in advice and "record longer" not in advice
+    # a short recording whose area follows the pressure: record longer (1.8 cycles, one whole)
+    assert too_few_advice(area_waveform(150), DT, F0).startswith("record longer")
+    # a long one that lost half its cycles still points at the gap; one that lost one does not
+    half = area_waveform()
+    half[400:1000] = 0.0
+    assert "flow.threshold" in too_few_advice(half, DT, F0)
+    one = area_waveform()
+    one[1250:] = 0.0
+    assert too_few_advice(one, DT, F0).startswith("record longer")
+    # no pressure f0: both are said
+    both = too_few_advice(missed, DT, float("nan"))
+    assert both.startswith("record longer") and "found in 2 of 1400 frames" in both
+
+
 def test_floor_frames_keep_whole_cycles_around_the_window():
     from vfcli.diagnose.run import floor_frames
 

@@ -125,3 +125,34 @@ def glottal_cycles(area: np.ndarray, dt: float, f0_hz: float | None = None) -> C
     name[level >= OPEN_LEVEL] = 1
     name[level < CLOSED_LEVEL] = 3
     return Cycles(1.0 / (period * dt), phase, cycle, name.astype(int))
+
+
+def whole_cycles(area: np.ndarray, dt: float, f0_hz: float | None = None) -> int:
+    """Whole glottal cycles :func:`glottal_cycles` counts in ``area`` (0 when it finds none or the area is flat)."""
+    try:
+        return glottal_cycles(area, dt, f0_hz).n_cycles
+    except TooFewCycles:
+        return 0
+
+
+def too_few_advice(area: np.ndarray, dt: float, f0_hz: float | None = None) -> str:
+    """What to do when the glottal area holds too few whole cycles: record longer, unless the subglottal
+    pressure says the frames span at least two more whole cycles than the area shows (the gap was missed).
+
+    area : (F,) glottal area per frame, mm^2.  dt : frame interval, s.  f0_hz : the subglottal pressure's f0
+    (``/sync``), Hz, or None/NaN (then both are said).
+    """
+    a = np.asarray(area, dtype=float)
+    found = int(np.count_nonzero(a > 0))
+    gap = (f"the glottal gap was found in {found} of {a.size} frames, and a slit narrower than about two pixels is "
+           "not found (check the gap `vfcli report` outlines; more pixels per mm resolve it, a higher flow.threshold "
+           "(counts) finds it but too wide)")
+    longer = "record longer (more glottal cycles around the run's window)"
+    if f0_hz is None or not np.isfinite(f0_hz) or f0_hz <= 0:
+        return f"{longer}, or, if the recording does hold them, {gap}"
+    spans = a.size * dt * float(f0_hz)              # cycles of the pressure in these frames
+    counted = whole_cycles(a, dt, f0_hz)
+    if np.floor(spans) - 1 >= counted + 2:          # at least floor(spans) - 1 of them are whole
+        return (f"the subglottal pressure (f0 {f0_hz:.4g} Hz) spans {spans:.1f} cycles in these {a.size} frames "
+                f"and the glottal area shows {counted} whole one(s): {gap}")
+    return longer

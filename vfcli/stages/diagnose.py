@@ -20,7 +20,7 @@ import numpy as np
 
 from vfcli.config import RecordingConfig
 from vfcli.diagnose.candidate import Baseline
-from vfcli.diagnose.cycles import TooFewCycles
+from vfcli.diagnose.cycles import TooFewCycles, too_few_advice
 from vfcli.diagnose.residual import rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
@@ -225,8 +225,9 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         try:
             d = diagnose_run(inputs.baseline, inputs.recording, settings, map=ctx.map or serial_map)
         except TooFewCycles as exc:
-            raise InputDataError(f"diagnose: {exc}; record longer (more glottal cycles around the run's window)",
-                                 reader.path) from None
+            rec = inputs.recording
+            advice = too_few_advice(rec.glottal_area, inputs.baseline.problem.dt, rec.pressure_f0_hz)
+            raise InputDataError(f"diagnose: {exc}; {advice}", reader.path) from None
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 

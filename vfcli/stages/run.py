@@ -250,9 +250,12 @@ def diagnose_skip_reason(ctx: RunContext) -> str | None:
     total, outside = cycles_outside_window(area, dt, first, n, f0)
     if outside >= DIAGNOSE_MIN_CYCLES:
         return None
+    from vfcli.diagnose.cycles import too_few_advice
+
     return (f"the recording holds {outside} whole glottal cycle(s) outside the fitted window (frames {first}-"
             f"{first + n - 1}; {total} in all), diagnose needs {DIAGNOSE_MIN_CYCLES}: its noise floor is the "
-            f"cycle-to-cycle variation of whole cycles that do not touch the window it judges; record longer")
+            f"cycle-to-cycle variation of whole cycles that do not touch the window it judges; "
+            f"{too_few_advice(area, dt, f0)}")
 
 
 class _Collect(logging.Handler):
