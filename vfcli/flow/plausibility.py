@@ -8,7 +8,7 @@
   ``rho``), with the slowest documented mucosal wave (0.5 m/s) and a tissue density of
   1000 kg/m^3: 2 m/s per kPa, above the in-vivo closing velocities (0.3-1.6 m/s at about
   1 kPa; docs/physical-setup).
-* :func:`temporal_contrast` and :func:`points_on_folds`: the vibrometer points lie on the folds,
+* :class:`ContrastAccumulator` and :func:`points_on_folds`: the vibrometer points lie on the folds,
   not on the fixture, the silicone block around the folds or the background. The folds are what
   moves in the video: their textured surface slides past the pixels and the gap opens and closes
   at the phonation frequency, while the fixture and the block are static (their pixels show noise
@@ -37,11 +37,15 @@ SLOWEST_WAVE_M_S = 0.5
 #: phantom's flow reached 1.06 x the bound at its 99th percentile, a mis-scaled vibrometer 10-1000 x).
 FAR_BEYOND = 2.0
 
-#: Frames per block of :func:`temporal_contrast`: 1.6 ms at 10 kHz, under a fifth of the shortest
-#: phonation cycle (250 Hz), so a block mean keeps the cycle's motion and averages the noise.
+#: Frames per block of the temporal contrast at most: 1.6 ms at 10 kHz, a fifth of a 125 Hz cycle.  A block
+#: must be short against the phonation cycle, so that its mean keeps the cycle's motion and averages the noise:
+#: :func:`contrast_block` takes a fifth of the cycle when that is shorter (at 6 kHz and 300 Hz, 20 frames per
+#: cycle, blocks of 16 averaged the motion away and every vibrometer point read as off the folds).
 CONTRAST_BLOCK = 16
+#: Frames per block at least (a static pixel's contrast 1 / sqrt(3) against the folds' several times that).
+MIN_CONTRAST_BLOCK = 4
 #: A pixel moves when its temporal contrast exceeds this multiple of a static pixel's expected
-#: contrast, ``1 / sqrt(CONTRAST_BLOCK - 1)`` (white noise only): measured on phantoms, static
+#: contrast, ``1 / sqrt(block - 1)`` (white noise only): measured on phantoms (blocks of 16), static
 #: pixels (fixture, silicone block) lie at 0.6-0.9 of that expectation (1st-10th percentile 0.15-0.22
 #: for an expected 0.26), the folds at 3-7 times it (median 0.9-1.8).
 MOVING_FACTOR = 2.0
@@ -141,6 +145,15 @@ class ContrastAccumulator:
             return np.where(within > 0, np.sqrt(between / within), np.where(between > 0, np.inf, 0.0))
 
 
+def contrast_block(frames_per_cycle: float) -> int:
+    """Frames per block of the temporal contrast for a video with ``frames_per_cycle`` frames per phonation
+    cycle: a fifth of the cycle, within :data:`MIN_CONTRAST_BLOCK` .. :data:`CONTRAST_BLOCK` (the latter when
+    the cycle is not known, NaN)."""
+    if not np.isfinite(frames_per_cycle) or frames_per_cycle <= 0:
+        return CONTRAST_BLOCK
+    return int(np.clip(np.floor(frames_per_cycle / 5.0), MIN_CONTRAST_BLOCK, CONTRAST_BLOCK))
+
+
 def moving_pixels(contrast: np.ndarray, block: int = CONTRAST_BLOCK) -> np.ndarray:
     """Pixels whose temporal contrast (H, W) exceeds :data:`MOVING_FACTOR` times a static pixel's
     ``1 / sqrt(block - 1)``; (H, W) bool."""
@@ -174,16 +187,17 @@ def points_on_folds(points_px: np.ndarray, moving: np.ndarray, margin_px: float)
     return out
 
 
-def points_on_folds_of_video(chunks: Iterable[np.ndarray], points_px: np.ndarray, px_per_mm: float) -> np.ndarray | None:
+def points_on_folds_of_video(chunks: Iterable[np.ndarray], points_px: np.ndarray, px_per_mm: float,
+                             block: int = CONTRAST_BLOCK) -> np.ndarray | None:
     """Which screen points (P, 2) (col, row) px lie on the folds of a video fed as consecutive chunks
-    of frames (k, H, W) counts: moving pixels (:class:`ContrastAccumulator`, :func:`moving_pixels`)
-    within :data:`FOLD_MARGIN_MM` (:func:`points_on_folds`).
+    of frames (k, H, W) counts: moving pixels (:class:`ContrastAccumulator` with blocks of ``block`` frames,
+    :func:`contrast_block`; :func:`moving_pixels`) within :data:`FOLD_MARGIN_MM` (:func:`points_on_folds`).
 
     Returns
     -------
-    (P,) bool, or None when the video holds fewer than 2 blocks of :data:`CONTRAST_BLOCK` frames.
+    (P,) bool, or None when the video holds fewer than 2 blocks of ``block`` frames.
     """
-    acc = ContrastAccumulator()
+    acc = ContrastAccumulator(block)
     for chunk in chunks:
         acc.add(chunk)
     if acc.n_blocks < 2:

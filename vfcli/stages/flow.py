@@ -20,8 +20,8 @@ import numpy as np
 
 from vfcli.config import FlowConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, points_on_folds_of_video,
-                                    points_on_image, pressure_velocity_bound)
+from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, contrast_block,
+                                    points_on_folds_of_video, points_on_image, pressure_velocity_bound)
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.precision import round_mantissa
@@ -162,7 +162,8 @@ def _check_on_folds(reader: StoreReader, points_px: np.ndarray, shape: tuple[int
     if tuple(frames.shape[1:]) != tuple(shape) or not len(frames) / float(hsc["fps_hz"]) * f0 >= 1.0:
         return
     chunks = (frames[i : i + CHUNK_FRAMES] for i in range(0, len(frames), CHUNK_FRAMES))
-    on = points_on_folds_of_video(chunks, points_px, float(hsc["px_per_mm"]))
+    block = contrast_block(float(hsc["fps_hz"]) / f0)
+    on = points_on_folds_of_video(chunks, points_px, float(hsc["px_per_mm"]), block)
     if on is None:
         return
     off = int((~on).sum())
