@@ -1,7 +1,9 @@
 """The pressure load model on a widened phantom (issue 15): the motion term's margin around the gap,
 and the inferior surface's error and stated 90 % intervals on a short widened recording run through
 the real CLI (own geometry, material within its batch tolerance, its own intraglottal drive, any
-camera angle and zoom, vibrometer artefacts)."""
+camera angle and zoom, vibrometer artefacts), its pressure sensor noisy (50 Pa RMS at 50 kHz: as recorded, the
+pressure drove the loads with that noise, and the inferior surface came out 78 % off with its 90 % intervals covering
+11 %; band-limited to 10 harmonics of f0, optimize.pressure_band_harmonics, 7.0 % and 97.4 %)."""
 from __future__ import annotations
 
 import numpy as np
@@ -29,6 +31,7 @@ def test_the_margin_around_the_gap_is_a_euclidean_disc_about_its_envelope():
 WIDENED = [
     "synth.panel='widened'", "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0",
     "synth.n_phase=64", "synth.width_px=160", "synth.height_px=160", "synth.supersample=1",
+    "synth.pressure_noise_pa=50",
 ]
 SEED = 7
 
@@ -75,9 +78,10 @@ def widened_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_the_inferior_surface_of_a_widened_phantom_is_within_its_measured_error(widened_run):
-    """The oscillating part of the unobserved inferior surface within 10 % (measured 8.0 % with the
-    motion term's 4 px margin around the gap; the whole displacement, static part included, 7.8 %:
-    14.1 % before session 12's L-curve, whose corner left the static part loose)."""
+    """The oscillating part of the unobserved inferior surface within 10 % (measured 7.4 % with the
+    motion term's 4 px margin around the gap and the pressure sensor's 50 Pa of noise band-limited; the whole
+    displacement, static part included, 7.0 %; with a 4 Pa sensor 8.0 % and 7.8 %, and 14.1 % before session
+    12's L-curve, whose corner left the static part loose; with the 50 Pa record as it is 11.8 % and 78.3 %)."""
     est, std, ref, osc, _ = widened_run
     total = float(np.sqrt(np.mean((est - ref) ** 2) / np.mean(ref ** 2)))
     assert osc <= 0.10, f"oscillating error {100 * osc:.1f} %"
@@ -85,11 +89,12 @@ def test_the_inferior_surface_of_a_widened_phantom_is_within_its_measured_error(
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the intervals overstate: coverage 97.3 %, error 7.8 % against a stated "
-                   "21.5 %, most of it the sandwich MSE's (vfcli/inverse/sandwich.py) since the instruments' part "
+@pytest.mark.xfail(strict=True, reason="the intervals overstate: coverage 97.4 %, error 7.0 % against a stated "
+                   "21.6 %, most of it the sandwich MSE's (vfcli/inverse/sandwich.py) since the instruments' part "
                    "centres the ridge on the joint fit (session 13); issue 15 item 6")
 def test_the_90_percent_intervals_on_a_widened_phantom_cover_85_to_95_percent(widened_run):
-    """Two-sided: the stated 90 % intervals neither understate nor overstate (measured 97.3 % scored without the
+    """Two-sided: the stated 90 % intervals neither understate nor overstate (measured 97.4 % with the 50 Pa sensor,
+    stated 21.6 %; with a 4 Pa sensor 97.3 % scored without the
     clamped nodes (96.5 % with them), stated 21.5 % of the motion, since the instruments' part centres the ridge
     on the joint fit; 97.3 % with session
     12's L-curve, stated 41.5 % of the motion; before it 91.0 %, stated standard deviation 28 % of the motion,
@@ -102,7 +107,8 @@ def test_the_90_percent_intervals_on_a_widened_phantom_cover_85_to_95_percent(wi
 @pytest.mark.slow
 def test_the_intervals_on_a_widened_phantom_do_not_understate(widened_run):
     """The one-sided half of the claim above, which holds: the 90 % intervals cover at least 85 % and the
-    error is within the stated standard deviation (measured 97.3 %; error 7.8 %, stated 21.5 %)."""
+    error is within the stated standard deviation (measured 97.4 %; error 7.0 %, stated 21.6 %; with the 50 Pa
+    sensor's record as it is 11.3 %, error 78.3 % against a stated 67.8 %)."""
     est, std, ref, _, coverage = widened_run
     assert coverage >= 0.85, f"coverage {100 * coverage:.1f} %"
     rms = lambda a: float(np.sqrt(np.mean(a ** 2)))  # noqa: E731

@@ -289,6 +289,11 @@ class OptimizeConfig(_Section):
     )
     pressure_inferior_linear: bool = Field(False, description="Pressure load model: add a linear variation along the "
                                            "fold to the uniform inferior pressure")
+    pressure_band_harmonics: float | None = Field(
+        10.0, gt=0, le=1000, description="Pressure load model: the recorded subglottal pressure is low-passed at this many "
+        "harmonics of f0 (the video's f0 from /sync; zero phase, 4th-order Butterworth) before it drives the loads, so "
+        "that its sensor noise above the band of motion does not enter every frame's load; null: used as recorded"
+    )
     ridge_weight: float | None = Field(
         None, ge=0, le=1e6, description="Weight of ridge_weight * x^T Omega x / n on the control values, 1/Pa^2 (Omega: "
         "identity for the pressure model; size + squared neighbour differences for the force fields); null: the load "

@@ -24,7 +24,7 @@ from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
 from vfcli.inverse.regularization import LCurve, lcurve
 from vfcli.model.fem import ElasticModel
 from vfcli.model.loads.force_field import ForceField, ForceFieldSpec, LoadModel
-from vfcli.model.loads.pressure import PressureLoad
+from vfcli.model.loads.pressure import PressureLoad, band_limited
 from vfcli.model.mesh import FoldMesh
 from vfcli.model.response.quasi_static import QuasiStaticResponse
 
@@ -68,6 +68,8 @@ class OptimizeInputs:
         Lateral image axis /flow used for the gap's rays: 0 (rows) or 1 (columns).
     pressure_time, pressure : (S,) float64 or None
         Subglottal pressure recorded with the video (s, Pa), for the pressure load model.
+    f0_hz : float
+        The video's f0 (``/sync``), Hz, or NaN: the pressure's band (``optimize.pressure_band_harmonics``).
     """
 
     mesh: FoldMesh
@@ -86,6 +88,7 @@ class OptimizeInputs:
     lateral_axis: int = 0
     pressure_time: np.ndarray | None = None
     pressure: np.ndarray | None = None
+    f0_hz: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -139,14 +142,19 @@ def load_model(inputs: OptimizeInputs, cfg: OptimizeConfig, t_range: tuple[float
     """The load model ``cfg.loads`` selects, over the time window ``t_range`` (s).
 
     'free' and 'free-regularised': the paper's force field (optimize.setup, optimize.tie_folds);
-    'pressure': :class:`vfcli.model.loads.pressure.PressureLoad` on ``inputs.pressure``.
+    'pressure': :class:`vfcli.model.loads.pressure.PressureLoad` on ``inputs.pressure``, low-passed at
+    ``cfg.pressure_band_harmonics`` harmonics of ``inputs.f0_hz`` (:func:`vfcli.model.loads.pressure.band_limited`;
+    as recorded when either is missing).
     """
     if cfg.loads in ("free", "free-regularised"):
         return ForceField(ForceFieldSpec.from_name(cfg.setup, tie_folds=cfg.tie_folds), t_range)
     if inputs.pressure is None or inputs.pressure_time is None:
         raise ValueError("the pressure load model needs inputs.pressure and inputs.pressure_time")
     n_z, n_x = cfg.pressure_medial_shapes
-    return PressureLoad(inputs.pressure_time, inputs.pressure, t_range, time_degree=cfg.pressure_time_degree,
+    pressure = inputs.pressure
+    if cfg.pressure_band_harmonics is not None:
+        pressure = band_limited(inputs.pressure_time, pressure, inputs.f0_hz, cfg.pressure_band_harmonics)
+    return PressureLoad(inputs.pressure_time, pressure, t_range, time_degree=cfg.pressure_time_degree,
                         medial_z=n_z, medial_x=n_x, inferior_linear_x=cfg.pressure_inferior_linear)
 
 

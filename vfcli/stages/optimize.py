@@ -227,6 +227,6 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
 
     result = run_stage(ctx, "optimize", config_json=settings_json, body=body, run=run,
                        upstream=[("mesh", None), ("fields", None), ("flow", None)]
-                       + ([("hsc", None)] if cfg.loads == "pressure" else []))
+                       + ([("hsc", None), ("sync", None)] if cfg.loads == "pressure" else []))
     ckpt.unlink(missing_ok=True)
     return result

@@ -95,7 +95,8 @@ def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> Optimi
         gap_masks=reader.dataset("flow", "gap_mask")[sl], px_per_mm=float(flow_attrs["px_per_mm"]),
         roi_origin_px=np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float),
         gap_counts=gap_counts, velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
-        lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure)
+        lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure,
+        f0_hz=float(reader.attrs("sync").get("f0_video_hz", np.nan)) if reader.has_stage("sync") else float("nan"))
 
 
 def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:
