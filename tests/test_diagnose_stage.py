@@ -81,3 +81,21 @@ def test_diagnose_user_errors_are_one_line(fitted):
         assert not r.has_stage("diagnose", "nope")
     bad = run_vfcli("diagnose", fitted, "--run", "fit", "--alpha", "2")
     assert bad.returncode == 2 and "alpha" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_run_stored_before_the_pressure_band_is_rebuilt_with_the_pressure_as_recorded():
+    """A run whose stored [optimize] predates optimize.pressure_band_harmonics was fitted on the pressure as recorded;
+    rebuilt with today's default (10 harmonics) its model differed from its stored displacements by 0.03 mm and
+    `diagnose` refused it (panel stores 2005 and 2030).  A run that states the band keeps it."""
+    from vfcli.config import RecordingConfig
+    from vfcli.stages.diagnose import run_recording_config
+
+    attrs = {"ridge_weight": 13.5, "camera_offset_px": [120.0, 130.0], "camera_rotation_deg": 30.0}
+    config = RecordingConfig()
+    old = config.model_dump(mode="json")["optimize"]
+    del old["pressure_band_harmonics"]
+    assert run_recording_config(config, {"optimize": old}, attrs, np.zeros(2)).optimize.pressure_band_harmonics is None
+    new = {**old, "pressure_band_harmonics": 6.0}
+    cfg = run_recording_config(config, {"optimize": new}, attrs, np.zeros(2))
+    assert cfg.optimize.pressure_band_harmonics == 6.0 and cfg.optimize.ridge_weight == 13.5
+    assert config.optimize.pressure_band_harmonics == 10.0                          # today's default, unchanged

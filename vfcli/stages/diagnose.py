@@ -55,6 +55,9 @@ def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], at
     L-curve rescan) and its camera pose (as found then, on the full frame)."""
     data = config.model_dump(mode="json")
     data["optimize"] = {**run_config.get("optimize", data["optimize"]), "ridge_weight": float(attrs["ridge_weight"])}
+    # a run stored before optimize band-limited the recorded pressure (optimize.pressure_band_harmonics) used it as
+    # recorded: rebuilt with today's default its model would differ from its stored displacements
+    data["optimize"].setdefault("pressure_band_harmonics", None)
     offset = np.asarray(attrs["camera_offset_px"], float) + np.asarray(roi_origin_px, float)
     data["camera"] = {**run_config.get("camera", data["camera"]), "pose": "config",
                       "rotation_deg": float(attrs["camera_rotation_deg"]), "offset_px": [float(v) for v in offset]}
@@ -98,7 +101,8 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
     scale = float(np.max(np.abs(stored.displacements))) or 1.0
     if worst > _REBUILD_TOL_MM + 1e-5 * scale:
         raise InputDataError(f"{group}: its stored displacements differ from its model rebuilt from the store "
-                             f"by up to {worst:.3g} mm (/mesh, /fields or /flow changed since the run); rerun "
+                             f"by up to {worst:.3g} mm (/mesh, /fields, /flow or /sync changed since the run, or another vfcli version "
+                             f"made it); rerun "
                              f"`vfcli optimize --run {run}`", reader.path)
     ldv = {}
     if reader.has_stage("ldv") and reader.has_stage("sync"):
