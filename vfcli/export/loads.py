@@ -11,7 +11,7 @@ import numpy as np
 
 from vfcli.model.fem import ElasticModel
 from vfcli.model.loads.force_field import ForceField, ForceFieldSpec
-from vfcli.model.loads.pressure import PressureLoad
+from vfcli.model.loads.pressure import PressureLoad, band_limited
 from vfcli.model.mesh import FoldMesh
 
 
@@ -29,12 +29,14 @@ def node_traction(mesh: FoldMesh, quad, traction: np.ndarray) -> np.ndarray:
 
 
 def applied_traction(mesh: FoldMesh, optimize_cfg: dict, mesh_cfg: dict, controls: np.ndarray, sim_time: np.ndarray,
-                     pressure: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                     pressure: tuple[np.ndarray, np.ndarray] | None = None, f0_hz: float = float("nan")) -> np.ndarray:
     """(T, N, 3) Pa: the surface traction a run applied at each model time.
 
     optimize_cfg / mesh_cfg : the run's stored ``optimize`` and ``mesh`` settings (dicts).
     controls : (P,) the run's final control values.  sim_time : (T,) s.
-    pressure : (times s, Pa) recorded subglottal pressure (needed when optimize.loads = 'pressure').
+    pressure : (times s, Pa) recorded subglottal pressure (needed when optimize.loads = 'pressure'), band-limited as
+        the run did (its ``pressure_band_harmonics`` of ``f0_hz``, the video's f0 from /sync; a run that does not
+        state it used the record as it is).
     """
     t_range = (float(sim_time[0]), float(sim_time[-1]))
     model = ElasticModel(mesh, mesh_cfg.get("youngs_modulus_pa", 4400.0), mesh_cfg.get("poisson_ratio", 0.499),
@@ -48,7 +50,10 @@ def applied_traction(mesh: FoldMesh, optimize_cfg: dict, mesh_cfg: dict, control
         if pressure is None:
             raise ValueError("a pressure-load run needs the recorded pressure")
         n_z, n_x = optimize_cfg.get("pressure_medial_shapes", (3, 2))
-        load = PressureLoad(pressure[0], pressure[1], t_range, time_degree=optimize_cfg.get("pressure_time_degree", 4),
+        p_rec = pressure[1]
+        if optimize_cfg.get("pressure_band_harmonics") is not None:
+            p_rec = band_limited(pressure[0], p_rec, f0_hz, float(optimize_cfg["pressure_band_harmonics"]))
+        load = PressureLoad(pressure[0], p_rec, t_range, time_degree=optimize_cfg.get("pressure_time_degree", 4),
                             medial_z=n_z, medial_x=n_x,
                             inferior_linear_x=bool(optimize_cfg.get("pressure_inferior_linear", False)))
         mask, values = load.shape_values(quad)

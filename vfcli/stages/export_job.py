@@ -105,8 +105,9 @@ class ExportJob:
         if self.r.has_stage("hsc") and "pressure" in self.r.group("hsc"):
             pressure = (self.r.read("hsc", "pressure_time"), self.r.read("hsc", "pressure"))
         try:
+            f0 = float(self.r.attrs("sync").get("f0_video_hz", np.nan)) if self.r.has_stage("sync") else float("nan")
             return applied_traction(self.mesh, run.config.get("optimize", {}), run.config.get("mesh", {}),
-                                    run.controls, run.sim_time, pressure)
+                                    run.controls, run.sim_time, pressure, f0)
         except (ValueError, KeyError, VfcliError) as exc:
             self.notes.append(f"run {run.name}: applied load not exported ({exc})")
             return None
