@@ -50,9 +50,7 @@ def applied_traction(mesh: FoldMesh, optimize_cfg: dict, mesh_cfg: dict, control
         if pressure is None:
             raise ValueError("a pressure-load run needs the recorded pressure")
         n_z, n_x = optimize_cfg.get("pressure_medial_shapes", (3, 2))
-        p_rec = pressure[1]
-        if optimize_cfg.get("pressure_band_harmonics") is not None:
-            p_rec = band_limited(pressure[0], p_rec, f0_hz, float(optimize_cfg["pressure_band_harmonics"]))
+        p_rec = band_limited(pressure[0], pressure[1], f0_hz, optimize_cfg.get("pressure_band_harmonics"))
         load = PressureLoad(pressure[0], p_rec, t_range, time_degree=optimize_cfg.get("pressure_time_degree", 4),
                             medial_z=n_z, medial_x=n_x,
                             inferior_linear_x=bool(optimize_cfg.get("pressure_inferior_linear", False)))

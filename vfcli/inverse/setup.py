@@ -151,9 +151,7 @@ def load_model(inputs: OptimizeInputs, cfg: OptimizeConfig, t_range: tuple[float
     if inputs.pressure is None or inputs.pressure_time is None:
         raise ValueError("the pressure load model needs inputs.pressure and inputs.pressure_time")
     n_z, n_x = cfg.pressure_medial_shapes
-    pressure = inputs.pressure
-    if cfg.pressure_band_harmonics is not None:
-        pressure = band_limited(inputs.pressure_time, pressure, inputs.f0_hz, cfg.pressure_band_harmonics)
+    pressure = band_limited(inputs.pressure_time, inputs.pressure, inputs.f0_hz, cfg.pressure_band_harmonics)
     return PressureLoad(inputs.pressure_time, pressure, t_range, time_degree=cfg.pressure_time_degree,
                         medial_z=n_z, medial_x=n_x, inferior_linear_x=cfg.pressure_inferior_linear)
 

@@ -100,14 +100,14 @@ class ExportJob:
     def _load(self, run: OptimizeRun) -> np.ndarray | None:
         """(T, N, 3) Pa applied surface traction of a run, or None (with a note) when it cannot be rebuilt."""
         from vfcli.export.loads import applied_traction
+        from vfcli.store.fit import video_f0_hz
 
         pressure = None
         if self.r.has_stage("hsc") and "pressure" in self.r.group("hsc"):
             pressure = (self.r.read("hsc", "pressure_time"), self.r.read("hsc", "pressure"))
         try:
-            f0 = float(self.r.attrs("sync").get("f0_video_hz", np.nan)) if self.r.has_stage("sync") else float("nan")
             return applied_traction(self.mesh, run.config.get("optimize", {}), run.config.get("mesh", {}),
-                                    run.controls, run.sim_time, pressure, f0)
+                                    run.controls, run.sim_time, pressure, video_f0_hz(self.r))
         except (ValueError, KeyError, VfcliError) as exc:
             self.notes.append(f"run {run.name}: applied load not exported ({exc})")
             return None

@@ -19,6 +19,11 @@ from vfcli.store.mesh import read_stored_mesh
 from vfcli.store.reader import StoreReader
 
 
+def video_f0_hz(reader: StoreReader) -> float:
+    """The video's f0, Hz: /sync's ``f0_video_hz``; NaN without /sync."""
+    return float(reader.attrs("sync").get("f0_video_hz", np.nan)) if reader.has_stage("sync") else float("nan")
+
+
 def window_frames(reader: StoreReader, config: RecordingConfig, frame_interval_s: float) -> int:
     """Frames in the optimize window: ``optimize.n_frames`` when it is set, else one glottal cycle of the
     video, ``ceil(1 / (f0 dt))`` frames (84 at 120 Hz and 10 kHz), f0 the video's: /sync's
@@ -35,9 +40,7 @@ def window_frames(reader: StoreReader, config: RecordingConfig, frame_interval_s
     n = config.optimize.n_frames
     if n is not None:
         return int(n)
-    f0 = float("nan")
-    if reader.has_stage("sync"):
-        f0 = float(reader.attrs("sync").get("f0_video_hz", float("nan")))
+    f0 = video_f0_hz(reader)
     if not (np.isfinite(f0) and f0 > 0) and reader.has_stage("hsc") and "pressure" in reader.group("hsc"):
         from vfcli.sync.f0 import estimate_f0        # scipy: only when /sync has no f0
 
@@ -96,7 +99,7 @@ def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> Optimi
         roi_origin_px=np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float),
         gap_counts=gap_counts, velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
         lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure,
-        f0_hz=float(reader.attrs("sync").get("f0_video_hz", np.nan)) if reader.has_stage("sync") else float("nan"))
+        f0_hz=video_f0_hz(reader))
 
 
 def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:

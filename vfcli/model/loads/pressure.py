@@ -59,7 +59,8 @@ def _legendre(degree: int, t: np.ndarray) -> np.ndarray:
     return legendre.legval(t, c)
 
 
-def band_limited(pressure_time: np.ndarray, pressure_pa: np.ndarray, f0_hz: float, harmonics: float) -> np.ndarray:
+def band_limited(pressure_time: np.ndarray, pressure_pa: np.ndarray, f0_hz: float,
+                 harmonics: float | None) -> np.ndarray:
     """(S,) the recorded pressure (S,) Pa at uniform times (S,) s, low-passed at ``harmonics`` times ``f0_hz``.
 
     A pressure sensor sampled at tens of kHz records noise across its whole band; the load model samples it at
@@ -68,13 +69,16 @@ def band_limited(pressure_time: np.ndarray, pressure_pa: np.ndarray, f0_hz: floa
     widened draw (session 27)").  The filter is a 4th-order Butterworth run forwards and backwards (zero phase),
     on the record extended at each end by one period of itself (the phonation is periodic), so that its ends
     carry no filter transient: a sum of harmonics up to the 8th of f0 comes back within 3 Pa in 1000 anywhere,
-    odd-reflected ends were 8-40 Pa off (tests/test_loads.py).  A cutoff at or above 0.45 of the sampling rate,
-    a missing f0 or a record shorter than two periods returns the record unchanged.
+    odd-reflected ends were 8-40 Pa off (tests/test_loads.py).  No ``harmonics`` (None: the record as recorded), a
+    cutoff at or above 0.45 of the sampling rate, a missing f0 or a record shorter than two periods returns the
+    record unchanged.
     """
     from scipy import signal
 
     p = np.asarray(pressure_pa, dtype=float)
     t = np.asarray(pressure_time, dtype=float)
+    if harmonics is None:
+        return p
     cutoff = float(harmonics) * float(f0_hz)
     if p.size < 2 or not np.isfinite(cutoff) or cutoff <= 0:
         return p
