@@ -252,3 +252,34 @@ def test_an_area_that_opens_twice_a_cycle_is_counted_once_per_cycle_with_the_pre
     # a single-opening area is unchanged by the pressure's f0
     single = area_waveform(2000, f0)
     np.testing.assert_array_equal(glottal_cycles(single, DT, f0_hz=f0).phase, glottal_cycles(single, DT).phase)
+
+
+def test_the_motion_stride_is_the_smallest_grid_within_the_row_budget_and_the_maps_fill_it():
+    """30 frames of 40 x 40 valid px are 144,000 motion rows: a budget of 36,000 takes every 2nd pixel of every
+    2nd row (exactly 36,000), one row less every 3rd.  A scan point counts for the region of its nearest grid
+    pixel, and the RMS map fills each grid pixel's block."""
+    from vfcli.diagnose.residual import grid_filled
+    from vfcli.diagnose.run import ldv_points_per_region
+    from vfcli.stages.diagnose import motion_stride
+
+    valid = np.ones((30, 40, 40), bool)
+    assert motion_stride(valid, 144_000) == 1
+    assert motion_stride(valid, 36_000) == 2
+    assert motion_stride(valid, 35_999) == 3
+    valid[:, :, 20:] = False                              # half the image: half the rows
+    assert motion_stride(valid, 36_000) == 2 and motion_stride(valid, 17_999) == 3
+
+    region = np.full((40, 40), -1)
+    region[::2, ::2] = 4                                  # a stride-2 residual labels its grid pixels only
+    region[20::2, ::2] = 7
+    px = np.array([[3.2, 5.1], [10.0, 25.4], [39.0, 1.0]])           # (col, row)
+    counts = ldv_points_per_region(px, None, region, 2)
+    assert counts[4] == 1 and counts[7] == 1 and counts.sum() == 2   # (40, 2) is off the image: not counted
+    assert ldv_points_per_region(px, None, region).sum() == 0        # read without the stride: between grid pixels
+
+    image = np.full((5, 7), np.nan)
+    image[::2, ::2] = np.arange(12).reshape(3, 4)
+    filled = grid_filled(image, 2)
+    assert filled.shape == (5, 7) and np.all(np.isfinite(filled))
+    assert filled[1, 1] == image[0, 0] and filled[3, 5] == image[2, 4] and filled[4, 6] == image[4, 6]
+    assert grid_filled(image, 1) is image

@@ -81,7 +81,7 @@ def test_refit_is_stored_as_its_own_run_with_history_and_uncertainty(effect):
         base_e = r.read("optimize", "history_total", "fit")[-1]
         diag = r.attrs("diagnose", "fit")
         held_b = r.read("diagnose", "heldout_cycles_baseline", "fit")
-    assert attrs["refit_of"] == "fit" and attrs["refit_candidate"] == "asymmetry"
+    assert attrs["refit_of"] == "fit" and attrs["refit_candidate"] == "asymmetry" and attrs["pixel_stride"] == 1
     assert "left_softening" in attrs["message"]
     assert hist[-1] < hist[0] and hist[-1] < base_e
     assert theta_hist.shape == (len(hist), 1) and theta_hist[0, 0] == 0.0

@@ -99,3 +99,34 @@ def test_a_run_stored_before_the_pressure_band_is_rebuilt_with_the_pressure_as_r
     cfg = run_recording_config(config, {"optimize": new}, attrs, np.zeros(2))
     assert cfg.optimize.pressure_band_harmonics == 6.0 and cfg.optimize.ridge_weight == 13.5
     assert config.optimize.pressure_band_harmonics == 10.0                          # today's default, unchanged
+
+
+def test_a_window_over_the_row_budget_is_diagnosed_on_a_coarser_grid_with_the_same_verdict(diagnosed, fitted):
+    """diagnose.max_motion_rows below the window's rows: the motion is compared on every 2nd pixel of every 2nd row
+    (a quarter of the rows), the diagnosis says so on its second line and stores the stride, the RMS map is whole
+    where the full one is, and the verdict is the full diagnosis' (this phantom's window: 60 frames)."""
+    with Store(fitted).read() as r:
+        valid = np.asarray(r.read("fields", "valid")[120:180], bool)
+        full_rms = r.read("diagnose", "rms_residual", "fit")
+    rows = 3 * int(valid.sum())
+    res = run_vfcli("diagnose", fitted, "--run", "fit", "--json", "--refit", "none",
+                    "--set", f"diagnose.max_motion_rows={rows // 3}")
+    assert res.returncode == 0, res.stderr
+    out = json.loads(res.stdout)
+    assert out["lines"][1].startswith("the window's motion was compared on every 2nd pixel of every 2nd row")
+    with Store(fitted).read() as r:
+        attrs = r.attrs("diagnose", "fit")
+        rms = r.read("diagnose", "rms_residual", "fit")
+    assert int(attrs["pixel_stride"]) == 2
+    seen_full = np.isfinite(full_rms).all(axis=-1)
+    seen = np.isfinite(rms).all(axis=-1)
+    assert (seen & seen_full).sum() > 0.9 * seen_full.sum()
+    # the same decision and the same identifiability per candidate (this short free-load fit: none, uncalibrated)
+    full = (diagnosed / "stdout.txt").read_text().splitlines()
+
+    def said(lines):
+        return sorted(line.split(";")[0] for line in lines
+                      if line.startswith(("decision:", "no missing physics", "missing physics:"))
+                      or "not identifiable" in line)
+
+    assert said(full) and said(out["lines"]) == said(full)

@@ -357,6 +357,11 @@ class DiagnoseConfig(_Section):
                             "(noise resampled in whole cycles, periodic model error included); p-values resolve "
                             "1 / (replicates + 1)")
     seed: int = Field(0, ge=0, le=2**32 - 1, description="Seed of the bootstrap (the same seed gives the same p-values)")
+    max_motion_rows: int = Field(20_000_000, ge=100_000, le=10**10,
+                                 description="Most motion rows (3 per compared pixel and frame of the run's window) "
+                                 "the diagnosis compares; a larger window is compared on every s-th pixel of every "
+                                 "s-th row, s the smallest that fits. Memory grows with it: 2.0-2.8 GB peak at 3.8-3.9 "
+                                 "million, 6.5 GB at 11.3 million (docs/diagnose.md)")
 
 
 class RecordingConfig(_Section):

@@ -475,7 +475,8 @@ def laplace(ext: _Extended, st: _State, blocks) -> tuple[np.ndarray, float]:
 
     g_l, qm, g_c, h_lc, h_cc, _ = blocks
     p = ext.problem
-    corr = effective_sample_size(with_displacements(p, st.disp).motion_residuals(st.x, st.frames))
+    corr = effective_sample_size(with_displacements(p, st.disp).motion_residuals(st.x, st.frames),
+                                 pixel_stride=p.meas.pixel_stride)
     dof = posterior(qm, corr).dof
     kappa = _kappa_after(ext.baseline(st.x, st.disp, st.frames), qm, dof, st.disp, ext.p)
     if ext.p == 0:

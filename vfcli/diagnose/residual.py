@@ -32,12 +32,15 @@ class WindowResidual:
     motion : (F, H, W, 3) mm/s.  gap : (F, n_rays, 2) mm.
     pixel_region : (H, W) motion region of each pixel, -1 none.
     gap_region : (n_rays, 2) gap region (fold * 3 + length band) of each ray and side, -1 none.
+    pixel_stride : s: the motion is compared on every s-th pixel of every s-th row only (NaN elsewhere;
+        ``Measurement.pixel_stride``).
     """
 
     motion: np.ndarray
     gap: np.ndarray
     pixel_region: np.ndarray
     gap_region: np.ndarray
+    pixel_stride: int = 1
 
 
 def region_means(values: np.ndarray, labels: np.ndarray, n_regions: int) -> np.ndarray:
@@ -123,7 +126,16 @@ def window_residual(baseline) -> WindowResidual:
             sign = 1.0 if side == 0 else -1.0          # medial is +px for the low side, -px for the high one
             gap[f, rays, side] = -sign * dist[at:at + rays.size] / p.camera.px_per_mm
             at += rays.size
-    return WindowResidual(motion, gap, pixel_regions(baseline), gap_regions(p))
+    return WindowResidual(motion, gap, pixel_regions(baseline), gap_regions(p), p.meas.pixel_stride)
+
+
+def grid_filled(image: np.ndarray, stride: int) -> np.ndarray:
+    """(H, W, ...) each ``stride`` x ``stride`` block of ``image`` set to its top-left (grid) pixel's value: a map
+    of a residual compared on every s-th pixel of every s-th row, shown whole.  ``stride`` 1: ``image`` itself."""
+    if stride <= 1:
+        return image
+    h, w = image.shape[:2]
+    return np.repeat(np.repeat(image[::stride, ::stride], stride, axis=0), stride, axis=1)[:h, :w]
 
 
 def medial_silhouettes(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

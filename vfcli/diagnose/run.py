@@ -122,15 +122,18 @@ def measured_motion_series(rec: Recording, camera_rotation_deg: float, pixel_reg
     return out
 
 
-def ldv_points_per_region(ldv_px: np.ndarray | None, used: np.ndarray | None, pixel_region: np.ndarray) -> np.ndarray:
-    """(18,) scan points (used ones) whose screen position falls on each region."""
+def ldv_points_per_region(ldv_px: np.ndarray | None, used: np.ndarray | None, pixel_region: np.ndarray,
+                          pixel_stride: int = 1) -> np.ndarray:
+    """(18,) scan points (used ones) whose screen position falls on each region (on a ``pixel_stride`` grid's
+    regions: at its nearest grid pixel)."""
     out = np.zeros(N_REGIONS)
     if ldv_px is None:
         return out
     px = np.asarray(ldv_px, float)
     keep = np.all(np.isfinite(px), axis=1) & (np.ones(len(px), bool) if used is None else np.asarray(used, bool))
     h, w = pixel_region.shape
-    col, row = np.rint(px[keep, 0]).astype(int), np.rint(px[keep, 1]).astype(int)
+    col = np.rint(px[keep, 0] / pixel_stride).astype(int) * pixel_stride
+    row = np.rint(px[keep, 1] / pixel_stride).astype(int) * pixel_stride
     inside = (row >= 0) & (row < h) & (col >= 0) & (col < w)
     reg = pixel_region[row[inside], col[inside]]
     np.add.at(out, reg[reg >= 0], 1.0)
@@ -159,7 +162,7 @@ def locate_run(baseline, rec: Recording, settings: LocateSettings | None = None)
         density = ldv_noise_density(rec.ldv_velocity, rec.ldv_fs_hz, cycles.f0_hz, rec.ldv_used)
         widths = floor.frames_per_bin / max(floor.frames_per_bin.sum(), 1e-12)
         kb, kh = ldv_known_variance(density, rec.ldv_record_s,
-                                    ldv_points_per_region(rec.ldv_px, rec.ldv_used, res.pixel_region),
+                                    ldv_points_per_region(rec.ldv_px, rec.ldv_used, res.pixel_region, res.pixel_stride),
                                     2, 3, widths, k)
         floor = floor.with_known(kb, kh)
     families = {"motion": decompose(region_means(res.motion, res.pixel_region, N_REGIONS), cycles.phase[window],

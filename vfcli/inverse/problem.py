@@ -107,6 +107,8 @@ class Measurement:
         the fold at smaller / larger lateral px; NaN: no target on that ray.
     gap : (F, H, W) bool measured gap masks (where the recording sees no tissue), or
         None; needed by ``ObjectiveSettings.outside = "symmetric"``.
+    pixel_stride : s: the motion is compared on every s-th pixel of every s-th row only
+        (:meth:`thinned`; 1: every pixel).
     """
 
     times: np.ndarray
@@ -115,10 +117,29 @@ class Measurement:
     gap_lo: np.ndarray
     gap_hi: np.ndarray
     gap: np.ndarray | None = None
+    pixel_stride: int = 1
 
     @property
     def dt(self) -> float:
         return float(self.times[1] - self.times[0])
+
+    def thinned(self, stride: int) -> Measurement:
+        """The measurement with its velocity compared on the pixels (row, col) with ``row % stride == 0`` and
+        ``col % stride == 0`` only (``valid`` cleared elsewhere); the gap masks and silhouettes stay whole.
+        Residuals of smooth fields are correlated over many pixels, so this keeps most of what the motion
+        tells while the rows drop by ``stride ** 2`` (:func:`vfcli.inverse.uncertainty.effective_sample_size`
+        counts the correlation area on the thinned grid)."""
+        stride = int(stride)
+        if stride < 1:
+            raise ValueError(f"stride must be >= 1, got {stride}")
+        if stride == self.pixel_stride:
+            return self
+        if self.pixel_stride != 1:
+            raise ValueError(f"the measurement is thinned to every {self.pixel_stride}th pixel already")
+        h, w = np.shape(self.valid)[1:]
+        grid = np.zeros((h, w), bool)
+        grid[::stride, ::stride] = True
+        return replace(self, valid=np.asarray(self.valid, bool) & grid, pixel_stride=stride)
 
     @classmethod
     def from_gap_masks(cls, times: np.ndarray, velocity: np.ndarray, valid: np.ndarray, gap_masks: np.ndarray,
@@ -264,6 +285,15 @@ class Problem:
             raise ValueError(f"with_weights changes term weights only, not {sorted(unknown)}")
         other = copy.copy(self)
         other.settings = replace(self.settings, **weights)
+        return other
+
+    def thinned(self, stride: int) -> Problem:
+        """The same problem comparing the motion on a ``stride`` pixel grid only (:meth:`Measurement.thinned`);
+        shares everything else with this one (nothing computed in ``__init__`` depends on ``valid``)."""
+        if int(stride) == self.meas.pixel_stride:
+            return self
+        other = copy.copy(self)
+        other.meas = self.meas.thinned(stride)
         return other
 
     def displacements(self, x: np.ndarray) -> np.ndarray:

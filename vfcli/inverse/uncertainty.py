@@ -111,50 +111,71 @@ def _radial_integral(rho: np.ndarray, max_lag: int) -> float:
     return float(max(rho[r <= r_max].sum(), 1.0))
 
 
-def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64) -> ResidualCorrelation:
+def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64, pixel_stride: int = 1) -> ResidualCorrelation:
     """Independent-residual count of motion residual images.
 
     Parameters
     ----------
     residuals : (F, H, W, C) residuals (NaN where none), e.g.
         :meth:`vfcli.inverse.problem.Problem.motion_residuals`.
-    max_lag_px : largest spatial lag considered, px.
+    max_lag_px : largest spatial lag considered, px of the grid the residuals are on.
+    pixel_stride : s: the residuals are on every s-th pixel of every s-th row only (a thinned problem,
+        ``Measurement.pixel_stride``); the correlation area A is then counted on that grid (A in px / s^2).
 
     Returns
     -------
     ResidualCorrelation (A >= 1 px, tau >= 1 frame).
+
+    Memory: besides the input, one float64 copy of the values at the pixels valid in some frame and
+    its (F, ...) validity; the spatial part runs frame by frame, the correlation time one lag at a
+    time as dot products (no (F, H, W, C) temporaries: a 250-frame 384 x 384 px window needed ~4 GB
+    of them before).
     """
     r = np.asarray(residuals, dtype=float)
-    valid = np.isfinite(r)
-    n_res = int(valid.sum())
-    if n_res == 0:
-        return ResidualCorrelation(0, 1.0, 1.0, 0.0)
-    z = np.where(valid, r, 0.0)
-    var = float(np.sum(z * z)) / n_res
-    if var <= 0:
-        return ResidualCorrelation(n_res, 1.0, 1.0, float(n_res))
-    f, h, w, _ = r.shape
+    if pixel_stride > 1:
+        r = r[:, ::pixel_stride, ::pixel_stride]
+    f, h, w, ch = r.shape
     shape = (2 * h, 2 * w)
     num = np.zeros(shape)
     cnt = np.zeros(shape)
+    seen = np.zeros((h, w, ch), bool)
+    n_res, ss = 0, 0.0
     for k in range(f):
-        m = valid[k].astype(float)
-        fz = np.fft.rfft2(z[k], shape, axes=(0, 1))
-        fm = np.fft.rfft2(m, shape, axes=(0, 1))
-        num += np.fft.irfft2(np.sum(fz * np.conj(fz), axis=-1), shape)
-        cnt += np.fft.irfft2(np.sum(fm * np.conj(fm), axis=-1), shape)
+        valid = np.isfinite(r[k])
+        z = np.where(valid, r[k], 0.0)
+        n_res += int(valid.sum())
+        ss += float(np.vdot(z, z))
+        seen |= valid
+        fz = np.fft.rfft2(z, shape, axes=(0, 1))
+        fm = np.fft.rfft2(valid.astype(float), shape, axes=(0, 1))
+        num += np.fft.irfft2(np.sum((fz * np.conj(fz)).real, axis=-1), shape)
+        cnt += np.fft.irfft2(np.sum((fm * np.conj(fm)).real, axis=-1), shape)
+    if n_res == 0:
+        return ResidualCorrelation(0, 1.0, 1.0, 0.0)
+    var = ss / n_res
+    if var <= 0:
+        return ResidualCorrelation(n_res, 1.0, 1.0, float(n_res))
     lag = min(max_lag_px, h - 1, w - 1)
     num = np.fft.fftshift(num)[h - lag:h + lag + 1, w - lag:w + lag + 1]
     cnt = np.fft.fftshift(cnt)[h - lag:h + lag + 1, w - lag:w + lag + 1]
     enough = cnt > 0.1 * cnt.max()
     rho = np.where(enough, num / np.maximum(cnt, 1e-12) / var, 0.0)
     area = _radial_integral(rho, lag)
+
+    cols = np.flatnonzero(seen.reshape(-1))
+    flat = r.reshape(f, -1)
+    valid = np.empty((f, cols.size), bool)
+    z = np.empty((f, cols.size))
+    for k in range(f):
+        z[k] = flat[k, cols]
+        valid[k] = np.isfinite(z[k])
+        z[k, ~valid[k]] = 0.0
     tau = 1.0
     for k in range(1, f // 2 + 1):
-        both = valid[k:] & valid[:-k]
-        if not both.any():
+        both = int(np.count_nonzero(valid[k:] & valid[:-k]))
+        if both == 0:
             break
-        c = float(np.sum(z[k:] * z[:-k] * both)) / (int(both.sum()) * var)
+        c = float(np.vdot(z[k:].reshape(-1), z[:-k].reshape(-1))) / (both * var)
         if c <= 0:
             break
         tau += 2.0 * c

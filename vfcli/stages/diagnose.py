@@ -21,7 +21,7 @@ import numpy as np
 from vfcli.config import RecordingConfig
 from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.cycles import TooFewCycles, too_few_advice
-from vfcli.diagnose.residual import rms_residual
+from vfcli.diagnose.residual import grid_filled, rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.model.refine import finer_model
@@ -64,6 +64,16 @@ def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], at
     return RecordingConfig.model_validate(data)
 
 
+def motion_stride(valid: np.ndarray, max_rows: int) -> int:
+    """The smallest pixel stride s whose grid (every s-th pixel of every s-th row) leaves at most ``max_rows``
+    motion rows (3 per valid pixel and frame) of the window's ``valid`` (F, H, W) bool."""
+    v = np.asarray(valid, bool)
+    s = 1
+    while 3 * int(np.count_nonzero(v[:, ::s, ::s])) > max_rows and s < min(v.shape[1:]):
+        s += 1
+    return s
+
+
 def pressure_f0_hz(reader: StoreReader) -> float:
     """f0 of the subglottal pressure, Hz: the median of ``/sync``'s f0 over the vibrometer points it aligned
     (no dropout); NaN without /sync and /ldv.  The glottal cycles are counted with it
@@ -91,6 +101,9 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
     roi = np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float)
     cfg = run_recording_config(config, stored.config, stored.attrs, roi)
     problem, _ = problem_of_store(reader, cfg)
+    # a large window (many frames of large images) is compared on a coarser pixel grid: the diagnosis holds
+    # several row-length vectors per candidate, which outgrew 23 GB at 101.6 M rows (docs/diagnose.md)
+    problem = problem.thinned(motion_stride(problem.meas.valid, config.diagnose.max_motion_rows))
     if problem.n_params != len(stored.controls) or not np.allclose(problem.sim_times, stored.sim_time, atol=1e-9):
         raise InputDataError(f"{group} does not match the model rebuilt from the store ({problem.n_params} "
                              f"controls, {len(problem.sim_times)} times against {len(stored.controls)}, "
@@ -122,6 +135,13 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
     return DiagnoseInputs(baseline, rec, stored.config, dict(stored.attrs))
 
 
+def stride_words(stride: int, max_rows: int) -> str:
+    """The line that says the motion was compared on a coarser grid."""
+    nth = {2: "2nd", 3: "3rd"}.get(stride, f"{stride}th")
+    return (f"the window's motion was compared on every {nth} pixel of every {nth} row: every pixel would give more "
+            f"than diagnose.max_motion_rows = {max_rows:,} rows (the noise counts its correlation on that grid)")
+
+
 def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> None:
     """Write the diagnosis into the stage group (keys of the store layout)."""
     loc, res = d.located, d.locate.residual
@@ -131,7 +151,7 @@ def write_diagnosis(s: StageWriter, d: Diagnosis, frame_time: np.ndarray) -> Non
     motion = loc.families["motion"]
     s.put("region_name", np.array(motion.region_names, dtype=object))
     s.put("pixel_region", res.pixel_region.astype(np.int8))
-    s.put("rms_residual", rms_residual(res.motion).astype(np.float32))
+    s.put("rms_residual", grid_filled(rms_residual(res.motion), res.pixel_stride).astype(np.float32))
     for fam, dec in loc.families.items():
         if fam == "gap":
             s.put("gap_region_name", np.array(dec.region_names, dtype=object))
@@ -216,8 +236,11 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         choose([], available_candidates(), refit)
     except ValueError as exc:
         raise ConfigError(f"diagnose: {exc}") from None
-    config_json = json.dumps({"diagnose": {"alpha": alpha, "n_harmonics": n_harmonics, "refit": refit,
-                                           "replicates": dcfg.replicates, "seed": dcfg.seed}}, sort_keys=True)
+    settings_used = {"alpha": alpha, "n_harmonics": n_harmonics, "refit": refit, "replicates": dcfg.replicates,
+                     "seed": dcfg.seed}
+    if dcfg.max_motion_rows != type(dcfg).model_fields["max_motion_rows"].default:
+        settings_used["max_motion_rows"] = dcfg.max_motion_rows     # at its default: stores diagnosed before it stay fresh
+    config_json = json.dumps({"diagnose": settings_used}, sort_keys=True)
     upstream: list[tuple[str, str | None]] = [("optimize", run), ("mesh", None), ("fields", None), ("flow", None)]
     if ctx.store.exists():
         with ctx.store.read() as r:
@@ -232,10 +255,16 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             rec = inputs.recording
             advice = too_few_advice(rec.glottal_area, inputs.baseline.problem.dt, rec.pressure_f0_hz)
             raise InputDataError(f"diagnose: {exc}; {advice}", reader.path) from None
+        stride = inputs.baseline.problem.meas.pixel_stride
+        if stride > 1:
+            d.lines.insert(1, stride_words(stride, ctx.config.diagnose.max_motion_rows))
+            log.info("diagnose: %s", d.lines[1])
+        s.set_attrs(pixel_stride=stride)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 
-            residual_map(d.located, d.locate.residual.motion, map_path, f"residual of run {run}")
+            residual_map(d.located, d.locate.residual.motion, map_path, f"residual of run {run}",
+                         d.locate.residual.pixel_stride)
         cands = available_candidates()
         profiled = d.decision.profile_leads if d.decision is not None else ()
         cand = choose(d.screening, cands, refit, alpha, profiled)
@@ -295,8 +324,10 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     conf = dataclasses.replace(got.confirmation, run=name)
     write_confirmation(s, conf)
     if "before" in paths:
-        residual_map(d.located, d.locate.residual.motion, paths["before"], f"residual of run {run}")
-    residual_map(got.after.located, got.after.residual.motion, paths["after"], f"residual of run {name}")
+        residual_map(d.located, d.locate.residual.motion, paths["before"], f"residual of run {run}",
+                     d.locate.residual.pixel_stride)
+    residual_map(got.after.located, got.after.residual.motion, paths["after"], f"residual of run {name}",
+                 got.after.residual.pixel_stride)
     velocity_at_points(b, b.displacements, got.refit.displacements, paths["points"],
                        f"velocity at points: measured, run {run}, run {name}", name)
     others = [g.confirmation for c, g in tried if g is not got]
@@ -307,7 +338,7 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     # the extended run states the same uncertainty as the diagnosis (with the held-out fits' disagreement)
     done.update(refit=dataclasses.replace(got.refit, sd=np.asarray(conf.sd, float), uncertainty=conf.uncertainty),
                 name=name, sim_time=p.sim_times, config=inputs.run_config,
-                attrs=inputs.run_attrs or {},
+                attrs={**(inputs.run_attrs or {}), "pixel_stride": p.meas.pixel_stride},
                 parameter_names=[str(v) for v in getattr(p.response.load_model, "parameter_names", lambda: [])()])
     extra = {"refit": conf.as_dict(), "images": {k: str(v) for k, v in paths.items()}}
     if others:

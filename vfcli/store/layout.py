@@ -319,8 +319,11 @@ STAGES: dict[str, Stage] = {
                 "frame_cycle_phase": D("index", "Phase of the cycle of each window frame: 0 opening, 1 open, 2 closing, 3 closed", ("frame_time",)),
                 "region_name": D("text", "Name of each motion region", ("region",)),
                 "gap_region_name": D("text", "Name of each gap region", ("gap_region",)),
-                "pixel_region": D("index", "Motion region the model shows at each pixel, -1 none", ("row", "col")),
-                "rms_residual": D("mm/s", "RMS over the window of the measured minus simulated velocity", ("row", "col", "component")),
+                "pixel_region": D("index", "Motion region the model shows at each pixel, -1 none (on every s-th pixel of every "
+                                  "s-th row only, attr pixel_stride s)", ("row", "col")),
+                "rms_residual": D("mm/s", "RMS over the window of the measured minus simulated velocity (compared on every "
+                                  "s-th pixel of every s-th row, attr pixel_stride s: each grid pixel's value fills its "
+                                  "block)", ("row", "col", "component")),
                 "motion_phase_mean": D("mm/s", "Surface velocity: mean residual (measured minus simulated) over each phase of the cycle", ("region", "component", "cycle_phase")),
                 "motion_phase_sd": D("mm/s", "Surface velocity: noise floor (standard deviation) of that mean", ("region", "component", "cycle_phase")),
                 "motion_phase_dof": D("1", "Surface velocity: degrees of freedom of the noise floor (whole cycles)", ("region", "component", "cycle_phase")),

@@ -61,3 +61,12 @@ def read_truth(path: str | Path, keys: list[str] | None = None) -> tuple[dict[st
         attrs = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in f.attrs.items()}
         wanted = keys if keys is not None else [k for k in layout.TRUTH if k in f]
         return {k: f[k][()] for k in wanted}, attrs
+
+
+@contextmanager
+def truth_datasets(path: str | Path) -> Iterator[dict[str, h5py.Dataset]]:
+    """The per-frame datasets of a phantom's ``truth.h5`` (keys of :data:`vfcli.store.layout.TRUTH` present), open
+    for reading in slices of frames: a scorer of a long large-frame phantom streams them rather than holding
+    ``screen/velocity`` whole (1600 frames of 384 x 384 px: 2.8 GB as stored).  Tests and benchmarks only."""
+    with h5py.File(path, "r") as f:
+        yield {k: f[k] for k in layout.TRUTH if k in f}

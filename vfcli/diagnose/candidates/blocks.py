@@ -92,7 +92,7 @@ def _kappa_after(baseline, model, dof: float, u: np.ndarray, n_extra: int) -> fl
     for f, fr in enumerate(baseline.frames):
         images[f, fr.pix_both] = fr.m_both @ p.frame_velocity(u, f) - fr.v_both
         images[f, fr.pix_only] = -p.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
-    corr = effective_sample_size(images.reshape(p.n_frames, h, w, 3))
+    corr = effective_sample_size(images.reshape(p.n_frames, h, w, 3), pixel_stride=p.meas.pixel_stride)
     motion = next(t for t in p.terms if t.name == "motion")
     e_motion = motion.value(Evaluation(p, baseline.x, u, baseline.frames))
     return max(corr.n_eff - dof - n_extra, 1.0) / (2.0 * max(float(e_motion), 1e-300))
@@ -114,7 +114,7 @@ def screen_run_columns(candidates, baseline, rtol: float = 1e-10):
 
     p = baseline.problem
     model = gauss_newton_model(p, baseline.x, baseline.frames, baseline.displacements)
-    corr = effective_sample_size(p.motion_residuals(baseline.x, baseline.frames))
+    corr = effective_sample_size(p.motion_residuals(baseline.x, baseline.frames), pixel_stride=p.meas.pixel_stride)
     dof = posterior(model, corr).dof
     g_l = model.grad
     g_data = g_l - _grad_disp(p, baseline.x, baseline.displacements, baseline.frames)[1]    # the ridge left out

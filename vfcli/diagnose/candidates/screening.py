@@ -90,7 +90,8 @@ def row_noise(baseline, residual: np.ndarray, q: np.ndarray | None = None) -> np
 
     n_motion = baseline.n_motion_rows
     r = np.asarray(residual, dtype=float)
-    corr = effective_sample_size(baseline.problem.motion_residuals(baseline.x, baseline.frames))
+    corr = effective_sample_size(baseline.problem.motion_residuals(baseline.x, baseline.frames),
+                                 pixel_stride=baseline.problem.meas.pixel_stride)
     out = np.empty(len(r))
     for rows, inflate in ((slice(0, n_motion), corr.area_px * corr.tau_frames),
                           (slice(n_motion, len(r)), corr.tau_frames)):
