@@ -196,6 +196,20 @@ def test_the_held_out_change_is_said_with_its_direction_not_as_minus_zero_lower(
     assert "(0.3 % higher, 4 splits" in lines[66.7] and "(72 % lower, 4 splits" in lines[89.2], lines
 
 
+def test_a_refit_that_kept_no_step_says_its_estimate_is_its_start():
+    """Panel nulls 2011 and 2030: the asymmetry refit's history held its start only, and the diagnosis printed
+    "left_softening = 0 (95 % interval -0.411 .. 0.411 ...)" as if fitted."""
+    from vfcli.diagnose.confirm import words
+
+    h = HeldOutError("cycles", "mm/s", np.full(4, 66.5), np.full(4, 66.7))
+    still = Confirmation("asymmetry", ("left_softening",), np.array([0.0]), np.array([0.21]), heldout=(h,), moved=False)
+    moved = dataclasses.replace(still, estimate=np.array([0.05]), moved=True)
+    assert words(still)[0].endswith("the refit never left its start (no step of it lowered E): this is the value it "
+                                    "started from, with the term switched off, not a fitted one")
+    assert "never left its start" not in words(moved)[0]
+    assert still.as_dict()["moved"] is False and moved.as_dict()["moved"] is True
+
+
 def test_choose_takes_the_smallest_identifiable_lead_below_the_family_level_or_the_named_one():
     from vfcli.diagnose.candidate import Screening
     from vfcli.diagnose.candidates import CANDIDATES

@@ -99,7 +99,8 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     if mesh is not None:
         log.info("mesh part of %s: %s (%.0f s)", candidate.name, np.round(mesh, 6), time.perf_counter() - t4)
     sd, name, dof, _ = heldout_sd(result.theta, result.sd, held, mesh)
-    conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof)
+    conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof,
+                        moved=len(result.history["iteration"]) > 1)
     ext = extended_baseline(baseline, result)
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
 
@@ -109,6 +110,9 @@ def words(conf: Confirmation) -> list[str]:
     est = ", ".join(f"{n} = {e:.3g} (95 % interval {a:.3g} .. {b:.3g}, {conf.uncertainty})"
                     for n, e, (a, b) in zip(conf.parameter_names, conf.estimate, conf.interval))
     out = [f"refit with {conf.candidate}{f' (run {conf.run})' if conf.run else ''}: {est}"]
+    if not conf.moved:
+        out[0] += ("; the refit never left its start (no step of it lowered E): this is the value it started from, "
+                   "with the term switched off, not a fitted one")
     names = {"cycles": "leaving frames out (by cycle, or by block in a short window)",
              "instruments": "vertical velocity predicted from the camera"}
     for h in conf.heldout:

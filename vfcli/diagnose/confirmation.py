@@ -167,6 +167,8 @@ class Confirmation:
     run : name of the /optimize run the extended model was stored as ("" when not stored).
     dof : degrees of freedom of the stated sd (infinite for the sandwich; G - 1 when a jackknife over G
         held-out groups set it, :func:`heldout_sd`): the interval is Student's.
+    moved : False when the refit kept no step (its history holds its start only): the estimate is the start
+        value (the term switched off), not a fitted one.
     """
 
     candidate: str
@@ -177,6 +179,7 @@ class Confirmation:
     heldout: tuple[HeldOutError, ...] = ()
     run: str = ""
     dof: float = float("inf")
+    moved: bool = True
 
     @property
     def interval(self) -> np.ndarray:
@@ -202,4 +205,4 @@ class Confirmation:
                 "parameters": {n: {"estimate": float(e), "sd": float(s), "interval": [float(a), float(b)]}
                                for n, e, s, (a, b) in zip(self.parameter_names, self.estimate, self.sd,
                                                           self.interval)},
-                "heldout": [h.as_dict() for h in self.heldout], "improves": self.improves}
+                "heldout": [h.as_dict() for h in self.heldout], "improves": self.improves, "moved": self.moved}
