@@ -9,6 +9,7 @@ from scipy.ndimage import gaussian_filter
 
 from _flow_phantom import SlitPhantom
 from vfcli.flow.gap.detect import binary_median_line, gap_mask, gap_threshold, glottal_area, midline_from_masks
+from vfcli.flow.gap.subpixel.segment import FIT_BATCH_FRAMES
 from vfcli.flow.gap.subpixel import (
     EdgeModel,
     SubpixelGap,
@@ -297,7 +298,8 @@ def test_segment_stream_holds_only_a_few_frames_and_matches_one_frame_at_a_time(
             yield f
 
     for k, (frame, seg) in enumerate(segment_stream(source(), gap)):
-        assert len(read) <= k + gap.half_window_frames + 1  # yielded as soon as the window is full
+        # yielded as soon as the window is full and its batch of frames fitted together
+        assert len(read) <= k + gap.half_window_frames + FIT_BATCH_FRAMES
         np.testing.assert_array_equal(frame, frames[k])
         np.testing.assert_array_equal(seg.mask, segs[k].mask)
     assert k == len(frames) - 1  # every frame came out
@@ -364,3 +366,24 @@ def test_median_along_the_slit_keeps_a_one_pixel_slit_a_square_median_erases():
     along = binary_median_line(dark, 5, axis=1)  # the window runs along the slit: the slit stays
     assert along[20, 7:53].all() and not along[8, 30]
     assert not binary_median_line(dark, 5, axis=0).any()  # across the slit: a one-pixel slit goes
+
+
+def test_rays_of_several_frames_fitted_together_give_each_frame_s_own_edges(narrow):
+    """fit_ray_edges_many stacks the rays of frames whose windows differ in length (the shorter padded with samples
+    of no weight): each frame's edges, levels and cost are those of its own fit_ray_edges call."""
+    from vfcli.flow.gap.subpixel.profile import fit_ray_edges, fit_ray_edges_many
+    from vfcli.flow.gap.subpixel.segment import _detected
+
+    ph, frames, gap, _ = narrow
+    found = [_detected(frames[k], gap) for k in (3, 10, 17)]
+    found = [(f, d) for f, d in zip((frames[3], frames[10], frames[17]), found) if d[3] is not None]
+    assert len(found) >= 2
+    many = fit_ray_edges_many([f for f, _ in found], [d[0] for _, d in found], [d[1] for _, d in found], gap.model,
+                              gap.lateral_axis, inners=[d[3] for _, d in found], gap_counts=[d[4] for _, d in found])
+    widths = set()
+    for (f, d), got in zip(found, many):
+        one = fit_ray_edges(f, d[0], d[1], gap.model, gap.lateral_axis, inner=d[3], gap_counts=d[4])
+        widths.add(int(np.nanmax(d[1] - d[0])))
+        for a, b in ((got.e0, one.e0), (got.e1, one.e1), (got.levels, one.levels), (got.cost, one.cost)):
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9, equal_nan=True)
+    assert len(widths) > 1          # the frames' windows did differ in length

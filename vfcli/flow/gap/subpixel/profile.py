@@ -331,21 +331,61 @@ def fit_ray_edges(
     -------
     SlitFit over all rays (NaN edges on rays that were NaN on input).
     """
+    return fit_ray_edges_many([frame], [e0], [e1], model, lateral_axis, passes,
+                              None if inner is None else [inner], None if gap_counts is None else [gap_counts])[0]
+
+
+def fit_ray_edges_many(
+    frames: list, e0s: list, e1s: list, model: EdgeModel, lateral_axis: int = 0, passes: int = 2,
+    inners: list | None = None, gap_counts: list | None = None,
+) -> list[SlitFit]:
+    """:func:`fit_ray_edges` of several frames in one :func:`fit_slit_profiles` call per pass (their rays stacked,
+    each frame's windows padded to the longest with samples of no weight): every ray is fitted on its own, so the
+    edges are those of one call per frame, for a fraction of the per-call cost of the Levenberg-Marquardt loop
+    (:data:`vfcli.flow.gap.subpixel.segment.FIT_BATCH_FRAMES`).
+
+    frames : K (H, W) arrays of counts.  e0s, e1s : K (n_rays,) float.  inners : K pairs or None.
+    gap_counts : K (n_rays,) float or None.  Returns K :class:`SlitFit`.
+    """
     margin = max(MIN_WINDOW_PX, int(np.ceil(WINDOW_SIGMAS * model.psf_sigma_px)))
-    e0 = np.asarray(e0, float).copy()
-    e1 = np.asarray(e1, float).copy()
-    sel = np.flatnonzero(np.isfinite(e0) & np.isfinite(e1))
-    # the rough run's outermost pixels are darker than the threshold, which lies at most half-way
-    # between gap and tissue: their centres are in the gap, so the edges lie at or beyond them
-    inner = (e0[sel] + 0.5, e1[sel] - 0.5) if inner is None else (np.asarray(inner[0], float)[sel],
-                                                                     np.asarray(inner[1], float)[sel])
-    prior = np.broadcast_to(np.asarray(model.gap_counts if gap_counts is None else gap_counts, float), e0.shape)[sel]
-    levels = np.full((len(e0), 5), np.nan)
-    rms = np.full(len(e0), np.nan)
-    cost = np.full(len(e0), np.nan)
+    e0s = [np.asarray(e, float).copy() for e in e0s]
+    e1s = [np.asarray(e, float).copy() for e in e1s]
+    sels, inner_lo, inner_hi, priors = [], [], [], []
+    for k, (e0, e1) in enumerate(zip(e0s, e1s)):
+        sel = np.flatnonzero(np.isfinite(e0) & np.isfinite(e1))
+        inner = None if inners is None else inners[k]
+        # the rough run's outermost pixels are darker than the threshold, which lies at most half-way
+        # between gap and tissue: their centres are in the gap, so the edges lie at or beyond them
+        lo, hi = (e0[sel] + 0.5, e1[sel] - 0.5) if inner is None else (np.asarray(inner[0], float)[sel],
+                                                                         np.asarray(inner[1], float)[sel])
+        g = model.gap_counts if gap_counts is None or gap_counts[k] is None else gap_counts[k]
+        sels.append(sel)
+        inner_lo.append(lo)
+        inner_hi.append(hi)
+        priors.append(np.broadcast_to(np.asarray(g, float), e0.shape)[sel])
+    levels = [np.full((len(e0), 5), np.nan) for e0 in e0s]
+    rms = [np.full(len(e0), np.nan) for e0 in e0s]
+    cost = [np.full(len(e0), np.nan) for e0 in e0s]
+    at = np.concatenate([[0], np.cumsum([len(sel) for sel in sels])]).astype(int)
+    if at[-1] == 0:
+        return [SlitFit(*parts) for parts in zip(e0s, e1s, levels, rms, cost)]
+    inner = (np.concatenate(inner_lo), np.concatenate(inner_hi))
+    prior = np.concatenate(priors)
     for _ in range(max(1, passes)):
-        prof, rows = ray_windows(frame, e0, e1, margin, lateral_axis)
-        fit = fit_slit_profiles(prof[sel], rows[sel], e0[sel], e1[sel], model.psf_sigma_px, prior, inner=inner)
-        e0[sel], e1[sel] = fit.e0, fit.e1
-        levels[sel], rms[sel], cost[sel] = fit.levels, fit.rms, fit.cost
-    return SlitFit(e0, e1, levels, rms, cost)
+        windows = [ray_windows(f, e0, e1, margin, lateral_axis) for f, e0, e1 in zip(frames, e0s, e1s)]
+        length = max(w[0].shape[1] for w in windows)
+        prof = np.full((at[-1], length), np.nan)
+        rows = np.zeros((at[-1], length))
+        for k, ((pk, rk), sel) in enumerate(zip(windows, sels)):
+            n = pk.shape[1]
+            prof[at[k]:at[k + 1], :n] = pk[sel]
+            rows[at[k]:at[k + 1], :n] = rk[sel]
+            rows[at[k]:at[k + 1], n:] = rk[sel][:, -1:] + np.arange(1, length - n + 1)
+        start0 = np.concatenate([e0[sel] for e0, sel in zip(e0s, sels)])
+        start1 = np.concatenate([e1[sel] for e1, sel in zip(e1s, sels)])
+        fit = fit_slit_profiles(prof, rows, start0, start1, model.psf_sigma_px, prior, inner=inner)
+        for k, sel in enumerate(sels):                  # the next pass's windows are centred on these edges
+            part = slice(at[k], at[k + 1])
+            e0s[k][sel], e1s[k][sel] = fit.e0[part], fit.e1[part]
+            levels[k][sel], rms[k][sel], cost[k][sel] = fit.levels[part], fit.rms[part], fit.cost[part]
+    return [SlitFit(*parts) for parts in zip(e0s, e1s, levels, rms, cost)]
