@@ -37,6 +37,8 @@ Choices, by measurement (tests/test_sync.py fixture: 0.2 s epochs at 50 kHz, f0 
   harmonic): 1.5 us for 0.7 s CPU per 100 points (fundamental reference); 16 per period:
   1.0 us, 1.9 s; every sample: 0.7 us, 4.2 s. The noise-limited error scales as
   sqrt(stride).
+* The strided fit averages the samples it skips first (session 28, :func:`vfcli.sync.phase.prefiltered`): every
+  figure of this list about halves (374 points 1.57 -> 0.77 us); the figures here are from before it.
 * Phase reference: the fundamental costs a little noise (1.6 us vs 1.4 us for the whole
   template on identical waveforms) but is unbiased when the waveform's harmonics change
   between recordings: with 2% / 5% random changes of harmonics 2.. the template reference
