@@ -16,14 +16,15 @@ from vfcli.diagnose.cycles import PHASE_NAMES
 from vfcli.diagnose.locate import Located
 from vfcli.diagnose.regions import DEPTH_NAMES, FOLD_NAMES, LENGTH_NAMES
 from vfcli.diagnose.noise import _quiet
-from vfcli.diagnose.residual import grid_filled
+from vfcli.diagnose.residual import WindowResidual, grid_filled
 
 
-def rms_map(motion: np.ndarray, pixel_stride: int = 1) -> np.ndarray:
-    """(H, W) RMS over frames and components of the window's motion residual (F, H, W, 3), mm/s; NaN never seen
-    (compared on a ``pixel_stride`` grid: each grid pixel's value fills its block, :func:`grid_filled`)."""
+def rms_map(residual: WindowResidual) -> np.ndarray:
+    """(H, W) RMS over frames and components of the window's motion residual, mm/s; NaN never seen (compared on
+    a coarser pixel grid: each grid pixel's value fills its block, :func:`grid_filled`)."""
     with _quiet():
-        return grid_filled(np.sqrt(np.nanmean(np.asarray(motion, float) ** 2, axis=(0, 3))), pixel_stride)
+        rms = np.sqrt(np.nanmean(np.asarray(residual.motion, float) ** 2, axis=(0, 3)))
+    return grid_filled(rms, residual.pixel_stride)
 
 
 def region_ratio(located: Located) -> np.ndarray:
@@ -35,8 +36,9 @@ def region_ratio(located: Located) -> np.ndarray:
         return np.nanmax(np.where(np.isfinite(both), both, -np.inf), axis=1)
 
 
-def residual_map(located: Located, motion: np.ndarray, path: str | Path, title: str, pixel_stride: int = 1) -> None:
-    """Write the residual map (module docstring) to ``path`` (PNG); ``pixel_stride`` as :func:`rms_map`."""
+def residual_map(located: Located, residual: WindowResidual, path: str | Path, title: str) -> None:
+    """Write the residual map (module docstring) of Locate's ``located`` and the window's ``residual`` to ``path``
+    (PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -45,7 +47,7 @@ def residual_map(located: Located, motion: np.ndarray, path: str | Path, title: 
     d = located.families["motion"]
     fig, axes = plt.subplots(2, 3, figsize=(13, 8), dpi=100)
     ax = axes[0, 0]
-    im = ax.imshow(rms_map(motion, pixel_stride), cmap="magma")
+    im = ax.imshow(rms_map(residual), cmap="magma")
     ax.set_title("RMS residual over the window (mm/s)")
     ax.set_xlabel("column (px)")
     ax.set_ylabel("row (px)")

@@ -263,8 +263,7 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 
-            residual_map(d.located, d.locate.residual.motion, map_path, f"residual of run {run}",
-                         d.locate.residual.pixel_stride)
+            residual_map(d.located, d.locate.residual, map_path, f"residual of run {run}")
         cands = available_candidates()
         profiled = d.decision.profile_leads if d.decision is not None else ()
         cand = choose(d.screening, cands, refit, alpha, profiled)
@@ -324,10 +323,8 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     conf = dataclasses.replace(got.confirmation, run=name)
     write_confirmation(s, conf)
     if "before" in paths:
-        residual_map(d.located, d.locate.residual.motion, paths["before"], f"residual of run {run}",
-                     d.locate.residual.pixel_stride)
-    residual_map(got.after.located, got.after.residual.motion, paths["after"], f"residual of run {name}",
-                 got.after.residual.pixel_stride)
+        residual_map(d.located, d.locate.residual, paths["before"], f"residual of run {run}")
+    residual_map(got.after.located, got.after.residual, paths["after"], f"residual of run {name}")
     velocity_at_points(b, b.displacements, got.refit.displacements, paths["points"],
                        f"velocity at points: measured, run {run}, run {name}", name)
     others = [g.confirmation for c, g in tried if g is not got]
