@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vfcli.camera.camera import Camera  # noqa: E402
-from vfcli.synth.scoring import end_point_error, iou, relative_rms_error  # noqa: E402
+from vfcli.synth.scoring import end_point_error, iou, relative_rms_error, sync_offset_error  # noqa: E402
 from vfcli.store import Store, read_truth  # noqa: E402
 
 
@@ -65,8 +65,7 @@ def score(store: Path, truth_path: Path) -> dict[str, float]:
     surface = t["screen/visible"] & ~t["screen/gap"] & ~gap
     surface[[0, -1]] = False  # first and last frames are extrapolated
     epe, epe95 = end_point_error(flow_px, true_px, surface)
-    period = 1 / t["ldv/f0_hz"]
-    err = np.mod(off - t["ldv/sync_offset_s"] + period / 2, period) - period / 2
+    err = sync_offset_error(off, t["ldv/sync_offset_s"], t["ldv/f0_hz"])
     open_frames = t["screen/glottal_area"] > 0.5
     return {
         "sync_rms_us": 1e6 * float(np.sqrt(np.mean(err[ok] ** 2))),

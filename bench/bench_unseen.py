@@ -65,7 +65,8 @@ from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
 from vfcli.store.truth import read_truth, truth_datasets  # noqa: E402
-from vfcli.synth.scoring import interval_coverage, iou, relative_rms_error, rms, side_truth  # noqa: E402
+from vfcli.synth.scoring import (interval_coverage, iou, relative_rms_error, rms, side_truth,  # noqa: E402
+                                 sync_offset_error)
 
 STAGES = ["synth", "ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize"]
 NEEDS = {"synth": [], "ingest-hsc": ["synth"], "ingest-ldv": ["synth"], "sync": ["ingest-hsc", "ingest-ldv"],
@@ -187,8 +188,7 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
     with Store(store).read() as r:
         if stages["sync"][0] == 0:
             off, ok = r.read("sync", "offset_s"), r.read("sync", "ok")
-            period = 1 / t["ldv/f0_hz"]
-            err = np.mod(off - t["ldv/sync_offset_s"] + period / 2, period) - period / 2
+            err = sync_offset_error(off, t["ldv/sync_offset_s"], t["ldv/f0_hz"])
             s["sync_rms_us"] = 1e6 * rms(err[ok]) if ok.any() else float("nan")
         if stages["flow"][0] == 0:
             gap, area = r.read("flow", "gap_mask"), r.read("flow", "glottal_area")

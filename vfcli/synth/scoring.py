@@ -20,6 +20,13 @@ def rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2))) if x.size else float("nan")
 
 
+def sync_offset_error(offset_s: np.ndarray, true_offset_s: np.ndarray, f0_hz: np.ndarray) -> np.ndarray:
+    """(P,) s: each vibrometer epoch's synchronised offset minus the true one, wrapped to half a glottal period
+    (an offset is a phase: a whole period apart is the same alignment)."""
+    period = 1.0 / np.asarray(f0_hz, float)
+    return np.mod(np.asarray(offset_s, float) - true_offset_s + period / 2, period) - period / 2
+
+
 def end_point_error(flow: np.ndarray, truth: np.ndarray, where: np.ndarray) -> tuple[float, float]:
     """(mean, 95th percentile) of |flow - truth| over ``where``; flow, truth (..., 2)."""
     err = np.linalg.norm(flow - truth, axis=-1)[where]
