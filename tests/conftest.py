@@ -27,21 +27,40 @@ def sigint_default() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+_ZYGOTE = None
+
+
 def run_vfcli(*args: str, cwd: Path | None = None, timeout: float = 600) -> subprocess.CompletedProcess:
-    """Run the real `vfcli` command in a subprocess."""
+    """Run the real `vfcli` command in its own process: forked from this worker's helper process,
+    which imported vfcli and its libraries once (tests/_zygote.py), or a fresh interpreter when
+    ``VFCLI_TEST_FRESH=1``. Output captured as text, as ``subprocess.run(..., capture_output=True,
+    text=True)``; ``subprocess.TimeoutExpired`` after ``timeout`` s."""
+    global _ZYGOTE
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([*VFCLI, *map(str, args)], capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
+    argv = [str(a) for a in args]
+    if os.environ.get("VFCLI_TEST_FRESH") == "1":
+        return subprocess.run([*VFCLI, *argv], capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
+    from _zygote import Zygote
+
+    if _ZYGOTE is None or not _ZYGOTE.alive():
+        _ZYGOTE = Zygote(ROOT)
+    return _ZYGOTE.run(argv, cwd, env, timeout)
+
+
+def pytest_unconfigure(config):
+    """This worker's helper process (:func:`run_vfcli`) ends with it."""
+    if _ZYGOTE is not None:
+        _ZYGOTE.close()
 
 
 #: the test files that take longest (`make test --durations`), started first: pytest-xdist's
 #: loadfile scheduling hands out files in collection order (see :func:`pytest_configure`), and with
 #: the slowest last one worker ran test_diagnose_refit_phantom.py alone for its last three minutes
-#: (10 min 8 s on a quiet machine). The last five: the next largest in CPU time (31-40 s of CPU
-#: each), which the alphabetical order left in the suite's second half.
-SLOW_FIRST = ("test_diagnose_refit_phantom.py", "test_examples_batch.py", "test_run.py", "test_contact_phantom.py",
-              "test_batch.py", "test_diagnose_stage.py", "test_loads_widened.py", "test_diagnose_refit.py",
-              "test_rotation_end_to_end.py", "test_store_integrity.py", "test_hostile_fuzz_files.py",
-              "test_ldv_on_folds.py", "test_store_sharing.py")
+#: (10 min 8 s on a quiet machine). Ordered by the files' time in session 29's run (tests/_zygote.py
+#: in use), 84 s down to 26 s.
+SLOW_FIRST = ("test_diagnose_refit_phantom.py", "test_examples_batch.py", "test_diagnose_refit.py", "test_run.py",
+              "test_hostile_fuzz_files.py", "test_batch.py", "test_store_commit.py", "test_rotation_end_to_end.py",
+              "test_fem.py", "test_hostile_fuzz.py", "test_flow_stage.py", "test_diagnose_calibrate.py")
 
 
 def pytest_configure(config):
