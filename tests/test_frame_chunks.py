@@ -247,3 +247,46 @@ def test_a_value_above_4095_stops_the_nbit_stream_naming_frame_and_value():
 def test_nbit_chunks_are_12_bit_and_unfiltered_only(codec):
     with pytest.raises(ValueError, match="12 bits"):
         ChunkCodec(**codec)
+
+
+@pytest.mark.parametrize("dtype, frame_shape", [(np.float32, (48, 40, 2)), (bool, (48, 40)), (np.float32, (37, 3))])
+def test_a_frame_sink_writes_what_libhdf5s_own_filters_write(tmp_path, dtype, frame_shape):
+    """:class:`vfcli.store.frames.FrameSink` (the flow and synth stages' per-frame datasets): frames written
+    one at a time and in slices read back through h5py (libhdf5's shuffle + deflate) equal to the same frames
+    written by ``ds[k] = frame``, in a dataset with the same filters; a frame of another shape or a slice of the
+    wrong length is refused."""
+    from vfcli.store.frames import COMPRESSIONS, FrameSink
+
+    rng = np.random.default_rng(3)
+    n = 7
+    frames = rng.normal(0, 100, (n, *frame_shape)).astype(np.float32)
+    frames[:, : frame_shape[0] // 2] = np.round(frames[:, : frame_shape[0] // 2])   # a compressible half
+    frames = (frames > 40) if dtype is bool else frames
+    with h5py.File(tmp_path / "a.h5", "w") as f:
+        plain = f.create_dataset("plain", (n, *frame_shape), dtype, chunks=(1, *frame_shape), **COMPRESSIONS["gzip"])
+        sunk = f.create_dataset("sunk", (n, *frame_shape), dtype, chunks=(1, *frame_shape), **COMPRESSIONS["gzip"])
+        sink = FrameSink(sunk)
+        for k in range(n):
+            plain[k] = frames[k]
+        sink[0] = frames[0]
+        sink[1:5] = frames[1:5]
+        for k in (6, 5):
+            sink[k] = frames[k]
+        with pytest.raises(ValueError, match="shape"):
+            sink[2] = frames[2][:-1]
+        with pytest.raises(ValueError, match="need shape"):
+            sink[1:3] = frames[1:4]
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        assert (f["sunk"].compression, f["sunk"].shuffle) == ("gzip", True)
+        np.testing.assert_array_equal(f["sunk"][()], f["plain"][()])
+        np.testing.assert_array_equal(f["sunk"][()], frames)
+        assert f["sunk"].dtype == f["plain"].dtype
+
+
+def test_a_frame_sink_needs_one_frame_per_chunk(tmp_path):
+    from vfcli.store.frames import FrameSink
+
+    with h5py.File(tmp_path / "b.h5", "w") as f:
+        ds = f.create_dataset("x", (4, 8, 8), np.float32, chunks=(2, 8, 8), compression="gzip")
+        with pytest.raises(ValueError, match="one frame per chunk"):
+            FrameSink(ds)

@@ -24,6 +24,7 @@ from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, 
                                     points_on_folds_of_video, points_on_image, pressure_velocity_bound)
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
+from vfcli.store.frames import FrameSink
 from vfcli.store.precision import round_mantissa
 from vfcli.stages.base import RunContext, StageResult, StageSpec, run_stages, stage_config_json
 
@@ -49,9 +50,9 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     frame_time = reader.read("hsc", "frame_time")
     calib, stream = flow_pipeline(frames, cfg, fps=fps, px_per_mm=px_per_mm, rotation_deg=rotation,
                                   t0_s=float(frame_time[0]), axis_from_gap=ctx.config.camera.pose == "estimate")
-    ds_mask = s.create("gap_mask", (n, h, w), bool)
-    ds_open = s.create("opening", (n, h, w), np.float32)
-    ds_flow = s.create("flow", (n, h, w, 2), np.float32)
+    ds_mask = FrameSink(s.create("gap_mask", (n, h, w), bool))
+    ds_open = FrameSink(s.create("opening", (n, h, w), np.float32))
+    ds_flow = FrameSink(s.create("flow", (n, h, w, 2), np.float32))
     area = np.zeros(n)
     gap_counts = np.zeros((h, w), np.int32)
     bar = ctx.progress(total=n, desc="flow", unit="frame")
@@ -202,8 +203,8 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
             j = min(i + CHUNK_FRAMES, n)
             yield ds_flow[i:j], ds_gap[i:j], aligned[:, i:j]
 
-    ds_vel = s.create("velocity", (n, h, w, 3), np.float32, attrs={"mantissa_bits": FIELDS_MANTISSA_BITS})
-    ds_valid = s.create("valid", (n, h, w), bool)
+    ds_vel = FrameSink(s.create("velocity", (n, h, w, 3), np.float32, attrs={"mantissa_bits": FIELDS_MANTISSA_BITS}))
+    ds_valid = FrameSink(s.create("valid", (n, h, w), bool))
     n_valid = i = 0
     speed_p99 = 0.0
     bar = ctx.progress(total=n, desc="fields", unit="frame")

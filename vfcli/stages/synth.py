@@ -39,6 +39,7 @@ from vfcli.io.video.base import open_video
 from vfcli.io.video.tiff_avi import write_tiff
 from vfcli.progress import Progress, no_progress
 from vfcli.store import write_truth
+from vfcli.store.frames import FrameSink
 from vfcli.store.parts import is_no_room, no_room_error
 from vfcli.synth.phantom import Recording, make_recording
 from vfcli.stages.base import StageResult
@@ -70,11 +71,10 @@ def _write_video(rec: Recording, out: Path, progress: Progress) -> None:
     h, w = rec.camera.height, rec.camera.width
     n_nodes = rec.truth.mesh.n_nodes
     with write_truth(out / "truth.h5") as tw:
-        disp = tw.create("frames/displacement", (n, n_nodes, 3), np.float32)
-        vel = tw.create("frames/velocity", (n, n_nodes, 3), np.float32)
-        screen_v = tw.create("screen/velocity", (n, h, w, 3), np.float32)
-        gap = tw.create("screen/gap", (n, h, w), bool)
-        visible = tw.create("screen/visible", (n, h, w), bool)
+        disp, vel, screen_v, gap, visible = (FrameSink(tw.create(key, shape, dtype)) for key, shape, dtype in (
+            ("frames/displacement", (n, n_nodes, 3), np.float32), ("frames/velocity", (n, n_nodes, 3), np.float32),
+            ("screen/velocity", (n, h, w, 3), np.float32), ("screen/gap", (n, h, w), bool),
+            ("screen/visible", (n, h, w), bool)))
         area = np.zeros(n)
         bar = progress(total=n, desc="synth: render", unit="frame")
 
