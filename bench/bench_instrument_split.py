@@ -10,7 +10,12 @@ per-frame scatter of the first (the long-run covariance of each frame's contribu
 :mod:`vfcli.inverse.sandwich` measures the fit's own), and the coverage of the 90 % intervals with
 the fit's MSE alone and with each instrument part added (``RMS_t |d_a - d_b| / sqrt(2)`` in quadrature);
 and the fit's MSE split into its scatter (``H^-1 S H^-1``) and the ridge's expected bias, with the
-coverage of the scatter alone (:mod:`vfcli.inverse.sandwich`).
+coverage of the scatter alone (:mod:`vfcli.inverse.sandwich`); and, in place of the expected bias under the
+ridge's own prior, the plug-in bias of this fit, ``H^-1 Lambda x_hat`` (its square added to the scatter; session 29),
+with the coverage of scatter + plug-in bias + instruments and of scatter + instruments.
+
+A kept store's truth is read from ``DIR/raw/truth.h5`` (``bench_unseen.py``) or ``DIR/truth/truth.h5``
+(``bench_diagnose.py``, which keeps it out of the raw folder).
 
 Reproduce::
 
@@ -23,6 +28,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -33,7 +39,7 @@ from _runner import side_truth_at  # noqa: E402
 from vfcli.config import RecordingConfig  # noqa: E402
 from vfcli.inverse.block_matrix import BlockMatrix  # noqa: E402
 from vfcli.inverse.linearization import gauss_newton_model  # noqa: E402
-from vfcli.inverse.sandwich import frame_scores, long_run_covariance, sandwich  # noqa: E402
+from vfcli.inverse.sandwich import frame_scores, long_run_covariance, mse_covariance, sandwich  # noqa: E402
 from vfcli.inverse.uncertainty import INSTRUMENTS, displacement_std, instrument_fits  # noqa: E402
 from vfcli.stages.diagnose import run_recording_config  # noqa: E402
 from vfcli.store import Store  # noqa: E402
@@ -72,7 +78,12 @@ def split(work: Path) -> dict[str, float]:
     d_old, d_new = diff(old), diff(new)
     cov = BlockMatrix(len(x), (np.arange(len(x)),), (long_run_covariance(q).covariance,))
     scatter = np.mean(displacement_std(cov, lin)[:-1] ** 2, axis=0)
-    nodes, ref = side_truth_at(work / "raw" / "truth.h5", mesh, stored.sim_time[:-1])
+    # the plug-in bias H^-1 Lambda x_hat of this fit, squared, in place of the ridge's expected bias
+    lam_x = (2.0 * float(prob.settings.ridge_weight) / prob.n_params) * (sp.csr_matrix(prob.penalty) @ x)
+    score_cov = long_run_covariance(frame_scores(prob, x, frames, u, lin)).covariance
+    plug_std = displacement_std(mse_covariance(joint.hessian, score_cov, np.outer(lam_x, lam_x))[0], lin)[:-1]
+    truth = work / "raw" / "truth.h5"
+    nodes, ref = side_truth_at(truth if truth.is_file() else work / "truth" / "truth.h5", mesh, stored.sim_time[:-1])
     est = np.asarray(stored.displacements, float)[:-1][:, nodes]
     post2 = np.maximum(std[:, nodes] ** 2 - si[nodes][None] ** 2, 0.0)
     rms = lambda a: float(np.sqrt(np.mean(a)))  # noqa: E731
@@ -83,7 +94,13 @@ def split(work: Path) -> dict[str, float]:
             "coverage, centred on the fit": interval_coverage(est, np.sqrt(post2 + d_new[nodes][None] / 2), ref),
             "MSE: scatter": rms(scatter_std[:, nodes] ** 2),
             "MSE: ridge bias": rms(np.maximum(mse_std[:, nodes] ** 2 - scatter_std[:, nodes] ** 2, 0.0)),
-            "coverage, scatter only": interval_coverage(est, scatter_std[:, nodes], ref)}
+            "coverage, scatter only": interval_coverage(est, scatter_std[:, nodes], ref),
+            "MSE: plug-in ridge bias": rms(np.maximum(plug_std[:, nodes] ** 2 - scatter_std[:, nodes] ** 2, 0.0)),
+            "coverage, scatter + plug-in bias + instruments": interval_coverage(
+                est, np.sqrt(plug_std[:, nodes] ** 2 + si[nodes][None] ** 2), ref),
+            "coverage, scatter + instruments": interval_coverage(
+                est, np.sqrt(scatter_std[:, nodes] ** 2 + si[nodes][None] ** 2), ref),
+            "coverage, as stated": interval_coverage(est, std[:, nodes], ref)}
 
 
 def main() -> None:
