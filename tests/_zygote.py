@@ -23,6 +23,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 #: the helper process: imports, then serves one fork per request line (JSON) on stdin,
@@ -104,16 +105,18 @@ class Zygote:
         env = {**os.environ, "PYTHONPATH": str(root)}
         modules = [m for m in PRELOAD if _importable(m)]
         self.proc = subprocess.Popen([executable, "-c", _SERVER, ",".join(modules)], stdin=subprocess.PIPE,
-                                     stdout=subprocess.PIPE, env=env, cwd=root)
-        if self.proc.stdout.readline() != b"ready\n":
+                                     stdout=subprocess.PIPE, env=env, cwd=root, bufsize=0)
+        self._pending = b""   # bytes of the helper's replies read but not yet used (os.read, no hidden buffer)
+        if self._line(None) != b"ready":
             raise RuntimeError("the vfcli test helper process did not start")
+        self._lock = threading.Lock()   # one request at a time: a test's threads may share the helper
 
     def alive(self) -> bool:
         return self.proc.poll() is None
 
     def run(self, args: list[str], cwd: Path | None, env: dict[str, str], timeout: float
             ) -> subprocess.CompletedProcess:
-        with tempfile.TemporaryDirectory(prefix="vfcli-zygote-") as tmp:
+        with self._lock, tempfile.TemporaryDirectory(prefix="vfcli-zygote-") as tmp:
             out, err = Path(tmp) / "stdout", Path(tmp) / "stderr"
             out.touch()
             err.touch()
@@ -121,16 +124,32 @@ class Zygote:
                    "stderr": str(err), "argv0": self.argv0}
             self.proc.stdin.write(json.dumps(req).encode() + b"\n")
             self.proc.stdin.flush()
-            pid = json.loads(self.proc.stdout.readline())["pid"]
-            ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+            pid = json.loads(self._line(None))["pid"]
+            reply = self._line(timeout)
+            ready = reply is not None
             if not ready:
                 os.kill(pid, signal.SIGKILL)
-            status = json.loads(self.proc.stdout.readline())["status"]
+                reply = self._line(None)
+            status = json.loads(reply)["status"]
             stdout, stderr = out.read_text(errors="replace"), err.read_text(errors="replace")
         cmd = [sys.executable, "-m", "vfcli.cli.main", *args]
         if not ready:
             raise subprocess.TimeoutExpired(cmd, timeout, output=stdout, stderr=stderr)
         return subprocess.CompletedProcess(cmd, os.waitstatus_to_exitcode(status), stdout, stderr)
+
+    def _line(self, timeout: float | None) -> bytes | None:
+        """The helper's next reply line (without its newline), or None when ``timeout`` s pass first."""
+        fd = self.proc.stdout.fileno()
+        while b"\n" not in self._pending:
+            ready, _, _ = select.select([fd], [], [], timeout)
+            if not ready:
+                return None
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                raise RuntimeError("the vfcli test helper process ended")
+            self._pending += chunk
+        line, self._pending = self._pending.split(b"\n", 1)
+        return line
 
     def close(self) -> None:
         if self.alive():

@@ -68,3 +68,29 @@ def test_a_child_is_its_own_process_with_the_callers_environment(zygote, tmp_pat
     assert narrow.returncode == wide.returncode == 0
     first = lambda text: next(line for line in text.splitlines() if "vfcli: 3D" in line)  # noqa: E731
     assert len(first(narrow.stdout)) <= 50 < len(first(wide.stdout))
+
+
+
+def test_two_replies_that_arrive_together_are_both_read_at_once():
+    """A child that ends before its pid is read leaves both reply lines in the pipe together. Read through a
+    buffered ``readline``, the second sat in the reader's buffer while ``select`` waited on the empty pipe until
+    the timeout (a command that had ended, reported as timed out). The helper's replies are read with
+    ``os.read`` into the Zygote's own buffer: both lines come back, the second without waiting."""
+    import types
+
+    r, w = os.pipe()
+    z = Zygote.__new__(Zygote)
+    z.proc = types.SimpleNamespace(stdout=os.fdopen(r, "rb", buffering=0))
+    z._pending = b""
+    os.write(w, b'{"pid": 12}\n{"status": 0}\n')
+    assert z._line(None) == b'{"pid": 12}'
+    assert z._line(0.01) == b'{"status": 0}'
+    assert z._line(0.01) is None            # nothing more: the timeout, not a hang
+    os.close(w)
+    z.proc.stdout.close()
+
+
+def test_quick_commands_in_a_row_each_get_their_answer(zygote, tmp_path):
+    for _ in range(40):
+        res = zygote.run(["--version"], tmp_path, dict(os.environ), 120)
+        assert res.returncode == 0 and res.stdout.startswith("vfcli")
