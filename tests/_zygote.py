@@ -89,7 +89,8 @@ for line in requests:
 
 #: what the helper imports before it forks: the heavy libraries and every stage's command module
 PRELOAD = ("numpy", "scipy.sparse.linalg", "scipy.optimize", "scipy.interpolate", "scipy.spatial", "scipy.signal",
-           "scipy.ndimage", "h5py", "cv2", "skfem", "pydantic", "click", "matplotlib", "vfcli.cli.main",
+           "scipy.ndimage", "h5py", "cv2", "skfem", "pydantic", "click", "matplotlib", "matplotlib.pyplot",
+           "vfcli.cli.main", "vfcli.diagnose.run", "vfcli.stages.export_job",
            *(f"vfcli.cli.{c}" for c in ("ingest", "sync", "flow", "mesh", "optimize", "export", "run", "synth",
                                         "diagnose", "report", "config", "info")),
            *(f"vfcli.stages.{s}" for s in ("ingest", "sync", "flow", "mesh", "optimize", "export", "run", "synth",
