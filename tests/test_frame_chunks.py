@@ -290,3 +290,30 @@ def test_a_frame_sink_needs_one_frame_per_chunk(tmp_path):
         ds = f.create_dataset("x", (4, 8, 8), np.float32, chunks=(2, 8, 8), compression="gzip")
         with pytest.raises(ValueError, match="one frame per chunk"):
             FrameSink(ds)
+
+
+@pytest.mark.parametrize("name", ["gzip", "gzip4", "none"])
+def test_a_frame_sink_encodes_with_the_datasets_own_filters(tmp_path, name):
+    """The sink's codec is read from the dataset's filters, never assumed: chunks written under each of vfcli's
+    filters read back equal through h5py; filters vfcli does not write (LZF, gzip at level 9) are refused."""
+    from vfcli.store.frames import COMPRESSIONS, FrameSink, compression_of
+
+    frames = np.round(np.random.default_rng(5).normal(0, 50, (3, 16, 12)).astype(np.float32))
+    with h5py.File(tmp_path / "c.h5", "w") as f:
+        ds = f.create_dataset("x", frames.shape, np.float32, chunks=(1, 16, 12), **COMPRESSIONS[name])
+        assert compression_of(ds) == name
+        FrameSink(ds)[0:3] = frames
+        for other in ({"compression": "lzf"}, {"compression": "gzip", "compression_opts": 9, "shuffle": True}):
+            odd = f.create_dataset(f"odd{len(f)}", frames.shape, np.float32, chunks=(1, 16, 12), **other)
+            with pytest.raises(ValueError, match="none of vfcli's"):
+                FrameSink(odd)
+    with h5py.File(tmp_path / "c.h5", "r") as f:
+        np.testing.assert_array_equal(f["x"][()], frames)
+
+
+def test_the_nbit_filter_is_read_from_the_dataset(tmp_path):
+    from vfcli.store.frames import compression_of, nbit_dataset
+
+    with h5py.File(tmp_path / "d.h5", "w") as f:
+        ds = nbit_dataset(f, "v", (2, 8, 8), np.uint16, (1, 8, 8), 12)
+        assert compression_of(ds) == "nbit"

@@ -44,6 +44,27 @@ CHUNK_CODECS: dict[str, ChunkCodec] = {
 }
 
 
+def compression_of(ds: h5py.Dataset) -> str:
+    """The name in :data:`COMPRESSIONS` of ``ds``'s filters ("gzip", "gzip4", "nbit", "none").
+
+    Raises
+    ------
+    ValueError
+        Filters vfcli does not write (e.g. LZF, or gzip at another level).
+    """
+    dcpl = ds.id.get_create_plist()
+    if any(dcpl.get_filter(i)[0] == h5py.h5z.FILTER_NBIT for i in range(dcpl.get_nfilters())):
+        return "nbit"
+    for name, opts in COMPRESSIONS.items():
+        if "nbit" in opts:
+            continue
+        if (ds.compression, ds.compression_opts, bool(ds.shuffle)) == (
+                opts.get("compression"), opts.get("compression_opts"), bool(opts.get("shuffle", False))):
+            return name
+    raise ValueError(f"{ds.name}: filters {ds.compression!r} (options {ds.compression_opts!r}, shuffle {ds.shuffle}) "
+                     f"are none of vfcli's {sorted(COMPRESSIONS)}")
+
+
 class FrameSink:
     """Frames written one at a time (or a few) into a one-frame-per-chunk dataset, each chunk
     encoded by vfcli (:data:`CHUNK_CODECS`: shuffle + ISA-L deflate for "gzip") and stored with
@@ -54,14 +75,15 @@ class FrameSink:
     also encodes in parallel; a sink serves a stage that fills several datasets from one loop.
 
     ``sink[k] = frame`` writes frame k ((*shape[1:]) array), ``sink[i:j] = frames`` frames i..j-1
-    ((j - i, *shape[1:])); frames are converted to the dataset's dtype.
+    ((j - i, *shape[1:])); frames are converted to the dataset's dtype. The codec is the one of the
+    dataset's own filters (:func:`compression_of`), so the chunks always match them.
     """
 
-    def __init__(self, ds: h5py.Dataset, compression: str = "gzip") -> None:
+    def __init__(self, ds: h5py.Dataset) -> None:
         if ds.chunks is None or ds.chunks != (1, *ds.shape[1:]):
             raise ValueError(f"{ds.name}: a frame sink needs one frame per chunk, the dataset's chunks are {ds.chunks}")
         self.dataset = ds
-        self._codec = CHUNK_CODECS[compression]
+        self._codec = CHUNK_CODECS[compression_of(ds)]
         self._zeros = (0,) * (ds.ndim - 1)
 
     def __setitem__(self, index: int | slice, frames: Any) -> None:
