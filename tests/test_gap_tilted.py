@@ -96,13 +96,7 @@ def _walled_slit(sigma_px: float = 0.4) -> np.ndarray:
     """(100, 120) counts: a 5 px gap (rows 47.5-52.5) at 230 counts between dark medial walls that brighten from
     550 counts at the edge by 200 counts/px up to the top surface at 1500, under a sharp PSF (widened seed 1030,
     frame 45: gap 210-300 counts, walls 425, 560, 680, 1030 away from an edge)."""
-    sub = 8
-    r = (np.arange(100 * sub) + 0.5) / sub - 0.5
-    d = np.abs(r - 50.0) - 2.5
-    level = np.where(d < 0, 230.0, np.minimum(550.0 + 200.0 * d, 1500.0))
-    column = level.reshape(100, sub).mean(axis=1)
-    frame = gaussian_filter(np.repeat(column[:, None], 120, axis=1), (sigma_px, 0))
-    return frame + np.random.default_rng(2).normal(0, 10, frame.shape)
+    return _walled_slit_with(2.5, sigma_px, 200.0, 2)
 
 
 def test_dark_walls_below_the_threshold_are_not_taken_for_gap_under_sharp_optics():
@@ -123,6 +117,60 @@ def test_dark_walls_below_the_threshold_are_not_taken_for_gap_under_sharp_optics
         # (MIN_WINDOW_PX); 0.22 px with the one pixel that WINDOW_SIGMAS gives under this PSF, too short to pin
         # the walls' ramp; 0.50 px before the floor, held at the walls' first pixel centres
         assert abs(np.median(e0[cols]) - 47.5) < 0.1 and abs(np.median(e1[cols]) - 52.5) < 0.1
+
+
+def _walled_slit_with(half_width_px: float, sigma_px: float, slope: float, seed: int,
+                      speck_rows: tuple[int, int] | None = None) -> np.ndarray:
+    """(100, 120) counts: a gap of ``2 half_width_px`` px around row 50 at 230 counts between dark walls that brighten
+    from 550 counts at the edge by ``slope`` counts/px up to 1500, integrated over each pixel, then blurred by a
+    Gaussian of ``sigma_px`` px; optionally a band of dark texture (380 counts) on rows ``speck_rows`` of one wall."""
+    sub = 8
+    r = (np.arange(100 * sub) + 0.5) / sub - 0.5
+    d = np.abs(r - 50.0) - half_width_px
+    column = np.where(d < 0, 230.0, np.minimum(550.0 + slope * d, 1500.0)).reshape(100, sub).mean(axis=1)
+    scene = np.repeat(column[:, None], 120, axis=1)
+    if speck_rows is not None:
+        scene[speck_rows[0]:speck_rows[1], 20:100] = 380.0
+    frame = gaussian_filter(scene, (sigma_px, 0))
+    return frame + np.random.default_rng(seed).normal(0, 10, frame.shape)
+
+
+def test_the_blur_is_read_from_the_gap_not_from_the_dark_walls_the_threshold_takes_with_it():
+    """The PSF search fits its rays free of the rough run's pixels: under sharp optics the run at the threshold
+    holds the walls' first pixels, and edges held there were fitted with a blur about 1.5 times too wide.
+
+    Measured on these slits (three frames 5-9 px wide, the threshold 686 counts above the walls' first pixel): the
+    effective blur (optics and pixel together, ``sqrt(sigma^2 + 1/12)``) 0.67 and 0.95 px read 1.05 and 1.43 px
+    before, 0.55 and 1.00 px now. (At 0.49 px: 0.85 before, 0.28 now; a step that sharp is one sample wide and its
+    blur barely moves the edge.)"""
+    from vfcli.flow.gap.detect import gap_mask
+    from vfcli.flow.gap.subpixel import estimate_edge_model
+
+    for sigma in (0.6, 0.9):
+        frames = np.stack([_walled_slit_with(h, sigma, 200.0, k) for k, h in enumerate((2.5, 3.5, 4.5))])
+        masks = np.stack([gap_mask(f, 686.0, 5) for f in frames])
+        model = estimate_edge_model(frames, masks)
+        effective = np.hypot(sigma, np.sqrt(1 / 12))
+        assert abs(model.psf_sigma_px / effective - 1) < 0.2, (sigma, model.psf_sigma_px)
+
+
+def test_dark_texture_on_a_wall_inside_the_detection_run_does_not_hold_the_edge():
+    """Only the run of surely-gap pixels through the pixel nearest the midline bounds the edges, and the fit also
+    starts from those bounds where they lie more than a pixel inside the detection run.
+
+    A ray's detection level (900 counts here, as the closed crease's levels give) lies above the dark walls, so the
+    run reaches 6 px beyond each edge, and a band of dark texture on one wall (rows 57-58, 380 counts) is darker than
+    the floor of the surely-gap pixels. Before, the texture's pixels bounded the edge and the fit stayed at the run's
+    end with the walls taken as gap: 46.5 and 58.6 for edges at 47 and 53."""
+    from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap
+    from vfcli.flow.gap.subpixel.segment import raw_edges
+
+    frame = _walled_slit_with(3.0, 0.4, 60.0, 2, speck_rows=(57, 59))
+    gap = SubpixelGap(686.0, EdgeModel(230.0, 0.4), midline=50.0, ray_levels=np.full(120, 900.0))
+    e0, e1 = raw_edges(frame, gap)
+    cols = np.arange(30, 90)
+    # measured: medians 47.00 and 53.00
+    assert abs(np.median(e0[cols]) - 47.0) < 0.1 and abs(np.median(e1[cols]) - 53.0) < 0.1
 
 
 def test_a_speck_joined_to_the_gap_through_a_neighbouring_ray_leaves_the_gaps_edges_alone():

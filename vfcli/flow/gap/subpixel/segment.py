@@ -159,7 +159,10 @@ def _detected(frame: np.ndarray, gap: SubpixelGap):
     g = gap.gap_levels(len(e0))
     half = np.minimum(gap.gap_like_below(len(e0)), gap.threshold)
     floor = np.minimum(level, half[None, :] if gap.lateral_axis == 0 else half[:, None])
-    core = rough & (np.asarray(frame) < floor)
+    # on each ray only the core's run through the pixel nearest the midline: a dark speck of texture on the wall,
+    # inside the rough run (whose level lies above the walls), is below the floor too, and its pixels held the edge
+    # at the speck (widened seed 1104 at the glottis' ends: edges 3-10 px too far out)
+    core, _ = _nearest_component(rough & (np.asarray(frame) < floor), gap.midline, gap.lateral_axis)
     c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
     inner = (np.where(np.isfinite(c0), c0 + 0.5, np.inf), np.where(np.isfinite(c1), c1 - 0.5, -np.inf))
     return e0, e1, component, inner, g
