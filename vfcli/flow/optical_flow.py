@@ -320,6 +320,7 @@ def flow_stream(
     estimator: FlowEstimator | None = None,
     split_folds: bool = False,
     gap: SubpixelGap | None = None,
+    median_along_slit: bool = False,
 ) -> Iterator[FlowFrame]:
     """The whole flow step, streamed: one :class:`FlowFrame` per input frame.
 
@@ -364,6 +365,9 @@ def flow_stream(
         area then comes from the edges); ``threshold``, ``median_px``, ``midline`` and
         ``lateral_axis`` are then taken from it. Default: the paper's binary mask
         (:func:`vfcli.flow.gap.detect.gap_mask`) and its pixel count.
+    median_along_slit : bool
+        The binary mask's median along the glottis instead of the square one (``gap_mask``'s option; a slit the
+        square median erases, :attr:`vfcli.flow.pipeline.FlowCalibration.median_along_slit`).
 
     Yields
     ------
@@ -382,7 +386,8 @@ def flow_stream(
         nonlocal sides
         frame, seg = item
         if seg is None:
-            m = gap_mask(frame, threshold, median_px, midline=midline, lateral_axis=lateral_axis)
+            m = gap_mask(frame, threshold, median_px, midline=midline, lateral_axis=lateral_axis,
+                         median_along_slit=median_along_slit)
             area = float(glottal_area(m, px_per_mm))
         else:
             m, area = seg.mask, seg.area_mm2(px_per_mm)

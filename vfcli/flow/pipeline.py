@@ -176,6 +176,9 @@ class FlowCalibration:
         The sampled gap is wide enough to show its own level (the channel's darkness) in two frames on at least
         :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays (:func:`warn_unresolved_gap`); False also
         without sub-pixel edges.
+    median_along_slit : bool
+        The gap was found only with the median along the glottis (:func:`vfcli.flow.gap.detect.gap_mask`): a slit the
+        square median erases in every sampled frame; the binary masks use it too.
     """
 
     threshold: float
@@ -188,6 +191,7 @@ class FlowCalibration:
     gap: SubpixelGap | None
     midline_line: np.ndarray | None = None
     gap_resolved: bool = False
+    median_along_slit: bool = False
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
@@ -202,38 +206,35 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
 
     The lateral image axis is the rotation's (:func:`lateral_axis_for`); with ``axis_from_gap``
     (the pose is estimated, the rotation only a prior) the other axis is taken when the gap
-    segmented along it runs across it and the rotation's does not.
+    segmented along it runs across it and the rotation's does not. Where the square median of the paper's
+    segmentation erases the gap in every sampled frame (a slit never wider than about half its window), the gap is
+    searched again with the median along the glottis (``median_along_slit``).
     Logs a warning when the sampled gap does not look like a glottis (:func:`check_sampled_gap`)
     or when sub-pixel edges are asked for but no gap is wide enough to measure them on.
     """
-    lateral = lateral_axis_for(rotation_deg)
     auto = cfg.threshold is None
     threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
     counts_range = intensity_range(sample)
-    core = None
-    masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral) for f in sample])
+    along = False
+    masks, lateral, core = _sampled_masks(sample, threshold, cfg.median_px, lateral_axis_for(rotation_deg),
+                                          axis_from_gap, along)
     if not masks.any():
-        # no dark core anywhere: a blurred gap never gets near black; measure the core from its darkest pixels
-        core = dark_core_level(sample, threshold)
-        masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral, core_level=core) for f in sample])
+        # a slit never wider than about half the median window: the paper's square median erases all of it
+        # (widened seed 1138: a 1-3 px slit under sharp optics, no gap in any frame and `flow` exit 3)
+        along = True
+        masks, lateral, core = _sampled_masks(sample, threshold, cfg.median_px, lateral_axis_for(rotation_deg),
+                                              axis_from_gap, along)
         if masks.any():
-            log.info("flow: no sampled gap reaches %.1f counts (half the threshold); gap cores taken below %.1f "
-                     "counts, half-way from the darkest pixels to the threshold", 0.5 * threshold, core)
-    if axis_from_gap and not _gap_agrees(masks, lateral):
-        other = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=1 - lateral, core_level=core)
-                          for f in sample])
-        if _gap_agrees(other, 1 - lateral):
-            log.info("flow: the gap runs along image %s; taking image %s as lateral (camera.pose = 'estimate')",
-                     _ALONG[1 - lateral], _LATERAL[1 - lateral])
-            lateral, masks = 1 - lateral, other
+            log.info("flow: the gap is a slit the %d px square median erases in every sampled frame; detected with "
+                     "the median along the glottis", cfg.median_px)
     check_sampled_gap(masks, threshold, auto, lateral)
     centre = midline_from_masks(masks, lateral)
     line = midline_line(centre)
     if line is not None:
         # again against the midline on each ray: a glottis at an angle to the image axis drifts laterally,
         # and the parts of its gap near the image's ends lie far from the largest part's centre
-        masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral, core_level=core, midline=line)
-                          for f in sample])
+        masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral, core_level=core, midline=line,
+                                   median_along_slit=along) for f in sample])
         centre = midline_from_masks(masks, lateral)
         line = midline_line(centre)
     seen = np.isfinite(centre)
@@ -267,7 +268,35 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                               ray_crease=ray_crease)
             gap, resolved = _with_ray_gap_levels(sample, masks, gap)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
-                           line, resolved)
+                           line, resolved, along)
+
+
+def _sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral: int, axis_from_gap: bool,
+                   along: bool) -> tuple[np.ndarray, int, float | None]:
+    """The sampled frames' gap masks (k, H, W) at ``threshold`` counts, the lateral axis and the core level
+    (None: half the threshold) they were found with; ``along``: the median along the glottis
+    (:func:`gap_mask`'s ``median_along_slit``) in place of the square one.
+
+    A gap with no dark core anywhere (a blurred gap never gets near black) is searched again with its core measured
+    from the darkest pixels; with ``axis_from_gap`` (the pose is estimated, the rotation only a prior) the other axis
+    is taken when the gap segmented along it runs across it and the rotation's does not."""
+    core = None
+    masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral, median_along_slit=along) for f in sample])
+    if not masks.any():
+        core = dark_core_level(sample, threshold)
+        masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral, core_level=core,
+                                   median_along_slit=along) for f in sample])
+        if masks.any():
+            log.info("flow: no sampled gap reaches %.1f counts (half the threshold); gap cores taken below %.1f "
+                     "counts, half-way from the darkest pixels to the threshold", 0.5 * threshold, core)
+    if axis_from_gap and not _gap_agrees(masks, lateral):
+        other = np.stack([gap_mask(f, threshold, median_px, lateral_axis=1 - lateral, core_level=core,
+                                   median_along_slit=along) for f in sample])
+        if _gap_agrees(other, 1 - lateral):
+            log.info("flow: the gap runs along image %s; taking image %s as lateral (camera.pose = 'estimate')",
+                     _ALONG[1 - lateral], _LATERAL[1 - lateral])
+            lateral, masks = 1 - lateral, other
+    return masks, lateral, core
 
 
 #: The rays' gap levels are measured on at most this many sampled frames, those whose rough gap is largest
@@ -360,7 +389,7 @@ def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: flo
         median_px=cfg.median_px, rotation_deg=rotation_deg, lateral_axis=calib.lateral_axis,
         initial_center=calib.centre, midline=calib.midline if calib.midline_line is None else calib.midline_line,
         t0_s=t0_s,
-        estimator=estimator, split_folds=cfg.split_folds, gap=calib.gap,
+        estimator=estimator, split_folds=cfg.split_folds, gap=calib.gap, median_along_slit=calib.median_along_slit,
     )
     return calib, stream
 

@@ -89,6 +89,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         gap_level_counts=np.nan if model is None else model.gap_counts,
         psf_sigma_px=np.nan if model is None else model.psf_sigma_px,
         gap_level_resolved=calib.gap_resolved,
+        median_along_slit=calib.median_along_slit,
         edge_window_px=np.nan if gap is None else float(gap.half_window_px),
         edge_window_frames=-1 if gap is None else int(gap.half_window_frames),
     )
