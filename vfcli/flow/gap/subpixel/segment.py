@@ -47,9 +47,9 @@ class SubpixelGap:
         The gap level seen on each ray, counts (:func:`vfcli.flow.gap.subpixel.gap_level.ray_gap_levels`): the
         edge fit's prior and rule (b)'s reference on that ray. None: ``model.gap_counts`` on every ray.
     ray_max_width : (n_rays,) float, optional
-        The widest gap each ray may show, px (:func:`vfcli.flow.gap.subpixel.taper.taper_limits`: the glottis
-        tapers toward its clamped ends); a ray fitted wider is closed (rule (c) of :func:`raw_edges`). None
-        or inf: no limit.
+        The widest gap each ray may show, px (:func:`vfcli.flow.gap.subpixel.taper.taper_limits`: toward the
+        glottis' ends a gap widens only gradually from ray to ray); a ray fitted wider is closed (rule (c) of
+        :func:`raw_edges`). None or inf: no limit.
     """
 
     threshold: float
@@ -106,8 +106,9 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        closed crease, with ``ray_crease``): a dark patch of tissue below the threshold is
        fitted with its own, brighter level. This replaces the dark-core hysteresis of
        :func:`gap_mask`, whose core a narrow, blurred slit never reaches.
-    4. Rule (c): a ray fitted wider than ``ray_max_width`` allows (outside the middle of the glottis, wider
-       than its middle opens) is closed: a dark patch or shadow touching the gap's tip, not the gap.
+    4. Rule (c): a ray fitted wider than ``ray_max_width`` allows (outside the middle of the glottis, more
+       than 1.5 times as wide as the widest of the rays between it and the middle) is closed: a dark patch or shadow touching
+       the gap's tip, not the gap.
 
     Parameters
     ----------
@@ -175,7 +176,7 @@ def _closed_rays(fit, component: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarr
     # step 3: whole components with enough rays that hold a pixel of the gap, at the gap's level
     closed |= (component == 0) | (_held_rays(e0, e1, fit.levels[:, 0], component, gap)[component] < gap.median_px)
     if gap.ray_max_width is not None:
-        closed |= (e1 - e0) > gap.ray_max_width       # rule (c): the glottis tapers toward its ends
+        closed |= (e1 - e0) > gap.ray_max_width       # rule (c): a patch touching the gap's tip
     e0[closed] = np.nan
     e1[closed] = np.nan
     return e0, e1, np.where(closed, np.nan, fit.levels[:, 0])
