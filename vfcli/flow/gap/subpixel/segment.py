@@ -107,8 +107,8 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        fitted with its own, brighter level. This replaces the dark-core hysteresis of
        :func:`gap_mask`, whose core a narrow, blurred slit never reaches.
     4. Rule (c): a ray fitted wider than ``ray_max_width`` allows (outside the middle of the glottis, more
-       than 1.5 times as wide as the widest of the rays between it and the middle) is closed: a dark patch or shadow touching
-       the gap's tip, not the gap.
+       than :data:`~vfcli.flow.gap.subpixel.taper.TAPER_FACTOR` times the widest of the rays between it and
+       the middle) is closed: a dark patch or shadow touching the gap's tip, not the gap.
 
     Parameters
     ----------
