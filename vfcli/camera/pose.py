@@ -1,14 +1,17 @@
-"""The pose of the fold model in the image, from the glottal gap seen over the recording.
+"""The pose of the fold model in the image, from the glottal gap and the motion seen over the recording.
 
 The camera's scale (px/mm) comes from a calibration target, but its in-plane rotation and
 the position of the model origin are usually unknown. The glottal midline (model y = 0) is
 the principal axis of the gap pixels over the recording (any in-plane angle; the sign of the
 axis is the one nearest a prior rotation). Along it, the folds are clamped at both ends
-(x = 0 and x = L): when both ends of the gap are in view the gap opens symmetrically about
-mid-length (the midpoint of the visible gap's extent along the axis is x = L/2, however often each part of
-it was found open); when the image cuts one end, the other,
-visible end is that end of the glottis; when it cuts both, the longitudinal position is not
-in the data, the visible centre is used and a warning says so.
+(x = 0 and x = L), so they move symmetrically about mid-length. When both ends of the gap are in
+view, the midpoint of the visible gap's extent along the axis is x = L/2 (however often each part of it
+was found open). When the image cuts an end, the gap's extent no longer says where mid-length is, but
+the measured motion does: the amplitude of the surface velocity along the glottis is mirror-symmetric
+about mid-length (:func:`motion_amplitude`, :func:`symmetry_mid`), and the part in view holds
+mid-length and enough of either side. Without the motion (or too little of it in view), one visible end
+places the glottis by the opening's sine envelope (:func:`envelope_start`) and two cut ends leave the
+position along the glottis unmeasured: the visible centre is used and a warning says so.
 """
 from __future__ import annotations
 
@@ -148,9 +151,110 @@ def envelope_start(gap_counts: np.ndarray, ax: GapAxis, length_px: float) -> flo
     return s0
 
 
-def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float,
-                  prior_deg: float = 0.0) -> tuple[float, tuple[float, float]]:
-    """(rotation_deg, offset_px) of the model frame in the image (see docs/conventions.md).
+#: The motion profiled along the glottis for its symmetry: pixels within this share of the glottis length
+#: of the midline (each side), where both folds' superior surfaces move.
+MOTION_BAND_REL = 0.25
+#: A pixel's motion amplitude counts when its velocity is valid in at least this share of the frames (the gap
+#: opens over the pixels next to the midline for part of the cycle).
+MOTION_VALID_SHARE = 0.5
+#: The mirrored motion profile must overlap the profile over at least this share of the glottis length.
+MIN_OVERLAP_REL = 0.4
+
+
+def motion_amplitude(velocity: np.ndarray, valid: np.ndarray, chunk: int = 32) -> np.ndarray:
+    """(H, W, 2) RMS about its mean over the frames of the horizontal (u, v) and the vertical (w) velocity.
+
+    velocity : (F, H, W, 3) mm/s.  valid : (F, H, W) bool.
+    A pixel valid in fewer than :data:`MOTION_VALID_SHARE` of the frames is NaN. Summed frame chunks of
+    ``chunk`` at a time (float64), so a long window needs no float64 copy of the whole video.
+    """
+    n_f, h, w = np.shape(valid)
+    n = np.zeros((h, w))
+    s1 = np.zeros((h, w, 3))
+    s2 = np.zeros((h, w, 3))
+    for i in range(0, n_f, chunk):
+        ok = np.asarray(valid[i:i + chunk], bool)
+        v = np.where(ok[..., None], np.asarray(velocity[i:i + chunk], np.float64), 0.0)
+        n += ok.sum(axis=0)
+        s1 += v.sum(axis=0)
+        s2 += (v * v).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var = np.maximum(s2 / n[..., None] - (s1 / n[..., None]) ** 2, 0.0)
+    amp = np.stack([np.sqrt(var[..., 0] + var[..., 1]), np.sqrt(var[..., 2])], axis=-1)
+    amp[n < MOTION_VALID_SHARE * max(n_f, 1)] = np.nan
+    return amp
+
+
+def _motion_profile(amplitude: np.ndarray, ax: GapAxis, band_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (B,) px along the axis from ``ax.centre_px``, (B, k) median amplitude per 1 px bin) of the
+    pixels within ``band_px`` of the midline; bins with fewer than 3 pixels are left out."""
+    amp = np.asarray(amplitude, float)
+    amp = amp.reshape(amp.shape[:2] + (-1,))
+    th = np.radians(ax.rotation_deg)
+    e = np.array([np.cos(th), np.sin(th)])
+    rows, cols = np.mgrid[0:amp.shape[0], 0:amp.shape[1]]
+    q = np.stack([cols, rows], axis=-1) - ax.centre_px
+    s, t = q @ e, q @ np.array([-e[1], e[0]])
+    ok = (np.abs(t) <= band_px) & np.all(np.isfinite(amp), axis=-1)
+    if ok.sum() < 3:
+        return np.zeros(0), np.zeros((0, amp.shape[-1]))
+    b = np.floor(s[ok]).astype(np.int64)
+    order = np.argsort(b, kind="stable")
+    b, vals = b[order], amp[ok][order]
+    starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]])
+    sizes = np.diff(np.r_[starts, b.size])
+    keep = sizes >= 3
+    prof = np.array([np.median(vals[i:i + k], axis=0) for i, k in zip(starts[keep], sizes[keep])])
+    return b[starts[keep]] + 0.5, prof.reshape(-1, amp.shape[-1])
+
+
+def symmetry_mid(amplitude: np.ndarray, ax: GapAxis, length_px: float, lo: float, hi: float) -> float | None:
+    """Position (px along the axis from ``ax.centre_px``) in [lo, hi] about which the motion is most nearly
+    mirror-symmetric, or None when the motion in view cannot say.
+
+    amplitude : (H, W, k) RMS amplitude of k velocity components per pixel (:func:`motion_amplitude`), NaN
+        where not measured.  length_px : the glottis length L in px.
+    The profile of each component along the axis (median over the pixels within :data:`MOTION_BAND_REL` L
+    of the midline, 1 px bins, scaled by its largest value) is compared with its mirror image about each
+    candidate m (0.25 px steps): the sum of squared differences over the positions both cover, over the sum
+    of their squares. The mirror must overlap the profile over :data:`MIN_OVERLAP_REL` L. None when no
+    candidate does, when the motion is all zero, or when the best candidate is the last one that overlaps
+    enough while [lo, hi] goes on (mid-length lies too near the image's border to be tested).
+    """
+    pos, prof = _motion_profile(amplitude, ax, MOTION_BAND_REL * length_px)
+    if pos.size < 3 or not np.all(np.nanmax(prof, axis=0) > 0):
+        return None
+    prof = prof / prof.max(axis=0)
+    candidates = np.arange(lo, hi + 0.125, 0.25)
+    cost = np.full(candidates.size, np.inf)
+    for i, m in enumerate(candidates):
+        mirror = np.stack([np.interp(2 * m - pos, pos, p, left=np.nan, right=np.nan) for p in prof.T], axis=1)
+        both = np.all(np.isfinite(mirror), axis=1)
+        if both.sum() >= MIN_OVERLAP_REL * length_px:
+            cost[i] = np.sum((prof[both] - mirror[both]) ** 2) / np.sum(prof[both] ** 2 + mirror[both] ** 2)
+    tested = np.flatnonzero(np.isfinite(cost))
+    if not tested.size:
+        return None
+    best = int(np.argmin(cost))
+    if (best == tested[0] and best > 0) or (best == tested[-1] and best < candidates.size - 1):
+        return None
+    return float(candidates[best])
+
+
+@dataclass(frozen=True)
+class Pose:
+    """rotation_deg : in-plane angle of the model x axis, degrees.  offset_px : (col, row) of the model
+    origin, px.  mid_length : how mid-length was placed along the glottis ("extent of the gap", "symmetry
+    of the motion", "envelope of the gap", "not measured")."""
+
+    rotation_deg: float
+    offset_px: tuple[float, float]
+    mid_length: str
+
+
+def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg: float = 0.0,
+           amplitude: np.ndarray | None = None) -> Pose:
+    """The model frame in the image (see docs/conventions.md), and how mid-length was placed.
 
     Parameters
     ----------
@@ -160,34 +264,58 @@ def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float,
     length_mm : anterior-posterior length L of the folds.
     prior_deg : rotation the principal axis's direction is chosen nearest to, degrees (the
         gap fixes the axis, not which way along it x grows).
+    amplitude : (H, W, k) RMS amplitude of the measured velocity per pixel (:func:`motion_amplitude`),
+        NaN where not measured; None: the gap only.
 
-    Returns
-    -------
-    rotation_deg, (offset_col_px, offset_row_px): ``[col, row] = s R(rot) [x, y] + offset``.
-    Logs a warning when the image cuts both ends of the gap (the longitudinal offset is then
-    the visible gap's centre, not a measurement).
+    With both ends of the gap in view, mid-length is the midpoint of its extent. With an end cut,
+    it is where the motion is mirror-symmetric (:func:`symmetry_mid`): with one end in view, between
+    the visible gap's centre (the other end is beyond the border) and half a glottis from its visible
+    end (the gap ends inside the glottis); with both cut, anywhere in the visible gap's extent.
+    Without the motion, or when it cannot say: one visible end places the opening's sine envelope
+    (:func:`envelope_start`); two cut ends leave the position unmeasured (the visible centre, and a
+    warning).
     """
     ax = gap_axis(gap_counts, prior_deg)
     th = np.radians(ax.rotation_deg)
     e = np.array([np.cos(th), np.sin(th)])
     half = px_per_mm * length_mm / 2
     lo, hi = ax.extent_px
+    mid, how = None, "extent of the gap"
     if not ax.cut[0] and not ax.cut[1]:
         # both ends in view: the folds are clamped at both and the opening is symmetric about mid-length, so the
         # visible gap ends equally short of each end; the midpoint of its extent is mid-length. (The count-weighted
         # centre was taken before: where the gap is found in more frames along one part of the glottis, its narrow
         # phases missed elsewhere, it moved toward that part; widened seed 1139: 1.94 mm off, 0.16 now.)
         mid = 0.5 * (lo + hi)
-    elif not ax.cut[0] or not ax.cut[1]:
-        # one end in view: the opening's envelope, A sin(pi (s - s0) / L), placed on the visible gap
-        mid = envelope_start(gap_counts, ax, 2 * half) + half
     else:
-        mid = 0.0
-        log.warning("pose: the image cuts the glottal gap at both ends, so its position along the glottis is not "
-                    "measured; mid-length is taken at the visible gap's centre. Set camera.pose = 'config' with "
-                    "camera.offset_px (and camera.rotation_deg) if the model origin is known")
+        if amplitude is not None:
+            if not ax.cut[0]:
+                window = (0.5 * (lo + hi), min(lo + half, hi))
+            elif not ax.cut[1]:
+                window = (max(hi - half, lo), 0.5 * (lo + hi))
+            else:
+                window = (lo, hi)
+            mid = symmetry_mid(amplitude, ax, 2 * half, *window)
+            how = "symmetry of the motion"
+        if mid is None and (not ax.cut[0] or not ax.cut[1]):
+            # one end in view, no motion to go by: the opening's envelope, A sin(pi (s - s0) / L), on the visible gap
+            mid, how = envelope_start(gap_counts, ax, 2 * half) + half, "envelope of the gap"
+        elif mid is None:
+            mid, how = 0.0, "not measured"
+            log.warning("pose: the image cuts the glottal gap at both ends, so its position along the glottis is not "
+                        "measured; mid-length is taken at the visible gap's centre. Set camera.pose = 'config' with "
+                        "camera.offset_px (and camera.rotation_deg) if the model origin is known")
     origin = ax.centre_px + (mid - half) * e
-    return float(ax.rotation_deg), (float(origin[0]), float(origin[1]))
+    return Pose(float(ax.rotation_deg), (float(origin[0]), float(origin[1])), how)
+
+
+def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float,
+                  prior_deg: float = 0.0, amplitude: np.ndarray | None = None) -> tuple[float, tuple[float, float]]:
+    """(rotation_deg, (offset_col_px, offset_row_px)) of the model frame in the image: ``[col, row] = s R(rot)
+    [x, y] + offset`` (docs/conventions.md). Parameters as :func:`locate`, which also says how mid-length was
+    placed."""
+    pose = locate(gap_counts, px_per_mm, length_mm, prior_deg, amplitude)
+    return pose.rotation_deg, pose.offset_px
 
 
 def camera_to_model(vectors: np.ndarray, rotation_deg: float) -> np.ndarray:

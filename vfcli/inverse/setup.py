@@ -17,7 +17,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from vfcli.camera.camera import Camera
-from vfcli.camera.pose import estimate_pose, lateral_axis_for, model_axes_velocity
+from vfcli.camera.pose import lateral_axis_for, locate, model_axes_velocity, motion_amplitude
 from vfcli.config import OptimizeConfig
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
@@ -102,7 +102,7 @@ class Setup:
     offset_px : (float, float)
         Pixel (col, row) of the model origin on the stored (ROI) pixel grid, px.
     pose_source : str
-        "config" or "estimated from the glottal gap".
+        "config" or "estimated from the glottal gap (mid-length: HOW)" (:class:`vfcli.camera.pose.Pose`).
     field : LoadModel
         The load model.
     lcurve : LCurve or None
@@ -125,7 +125,8 @@ def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] 
     inputs : OptimizeInputs
     pose : (rotation_deg, (col, row) offset in full-frame px) or None
         A calibrated pose (``camera.pose = "config"``); its offset is moved onto the stored
-        frames' grid by the ROI origin. None: estimated from ``inputs.gap_counts``.
+        frames' grid by the ROI origin. None: estimated from ``inputs.gap_counts`` and the motion of
+        ``inputs.velocity`` (:func:`vfcli.camera.pose.locate`).
     """
     if pose is not None:
         rotation, offset = pose
@@ -133,9 +134,9 @@ def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] 
         return float(rotation), (float(offset[0] - origin[0]), float(offset[1] - origin[1])), "config"
     if inputs.gap_counts is None:
         raise ValueError("estimating the camera pose needs inputs.gap_counts")
-    rotation, offset = estimate_pose(inputs.gap_counts, inputs.px_per_mm, inputs.length_mm,
-                                     prior_deg=inputs.velocity_rotation_deg)
-    return rotation, offset, "estimated from the glottal gap"
+    found = locate(inputs.gap_counts, inputs.px_per_mm, inputs.length_mm, prior_deg=inputs.velocity_rotation_deg,
+                   amplitude=motion_amplitude(inputs.velocity, inputs.valid))
+    return found.rotation_deg, found.offset_px, f"estimated from the glottal gap (mid-length: {found.mid_length})"
 
 
 def load_model(inputs: OptimizeInputs, cfg: OptimizeConfig, t_range: tuple[float, float]) -> LoadModel:
