@@ -169,6 +169,47 @@ def test_the_90_percent_intervals_cover_85_to_95_percent_of_the_truth(pressure_r
     assert 0.85 <= coverage <= 0.95, f"coverage {100 * coverage:.1f} %"
 
 
+@pytest.mark.xfail(strict=True, reason="issue 15 item 6: the ridge's expected bias in the stated MSE gives the pressure "
+                   "gains, penalised with a share of 1e-6 only to keep the problem well posed, a prior variance of tau^2 / "
+                   "1e-6, and that part is most of the inferior surface's stated sd (docs/benchmarks.md, 'Session 32: "
+                   "where the 90 % intervals ...'); no measured part for the load model's own error replaces it yet")
+def test_the_stated_uncertainty_does_not_hang_on_the_gains_ridge_share(store, pressure_run):
+    """The gains' share of the ridge (``PressureLoad.penalty_operator``, 1e-6) is a numerical device, so the
+    stated uncertainty of the inferior surface must not follow it: the run's problem rebuilt from the store, its
+    sandwich MSE (vfcli/inverse/sandwich.py) with the share at 1e-8 must state the inferior surface within 10 % of
+    what it states at 1e-6. Measured: 0.0087 against 0.0379 mm, 0.23 times (on widened seed 4001, 0.22 times)."""
+    import scipy.sparse as sp
+
+    from vfcli.config import RecordingConfig
+    from vfcli.inverse.linearization import gauss_newton_model
+    from vfcli.inverse.sandwich import sandwich
+    from vfcli.inverse.uncertainty import displacement_std
+    from vfcli.stages.diagnose import run_recording_config
+    from vfcli.store.fit import problem_of_store
+    from vfcli.store.mesh import read_mesh
+    from vfcli.store.runs import read_run
+
+    path, _ = store
+    with Store(path).read() as r:
+        stored = read_run(r, "p")
+        roi = np.asarray(r.attrs("flow").get("roi_origin_px", (0.0, 0.0)), float)
+        problem, _ = problem_of_store(r, run_recording_config(RecordingConfig(), stored.config, stored.attrs, roi))
+        inferior = read_mesh(r).node_side == 1
+    x = stored.controls.ravel()
+    u = problem.displacements(x)
+    frames = problem.freeze(x, u)
+    model = gauss_newton_model(problem, x, frames, u)
+    stated = {}
+    for share in (1e-6, 1e-8):
+        diag = problem.penalty.diagonal().copy()
+        diag[diag < 0.5] = share                                   # the gains' entries (the free corrections carry 1)
+        problem.penalty = sp.diags(diag).tocsr()
+        sd = displacement_std(sandwich(problem, x, model, frames, u).covariance, model.linearization)[:-1][:, inferior]
+        stated[share] = float(np.sqrt(np.mean(sd ** 2)))
+    print(f"inferior stated sd: {stated[1e-6]:.4f} mm at a share of 1e-6, {stated[1e-8]:.4f} mm at 1e-8")
+    assert stated[1e-8] == pytest.approx(stated[1e-6], rel=0.1)
+
+
 def test_the_static_shape_under_the_mean_pressure_is_recovered_and_stated(store, pressure_run):
     """The mean over the window of the inferior surface's vertical displacement (the static shape
     under the recorded mean pressure, which the velocities alone do not fix) is stored with its
