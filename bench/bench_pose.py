@@ -1,9 +1,9 @@
 """## The model's pose along the glottis: the gap alone against the gap and the motion (issue 15 item 2).
 
 For each kept store of ``bench/bench_unseen.py --keep DIR`` (a widened phantom fitted by ``vfcli optimize``), the
-pose is estimated twice the way optimize estimates it (:func:`vfcli.camera.pose.locate` on the gap counts of the
-whole video): from the glottal gap alone, and with the RMS amplitude of the measured velocity over the run's
-window (:func:`vfcli.camera.pose.motion_amplitude`, what ``vfcli optimize`` passes since session 32). Printed: which
+pose is estimated twice the way optimize estimates it (:func:`vfcli.camera.pose.locate` on the run's own inputs,
+:func:`vfcli.store.fit.read_optimize_inputs`): from the glottal gap alone, and with the RMS amplitude of the measured
+velocity over the run's window (:func:`vfcli.camera.pose.motion_amplitude`, what ``vfcli optimize`` passes since session 32). Printed: which
 ends of the gap the image cuts, and for each estimate how mid-length was placed and the model origin's error along
 the glottis (mm, estimate minus truth, from the phantom's truth.h5; the pose turned by 180 deg about the glottis
 centre counts as the same, the folds being mirror images).
@@ -24,7 +24,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from vfcli.camera.pose import gap_axis, locate, motion_amplitude  # noqa: E402
-from vfcli.store.mesh import read_mesh  # noqa: E402
+from vfcli.config import RecordingConfig  # noqa: E402
+from vfcli.stages.diagnose import run_recording_config  # noqa: E402
+from vfcli.store.fit import read_optimize_inputs  # noqa: E402
+from vfcli.store.runs import read_run  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
 from vfcli.store.truth import read_truth  # noqa: E402
 
@@ -41,27 +44,20 @@ def along_error(rotation_deg: float, offset_px, true_rotation_deg: float, true_o
 
 
 def pose_errors(work: Path) -> dict:
-    """The two estimates of one kept store (module docstring)."""
+    """The two estimates of one kept store (module docstring), from the inputs its run ``default`` was fitted on."""
     with Store(work / "recording.h5").read() as r:
-        masks = r.dataset("flow", "gap_mask")
-        counts = np.zeros(masks.shape[1:])
-        for i in range(0, masks.shape[0], 64):
-            counts += np.asarray(masks[i:i + 64]).sum(axis=0)
-        run = r.attrs("optimize", "default")
-        first, n = int(run["window_first_frame"]), int(run["window_frames"])
-        amplitude = motion_amplitude(r.dataset("fields", "velocity")[first:first + n],
-                                     r.dataset("fields", "valid")[first:first + n])
-        px = float(r.attrs("flow")["px_per_mm"])
+        stored = read_run(r, "default")
         roi = np.asarray(r.attrs("flow").get("roi_origin_px", (0.0, 0.0)), float)
-        prior = float(run["camera_rotation_deg"])
-        length = float(read_mesh(r).nodes[:, 0].max())
+        cfg = run_recording_config(RecordingConfig(), stored.config, stored.attrs, roi)   # the run's window
+        inputs = read_optimize_inputs(r, cfg.model_copy(update={"camera": cfg.camera.model_copy(update={"pose": "estimate"})}))
     _, a = read_truth(work / "raw" / "truth.h5", [])
-    true_off = np.asarray(a["camera_offset_px"], float) - roi
-    out = {"cut": gap_axis(counts, prior).cut}
-    for name, amp in (("gap", None), ("gap and motion", amplitude)):
-        pose = locate(counts, px, length, prior, amp)
+    true_off = np.asarray(a["camera_offset_px"], float) - inputs.roi_origin_px
+    args = (inputs.gap_counts, inputs.px_per_mm, inputs.length_mm, inputs.velocity_rotation_deg)
+    out = {"cut": gap_axis(inputs.gap_counts, inputs.velocity_rotation_deg).cut}
+    for name, amp in (("gap", None), ("gap and motion", lambda: motion_amplitude(inputs.velocity, inputs.valid))):
+        pose = locate(*args, amp)
         out[name] = (pose.mid_length, along_error(pose.rotation_deg, pose.offset_px, float(a["camera_rotation_deg"]),
-                                                  true_off, length, px))
+                                                  true_off, inputs.length_mm, inputs.px_per_mm))
     return out
 
 

@@ -232,3 +232,20 @@ def test_noisy_velocities_of_one_cycle_place_a_cut_glottis_by_their_symmetry():
     d = abs(pose.offset_px[0] - offset[0])
     print(f"noisy cycle, hourglass cut at one end: {d:.2f} px")
     assert pose.mid_length == "symmetry of the motion" and d < 0.75
+
+
+def test_the_motion_is_computed_only_when_an_end_is_cut():
+    """optimize passes the motion as a function of the window's velocities: with both ends of the gap in view the
+    extent places mid-length and the function is never called."""
+    offset = _origin_for(0.0, (80.0, 81.0))
+
+    def never():
+        raise AssertionError("the motion was computed for a glottis in view")
+
+    pose = locate(_gap_counts(0.0, offset), PX_PER_MM, LENGTH_MM, amplitude=never)
+    assert pose.mid_length == "extent of the gap"
+    cut = _origin_for(0.0, (130.0, 80.0))
+    calls = []
+    located = locate(_gap_counts(0.0, cut, along=_hourglass), PX_PER_MM, LENGTH_MM,
+                     amplitude=lambda: calls.append(1) or _amplitude(0.0, cut))
+    assert calls == [1] and located.mid_length == "symmetry of the motion"

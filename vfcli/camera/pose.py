@@ -16,6 +16,7 @@ position along the glottis unmeasured: the visible centre is used and a warning 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -253,7 +254,7 @@ class Pose:
 
 
 def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg: float = 0.0,
-           amplitude: np.ndarray | None = None) -> Pose:
+           amplitude: np.ndarray | Callable[[], np.ndarray] | None = None) -> Pose:
     """The model frame in the image (see docs/conventions.md), and how mid-length was placed.
 
     Parameters
@@ -265,7 +266,8 @@ def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg
     prior_deg : rotation the principal axis's direction is chosen nearest to, degrees (the
         gap fixes the axis, not which way along it x grows).
     amplitude : (H, W, k) RMS amplitude of the measured velocity per pixel (:func:`motion_amplitude`),
-        NaN where not measured; None: the gap only.
+        NaN where not measured, or a function returning it (called only when the image cuts an end);
+        None: the gap only.
 
     With both ends of the gap in view, mid-length is the midpoint of its extent. With an end cut,
     it is where the motion is mirror-symmetric (:func:`symmetry_mid`): with one end in view, between
@@ -295,7 +297,7 @@ def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg
                 window = (max(hi - half, lo), 0.5 * (lo + hi))
             else:
                 window = (lo, hi)
-            mid = symmetry_mid(amplitude, ax, 2 * half, *window)
+            mid = symmetry_mid(amplitude() if callable(amplitude) else amplitude, ax, 2 * half, *window)
             how = "symmetry of the motion"
         if mid is None and (not ax.cut[0] or not ax.cut[1]):
             # one end in view, no motion to go by: the opening's envelope, A sin(pi (s - s0) / L), on the visible gap
@@ -309,8 +311,8 @@ def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg
     return Pose(float(ax.rotation_deg), (float(origin[0]), float(origin[1])), how)
 
 
-def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float,
-                  prior_deg: float = 0.0, amplitude: np.ndarray | None = None) -> tuple[float, tuple[float, float]]:
+def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg: float = 0.0,
+                  amplitude: np.ndarray | Callable[[], np.ndarray] | None = None) -> tuple[float, tuple[float, float]]:
     """(rotation_deg, (offset_col_px, offset_row_px)) of the model frame in the image: ``[col, row] = s R(rot)
     [x, y] + offset`` (docs/conventions.md). Parameters as :func:`locate`, which also says how mid-length was
     placed."""
