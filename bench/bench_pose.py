@@ -3,7 +3,8 @@
 For each kept store of ``bench/bench_unseen.py --keep DIR`` (a widened phantom fitted by ``vfcli optimize``), the
 pose is estimated twice the way optimize estimates it (:func:`vfcli.camera.pose.locate` on the run's own inputs,
 :func:`vfcli.store.fit.read_optimize_inputs`): from the glottal gap alone, and with the RMS amplitude of the measured
-velocity over the run's window (:func:`vfcli.camera.pose.motion_amplitude`, what ``vfcli optimize`` passes since session 32). Printed: which
+velocity over the run's window (:func:`vfcli.camera.pose.motion_amplitude`, what ``vfcli optimize`` passes since
+session 32). Printed: which
 ends of the gap the image cuts, and for each estimate how mid-length was placed and the model origin's error along
 the glottis (mm, estimate minus truth, from the phantom's truth.h5; the pose turned by 180 deg about the glottis
 centre counts as the same, the folds being mirror images).
@@ -38,8 +39,8 @@ def along_error(rotation_deg: float, offset_px, true_rotation_deg: float, true_o
     the true x = L end (the pose turned by 180 deg)."""
     e = np.array([np.cos(np.radians(rotation_deg)), np.sin(np.radians(rotation_deg))])
     true_e = np.array([np.cos(np.radians(true_rotation_deg)), np.sin(np.radians(true_rotation_deg))])
-    errs = [(np.asarray(offset_px) - o) @ e / px_per_mm
-            for o in (np.asarray(true_offset_px, float), np.asarray(true_offset_px, float) + length_mm * px_per_mm * true_e)]
+    origin = np.asarray(true_offset_px, float)
+    errs = [(np.asarray(offset_px) - o) @ e / px_per_mm for o in (origin, origin + length_mm * px_per_mm * true_e)]
     return float(min(errs, key=abs))
 
 
@@ -49,7 +50,8 @@ def pose_errors(work: Path) -> dict:
         stored = read_run(r, "default")
         roi = np.asarray(r.attrs("flow").get("roi_origin_px", (0.0, 0.0)), float)
         cfg = run_recording_config(RecordingConfig(), stored.config, stored.attrs, roi)   # the run's window
-        inputs = read_optimize_inputs(r, cfg.model_copy(update={"camera": cfg.camera.model_copy(update={"pose": "estimate"})}))
+        estimate = cfg.camera.model_copy(update={"pose": "estimate"})
+        inputs = read_optimize_inputs(r, cfg.model_copy(update={"camera": estimate}))
     _, a = read_truth(work / "raw" / "truth.h5", [])
     true_off = np.asarray(a["camera_offset_px"], float) - inputs.roi_origin_px
     args = (inputs.gap_counts, inputs.px_per_mm, inputs.length_mm, inputs.velocity_rotation_deg)
@@ -62,7 +64,8 @@ def pose_errors(work: Path) -> dict:
 
 
 def main() -> None:
-    print("| store | ends cut | gap alone: mid-length, origin error (mm) | gap and motion: mid-length, origin error (mm) |")
+    print("| store | ends cut | gap alone: mid-length, origin error (mm) "
+          "| gap and motion: mid-length, origin error (mm) |")
     print("| --- | --- | --- | --- |")
     for w in sys.argv[1:]:
         e = pose_errors(Path(w))
