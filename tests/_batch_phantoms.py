@@ -10,9 +10,11 @@ from pathlib import Path
 
 from conftest import ROOT, shared_product
 
-#: A phantom small enough for a batch test (about 15 s to make, 10 s to ingest and sync).
-TINY = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.04", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-        "synth.width_px=128", "synth.height_px=128", "synth.px_per_mm=8", "synth.supersample=1"]
+#: A phantom small enough for a batch test: 100 frames of 128 x 128 px holding 2.5 glottal cycles at 250 Hz
+#: (sync needs 2). `vfcli synth` 4.9 s, `vfcli run` with :data:`SMALL_OPTIMIZE` 9.6 s (flow 5.3 s); at the
+#: synth's 120 Hz it needed 200 frames: 9.0 s and 15.2 s (flow 7.6 s) (session 33, the suite's time).
+TINY = ["synth.f0_hz=250", "synth.duration_s=0.01", "synth.ldv_epoch_s=0.04", "synth.target_edge_mm=2.0",
+        "synth.n_phase=64", "synth.width_px=128", "synth.height_px=128", "synth.px_per_mm=8", "synth.supersample=1"]
 #: recording.toml's [optimize] for a small fit that holds in a tiny phantom (20 frames, 3 iterations).
 SMALL_OPTIMIZE = '\n[optimize]\nn_frames = 20\nmax_iterations = 3\nsetup = "3x3x10-one-sided"\nloads = "free"\nuncertainty = false\n'
 #: the fitted mesh's edge for that fit, mm: the synth writes the default 1.5 mm into recording.toml, where

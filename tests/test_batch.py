@@ -250,7 +250,7 @@ def test_a_worker_killed_mid_batch_loses_no_recording_and_damages_no_store(tmp_p
         while victim is None and time.monotonic() < deadline:
             busy = [w for w, keys in client.processing().items() if keys]
             if busy:
-                time.sleep(4.0)  # well inside the recording (ingest, sync, flow: about 30 s)
+                time.sleep(4.0)  # inside the recording (ingest, sync, flow of the tiny phantom: 7 s alone)
                 busy = [w for w, keys in client.processing().items() if keys]
                 if busy:
                     victim = busy[0]

@@ -109,7 +109,7 @@ def workdir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("fuzz")
 
 
-@fuzz(1500)
+@fuzz(750)
 @given(doc=_config_doc())
 def test_config_files_with_hostile_values_load_or_give_a_config_error(workdir, doc):
     path = workdir / "c.toml"
@@ -117,7 +117,7 @@ def test_config_files_with_hostile_values_load_or_give_a_config_error(workdir, d
     user_error_or(lambda: load_config(path), lambda out: [_finite_everywhere(c) for c in out])
 
 
-@fuzz(1000)
+@fuzz(500)
 @given(key=st.one_of(st.sampled_from([f"{s}.{f}" for s, fs in _FIELDS.items() for f in fs]), st.text(max_size=12)),
        value=st.one_of(_NUM_TEXT, st.text(max_size=30), st.just("[" * 3000), st.just("9" * 5000)))
 def test_set_overrides_with_hostile_values_load_or_give_a_config_error(key, value):
@@ -125,7 +125,7 @@ def test_set_overrides_with_hostile_values_load_or_give_a_config_error(key, valu
                    lambda out: [_finite_everywhere(c) for c in out])
 
 
-@fuzz(600)
+@fuzz(300)
 @given(text=st.text(alphabet=st.sampled_from(list("[]{}=.\"' \nabc01-+e_,#")), max_size=200))
 def test_random_toml_text_loads_or_gives_a_config_error(workdir, text):
     path = workdir / "r.toml"
@@ -160,7 +160,7 @@ def _plausible_meta(meta) -> None:
     assert abs(meta.start_frame) <= 10**9 and meta.n_frames >= 1
 
 
-@fuzz(1000)
+@fuzz(500)
 @given(edits=st.lists(st.tuples(st.sampled_from(_CIHX_FIELDS), _NUM_TEXT), min_size=1, max_size=3))
 def test_cihx_with_hostile_field_values(workdir, cihx_text, edits):
     import re
@@ -177,7 +177,7 @@ def test_cihx_with_hostile_field_values(workdir, cihx_text, edits):
     user_error_or(_video_ok(d / "v.cihx"), _plausible_meta)
 
 
-@fuzz(1000)
+@fuzz(500)
 @given(how=st.sampled_from(["json", "imagej", "text"]), value=_NUM,
        text=st.text(alphabet=st.characters(min_codepoint=1, max_codepoint=127), max_size=20),
        n=st.integers(1, 3), dtype=st.sampled_from([np.uint8, np.uint16, np.float32, np.int16]))
@@ -198,7 +198,7 @@ def test_tiff_with_hostile_frame_rate_metadata(workdir, how, value, text, n, dty
 
 # --------------------------------------------------------------------------- pressure
 
-@fuzz(1000)
+@fuzz(500)
 @given(fs=_NUM_TEXT, header=st.sampled_from(["p_sub [Pa]", "time [s],p_sub [Pa]", "p [kPa]", "x,y", ""]),
        values=st.lists(st.one_of(_NUM, _NUM_TEXT), min_size=0, max_size=12))
 def test_pressure_csv_with_hostile_values(workdir, fs, header, values):
@@ -223,7 +223,7 @@ def wav_bytes(workdir) -> bytes:
     return path.read_bytes()
 
 
-@fuzz(1000)
+@fuzz(500)
 @given(riff_size=st.integers(0, 2**32 - 1), data_size=st.integers(0, 2**32 - 1),
        rate=st.integers(0, 2**32 - 1), channels=st.integers(0, 70000), bits=st.sampled_from([0, 8, 16, 24, 32, 64, 7]),
        channel=st.one_of(st.none(), st.integers(-3, 3), st.text(max_size=3)), keep=st.integers(0, 500))
@@ -244,7 +244,7 @@ def test_wav_with_hostile_header_fields(workdir, wav_bytes, riff_size, data_size
     user_error_or(lambda: read_pressure(path, channel=channel), check)
 
 
-@fuzz(1000)
+@fuzz(500)
 @given(inc=_NUM, offset=_NUM, n=st.integers(0, 50), scale=_NUM, cut=st.integers(0, 400),
        unit=st.sampled_from(["Pa", "kPa", "V", "", "furlong"]))
 def test_tdms_with_hostile_properties_and_truncation(workdir, inc, offset, n, scale, cut, unit):
@@ -288,7 +288,7 @@ def csv_lines(workdir) -> list[str]:
     return write_ldv_csv(workdir / "seed.csv", _scan()).read_text().splitlines()
 
 
-@fuzz(1000)
+@fuzz(500)
 @given(fs=_NUM_TEXT, length=st.sampled_from(["mm", "m", "um", "km", ""]), cells=st.lists(
     st.tuples(st.integers(0, 4), st.integers(0, 30), st.one_of(_NUM_TEXT, _NUM.map(str))), max_size=5))
 def test_ldv_csv_with_hostile_values(workdir, csv_lines, fs, length, cells):
@@ -307,7 +307,7 @@ def test_ldv_csv_with_hostile_values(workdir, csv_lines, fs, length, cells):
     user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
 
 
-@fuzz(1000)
+@fuzz(500)
 @given(coords=st.one_of(_NUM, st.text(max_size=3)), vel=st.one_of(_NUM, st.text(max_size=3)),
        fs=st.one_of(_NUM, st.text(max_size=3), st.lists(_NUM, max_size=2)),
        node_ids=st.one_of(st.none(), st.text(max_size=4), st.lists(_NUM, min_size=0, max_size=5)),
@@ -330,7 +330,7 @@ def test_ldv_mat_with_hostile_variables(workdir, coords, vel, fs, node_ids, unit
     user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
 
 
-@fuzz(800)
+@fuzz(400)
 @given(coord_scale=st.sampled_from([1.0, 1e-3, 1e3, 1e6, 0.0, -1.0]), vel_scale=st.sampled_from([1.0, 1e6, 1e-9]),
        fs=st.sampled_from([50_000.0, 1000.0, 1e9, 25_600.0]),
        length=st.sampled_from(["m", "mm", "um"]), units=st.booleans(), cut=st.integers(0, 50))
@@ -346,7 +346,7 @@ def test_ldv_uff_with_hostile_scales(workdir, coord_scale, vel_scale, fs, length
     user_error_or(lambda: read_ldv(path, expected_grid=None, length_unit=length), _plausible_scan)
 
 
-@fuzz(2000)
+@fuzz(1000)
 @given(shapes=st.lists(st.tuples(st.integers(1, 6), st.integers(1, 6), st.sampled_from([1, 3])), min_size=1,
                        max_size=4),
        dtypes=st.lists(st.sampled_from([np.uint8, np.uint16, np.float32, np.int32]), min_size=1, max_size=4),

@@ -197,19 +197,19 @@ def _photron_case(seeds, work: Path, meta: str, edits, cut: int, flips, mraw_cut
     (work / f"p.{meta}").unlink()
 
 
-@fuzz(2500)
+@fuzz(1250)
 @given(edits=NUMBER_EDITS, cut=st.integers(-20, 60), flips=FLIPS, mraw_cut=st.integers(-64, 64))
 def test_legacy_cih_numbers_sizes_and_bits(seeds, work, edits, cut, flips, mraw_cut):
     _photron_case(seeds, work, "cih", edits, cut, flips, mraw_cut, open_as="cih")
 
 
-@fuzz(1500)
+@fuzz(750)
 @given(edits=NUMBER_EDITS, cut=st.integers(-20, 200), flips=FLIPS, mraw_cut=st.integers(-64, 64))
 def test_cihx_numbers_sizes_and_bits(seeds, work, edits, cut, flips, mraw_cut):
     _photron_case(seeds, work, "cihx", edits, cut, flips, mraw_cut, open_as="mraw")
 
 
-@fuzz(2000)
+@fuzz(1000)
 @given(cut=st.integers(-300, 300), flips=FLIPS, which=st.sampled_from(["cih", "cihx"]))
 def test_mraw_truncated_extended_or_flipped(seeds, work, cut, flips, which):
     (work / f"m.{which}").write_bytes(seeds[which])
@@ -218,7 +218,7 @@ def test_mraw_truncated_extended_or_flipped(seeds, work, cut, flips, which):
     (work / f"m.{which}").unlink()
 
 
-@fuzz(1500)
+@fuzz(750)
 @given(cut=st.integers(-40, 400), flips=FLIPS, edits=st.lists(st.tuples(st.integers(0, 10**6), HOSTILE_U32),
                                                                   max_size=3))
 def test_tiff_ifd_values_sizes_and_bits(seeds, work, cut, flips, edits):
@@ -242,7 +242,7 @@ _AVI_FIELDS = [(b"avih", 0), (b"avih", 16), (b"avih", 24), (b"avih", 32), (b"avi
                (b"strf", 16)]
 
 
-@fuzz(2000)
+@fuzz(1000)
 @given(edits=st.lists(st.tuples(st.sampled_from(_AVI_FIELDS), HOSTILE_U32), max_size=3),
        cut=st.integers(-40, 600), flips=FLIPS)
 def test_avi_header_fields_sizes_and_bits(seeds, work, edits, cut, flips):
@@ -257,7 +257,7 @@ def test_avi_header_fields_sizes_and_bits(seeds, work, edits, cut, flips):
 
 # --------------------------------------------------------------------------- vibrometer
 
-@fuzz(2000)
+@fuzz(1000)
 @given(which=st.sampled_from(["uff", "uff_ascii"]), edits=NUMBER_EDITS, cut=st.integers(0, 300), flips=FLIPS)
 def test_uff_numbers_sizes_and_bits(seeds, work, which, edits, cut, flips):
     data = seeds[which]
@@ -267,7 +267,7 @@ def test_uff_numbers_sizes_and_bits(seeds, work, which, edits, cut, flips):
     user_error_or(lambda: read_ldv(work / "s.uff", expected_grid=None), _plausible_scan)
 
 
-@fuzz(1500)
+@fuzz(750)
 @given(which=st.sampled_from(["mat", "mat_z"]), cut=st.integers(0, 400), flips=FLIPS,
        edits=st.lists(st.tuples(st.integers(0, 10**6), HOSTILE_U32), max_size=2))
 def test_mat_tags_sizes_and_bits(seeds, work, which, cut, flips, edits):
@@ -276,7 +276,7 @@ def test_mat_tags_sizes_and_bits(seeds, work, which, cut, flips, edits):
     user_error_or(lambda: read_ldv(work / "s.mat", expected_grid=None), _plausible_scan)
 
 
-@fuzz(1500)
+@fuzz(750)
 @given(edits=NUMBER_EDITS, cut=st.integers(0, 200), flips=FLIPS)
 def test_ldv_csv_numbers_sizes_and_bits(seeds, work, edits, cut, flips):
     _text_case(seeds["ldv_csv"], work / "s.csv", edits, cut, flips,
@@ -285,7 +285,7 @@ def test_ldv_csv_numbers_sizes_and_bits(seeds, work, edits, cut, flips):
 
 # --------------------------------------------------------------------------- pressure
 
-@fuzz(1500)
+@fuzz(750)
 @given(cut=st.integers(0, 600), flips=FLIPS, edits=st.lists(st.tuples(st.integers(0, 10**6), HOSTILE_U32),
                                                                  max_size=3))
 def test_tdms_words_sizes_and_bits(seeds, work, cut, flips, edits):
@@ -295,7 +295,7 @@ def test_tdms_words_sizes_and_bits(seeds, work, cut, flips, edits):
     user_error_or(lambda: read_pressure(work / "p.tdms"), _plausible_pressure)
 
 
-@fuzz(1500)
+@fuzz(750)
 @given(cut=st.integers(-16, 800), flips=FLIPS,
        edits=st.lists(st.tuples(st.sampled_from([4, 16, 20, 24, 28, 32, 34, 40]), HOSTILE_U32), max_size=3),
        channel=st.one_of(st.none(), st.integers(-2, 3)))
@@ -307,7 +307,7 @@ def test_wav_header_words_sizes_and_bits(seeds, work, cut, flips, edits, channel
     user_error_or(lambda: read_pressure(work / "p.wav", channel=channel), _plausible_pressure)
 
 
-@fuzz(1500)
+@fuzz(750)
 @given(edits=NUMBER_EDITS, cut=st.integers(0, 300), flips=FLIPS)
 def test_pressure_csv_numbers_sizes_and_bits(seeds, work, edits, cut, flips):
     _text_case(seeds["p_csv"], work / "p.csv", edits, cut, flips, read_pressure, _plausible_pressure)
