@@ -175,6 +175,23 @@ def test_figures_are_written_as_png_and_svg(exported):
     assert "left fold" in svg and "right fold" in svg and "(mm)" in svg
 
 
+def test_a_figure_asked_for_its_png_only_writes_no_svg(tmp_path):
+    """What the HTML report asks for (it embeds the PNG): one file, the same picture the default writes beside
+    its SVG; an unknown format is refused before anything is written."""
+    from vfcli.export import figures
+
+    hist = {"fit": {"iteration": np.arange(4), "total": np.array([1.0, 0.3, 0.1, 0.05])}}
+    (tmp_path / "both").mkdir()
+    both = figures.convergence(hist, tmp_path / "both" / "fig7")
+    png = figures.convergence(hist, tmp_path / "fig7", formats=("png",))
+    assert [p.name for p in both] == ["fig7.png", "fig7.svg"] and all(p.stat().st_size > 1000 for p in both)
+    assert png == [tmp_path / "fig7.png"] and sorted(p.name for p in tmp_path.iterdir()) == ["both", "fig7.png"]
+    assert png[0].read_bytes() == both[0].read_bytes()
+    with pytest.raises(ValueError, match="figure format 'pdf'"):
+        figures.convergence(hist, tmp_path / "x", formats=("pdf",))
+    assert not (tmp_path / "x.pdf").exists()
+
+
 def test_tables_repeat_the_store_and_the_fit_follows_the_vibrometer(exported):
     store, out, _ = exported
     with Store(store).read() as r:

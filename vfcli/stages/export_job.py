@@ -18,6 +18,7 @@ from vfcli.camera.camera import Camera
 from vfcli.camera.pose import model_axes_velocity
 from vfcli.errors import ConfigError, VfcliError
 from vfcli.export import figures, paraview, sampling, tables, video
+from vfcli.export.figures import FORMATS as FIGURE_FORMATS
 from vfcli.store.runs import OptimizeRun, read_mesh
 from vfcli.store.vtkhdf import write_transient_tets
 from vfcli.store.transaction import StoreReader
@@ -175,7 +176,7 @@ class ExportJob:
             self.files += figures.uncertainty_on_folds(self.mesh, run.displacement_std, run.name,
                                                        d / f"uncertainty_{run.name}")
 
-    def _fig8(self, d: Path) -> list[Path]:
+    def _fig8(self, d: Path, formats: tuple[str, ...] = FIGURE_FORMATS) -> list[Path]:
         if not self.r.has_stage("fields"):
             self.notes.append("no /fields: figure 8 skipped")
             return []
@@ -199,9 +200,9 @@ class ExportJob:
         meas[..., :2] = model_axes_velocity(meas[..., :2], flow_rotation, cam0.rotation_deg)
         sim = {r.name: (r.sim_time, sampling.surface_velocity_at(self.cameras[r.name], self.mesh, r.displacements,
                                                                r.sim_time, pts)) for r in self.runs}
-        return figures.velocities(ft[sel], meas, sim, labels, d / "fig8_velocities")
+        return figures.velocities(ft[sel], meas, sim, labels, d / "fig8_velocities", formats)
 
-    def _kymogram(self, d: Path) -> list[Path]:
+    def _kymogram(self, d: Path, formats: tuple[str, ...] = FIGURE_FORMATS) -> list[Path]:
         masks = self.r.frames("flow", "gap_mask")
         counts = np.zeros(masks[0].shape)
         for i in range(0, len(masks), 128):
@@ -219,7 +220,7 @@ class ExportJob:
         out = np.zeros((len(lines), len(self.frames), lines.shape[1]))
         for i in range(0, len(self.frames), 128):
             out[:, i:i + 128] = sampling.sample_lines(self.frames[i:i + 128], lines)
-        return figures.kymogram(self.frame_time, out, names, 4.0, d / "kymogram")
+        return figures.kymogram(self.frame_time, out, names, 4.0, d / "kymogram", formats)
 
     # -- tables -----------------------------------------------------------
     def tables(self) -> None:

@@ -28,6 +28,9 @@ from vfcli.stages.export_job import ExportJob, ExportResult
 
 log = logging.getLogger(__name__)
 
+#: the page embeds each figure's PNG: no SVG is drawn for it
+PNG = ("png",)
+
 _HIDDEN = set(layout.PROVENANCE_ATTRS) | {"complete", "template_real", "template_imag"}
 
 
@@ -110,14 +113,14 @@ def _runs_section(job: ExportJob, d: Path) -> str:
                  "camera pose of the fit; one panel per run."))
     except ConfigError as exc:
         parts.append(f'<p class="warn">Overlay video not made: {esc(exc)}</p>')
-    parts.append(figure(figures.convergence({r.name: r.history for r in job.runs}, fig_dir / "fig7")[0],
+    parts.append(figure(figures.convergence({r.name: r.history for r in job.runs}, fig_dir / "fig7", PNG)[0],
                         "Convergence of E per run (paper, fig. 7)", 700))
-    fig8 = job._fig8(fig_dir)
+    fig8 = job._fig8(fig_dir, PNG)
     if fig8:
         parts.append(figure(fig8[0], "Surface velocity at a point of each fold: measurement and runs (paper, fig. 8)"))
     for r in job.runs:
         if r.displacement_std is not None:
-            f = figures.uncertainty_on_folds(job.mesh, r.displacement_std, r.name, fig_dir / f"unc_{r.name}")[0]
+            f = figures.uncertainty_on_folds(job.mesh, r.displacement_std, r.name, fig_dir / f"unc_{r.name}", PNG)[0]
             parts.append(figure(f, f"Stated uncertainty of run {r.name} on the fold geometry (mm)"))
         else:
             parts.append(f'<p class="muted">Run {esc(r.name)} states no uncertainty (optimize.uncertainty = false).</p>')
@@ -174,7 +177,7 @@ def build_report(reader: StoreReader, work: Path) -> str:
         parts.append(f"<p>{int(ok.sum())} of {len(ok)} points aligned; median quality {np.median(q):.3f}; "
                      f"video f0 {fmt(reader.attrs('sync').get('f0_video_hz', ''))} Hz.</p>")
         parts.append(figure(figures.sync_quality_map(reader.read("ldv", "grid_index"), q, ok, reader.read("ldv", "dropout"),
-                                                     d / "sync")[0], "Alignment quality of every scan point", 650))
+                                                     d / "sync", PNG)[0], "Alignment quality of every scan point", 650))
     else:
         parts.append('<p class="muted">No /sync yet (`vfcli sync`).</p>')
     # -- flow and gap
@@ -185,10 +188,10 @@ def build_report(reader: StoreReader, work: Path) -> str:
         windows = {r.name: (float(r.sim_time[0]), float(r.sim_time[-1])) for r in runs}
         parts.append(f"<p>Glottal area {area.min():.3f}-{area.max():.3f} mm²; gap open in {int((area > 0).sum())} "
                      f"of {len(area)} frames.</p>")
-        parts.append(figure(figures.glottal_area(t, area, windows, d / "area")[0], "Glottal area waveform", 800))
+        parts.append(figure(figures.glottal_area(t, area, windows, d / "area", PNG)[0], "Glottal area waveform", 800))
         parts.append('<div class="grid">' + "".join(figure(p, p.stem.replace("_", " ") + ": detected gap in red", 400)
                                                     for p in _gap_frames(job, d)) + "</div>")
-        ky = job._kymogram(d)
+        ky = job._kymogram(d, PNG)
         if ky:
             parts.append(figure(ky[0], "Kymogram across the glottis at three positions along it", 800))
     else:
