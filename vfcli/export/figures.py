@@ -1,8 +1,8 @@
 """The paper's figures and the voice lab's everyday ones, as PNG and SVG (matplotlib, Agg).
 
-Every function takes numpy arrays (units in the parameter docs) and writes ``<base>.png`` and
-``<base>.svg`` (``formats=("png",)``: the PNG only, as the HTML report, which embeds it, asks: the SVG was 1.3 s
-of a 7.2 s report of a small store, session 33); it returns the paths written.
+Every function takes numpy arrays (units in the parameter docs), writes ``<base>.<format>`` for each of
+``formats`` (default :data:`FORMATS`, PNG and SVG; the HTML report asks for the PNG alone, which it embeds) and
+returns the paths written.
 """
 from __future__ import annotations
 
@@ -138,8 +138,7 @@ def kymogram(t: np.ndarray, lines: np.ndarray, positions: list[str], extent_mm: 
 
 
 def sync_quality_map(grid_index: np.ndarray, quality: np.ndarray, ok: np.ndarray, dropout: np.ndarray,
-                     base: str | Path,
-                     formats: tuple[str, ...] = FORMATS) -> list[Path]:
+                     base: str | Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
     """Sync quality of every vibrometer point on its scan grid (rows x cols, e.g. 17 x 22).
 
     grid_index : (P, 2) (row, col); quality : (P,) in [0, 1]; ok, dropout : (P,) bool.
