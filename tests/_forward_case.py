@@ -32,6 +32,30 @@ def elastic_model(edge_mm: float = 2.0) -> ElasticModel:
     return model
 
 
+def direct_transfer(model: ElasticModel, loads: np.ndarray, omega: float, density: float, tau: float, loss: float,
+                    folds: tuple[int, ...] = (0, 1)) -> np.ndarray:
+    """(N, 3, S) complex: ((1 + i loss)(1 + i omega tau) K - density omega^2 M)^-1 F, the reference the
+    modal reduction and the inertia refit are checked against (tests/test_modal.py, tests/test_diagnose_refit.py).
+
+    loads : (n_dofs, S) load vectors F, Pa mm^2.  omega : rad/s.  density : factor on the mass matrix.
+    A complex sparse LU (scipy's SuperLU with its symmetric ordering: the matrix is complex symmetric), fold by
+    fold (the folds are separate bodies; a fold left out is 0).  Before session 33 the equivalent real system
+    ``[[A, -B], [B, A]]`` or the two folds' matrix together, with SuperLU's default ordering: the same transfer,
+    several times the factorisation's time."""
+    import scipy.sparse.linalg as spl
+
+    c = (1 + 1j * loss) * (1 + 1j * omega * tau)
+    u = np.zeros(loads.shape, complex)
+    for k in folds:
+        fold = model.folds[k]
+        idx = model.offsets[k] + fold.free
+        a = (c * fold.stiffness[fold.free][:, fold.free] - density * omega ** 2 * model.mass[idx][:, idx]).tocsc()
+        lu = spl.splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1, options={"SymmetricMode": True})
+        u[idx] = lu.solve(np.asarray(loads[idx], complex))
+    re, im = model.vertex_displacements(u.real), model.vertex_displacements(u.imag)
+    return np.moveaxis(re + 1j * im, 0, -1)
+
+
 @dataclass
 class Case:
     model: ElasticModel

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from _candidates_case import CAMERA, SETTINGS, pressure_case, reduced_damping, reduced_inertia
+from _forward_case import direct_transfer
 from vfcli.diagnose.candidates import Inertia, KelvinVoigtDamping, MountingOffset, StiffnessAsymmetry
 from vfcli.diagnose.confirmation import Confirmation, HeldOutError, heldout_sd
 from vfcli.diagnose.heldout import cycle_groups, leave_cycles_out, prediction_error
@@ -250,13 +251,10 @@ def test_inertia_refit_finds_the_tissue_density_from_a_quasi_static_fit():
 
 
 def _direct_steady_state(base, density: float, loss: float) -> np.ndarray:
-    """(T, N, 3) periodic steady state of the case's load at ``density`` by a sparse complex solve per fold and
-    harmonic of f0 (the reference the modal reduction is checked against), mm.  The folds do not share a free
-    DOF, so each fold's block is factorised on its own, with SuperLU's symmetric ordering (the matrix is complex
-    symmetric); at density 0 every harmonic has the same matrix: factorised once.  The whole model's matrix
-    with SuperLU's default ordering took 20.5 s of this test's 62 s (session 33)."""
+    """(T, N, 3) periodic steady state of the case's load at ``density`` by a direct sparse solve per harmonic of
+    f0 (:func:`_forward_case.direct_transfer`, the reference the modal reduction is checked against), mm.  At
+    density 0 every harmonic has the same matrix: solved once."""
     import scipy.sparse as sp
-    from scipy.sparse.linalg import splu
 
     from vfcli.model.response.modal import harmonic_fit
 
@@ -267,20 +265,11 @@ def _direct_steady_state(base, density: float, loss: float) -> np.ndarray:
     loads = loads.toarray() if sp.issparse(loads) else np.asarray(loads)
     w0 = 2 * np.pi * base.f0_hz
     out = np.zeros((len(t), model.mesh.n_nodes, 3))
-    blocks = [model.offsets[k] + fold.free for k, fold in enumerate(model.folds)]
-    assert sorted(np.concatenate(blocks).tolist()) == sorted(np.asarray(model.free_dofs).tolist())
-    lus = None
+    transfer = None
     for k in range(spec.shape[0]):
-        if lus is None or density:
-            a = (1 + 1j * loss) * model.stiffness - density * (k * w0) ** 2 * model.mass
-            lus = [splu(a[idx][:, idx].tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1,
-                        options={"SymmetricMode": True}) for idx in blocks]
-        x = np.zeros(model.n_dofs, complex)
-        f = loads @ spec[k]
-        for idx, lu in zip(blocks, lus):
-            x[idx] = lu.solve(f[idx].astype(complex))
-        u = model.vertex_displacements(x.real) + 1j * model.vertex_displacements(x.imag)
-        out += np.real(np.exp(1j * k * w0 * t)[:, None, None] * u[None])
+        if transfer is None or density:
+            transfer = direct_transfer(model, loads, k * w0, density, 0.0, loss)      # (N, 3, S)
+        out += np.real(np.exp(1j * k * w0 * t)[:, None, None] * (transfer @ spec[k])[None])
     return out
 
 
@@ -289,12 +278,13 @@ def test_inertia_refit_recentres_its_reduction_on_the_estimate(monkeypatch):
     2.5 mm mesh, 3480 free DOFs per fold, with the complete expansion's limit lowered below that so that
     inertia uses the Ritz reduction with shifted vectors at k f0 a 2 mm run mesh gets, exact at density 1
     only).  Undamped, that reduction misses the steady state at density 2 by 85 % (measured), the one
-    re-centred there is exact (1e-11); the refit, re-centring once on its estimate (2.0037), finds 1.9968 +-
-    0.0010 (measured): 0.16 % from the truth, the error the reduction centred 0.3 % away leaves (within
-    RECENTRE_TOL, so not re-centred again), which the refit's sd does not contain.  Here the refit kept at
-    density 1 stays at its start value 2 (measured with ``recentre`` disabled; it fails the centre's
-    assertion); on the 2 mm mesh (7029 free DOFs per fold, 4 times this test's time) it stopped at
-    2.080 +- 0.004 and re-centred at 1.9995 +- 0.0008 (session 21)."""
+    re-centred there is exact (1e-11); the refit, re-centring once on its estimate (2.0037; 2.0017 since the
+    reference is solved through ``direct_transfer``, session 33: its first step moves with the data's last
+    digits), finds 1.9968 (1.9967) +- 0.0010 (measured): 0.16 % from the truth, the error the reduction centred
+    0.3 % away leaves (within RECENTRE_TOL, so not re-centred again), which the refit's sd does not contain.  Here the
+    refit kept at density 1 stays at its start value 2 (measured with ``recentre`` disabled; it fails the centre's
+    assertion); on the 2 mm mesh (7029 free DOFs per fold, 4 times this test's time) it stopped at 2.080 +- 0.004
+    and re-centred at 1.9995 +- 0.0008 (session 21)."""
     import vfcli.diagnose.candidates.inertia as inertia
 
     monkeypatch.setattr(inertia, "COMPLETE_MAX_DOFS", 3000)
@@ -317,7 +307,7 @@ def test_inertia_refit_recentres_its_reduction_on_the_estimate(monkeypatch):
     cand = Inertia(b0.model)
     r = refit(base, cand, max_iterations=10)
     print("density", r.history["theta"].ravel(), "sd", r.sd, "centre", cand.centre(base))
-    assert abs(r.theta[0] - 2.0) < 0.004 and r.sd[0] < 2e-3       # measured 1.9968 +- 0.0010
+    assert abs(r.theta[0] - 2.0) < 0.004 and r.sd[0] < 2e-3       # measured 1.9968 (1.9967) +- 0.0010
     assert cand.centre(base) != 1.0 and abs(np.sqrt(r.theta[0] / cand.centre(base)) - 1) < 0.01
     assert not cand.recentre(base, r.theta)                                 # stays where it is
 

@@ -3,9 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import scipy.sparse.linalg as spl
 
-from _forward_case import elastic_model
+from _forward_case import direct_transfer, elastic_model
 from vfcli.model.mesh import TAG_INFERIOR, TAG_MEDIAL
 from vfcli.model.response.modal import ModalReduction, harmonic_fit
 
@@ -21,23 +20,6 @@ def _loads(model) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _full_transfer(model, loads, omega, density, tau, loss, folds=(0, 1)) -> np.ndarray:
-    """(N, 3, S) complex: ((1 + i loss)(1 + i omega tau) K - density omega^2 M)^-1 F by a complex sparse LU
-    (scipy's SuperLU with its symmetric ordering: the matrix is complex symmetric), fold by fold (the folds are
-    separate bodies; a fold left out is 0).  Before session 33 the equivalent real system ``[[A, -B], [B, A]]``
-    with SuperLU's default ordering: the same transfer, several times the factorisation's time."""
-    c = (1 + 1j * loss) * (1 + 1j * omega * tau)
-    u = np.zeros(loads.shape, complex)
-    for k in folds:
-        fold = model.folds[k]
-        idx = model.offsets[k] + fold.free
-        a = (c * fold.stiffness[fold.free][:, fold.free] - density * omega ** 2 * model.mass[idx][:, idx]).tocsc()
-        lu = spl.splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1, options={"SymmetricMode": True})
-        u[idx] = lu.solve(np.asarray(loads[idx], complex))
-    re, im = model.vertex_displacements(u.real), model.vertex_displacements(u.imag)
-    return np.moveaxis(re + 1j * im, 0, -1)
-
-
 @pytest.mark.slow
 def test_reduction_is_exact_at_zero_frequency_and_close_at_f0_with_damping():
     model = elastic_model()
@@ -47,7 +29,7 @@ def test_reduction_is_exact_at_zero_frequency_and_close_at_f0_with_damping():
     assert np.linalg.norm(red.transfer(0.0, 1.0) - static) < 1e-10 * np.linalg.norm(static)
     w, tau, loss = 2 * np.pi * F0_HZ, 0.2 / (2 * np.pi * F0_HZ), 0.02
     right = model.folds[1].nodes          # the loads and folds are mirror images: the right fold suffices
-    full = _full_transfer(model, loads, w, 1.0, tau, loss, folds=(1,))[right]
+    full = direct_transfer(model, loads, w, 1.0, tau, loss, folds=(1,))[right]
     err = np.linalg.norm(red.transfer(w, 1.0, tau, loss)[right] - full) / np.linalg.norm(full)
     assert 1e-4 < err < 5e-4, err        # measured 2.4e-4; with 6 modes per fold 4.6e-2: the modes carry it
     # the reduction's lowest frequencies are the folds' eigsh modes (a Rayleigh-Ritz space containing them)
@@ -85,13 +67,13 @@ def test_the_complete_expansion_is_exact_and_shifts_make_the_ritz_reduction_exac
     rel = lambda a, b: np.linalg.norm(a - b) / np.linalg.norm(b)  # noqa: E731
     for k, rho, ta, loss in ((2, 2.0, 0.0, 0.02), (4, 1.0, tau, 0.02), (6, 0.5, 0.0, 0.0), (3, 1.0, 0.0, 0.0)):
         w = 2 * np.pi * F0_HZ * k
-        full = _full_transfer(model, loads, w, rho, ta, loss)
+        full = direct_transfer(model, loads, w, rho, ta, loss)
         err = rel(complete.transfer(w, rho, ta, loss), full)
         assert err < 1e-9, (k, rho, err)                                # measured 1e-12 .. 9e-12
     errs = []
     for k in range(1, 7):
         w = 2 * np.pi * F0_HZ * k
-        full = _full_transfer(model, loads, w, 1.0, 0.0, 0.0)
+        full = direct_transfer(model, loads, w, 1.0, 0.0, 0.0)
         errs.append((rel(plain.transfer(w, 1.0), full), rel(shifted.transfer(w, 1.0), full)))
     errs = np.array(errs)
     print(errs)

@@ -13,7 +13,7 @@ import logging
 import numpy as np
 import pytest
 
-from vfcli.camera.pose import estimate_pose, locate, motion_amplitude
+from vfcli.camera.pose import locate, motion_amplitude
 
 PX_PER_MM, LENGTH_MM, HALF_WIDTH_MM = 8.0, 15.0, 0.6
 
@@ -66,7 +66,8 @@ def _origin_for(rotation_deg: float, mid_px) -> tuple[float, float]:
 
 
 def _errors(rotation_deg, offset, prior_deg):
-    rot, off = estimate_pose(_gap_counts(rotation_deg, offset), PX_PER_MM, LENGTH_MM, prior_deg=prior_deg)
+    pose = locate(_gap_counts(rotation_deg, offset), PX_PER_MM, LENGTH_MM, prior_deg=prior_deg)
+    rot, off = pose.rotation_deg, pose.offset_px
     th = np.radians(rotation_deg)
     along = np.array([np.cos(th), np.sin(th)])
     d = np.asarray(off) - np.asarray(offset)
@@ -93,7 +94,8 @@ def test_a_glottis_found_in_fewer_frames_along_one_half_is_still_placed_at_mid_l
     rows, cols = np.mgrid[0:160, 0:160].astype(float)
     along = (cols - 80.0) * np.cos(th) + (rows - 81.0) * np.sin(th)
     counts = np.where(along < 0, full, widest)
-    rot, off = estimate_pose(counts, PX_PER_MM, LENGTH_MM, prior_deg=rotation + 20)
+    pose = locate(counts, PX_PER_MM, LENGTH_MM, prior_deg=rotation + 20)
+    rot, off = pose.rotation_deg, pose.offset_px
     d = np.asarray(off) - np.asarray(offset)
     d_long = abs(d @ np.array([np.cos(th), np.sin(th)]))
     print(f"uneven detection, {rotation:+.0f} deg: longitudinal {d_long:.2f} px")
@@ -127,7 +129,8 @@ def test_a_glottis_cut_at_both_ends_says_the_offset_is_not_measured(caplog):
     counts = _gap_counts(0.0, offset, shape=(140, 100))   # 100 px < L = 120 px
     assert counts[:, 0].any() and counts[:, -1].any()
     with caplog.at_level(logging.WARNING, logger="vfcli.camera.pose"):
-        rot, off = estimate_pose(counts, PX_PER_MM, LENGTH_MM)
+        pose = locate(counts, PX_PER_MM, LENGTH_MM)
+        rot, off = pose.rotation_deg, pose.offset_px
     assert abs(rot) < 0.5 and abs(off[1] - offset[1]) < 0.5
     msgs = [r.getMessage() for r in caplog.records]
     assert len(msgs) == 1 and "both ends" in msgs[0] and "camera.offset_px" in msgs[0]
@@ -145,7 +148,8 @@ def test_a_dark_streak_beyond_the_glottis_end_does_not_turn_the_axis():
     end = np.asarray(offset) + 1.5 * PX_PER_MM * np.array([np.cos(th), np.sin(th)])   # 1.5 mm in from x = 0
     col, row = int(round(end[0])), int(round(end[1]))
     counts[row:row + 40, col - 2:col + 2] += 6.0                                        # half the cycle, 4 px wide
-    rot, off = estimate_pose(counts, PX_PER_MM, LENGTH_MM, prior_deg=rotation)
+    pose = locate(counts, PX_PER_MM, LENGTH_MM, prior_deg=rotation)
+    rot, off = pose.rotation_deg, pose.offset_px
     lateral = abs((np.asarray(off) - np.asarray(offset)) @ np.array([-np.sin(th), np.cos(th)]))
     print(f"streak: rotation error {rot - rotation:+.2f} deg, lateral {lateral:.2f} px")
     assert abs(rot - rotation) < 1.5 and lateral < 2.0

@@ -311,15 +311,6 @@ def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg
     return Pose(float(ax.rotation_deg), (float(origin[0]), float(origin[1])), how)
 
 
-def estimate_pose(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg: float = 0.0,
-                  amplitude: np.ndarray | Callable[[], np.ndarray] | None = None) -> tuple[float, tuple[float, float]]:
-    """(rotation_deg, (offset_col_px, offset_row_px)) of the model frame in the image: ``[col, row] = s R(rot)
-    [x, y] + offset`` (docs/conventions.md). Parameters as :func:`locate`, which also says how mid-length was
-    placed."""
-    pose = locate(gap_counts, px_per_mm, length_mm, prior_deg, amplitude)
-    return pose.rotation_deg, pose.offset_px
-
-
 def camera_to_model(vectors: np.ndarray, rotation_deg: float) -> np.ndarray:
     """Rotate image-aligned (u, v) components (..., 2) into the model's (x, y) axes."""
     r = np.radians(rotation_deg)
