@@ -11,6 +11,16 @@
    ``K - (2 pi 240 Hz)^2 M`` of one fold of the 1.5 mm mesh with a symmetric ordering
    (MMD_AT_PLUS_A, diagonal pivots preferred down to a tenth) against SciPy's default (COLAMD).
 
+Session 34's, the same way:
+
+4. **Calibration replicates** (``vfcli.diagnose.calibrate._replicate_chunk``): the covariances and
+   studentized statistics of a chunk of 64 replicates in one batched eigendecomposition per candidate,
+   against the former replicate-by-replicate loop (:func:`replicate_chunk_loop`, one ``eigh`` per
+   candidate and replicate); five candidates (p = 3, 1, 2, 1, 1), a pool of 10 stretches, 40 model-error bins.
+5. **Shifted Ritz vectors of both folds** (:func:`vfcli.model.response.modal.shifted_ritz_vectors`):
+   fold 0 solved with fold 1's factors when it is fold 1's mirror image, against the same function on
+   the same model built with ``reuse_mirror=False`` (one factorisation per fold); 1.5 mm mesh, 7 loads.
+
 Each pair is checked to agree before it is timed. BLAS threads matter on a busy machine: run it both
 ways, e.g. ``OPENBLAS_NUM_THREADS=1`` (what ``make test`` sets) and unset.
 
@@ -32,7 +42,10 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
 
 from _forward_case import elastic_model  # noqa: E402
 from _runner import best  # noqa: E402
+from vfcli.diagnose import calibrate  # noqa: E402
 from vfcli.diagnose.residual import region_means  # noqa: E402
+from vfcli.model.fem import ElasticModel  # noqa: E402
+from vfcli.model.response.modal import shifted_ritz_vectors  # noqa: E402
 from vfcli.inverse.terms.motion import motion_blocks, seen_vertex_gram  # noqa: E402
 
 
@@ -63,6 +76,48 @@ def motion_block_pairwise(seen, gram, bases, weights=(1.0, 1.0, 1.0)) -> np.ndar
                 r, q = bases[j][seen, c, :], bases[k][seen, c, :]
                 out[j, k] += weights[c] * (r.T @ (gram @ q))
     return out
+
+
+def replicate_chunk_loop(parts, sizes, identifiable, seed, n, one_sided=()) -> np.ndarray:
+    """The former replicate chunk (sessions 19-33): covariances and statistics one replicate at a time."""
+    rng = np.random.default_rng(seed)
+    k = parts.n_pool
+    d = parts.noise / np.sqrt(k - 1)
+    q = parts.model_error
+    out = np.zeros((len(sizes), n))
+    for b in range(n):
+        g = rng.standard_normal((k + 1, k))
+        draws = g @ d
+        u = draws[0]
+        covs = calibrate.noise_covariances(draws[1:], sizes, centred=True)
+        if len(q):
+            u = u + rng.standard_normal(len(q)) @ q
+            est = calibrate.model_error_covariances(q, sizes, rng.standard_normal(len(q)) ** 2)
+            covs = [a + e for a, e in zip(covs, est)]
+        out[:, b] = calibrate.studentized(u, covs, identifiable, one_sided)
+    return out
+
+
+def bench_replicates() -> tuple[float, float]:
+    rng = np.random.default_rng(3)
+    sizes, sided = (3, 1, 2, 1, 1), (False, True, False, True, True)
+    parts = calibrate.NullParts(rng.normal(size=(10, 8)), 0.3 * rng.normal(size=(40, 8)))
+    args = (parts, sizes, (True,) * 5, 11, calibrate.CHUNK, sided)
+    a, b = replicate_chunk_loop(*args), calibrate._replicate_chunk(*args)
+    assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max()
+    return best(lambda: replicate_chunk_loop(*args), 3), best(lambda: calibrate._replicate_chunk(*args), 3)
+
+
+def bench_mirrored_ritz(edge_mm: float = 1.5) -> tuple[float, float]:
+    mirrored = elastic_model(edge_mm)
+    both = ElasticModel(mirrored.mesh, reuse_mirror=False)
+    assert mirrored.is_mirrored and not both.is_mirrored
+    loads = np.random.default_rng(4).normal(size=(mirrored.n_dofs, 7))
+    loads[mirrored.fixed_dofs] = 0.0
+    a, b = shifted_ritz_vectors(both, loads, 240.0), shifted_ritz_vectors(mirrored, loads, 240.0)
+    assert np.abs(a - b).max() <= 1e-9 * np.abs(a).max()
+    return best(lambda: shifted_ritz_vectors(both, loads, 240.0), 2), \
+        best(lambda: shifted_ritz_vectors(mirrored, loads, 240.0), 2)
 
 
 def bench_region_means() -> tuple[float, float]:
@@ -110,6 +165,12 @@ def main() -> None:
     old, new, n = bench_shifted_lu()
     print(f"shifted LU, one fold of the 1.5 mm mesh ({n} free DOFs): COLAMD {old:.2f} s, symmetric {new:.2f} s: "
           f"{old / new:.1f}x")
+    old, new = bench_replicates()
+    print(f"calibration replicates, a chunk of {calibrate.CHUNK}: one by one {1e3 * old:.1f} ms, batched "
+          f"{1e3 * new:.1f} ms: {old / new:.1f}x")
+    old, new = bench_mirrored_ritz()
+    print(f"shifted Ritz vectors of both folds (1.5 mm mesh): a factorisation per fold {old:.2f} s, fold 1's "
+          f"mirrored for fold 0 {new:.2f} s: {old / new:.1f}x")
 
 
 if __name__ == "__main__":

@@ -138,6 +138,32 @@ def test_replicates_are_reproducible_and_independent_of_the_map():
     assert np.all(a[2] == 0) and np.all(a[:2] > 0)
 
 
+def test_batched_replicate_statistics_are_each_replicates_own():
+    """The chunk's statistics, computed for all its replicates at once (one batched eigendecomposition per
+    candidate), equal :func:`statistics` of each replicate's scores with that replicate's own covariances,
+    redrawn one by one from the same stream: rank-deficient covariances (a pool column of zeros), one-sided
+    and unidentifiable candidates included."""
+    from vfcli.diagnose.calibrate import _replicate_chunk, model_error_covariances, noise_covariances
+
+    rng = np.random.default_rng(8)
+    noise = rng.normal(size=(6, 7))
+    model_error = 0.4 * rng.normal(size=(9, 7))
+    noise[:, 0] = model_error[:, 0] = 0.0                # the first candidate's first score never varies
+    parts = NullParts(noise, model_error)
+    sizes, ident, sided = (2, 1, 3, 1), (True, True, True, False), (False, True, False, False)
+    got = _replicate_chunk(parts, sizes, ident, 21, 40, sided)
+    draw = np.random.default_rng(21)
+    d = parts.noise / np.sqrt(parts.n_pool - 1)
+    for b in range(40):
+        draws = draw.standard_normal((parts.n_pool + 1, parts.n_pool)) @ d
+        u = draws[0] + draw.standard_normal(9) @ parts.model_error
+        w = draw.standard_normal(9) ** 2
+        covs = [a + e for a, e in zip(noise_covariances(draws[1:], sizes, centred=True),
+                                      model_error_covariances(parts.model_error, sizes, w))]
+        np.testing.assert_allclose(got[:, b], statistics(u, covs, ident, sided), rtol=1e-9, atol=1e-12)
+    assert np.all(got[3] == 0) and np.any(got[1] == 0) and np.any(got[1] > 0)
+
+
 def test_null_bootstrap_is_uniform_where_the_naive_chi2_over_rejects():
     naive, boot, fam, _ = _draws()
     band = _binomial_band(ALPHA, boot.size)

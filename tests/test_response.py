@@ -59,11 +59,11 @@ class RelaxingResponse:
         c = np.asarray(x, dtype=float).reshape(self.spatial[0].shape[2], -1)
         out = 0.0
         for r, b in zip(self.spatial, self._temporal(times)):
-            out = out + np.einsum("ncs,st,Tt->Tnc", r, c, b)
+            out = out + np.einsum("ncs,st,Tt->Tnc", r, c, b, optimize=True)
         return out
 
     def adjoint(self, g, times, x=None):
-        return sum(np.einsum("ncs,Tnc,Tt->st", r, g, b) for r, b in zip(self.spatial, self._temporal(times))).ravel()
+        return sum(np.einsum("ncs,Tnc,Tt->st", r, g, b, optimize=True) for r, b in zip(self.spatial, self._temporal(times))).ravel()
 
     def linearize(self, x, times):
         return Linearization(tuple(SeparableTerm(r, b) for r, b in zip(self.spatial, self._temporal(times))))

@@ -218,25 +218,64 @@ def model_error_covariances(q: np.ndarray, sizes: Sequence[int], weights: np.nda
     return out
 
 
+def _batched_statistics(u: np.ndarray, covs: Sequence[np.ndarray], identifiable: Sequence[bool],
+                        one_sided: Sequence[bool] = ()) -> np.ndarray:
+    """(C, n) ``U_c^T S_c^+ U_c`` of n stacked scores u (n, sum p_c) with per-candidate covariances
+    covs[c] (n, p_c, p_c): :func:`statistics` of each row with its own covariances, in one batched
+    eigendecomposition per candidate (the pseudo-inverse's eigenvalue cut of :func:`pseudo_inverse`)."""
+    sided = tuple(one_sided) + (False,) * (len(covs) - len(one_sided))
+    out = np.zeros((len(covs), u.shape[0]))
+    at = 0
+    for c, (cov, ok) in enumerate(zip(covs, identifiable)):
+        p = cov.shape[1]
+        uc = u[:, at:at + p]
+        at += p
+        if not ok:
+            continue
+        if sided[c] and p != 1:
+            raise ValueError(f"a one-sided candidate has one parameter, candidate {c} has {p}")
+        w, v = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, 1, 2)))                 # (n, p), (n, p, p)
+        top = np.maximum(w.max(axis=1, initial=0.0), 1e-300)
+        keep = w > INFO_RTOL * top[:, None]
+        proj = np.einsum("nij,ni->nj", v, uc)                                          # V^T u
+        out[c] = np.sum(np.where(keep, proj ** 2 / np.where(keep, w, 1.0), 0.0), axis=1)
+        if sided[c]:
+            out[c] = np.where(uc[:, 0] > 0, out[c], 0.0)
+    return out
+
+
 def _replicate_chunk(parts: NullParts, sizes: tuple[int, ...], identifiable: tuple[bool, ...], seed: int,
                      n: int, one_sided: tuple[bool, ...] = ()) -> np.ndarray:
-    """(C, n) studentized statistics of n replicates drawn with ``seed`` (module docstring)."""
+    """(C, n) studentized statistics of n replicates drawn with ``seed`` (module docstring).
+
+    The draws are made replicate by replicate (the random stream is the same whatever the chunking
+    of the linear algebra); the covariances and statistics of the n replicates are then computed at once.
+    """
     rng = np.random.default_rng(seed)
     k = parts.n_pool
     d = parts.noise / np.sqrt(k - 1)                 # rows: d^T d = the pool's covariance
     q = parts.model_error
-    out = np.zeros((len(sizes), n))
+    u = np.empty((n, d.shape[1]))
+    pool = np.empty((n, k, d.shape[1]))
+    weights = np.empty((n, len(q)))
     for b in range(n):
         g = rng.standard_normal((k + 1, k))
         draws = g @ d                                # (K + 1, sum p): the window's noise and K pool stretches
-        u = draws[0]
-        covs = noise_covariances(draws[1:], sizes, centred=True)
+        u[b], pool[b] = draws[0], draws[1:]
         if len(q):
-            u = u + rng.standard_normal(len(q)) @ q  # the model error's in-phase lean, bin by bin
-            est = model_error_covariances(q, sizes, rng.standard_normal(len(q)) ** 2)   # its fresh estimate
-            covs = [a + e for a, e in zip(covs, est)]
-        out[:, b] = studentized(u, covs, identifiable, one_sided)
-    return out
+            u[b] += rng.standard_normal(len(q)) @ q  # the model error's in-phase lean, bin by bin
+            weights[b] = rng.standard_normal(len(q)) ** 2   # its fresh estimate's weights
+    pool -= pool.mean(axis=1, keepdims=True)
+    covs, at = [], 0
+    for p in sizes:
+        dc = pool[:, :, at:at + p]
+        cov = np.einsum("nki,nkj->nij", dc, dc) / max(k - 1, 1)
+        if len(q):
+            qc = q[:, at:at + p]
+            cov = cov + np.einsum("nj,ji,jk->nik", weights, qc, qc)
+        covs.append(cov)
+        at += p
+    return _batched_statistics(u, covs, identifiable, one_sided)
 
 
 def _replicate_item(parts: NullParts, sizes: tuple[int, ...], identifiable: tuple[bool, ...],

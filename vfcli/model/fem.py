@@ -238,6 +238,12 @@ class ElasticModel:
         return self._mirror is not None
 
     @property
+    def mirror(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(perm, sign), fold-0 DOF i = sign[i] * fold-1 DOF perm[i] (both folds' full DOF numbering), when
+        fold 0 is fold 1's mirror image and its solves reuse fold 1's factorisation; else None."""
+        return self._mirror
+
+    @property
     def stiffness(self) -> sp.csr_matrix:
         """(n_dofs, n_dofs) block-diagonal stiffness, Pa mm (no Dirichlet reduction)."""
         return sp.block_diag([f.stiffness for f in self.folds], format="csr")

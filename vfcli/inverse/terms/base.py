@@ -141,6 +141,12 @@ def term_pairs(n_terms: int) -> list[tuple[int, int]]:
     return [(j, k) for j in range(n_terms) for k in range(n_terms)]
 
 
+def pair_outers(rows: np.ndarray) -> np.ndarray:
+    """(J * J, t, t) ``outer(rows[j], rows[k])`` for every pair of :func:`term_pairs` in its order; rows (J, t)."""
+    n, t = rows.shape
+    return (rows[:, None, :, None] * rows[None, :, None, :]).reshape(n * n, t, t)
+
+
 @dataclass(frozen=True)
 class GroupedLinearization:
     """A response's linearisation split by block group, as the Gauss-Newton terms use it.

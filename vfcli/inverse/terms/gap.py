@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from vfcli.camera.silhouette import crossing_with_gradient
-from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, term_pairs
+from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, pair_outers, term_pairs
 
 
 def gap_rows(problem, positions: np.ndarray, sil: list, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -122,5 +122,4 @@ class GapTerm(FrameTerm):
                 blocks = (q_all.T @ (curv[rows, None] * q_all)).reshape(len(qg), n_s, len(qg), n_s)
                 for i, (j, k) in enumerate(pairs):
                     stack[f * len(pairs) + i] = blocks[j, :, k, :]
-            for i, (j, k) in enumerate(pairs):
-                out.outers[f * len(pairs) + i] = np.outer(lin.temporal[j][f], lin.temporal[k][f])
+            out.outers[f * len(pairs):(f + 1) * len(pairs)] = pair_outers(np.stack([b[f] for b in lin.temporal]))

@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from vfcli.inverse.stencil import stencil_apply, stencil_scatter
-from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, term_pairs
+from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, pair_outers, term_pairs
 
 
 def seen_vertex_gram(m_both: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
@@ -115,6 +115,5 @@ class MotionTerm(FrameTerm):
                 blocks = motion_blocks(seen, gram, [r[g] for r in lin.spatial], mv, st.component_weights)
                 for i, (j, k) in enumerate(pairs):
                     stack[f * len(pairs) + i] = w * blocks[j, k]
-            for i, (j, k) in enumerate(pairs):
-                out.outers[f * len(pairs) + i] = np.outer(db[j], db[k])
+            out.outers[f * len(pairs):(f + 1) * len(pairs)] = pair_outers(np.stack(db))
             out.n_residuals += 3 * fr.m_both.shape[0]

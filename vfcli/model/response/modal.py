@@ -89,28 +89,60 @@ def shifted_ritz_vectors(model, loads: np.ndarray, shift_hz: float, n_blocks: in
     shift_hz : shift frequency f_s, Hz (w_s = 2 pi f_s).
     n_blocks : Krylov blocks (>= 1).
     """
-    from scipy.sparse.linalg import splu
-
     sigma = (2 * np.pi * float(shift_hz)) ** 2
     mass = model.mass
+    solvers = _shifted_solvers(model, sigma)
     out = []
     for k, fold in enumerate(model.folds):
-        o = model.offsets[k]
-        idx = o + fold.free
+        idx = model.offsets[k] + fold.free
         m_ff = mass[idx][:, idx]
-        a = (fold.stiffness[fold.free][:, fold.free] - sigma * m_ff).tocsc()
-        # A is symmetric: a symmetric fill-reducing ordering with diagonal pivots preferred (pivoting off
-        # the diagonal only below a tenth of the column's largest entry, as A is indefinite) halves the
-        # factor's fill and takes 1.8x less time than COLAMD (bench/bench_diagnose_kernels.py)
-        lu = splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1, options={"SymmetricMode": True})
-        block = lu.solve(np.ascontiguousarray(loads[idx], dtype=float))
+        block = solvers[k](np.ascontiguousarray(loads[idx], dtype=float))
         for _ in range(int(n_blocks)):
             block, _r = np.linalg.qr(block)
             full = np.zeros((model.n_dofs, block.shape[1]))
             full[idx] = block
             out.append(full)
-            block = lu.solve(np.ascontiguousarray(m_ff @ block))
+            block = solvers[k](np.ascontiguousarray(m_ff @ block))
     return np.hstack(out)
+
+
+def _shifted_solvers(model, sigma: float) -> list:
+    """Per fold, a solve of ``A_k = K_k - sigma M_k`` on its free DOFs, rhs (n_free_k, m).
+
+    Each A_k is factorised by sparse LU with a symmetric ordering: A is symmetric and indefinite above the
+    lowest resonance, so a symmetric fill-reducing ordering with diagonal pivots preferred (pivoting off
+    the diagonal only below a tenth of the column's largest entry) halves the factor's fill and takes 1.8x
+    less time than COLAMD (bench/bench_diagnose_kernels.py).  When fold 0 is the mirror image of fold 1
+    with the same Young's modulus (:attr:`vfcli.model.fem.ElasticModel.is_mirrored`, the stiffness
+    solves' own reuse), A_0 is A_1 mirrored and fold 1's factors solve fold 0's systems too.
+    """
+    from scipy.sparse.linalg import splu
+
+    mass = model.mass
+
+    def factor(k: int):
+        fold = model.folds[k]
+        idx = model.offsets[k] + fold.free
+        a = (fold.stiffness[fold.free][:, fold.free] - sigma * mass[idx][:, idx]).tocsc()
+        return splu(a, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.1, options={"SymmetricMode": True}).solve
+
+    f0, f1 = model.folds
+    solve1 = factor(1)
+    mirror = model.mirror
+    if mirror is None or f0.youngs_pa != f1.youngs_pa:
+        return [factor(0), solve1]
+    perm, sign = mirror
+
+    def solve0(rhs: np.ndarray) -> np.ndarray:
+        full = np.zeros((f0.n_dofs, rhs.shape[1]))
+        full[f0.free] = rhs
+        mapped = np.zeros_like(full)
+        mapped[perm] = sign[:, None] * full                     # fold 0's vector as fold 1's
+        sol = np.zeros_like(full)
+        sol[f1.free] = solve1(np.ascontiguousarray(mapped[f1.free]))
+        return (sign[:, None] * sol[perm])[f0.free]
+
+    return [solve0, solve1]
 
 
 class ModalReduction:
@@ -176,7 +208,7 @@ class ModalReduction:
         out = cls.__new__(cls)
         mass = model.mass
         mus, verts, modal_loads = [], [], []
-        mirror = getattr(model, "_mirror", None)                      # fold 0 the mirror image of fold 1
+        mirror = model.mirror                      # fold 0 the mirror image of fold 1
         solved = {}
         for k in (1, 0):
             fold = model.folds[k]

@@ -112,7 +112,8 @@ class SteadyStateResponse:
         w0 = 2 * np.pi * self.f0_hz
         for k in range(self.beta.shape[0]):
             # d/dC of sum_t Re(e_t * <g_t, Delta C beta>) = Re(sum_t e_t Delta^T g_t) beta^T
-            z = np.einsum("t,tnc,ncs->s", np.exp(1j * k * w0 * times), g, self.delta[k])   # (S,) complex
+            gk = np.tensordot(np.exp(1j * k * w0 * times), g, axes=(0, 0))                 # (N, 3) complex
+            z = np.einsum("nc,ncs->s", gk, self.delta[k])                                     # (S,) complex
             out += np.real(np.outer(z, self.beta[k]))
         return out.ravel()
 
