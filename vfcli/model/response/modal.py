@@ -208,7 +208,7 @@ class ModalReduction:
         out = cls.__new__(cls)
         mass = model.mass
         mus, verts, modal_loads = [], [], []
-        mirror = model.mirror                      # fold 0 the mirror image of fold 1
+        mirror = model.mirror                                          # fold 0 the mirror image of fold 1
         solved = {}
         for k in (1, 0):
             fold = model.folds[k]
@@ -217,6 +217,7 @@ class ModalReduction:
                 perm, sign = mirror                                   # fold-0 DOF i = sign[i] * fold-1 DOF perm[i]
                 mu, phi1 = solved[1]
                 f1 = model.folds[1]
+                mu = mu * (fold.youngs_pa / f1.youngs_pa)             # K_0 = (E_0 / E_1) K_1 mirrored, M_0 = M_1
                 full1 = np.zeros((f1.n_dofs, len(mu)))
                 full1[f1.free] = phi1
                 phi = (sign[:, None] * full1[perm])[fold.free]
