@@ -2,6 +2,7 @@
 these formats in the wild (pyMRAW, tifffile, OpenCV)."""
 from __future__ import annotations
 
+import re
 import tracemalloc
 import warnings
 
@@ -330,6 +331,64 @@ def test_avi_written_by_opencv_is_streamed_with_its_fps(tmp_path):
         assert v.meta.fps == pytest.approx(250.0) and v.meta.n_frames == 8
         assert np.array_equal(v.read(), frames)   # FFV1 is lossless
         assert np.array_equal(v.read(5, 7), frames[5:7])
+
+
+def _patch_strf(data: bytes, **fields: int) -> bytes:
+    """The AVI's BITMAPINFOHEADER fields (width, height, bits, compression) overwritten."""
+    import struct
+
+    b = bytearray(data)
+    at = b.find(b"strf") + 8
+    offsets = {"width": (4, "<i"), "height": (8, "<i"), "bits": (14, "<H"), "compression": (16, "<I")}
+    for name, value in fields.items():
+        off, fmt = offsets[name]
+        struct.pack_into(fmt, b, at + off, value)
+    return bytes(b)
+
+
+def test_an_avi_stated_uncompressed_whose_frames_are_not_is_refused_before_ffmpeg_decodes_it(tmp_path):
+    """An FFV1 AVI written by OpenCV whose header then says uncompressed 24-bit frames of another height (a
+    hostile-file fuzz hunt's find, session 34): OpenCV's FFmpeg backend corrupted memory on its first frame and
+    the process died (free(): invalid pointer, SIGABRT or SIGSEGV; Python cannot catch it). Now one line
+    naming the sizes. The check reads the header only: a stream that is not stated uncompressed is left to
+    FFmpeg (the same file with another height decodes, with OpenCV's own error handling)."""
+    import cv2
+
+    path = tmp_path / "v.avi"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 250.0, (48, 32), isColor=False)
+    for f in _frames(n=4, h=32, w=48, bits=8):
+        w.write(f)
+    w.release()
+    seed = path.read_bytes()
+    for fields, size in (({"height": 3, "compression": 0}, "48 x 3 frames of 24 bits (432 bytes each)"),
+                         ({"compression": 0}, "48 x 32 frames of 24 bits (4608 bytes each)")):
+        bad = tmp_path / "bad.avi"
+        bad.write_bytes(_patch_strf(seed, **fields))
+        with pytest.raises(InputDataError, match=re.escape(f"states uncompressed {size}, its first frame holds ")):
+            open_video(bad)
+    (tmp_path / "h3.avi").write_bytes(_patch_strf(seed, height=3))
+    with open_video(tmp_path / "h3.avi") as v:
+        assert v.meta.n_frames == 4
+
+
+def test_the_uncompressed_frame_size_counts_rows_padded_to_four_bytes(tmp_path):
+    """OpenCV's grey AVI (fourcc 0: Y800, one byte per pixel, 16 x 8: 128-byte frames) restated as 8-bit
+    uncompressed (BI_RGB) is consistent at width 16 and -16 (a top-down stream) and at height -8; at width
+    17 each row is padded to 20 bytes (160-byte frames) and the 128-byte frames are refused."""
+    import cv2
+
+    from vfcli.io.video.tiff_avi import check_uncompressed_frames
+
+    path = tmp_path / "y.avi"
+    w = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, 0, 250.0, (16, 8), isColor=False)
+    for f in _frames(n=2, h=8, w=16, bits=8):
+        w.write(f)
+    w.release()
+    raw = _patch_strf(path.read_bytes(), bits=8, compression=0)
+    for fields in ({}, {"width": -16}, {"height": -8}):
+        check_uncompressed_frames(_patch_strf(raw, **fields), path)
+    with pytest.raises(InputDataError, match=r"17 x 8 frames of 8 bits \(160 bytes each\), its first frame holds 128"):
+        check_uncompressed_frames(_patch_strf(raw, width=17), path)
 
 
 def test_registry_lists_every_kind():

@@ -7,7 +7,9 @@
 * Folder: every ``.png``, ``.tif``, ``.tiff``, ``.bmp`` file directly in the
   folder, sorted naturally (``img2`` before ``img10``); all frames must have the
   same size and dtype. No frame rate (None).
-* AVI: decoded by OpenCV/FFmpeg; fps from the container.
+* AVI: decoded by OpenCV/FFmpeg; fps from the container. An uncompressed stream whose first frame
+  does not hold the bytes its header's size and depth need is refused before FFmpeg sees it (FFmpeg
+  corrupts memory on it and the process aborts or segfaults, which Python cannot catch).
 
 Colour frames (folder images, AVI) are converted to grey with OpenCV's
 BGR->grey weights; colour TIFF pages are rejected (ambiguous for a mono camera).
@@ -16,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import struct
 from pathlib import Path
 from typing import Iterable
 
@@ -245,17 +248,67 @@ register_reader("folder", FolderSource, ())
 
 # --------------------------------------------------------------------------- AVI
 
+#: bytes of an AVI read for its stream header and its first frame's chunk header
+AVI_HEAD_BYTES = 1 << 20
+
+
+def _riff_chunks(buf: bytes, start: int):
+    """(fourcc, data offset, data size) of the RIFF chunks in ``buf`` from ``start`` in file order, LIST and RIFF
+    chunks entered where they start (their list type yielded first, as a chunk of size 0; no recursion, so a
+    hostile nesting costs nothing); stops at the first chunk header past the buffer's end."""
+    at = start
+    while at + 8 <= len(buf):
+        tag, size = buf[at:at + 4], struct.unpack_from("<I", buf, at + 4)[0]
+        if tag in (b"LIST", b"RIFF"):
+            yield buf[at + 8:at + 12], at + 12, 0
+            at += 12
+        else:
+            yield tag, at + 8, size
+            at += 8 + size + (size & 1)
+
+
+def check_uncompressed_frames(head: bytes, path: Path) -> None:
+    """InputDataError when the AVI's video stream is stated uncompressed (BITMAPINFOHEADER compression 0)
+    and its first non-empty frame chunk does not hold ``|height|`` rows of ``width x bit count`` bits (each
+    padded to 4 bytes): OpenCV's FFmpeg backend corrupts memory decoding such a frame. ``head``: the file's
+    first bytes (:data:`AVI_HEAD_BYTES`); nothing is checked where they end before the first frame."""
+    strf = frame = None
+    video = False
+    for tag, at, size in _riff_chunks(head, 12):
+        if tag == b"strh" and size >= 4:
+            video = head[at:at + 4] == b"vids"
+        elif tag == b"strf" and video and strf is None and size >= 20:
+            strf = struct.unpack_from("<iiHHI", head, at + 4)        # width, height, planes, bit count, compression
+        elif tag[2:] in (b"db", b"dc") and size > 0:
+            frame = size
+            break
+    if strf is None or frame is None:
+        return
+    width, height, _, bits, compression = strf
+    if compression != 0 or bits not in (8, 16, 24, 32):
+        return
+    need = ((abs(width) * bits + 31) // 32) * 4 * abs(height)
+    if frame != need:
+        raise InputDataError(f"the header states uncompressed {abs(width)} x {abs(height)} frames of {bits} bits "
+                             f"({need} bytes each), its first frame holds {frame} bytes: the header does not "
+                             "match the frames (corrupt file?)", path)
+
+
 class AviSource(VideoSource):
-    """AVI decoded by OpenCV (FFmpeg backend); frames converted to grey uint8/uint16."""
+    """AVI decoded by OpenCV (FFmpeg backend); frames converted to grey uint8/uint16.
+
+    An uncompressed stream whose first frame contradicts its header is refused first
+    (:func:`check_uncompressed_frames`)."""
 
     def __init__(self, path: str | Path) -> None:
         import cv2
 
         p = require_file(path, "AVI file")
         with open(p, "rb") as fh:
-            head = fh.read(12)
+            head = fh.read(AVI_HEAD_BYTES)
         if head[:4] != b"RIFF" or head[8:12] != b"AVI ":
             raise InputDataError("not an AVI file (no RIFF/AVI header)", p)
+        check_uncompressed_frames(head, p)
         cap = cv2.VideoCapture(str(p), cv2.CAP_FFMPEG)
         if not cap.isOpened():
             raise InputDataError("OpenCV cannot open this AVI (codec unsupported or corrupt)", p)
