@@ -193,6 +193,35 @@ def test_only_vfclis_own_temporary_files_are_removed(tmp_path):
 
 # ------------------------------------------------------------------ aborts
 
+def test_a_write_that_fails_leaves_no_empty_parts_folder(tmp_path):
+    """`vfcli ingest-hsc` into a store that does not exist yet, of a video it refuses: exit 3, and the folder
+    holds what it held (the lock file aside, which every write makes); before session 34 an empty
+    ``new.h5.parts/`` was left behind, a parts folder without its store. An aborted write to a store with no
+    part files leaves none either; a store's parts folder that holds its parts stays as it was."""
+    (tmp_path / "v.avi").write_text("not a video\n")
+    res = run_vfcli("ingest-hsc", tmp_path / "new.h5", tmp_path / "v.avi", "--set", "camera.fps_hz=250")
+    assert res.returncode == 3 and "not an AVI file" in res.stderr, res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".new.h5.lock", "v.avi"]
+
+    def aborted_write(path: Path) -> None:
+        with pytest.raises(RuntimeError):
+            with Store(path).write("test") as w:
+                with w.stage("sync", config_json="{}") as s:
+                    s.put("offset_s", np.arange(3.0))
+                    raise RuntimeError("abort")
+
+    path = tmp_path / "r.h5"
+    _write_mesh(path, 1.0)                       # /mesh lives in the store file itself
+    aborted_write(path)
+    assert not parts_dir(path).exists()
+    (tmp_path / "v").mkdir()
+    video = _store_with_video(tmp_path / "v", 1, 5)
+    before = sorted(p.name for p in parts_dir(video).iterdir())
+    aborted_write(video)
+    assert sorted(p.name for p in parts_dir(video).iterdir()) == before and len(before) == 1
+
+
+
 @pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 128 + signal.SIGTERM), (signal.SIGINT, None)])
 def test_sigterm_and_sigint_abort_the_write_and_remove_its_temporary_data(tmp_path, sig, code):
     path = tmp_path / "r.h5"

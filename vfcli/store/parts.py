@@ -64,6 +64,14 @@ def parts_dir(store: Path) -> Path:
     return store.with_name(store.name + ".parts")
 
 
+def remove_if_empty(folder: Path) -> None:
+    """Remove ``folder`` if it exists and is empty (an aborted first write's parts folder); else leave it."""
+    try:
+        folder.rmdir()
+    except OSError:
+        pass
+
+
 def new_part_name(store: Path, group_path: str) -> str:
     """Link target (relative to the store's folder) of a new part file for stage group
     ``group_path`` ("/hsc", "/optimize/run1"): ``<name>.parts/<stage>[-<run>]-<16 hex>.h5``."""

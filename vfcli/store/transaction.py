@@ -346,6 +346,7 @@ class Store:
             except BaseException as exc:
                 if not committed:
                     written = _abort(f, tmp, w.new_parts if w else moved)
+                    parts.remove_if_empty(parts.parts_dir(real))  # made for this write's parts only
                     if parts.is_no_room(exc):
                         raise parts.no_room_error(self.path, written, free_before) from None
                 _raise_damage(exc, self.path)
