@@ -181,6 +181,10 @@ def test_sigkill_at_random_moments_never_damages_the_store(tmp_path):
         ok, seen = _stage_state(path)
         assert seen in (last_complete, seed), f"kill {seed}: /hsc holds seed {seen}"
         outcomes["finished" if seen == seed else "killed"] += 1
+        if seen == seed:
+            # the write ended before the kill: the first, timed write was slower than this one (a machine
+            # whose load changed; session 34's suite landed 25 kills in 90), so aim the next kills earlier
+            full *= 0.8
         last_complete = seen
     print("kill outcomes:", outcomes)
     # the next writer cleans up what the killed ones left
