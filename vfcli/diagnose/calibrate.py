@@ -96,8 +96,14 @@ class ScoreBasis:
 def pseudo_inverse(info: np.ndarray, rtol: float = INFO_RTOL) -> np.ndarray:
     """(p, p) the pseudo-inverse of a symmetric positive semi-definite matrix (eigenvalues below rtol of the top dropped)."""
     w, v = np.linalg.eigh(0.5 * (info + info.T))
-    keep = w > rtol * max(float(w.max(initial=0.0)), 1e-300)
+    keep = _kept(w, rtol)
     return (v[:, keep] / w[keep]) @ v[:, keep].T
+
+
+def _kept(w: np.ndarray, rtol: float = INFO_RTOL) -> np.ndarray:
+    """(..., p) bool: the eigenvalues w (..., p) the pseudo-inverse keeps (above rtol of their matrix's largest)."""
+    top = np.maximum(w.max(axis=-1, initial=0.0), 1e-300)
+    return w > rtol * top[..., None]
 
 
 def statistics(u: np.ndarray, information: Sequence[np.ndarray], identifiable: Sequence[bool],
@@ -235,8 +241,7 @@ def _batched_statistics(u: np.ndarray, covs: Sequence[np.ndarray], identifiable:
         if sided[c] and p != 1:
             raise ValueError(f"a one-sided candidate has one parameter, candidate {c} has {p}")
         w, v = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, 1, 2)))                 # (n, p), (n, p, p)
-        top = np.maximum(w.max(axis=1, initial=0.0), 1e-300)
-        keep = w > INFO_RTOL * top[:, None]
+        keep = _kept(w)
         proj = np.einsum("nij,ni->nj", v, uc)                                          # V^T u
         out[c] = np.sum(np.where(keep, proj ** 2 / np.where(keep, w, 1.0), 0.0), axis=1)
         if sided[c]:

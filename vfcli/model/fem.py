@@ -243,6 +243,18 @@ class ElasticModel:
         fold 0 is fold 1's mirror image and its solves reuse fold 1's factorisation; else None."""
         return self._mirror
 
+    def fold1_from_fold0(self, v0: np.ndarray) -> np.ndarray:
+        """(n_1, m) fold 0's full-size DOF vectors (n_0, m) as fold 1's, by :attr:`mirror` (which must be set)."""
+        perm, sign = self._mirror
+        out = np.zeros_like(v0)
+        out[perm] = sign[:, None] * v0
+        return out
+
+    def fold0_from_fold1(self, v1: np.ndarray) -> np.ndarray:
+        """(n_0, m) fold 1's full-size DOF vectors (n_1, m) as fold 0's, by :attr:`mirror` (which must be set)."""
+        perm, sign = self._mirror
+        return sign[:, None] * v1[perm]
+
     @property
     def stiffness(self) -> sp.csr_matrix:
         """(n_dofs, n_dofs) block-diagonal stiffness, Pa mm (no Dirichlet reduction)."""
@@ -294,14 +306,12 @@ class ElasticModel:
         f = self.folds[k]
         out = np.zeros_like(rhs)
         if k == 0 and self._mirror is not None:
-            perm, sign = self._mirror
-            mapped = np.zeros_like(rhs)
-            mapped[perm] = sign[:, None] * rhs
+            mapped = self.fold1_from_fold0(rhs)
             f1 = self.folds[1]
             sol = np.zeros_like(rhs)
             sol[f1.free] = self._factors[1].solve(mapped[f1.free])
             scale = self.folds[1].youngs_pa / f.youngs_pa
-            return scale * sign[:, None] * sol[perm]
+            return scale * self.fold0_from_fold1(sol)
         out[f.free] = self._factors[k].solve(rhs[f.free])
         return out
 

@@ -128,19 +128,16 @@ def _shifted_solvers(model, sigma: float) -> list:
 
     f0, f1 = model.folds
     solve1 = factor(1)
-    mirror = model.mirror
-    if mirror is None or f0.youngs_pa != f1.youngs_pa:
+    if model.mirror is None or f0.youngs_pa != f1.youngs_pa:
         return [factor(0), solve1]
-    perm, sign = mirror
 
     def solve0(rhs: np.ndarray) -> np.ndarray:
         full = np.zeros((f0.n_dofs, rhs.shape[1]))
         full[f0.free] = rhs
-        mapped = np.zeros_like(full)
-        mapped[perm] = sign[:, None] * full                     # fold 0's vector as fold 1's
+        mapped = model.fold1_from_fold0(full)
         sol = np.zeros_like(full)
         sol[f1.free] = solve1(np.ascontiguousarray(mapped[f1.free]))
-        return (sign[:, None] * sol[perm])[f0.free]
+        return model.fold0_from_fold1(sol)[f0.free]
 
     return [solve0, solve1]
 
@@ -214,13 +211,12 @@ class ModalReduction:
             fold = model.folds[k]
             idx = model.offsets[k] + fold.free
             if k == 0 and mirror is not None:
-                perm, sign = mirror                                   # fold-0 DOF i = sign[i] * fold-1 DOF perm[i]
                 mu, phi1 = solved[1]
                 f1 = model.folds[1]
                 mu = mu * (fold.youngs_pa / f1.youngs_pa)             # K_0 = (E_0 / E_1) K_1 mirrored, M_0 = M_1
                 full1 = np.zeros((f1.n_dofs, len(mu)))
                 full1[f1.free] = phi1
-                phi = (sign[:, None] * full1[perm])[fold.free]
+                phi = model.fold0_from_fold1(full1)[fold.free]
                 del full1
             else:
                 mu, phi = sla.eigh(fold.stiffness[fold.free][:, fold.free].toarray(), mass[idx][:, idx].toarray())
