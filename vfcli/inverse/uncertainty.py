@@ -136,8 +136,9 @@ def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64, pixel_str
         r = r[:, ::pixel_stride, ::pixel_stride]
     f, h, w, ch = r.shape
     shape = (2 * h, 2 * w)
-    num = np.zeros(shape)
-    cnt = np.zeros(shape)
+    # power spectra summed over frames and channels; the inverse transform is linear, so one at the end
+    num_spec = np.zeros((2 * h, w + 1))
+    cnt_spec = np.zeros((2 * h, w + 1))
     seen = np.zeros((h, w, ch), bool)
     n_res, ss = 0, 0.0
     for k in range(f):
@@ -148,8 +149,10 @@ def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64, pixel_str
         seen |= valid
         fz = np.fft.rfft2(z, shape, axes=(0, 1))
         fm = np.fft.rfft2(valid.astype(float), shape, axes=(0, 1))
-        num += np.fft.irfft2(np.sum((fz * np.conj(fz)).real, axis=-1), shape)
-        cnt += np.fft.irfft2(np.sum((fm * np.conj(fm)).real, axis=-1), shape)
+        num_spec += np.sum(fz.real**2 + fz.imag**2, axis=-1)
+        cnt_spec += np.sum(fm.real**2 + fm.imag**2, axis=-1)
+    num = np.fft.irfft2(num_spec, shape)
+    cnt = np.fft.irfft2(cnt_spec, shape)
     if n_res == 0:
         return ResidualCorrelation(0, 1.0, 1.0, 0.0)
     var = ss / n_res
