@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import html
+import json
+import re
 import shutil
 from html.parser import HTMLParser
 
 import numpy as np
 import pytest
 
+from _diagnose_phantom import CONTACT_PHANTOM, ONE_SIDED_FIT, shared_diagnosed_phantom
 from _export_store import optimised_store
 from conftest import run_vfcli
+from vfcli.store import Store
 from vfcli.store.parts import copy_store
 
 
@@ -71,6 +76,72 @@ def test_report_names_every_stage_and_run(report):
         assert f">{s}<" in text, s
     assert "Optimisation runs" in text and "3x3x10-one-sided" in text
     assert "Diagnosis" in text
+
+
+def _section(page: str, title: str) -> str:
+    """The text of the page's section ``title`` (from its heading to the next <h2>), entities unescaped."""
+    return html.unescape(page.split(f"<h2>{title}</h2>", 1)[1].split("<h2>", 1)[0])
+
+
+def test_every_stored_warning_is_shown_at_a_glance_once_without_the_loggers_prefix(report):
+    """The warnings the stages stored (their summary's logged lines and their notes, which repeat them) are
+    listed at the top of the page, each once, as the sentence a user reads; so is what is not written yet."""
+    glance = _section(report.read_text(), "At a glance")
+    messages, notes = [], []
+    with Store(report.with_name("rec.h5")).read() as r:
+        for path in r.stage_paths():
+            stage, _, run = path.strip("/").partition("/")
+            attrs = r.attrs(stage, run or None)
+            logged = json.loads(attrs.get("summary_json", "{}")).get("warnings", [])
+            messages += [re.sub(r"^WARNING [\w.]+: ", "", w) for w in logged]
+            if "notes" in attrs:
+                notes += json.loads(attrs["notes"])
+    print(f"{len(messages)} logged warning(s), {len(notes)} note(s)")
+    assert len(messages) >= 2 and notes                    # measured: 3 logged, 1 note (the dropouts, twice)
+    for m in messages + notes:
+        assert glance.count(m) == 1, m
+    assert f"{len(set(messages))} warning(s) stored by the stages" in glance
+    assert "WARNING vfcli" not in glance
+    assert "Not written yet: /diagnose" in glance
+
+
+def test_a_stage_made_stale_by_a_config_change_is_named_at_a_glance(report, tmp_path):
+    store = tmp_path / "rec.h5"
+    copy_store(report.with_name("rec.h5"), store)
+    res = run_vfcli("config", store, "--set", "sync.n_harmonics=8")
+    assert res.returncode == 0, res.stderr
+    res = run_vfcli("report", store, "--out", tmp_path / "r.html")
+    assert res.returncode == 0, res.stderr
+    glance = _section((tmp_path / "r.html").read_text(), "At a glance")
+    stale = dict(re.findall(r"<code>(/[\w/]+)</code> is STALE: (.*?) \(rerun it", glance))
+    print(stale)
+    assert stale["/sync"] == "config changed: sync.n_harmonics 10 -> 8"
+    assert "/sync is stale" in stale["/fields"]
+    # as `vfcli info` says (the mesh too: the store's config has the default edge, the mesh was made at 2.5 mm)
+    info = json.loads(run_vfcli("info", "--json", store).stdout)
+    assert stale == {st["path"]: "; ".join(st["stale_because"]) for st in info["stages"] if st["stale"]}
+
+
+def test_a_diagnosis_verdict_is_shown_at_a_glance_and_its_stored_json_is_folded_away(tmp_path_factory, tmp_path):
+    seed, synth = CONTACT_PHANTOM
+    store = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth) / "rec.h5"
+    res = run_vfcli("report", store, "--out", tmp_path / "r.html")
+    assert res.returncode == 0, res.stderr
+    page = (tmp_path / "r.html").read_text()
+    with Store(store).read() as r:
+        attrs = r.attrs("diagnose", "fit")
+    words = json.loads(attrs["words_json"])
+    # this short phantom holds too few cycles to calibrate: its verdict is the line saying so
+    assert "decision" not in attrs
+    verdict = next(w for w in words if w.startswith("decision: not calibrated"))[len("decision: "):]
+    print(verdict)
+    assert f"Diagnosis <code>/diagnose/fit</code>: <strong>{verdict}</strong>" in html.unescape(page)
+    diagnosis = page.split("<h2>Diagnosis</h2>", 1)[1]
+    folded = diagnosis.index("Everything the diagnosis stored (JSON)")
+    assert diagnosis.index(html.escape(words[0], quote=True)) < folded
+    for key in ("manifest_json", "words_json", "summary_json"):
+        assert key not in diagnosis[:folded], key
+    assert "manifest_json" in diagnosis[folded:]
 
 
 def test_index_links_the_reports_of_many_recordings(report, tmp_path):

@@ -10,6 +10,7 @@ import datetime as _dt
 import json
 import logging
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,7 @@ from vfcli.store import layout
 from vfcli.store.runs import read_run, run_names, stage_runs
 from vfcli.store.transaction import Store, StoreReader
 
+from vfcli.stages.base import expected_configs
 from vfcli.stages.export_job import ExportJob, ExportResult
 
 log = logging.getLogger(__name__)
@@ -56,7 +58,78 @@ def _stage_attrs(reader: StoreReader, path: str) -> tuple[dict[str, Any], list[s
             notes += [str(w) for w in summary.pop("warnings", []) or []]
     plain = {k: v for k, v in attrs.items()
              if k not in _HIDDEN and k not in ("notes", "warnings", "warnings_json", layout.SUMMARY_ATTR)}
-    return plain, notes, summary
+    return plain, _plain_notes(notes), summary
+
+
+_LOG_PREFIX = re.compile(r"^(?:WARNING|ERROR|INFO|DEBUG) [\w.]+: ")
+
+
+def _plain_notes(notes: list[str]) -> list[str]:
+    """A stage's notes as a reader wants them: without the logger's "WARNING vfcli.module: " prefix, and once
+    (a stage stores a warning both as its note and as its command's logged line, which may name the file first)."""
+    texts = [_LOG_PREFIX.sub("", n).strip() for n in notes]
+    out: list[str] = []
+    for i, t in enumerate(texts):
+        if t and t not in out and not any(j != i and len(u) > len(t) and u.endswith(t) for j, u in enumerate(texts)):
+            out.append(t)
+    return out
+
+
+def _words(diag_attrs: dict[str, Any]) -> list[str]:
+    """The lines a diagnosis printed (its ``words_json``; none when unreadable)."""
+    try:
+        lines = json.loads(diag_attrs.get("words_json") or "[]")
+    except (TypeError, ValueError):
+        return []
+    return [str(x) for x in lines] if isinstance(lines, list) else []
+
+
+def _verdict(diag_attrs: dict[str, Any]) -> str:
+    """The diagnosis' verdict in words, with the run its refit was stored as: its calibrated decision, or the
+    line that says why it could not decide ("" when it stored neither)."""
+    verdict = str(diag_attrs.get("decision", "") or "")
+    if not verdict:
+        verdict = next((x[len("decision: "):] for x in _words(diag_attrs) if x.startswith("decision: not ")), "")
+    if verdict and diag_attrs.get("refit_run"):
+        verdict += f" (refit with {diag_attrs.get('refit_candidate', '?')} stored as run {diag_attrs['refit_run']})"
+    return verdict
+
+
+def _diagnosis_fields(fields: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(the short figures shown in the page, the long ones: JSON texts and nested records) of a diagnosis' attributes
+    (its words and verdict are shown above them)."""
+    short, long_ = {}, {}
+    for k, v in fields.items():
+        if k in ("lines", "words_json", "decision"):
+            continue
+        text = fmt(v)
+        (long_ if k.endswith("_json") or isinstance(v, (dict, list)) or len(text) > 120 else short)[k] = v
+    return short, long_
+
+
+def _at_a_glance(reader: StoreReader, glance: dict[str, list], missing: list[str]) -> str:
+    """The section at the top of the page: every stored warning (with its stage), the stages that are stale,
+    interrupted or not written yet, and each diagnosis' verdict, so nothing needs unfolding to be seen."""
+    out = ["<h2>At a glance</h2>"]
+    notes = glance["notes"]
+    if notes:
+        out.append(f'<p class="warn">{len(notes)} warning(s) stored by the stages:</p><ul>'
+                   + "".join(f'<li class="warn"><code>{esc(path)}</code> {esc(n)}</li>' for path, n in notes)
+                   + "</ul>")
+    else:
+        out.append("<p>No stage stored a warning.</p>")
+    for path, why in glance["stale"]:
+        out.append(f'<p class="warn"><code>{esc(path)}</code> is STALE: {esc(why)} (rerun it, or <code>vfcli run</code>).</p>')
+    for path in glance["incomplete"]:
+        out.append(f'<p class="warn"><code>{esc(path)}</code> was interrupted: it holds no complete result.</p>')
+    if missing:
+        out.append(f'<p class="muted">Not written yet: {esc(", ".join("/" + m for m in missing))}.</p>')
+    for run in stage_runs(reader, "diagnose"):
+        path = layout.stage("diagnose").group_path(run)
+        verdict = _verdict(reader.attrs("diagnose", run))
+        if verdict:
+            out.append(f"<p>Diagnosis <code>{esc(path)}</code>: <strong>{esc(verdict)}</strong>.</p>")
+    return "\n".join(out)
 
 
 def _gap_frames(job: ExportJob, d: Path) -> list[Path]:
@@ -151,9 +224,17 @@ def build_report(reader: StoreReader, work: Path) -> str:
     parts.append("<h2>Stages</h2>")
     rows = []
     details = []
-    for path in reader.stage_paths():
-        st = reader.status(path)
+    glance: dict[str, list] = {"notes": [], "stale": [], "incomplete": []}
+    # staleness as `vfcli info` says it: config changes and stale upstream stages count (transitively)
+    config_json = reader.recording_config_json()
+    for st in reader.statuses(expected_configs(config_json) if config_json is not None else None):
+        path = st.path
         plain, notes, summary = _stage_attrs(reader, path) if st.complete else ({}, [], {})
+        glance["notes"] += [(path, n) for n in notes]
+        if not st.complete:
+            glance["incomplete"].append(path)
+        elif st.stale_because:
+            glance["stale"].append((path, "; ".join(st.stale_because)))
         rows.append([path, "yes" if st.complete else "NO (interrupted)", st.provenance.get("created_utc", ""),
                      st.provenance.get("command", ""), "; ".join(st.stale_because) or "current",
                      f"{st.size_bytes / 1e6:.2f} MB", len(notes)])
@@ -162,10 +243,9 @@ def build_report(reader: StoreReader, work: Path) -> str:
         details.append(f"<details><summary>{esc(path)}{' &middot; ' + str(len(notes)) + ' warning(s)' if notes else ''}"
                        f"</summary>{body}{'<ul>' + warn + '</ul>' if warn else ''}</details>")
     missing = [n for n in layout.STAGES if not any(p.split("/")[1] == n for p in reader.stage_paths())]
-    parts.append(table(rows, ["group", "complete", "written (UTC)", "command", "upstream", "size", "warnings"]))
+    parts.insert(2, _at_a_glance(reader, glance, missing))
+    parts.append(table(rows, ["group", "complete", "written (UTC)", "command", "current or stale", "size", "warnings"]))
     parts += details
-    if missing:
-        parts.append(f'<p class="muted">Not in this store: {esc(", ".join("/" + m for m in missing))}.</p>')
     job = ExportJob(reader, runs, work, None, 10.0)
     d = work / "figures"
     d.mkdir(parents=True, exist_ok=True)
@@ -222,13 +302,14 @@ def build_report(reader: StoreReader, work: Path) -> str:
     if diag:
         for p in diag:
             plain, notes, summary = _stage_attrs(reader, p)
-            shown = {k: v for k, v in {**summary, **plain}.items() if k not in ("lines", "words_json")}
-            try:
-                lines = json.loads(plain.get("words_json") or "[]")
-            except (TypeError, ValueError):
-                lines = []
-            words = "".join(f"<li>{esc(line)}</li>" for line in lines)
-            parts.append(f"<h3>{esc(p)}</h3>" + (f"<ul>{words}</ul>" if words else "") + kv_table(shown))
+            words = "".join(f"<li>{esc(line)}</li>" for line in _words(plain))
+            figures_, stored = _diagnosis_fields({**summary, **plain})
+            verdict = _verdict(plain)
+            parts.append(f"<h3>{esc(p)}</h3>"
+                         + (f"<p><strong>{esc(verdict)}</strong></p>" if verdict else "")
+                         + (f"<ul>{words}</ul>" if words else "") + kv_table(figures_)
+                         + "<details><summary>Everything the diagnosis stored (JSON)</summary>"
+                         + kv_table(stored) + "</details>")
     else:
         parts.append('<p class="muted">No diagnosis in this store (`vfcli diagnose` has not run on it).</p>')
     for note in job.notes:
