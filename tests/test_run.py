@@ -133,6 +133,43 @@ def test_a_changed_raw_file_reruns_exactly_what_depends_on_it(phantom, tmp_path)
     assert unchanged == {"/hsc", "/flow", "/mesh"}  # flow's /fields was rewritten, its /flow not
 
 
+def test_a_value_set_with_vfcli_config_is_kept_by_the_next_run_of_the_raw_folder(phantom, tmp_path):
+    """`vfcli config --set` (what ingest-hsc's px_per_mm warning advises), then `vfcli run --raw`: the raw folder's
+    recording.toml, the file the stored config was read from, must not replace it (it did, silently: the value
+    was undone and the dry run said "up to date"). A recording.toml changed since replaces it, and says so."""
+    raw0, store0, _, _ = phantom
+    raw, store = tmp_path / "raw", tmp_path / "rec.h5"
+    shutil.copytree(raw0, raw)
+    _copy_store(store0, store)
+    res = run_vfcli("config", store, "--set", "sync.n_harmonics=8")
+    assert res.returncode == 0, res.stderr
+    dry, _ = _run(store, raw, "--dry-run")
+    assert dry["sync"]["action"] == "would run" and "sync.n_harmonics 10 -> 8" in dry["sync"]["reason"], dry["sync"]
+    assert dry["ingest-hsc"]["action"] == "up to date"
+    ran, _ = _run(store, raw, "--until", "sync")
+    assert ran["sync"]["action"] == "ran"
+
+    def stored_n_harmonics() -> int:
+        with Store(store).read() as r:
+            return json.loads(r.recording_config_json())["sync"]["n_harmonics"]
+
+    assert stored_n_harmonics() == 8
+    info = json.loads(run_vfcli("info", "--json", store).stdout)
+    assert {st["path"]: st["stale"] for st in info["stages"]}["/sync"] is False
+    # the lab edits recording.toml: it is the newer word, and the run says it replaces the stored config
+    toml = raw / "recording.toml"
+    toml.write_text(toml.read_text() + "\n[sync]\nn_harmonics = 6\n")
+    res = run_vfcli("run", store, "--raw", raw, *_sets(SETS), "--json", "--until", "sync")
+    assert res.returncode == 0, res.stderr
+    assert f"{toml} differs from the config file last stored with {store}: it replaces the stored" in res.stderr
+    assert {s["name"]: s["action"] for s in json.loads(res.stdout)["stages"]}["sync"] == "ran"
+    assert stored_n_harmonics() == 6
+    # and is read from then on as the stored config's file: a second run has nothing to do or say
+    res = run_vfcli("run", store, "--raw", raw, *_sets(SETS), "--json", "--until", "sync")
+    assert res.returncode == 0 and "differs" not in res.stderr, res.stderr
+    assert {s["name"]: s["action"] for s in json.loads(res.stdout)["stages"]}["sync"] == "up to date"
+
+
 def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
     raw, store0, _, _ = phantom
     store = tmp_path / "rec.h5"

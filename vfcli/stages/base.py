@@ -34,6 +34,8 @@ class RunContext:
     force: bool = False
     progress: Progress = no_progress
     map: Mapper | None = None
+    #: SHA-256 of the config file the stored config was read from now (None: the store's own was used)
+    config_file_sha256: str | None = None
 
     @classmethod
     def open(
@@ -50,7 +52,26 @@ class RunContext:
             with store.read() as r:
                 stored_json = r.recording_config_json()
         stored, effective = load_config(config_path, stored_json, overrides)
-        return cls(store=store, stored_config=stored, config=effective, **kwargs)
+        file_sha = config_file_sha256(config_path) if config_path is not None else None
+        return cls(store=store, stored_config=stored, config=effective, config_file_sha256=file_sha, **kwargs)
+
+    def config_is_stored(self, reader: StoreReader, stored_json: str) -> bool:
+        """Whether the store holds this config already (and, read from a file now, that file's hash)."""
+        from vfcli.store import layout
+
+        return reader.recording_config_json() == stored_json and (
+            self.config_file_sha256 is None
+            or reader.root_attrs().get(layout.ROOT_CONFIG_FILE_ATTR) == self.config_file_sha256)
+
+
+def config_file_sha256(path: str | Path) -> str:
+    """SHA-256 (hex) of a config file's bytes (it was just read: a file that is gone now hashes as empty)."""
+    import hashlib
+
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return hashlib.sha256(b"").hexdigest()
 
 
 def stage_config_json(name: str, config: RecordingConfig) -> str | None:
@@ -129,7 +150,7 @@ def run_stage(
                 inputs = describe_inputs(input_paths, previous) if input_paths else {}
                 current = r.is_current(name, config_json, inputs, upstream, run)
             stored_summary = (r.summary(name, run) or {}) if current else {}
-            config_changed = r.recording_config_json() != stored_json
+            config_changed = not ctx.config_is_stored(r, stored_json)
     elif upstream:
         up = layout.stage(upstream[0][0])
         raise MissingStageError(f"stage /{up.name} is missing; run `vfcli {up.written_by}` first", ctx.store.path)
@@ -138,12 +159,12 @@ def run_stage(
     if current:
         if config_changed:
             with ctx.store.write(ctx.command) as w:
-                w.set_recording_config(stored_json)
+                w.set_recording_config(stored_json, ctx.config_file_sha256)
         log.info("%s is up to date (inputs and config unchanged); --force reruns", path)
         return StageResult(path, "up-to-date", dict(stored_summary.get("figures", {})))
     hashed = _Background(describe_inputs, input_paths, previous) if inputs is None else None
     with ctx.store.write(ctx.command) as w:
-        w.set_recording_config(stored_json)
+        w.set_recording_config(stored_json, ctx.config_file_sha256)
         with w.stage(name, config_json=config_json, inputs=inputs if hashed is None else hashed.result,
                      upstream=upstream, run=run) as s:
             with captured_warnings() as warnings:
@@ -187,12 +208,12 @@ def run_stages(ctx: RunContext, specs: list[StageSpec]) -> list[StageResult]:
     with ctx.store.read() as r:
         if all(current(r, sp) for sp in specs):
             results = [up_to_date(r, sp) for sp in specs]
-            if r.recording_config_json() == stored_json:
+            if ctx.config_is_stored(r, stored_json):
                 return results
         else:
             results = []
     with ctx.store.write(ctx.command) as w:
-        w.set_recording_config(stored_json)
+        w.set_recording_config(stored_json, ctx.config_file_sha256)
         if results:  # only the recording config changed
             return results
         for sp in specs:
@@ -290,8 +311,8 @@ def save_recording_config(ctx: RunContext) -> bool:
     stored_json = ctx.stored_config.model_dump_json(exclude_unset=True)
     if ctx.store.exists():
         with ctx.store.read() as r:
-            if r.recording_config_json() == stored_json:
+            if ctx.config_is_stored(r, stored_json):
                 return False
     with ctx.store.write(ctx.command) as w:
-        w.set_recording_config(stored_json)
+        w.set_recording_config(stored_json, ctx.config_file_sha256)
     return True

@@ -27,8 +27,8 @@ from vfcli.errors import ConfigError
 from vfcli.io.raw_folder import RawFiles, find_raw_files
 from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
-from vfcli.stages.base import RunContext, StageResult, stage_config_json
-from vfcli.store import layout
+from vfcli.stages.base import RunContext, StageResult, config_file_sha256, stage_config_json
+from vfcli.store import Store, layout
 from vfcli.store.provenance import describe_inputs, same_inputs
 from vfcli.store.reader import StageStatus
 
@@ -281,6 +281,24 @@ def _warnings(ctx: RunContext, step: str, logged: list[str]) -> list[str]:
     return list(dict.fromkeys([*stored, *logged]))
 
 
+def _changed_raw_config(store: Path, config: Path) -> Path | None:
+    """The raw folder's recording.toml when it is to replace the stored config: the store has none yet, or the
+    file's content differs from the file the stored config was last read from (then a log line says it replaces
+    it); None when it is that file, so values set since with `vfcli config` stay."""
+    st = Store(store)
+    if not st.exists():
+        return config
+    with st.read() as r:
+        if r.recording_config_json() is None:
+            return config
+        last = r.root_attrs().get(layout.ROOT_CONFIG_FILE_ATTR)
+    if last == config_file_sha256(config):
+        return None
+    log.warning("%s differs from the config file last stored with %s: it replaces the stored recording config "
+                "(values set with `vfcli config` since then too)", config, store)
+    return config
+
+
 def run_recording(
     store: Path,
     raw: Path | None,
@@ -322,8 +340,8 @@ def run_recording(
     raw_files = None
     if raw is not None and any(s in _RAW_STEPS for s in steps):
         raw_files = find_raw_files(raw, need_pressure="sync" in steps or "ingest-hsc" in steps)
-    if config_path is None and raw_files is not None:
-        config_path = raw_files.config
+    if config_path is None and raw_files is not None and raw_files.config is not None:
+        config_path = _changed_raw_config(store, Path(raw_files.config))
     items = _override_items(overrides)
     command = command or f"vfcli run {store}" + (f" --raw {raw}" if raw is not None else "")
 

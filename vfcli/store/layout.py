@@ -20,6 +20,11 @@ FORMAT_VERSION = 1
 #: Root attribute holding the recording's config (JSON of :class:`vfcli.config.RecordingConfig`).
 ROOT_CONFIG_ATTR = "recording_config_json"
 
+#: Root attribute holding the SHA-256 of the config file (recording.toml) the stored config was last read
+#: from (absent: never stored from a file). `vfcli run --raw` reads the raw folder's recording.toml again
+#: only when its content differs from that file's, so a value set since with `vfcli config` stays.
+ROOT_CONFIG_FILE_ATTR = "recording_config_file_sha256"
+
 #: Stage-group attribute holding what the stage run reported: its figures (the summary the
 #: command prints) and the warnings it logged, as JSON ``{"figures": {...}, "warnings": [...]}``.
 SUMMARY_ATTR = "summary_json"
@@ -465,7 +470,9 @@ def layout_markdown() -> str:
         "## Groups and attributes",
         "",
         f"Root attributes: `format` = `{FORMAT_NAME}`, `format_version` = {FORMAT_VERSION}, "
-        f"`{ROOT_CONFIG_ATTR}` (the recording's config as JSON).",
+        f"`{ROOT_CONFIG_ATTR}` (the recording's config as JSON), `{ROOT_CONFIG_FILE_ATTR}` (the SHA-256 of the "
+        "recording.toml it was last read from, if any: `vfcli run --raw` reads the raw folder's recording.toml "
+        "again only when its content changed, so values set since with `vfcli config` stay).",
         "",
         "Every stage group carries its provenance as attributes: "
         + ", ".join(f"`{a}`" for a in PROVENANCE_ATTRS)

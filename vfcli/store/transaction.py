@@ -98,8 +98,12 @@ class StoreWriter:
         """The part files this transaction wrote (removed if it aborts)."""
         return list(self._new_parts)
 
-    def set_recording_config(self, config_json: str) -> None:
+    def set_recording_config(self, config_json: str, file_sha256: str | None = None) -> None:
+        """Store the recording config; ``file_sha256``: the SHA-256 of the config file it was read from
+        (None: not from a file now, the last file's hash is kept)."""
         self._f.attrs[layout.ROOT_CONFIG_ATTR] = config_json
+        if file_sha256 is not None:
+            self._f.attrs[layout.ROOT_CONFIG_FILE_ATTR] = file_sha256
 
     @contextmanager
     def stage(
