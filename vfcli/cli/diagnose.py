@@ -28,7 +28,10 @@ def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path, refit):  # type: i
     before/after residual maps and velocity-at-point plots (PNG) beside --map (or beside the store).
     Prints the findings in plain words.
     """
+    from vfcli.cli.outputs import PICTURE_FORMATS, check_output_file
     from vfcli.stages.diagnose import run_diagnose
+
+    check_output_file(map_path, "--map", PICTURE_FORMATS)
 
     result = run_diagnose(ctx, run_name, alpha, n_harmonics, map_path, refit)
     click_ctx = click.get_current_context()

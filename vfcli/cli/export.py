@@ -28,9 +28,11 @@ def export_cmd(file, out_dir, runs, what, times_ms, points, fps, force, quiet, a
     Writes into DIR: paraview/<run>.vtkhdf (transient, ParaView 5.12+) and <run>.pvd + .vtu,
     video/overlay.mp4 (H.264) and PNG frames, figures/*.png|svg, tables/*.csv, export.json.
     """
+    from vfcli.cli.outputs import check_output_folder
     from vfcli.stages.export import export_store
     from vfcli.stages.export_job import parse_point, parse_what
 
     setup_logging(verbose, quiet)
+    check_output_folder(out_dir, "--to")
     report(export_store(file, out_dir, list(runs) or None, parse_what(what), list(times_ms) or None, fps, force,
                         [parse_point(p) for p in points] or None), as_json)

@@ -15,6 +15,9 @@ def mesh_cmd(ctx, preview: str | None):  # type: ignore[no-untyped-def]
     Reads: the recording config. Writes: /mesh (nodes, tetrahedra, tagged boundary
     triangles, (u, v) maps of the inferior and superior sides).
     """
+    from vfcli.cli.outputs import PREVIEW_FORMATS, check_output_file
     from vfcli.stages.mesh import run_mesh
+
+    check_output_file(preview, "--preview", PREVIEW_FORMATS)
 
     return run_mesh(ctx, preview)

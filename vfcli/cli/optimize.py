@@ -27,8 +27,12 @@ def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot, uncertai
     /optimize/<run> (control values, history of every iteration, reconstructed vertex
     displacements and their standard deviations). Config section [optimize].
     """
+    from vfcli.cli.outputs import PICTURE_FORMATS, check_output_file
     from vfcli.config import RecordingConfig, apply_overrides
     from vfcli.stages.optimize import run_optimize
+
+    check_output_file(plot, "--plot", PICTURE_FORMATS)
+    check_output_file(uncertainty_plot, "--uncertainty-map", PICTURE_FORMATS)
 
     # a --setup names one of the paper's free force fields
     sets = ([f"optimize.setup={setup!r}", "optimize.loads='free'"] if setup else [])

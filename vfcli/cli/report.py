@@ -22,9 +22,14 @@ def report_cmd(file, out, index_dir, quiet, as_json, verbose):  # type: ignore[n
     overlay video (no network, no script): metadata and calibration, each stage's summary and
     warnings, sync quality, glottal gap and flow, the mesh, every optimisation run.
     """
+    from pathlib import Path
+
+    from vfcli.cli.outputs import check_output_file
     from vfcli.stages.report import write_index, write_report
 
     setup_logging(verbose, quiet)
     if bool(file) == bool(index_dir):
         raise ConfigError("give either FILE or --index DIR")
+    check_output_file(out or (Path(index_dir) / "index.html" if index_dir else Path(file).with_suffix(".html")),
+                      "--out")
     report(write_index(index_dir, out) if index_dir else write_report(file, out), as_json)

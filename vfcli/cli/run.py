@@ -47,10 +47,13 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
     names them when that is ambiguous); its recording.toml is the config unless --config.
     Reads: raw files and the store. Writes: every stage group of the store.
     """
+    from vfcli.cli.outputs import check_output_file, check_output_folder
     from vfcli.progress import make_progress
     from vfcli.stages.run import run_recording
 
     setup_logging(verbose, quiet)
+    check_output_folder(export_dir, "--export")
+    check_output_file(report_file, "--report")
     summary = run_recording(
         Path(store), Path(raw_dir) if raw_dir else None, until=until, overrides=list(overrides),
         config_path=Path(config_path) if config_path else None, dry_run=dry_run, force=force,

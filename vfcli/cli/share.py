@@ -20,9 +20,11 @@ def share_cmd(file: str, out: str, compression: str, quiet: bool) -> None:
 
     Reads FILE (never writes it); writes OUT (a new file).
     """
+    from vfcli.cli.outputs import check_output_file
     from vfcli.store.share import copy_for_sharing
 
     setup_logging(0, quiet)
+    check_output_file(out, "OUT")
     s = copy_for_sharing(file, out, compression)
     if not quiet:
         click.echo(f"{out}: {s['frames']} frames as {s['compression']}, "

@@ -21,11 +21,13 @@ def synth_cmd(outdir, effect, strength, seed, config_path, overrides, force, qui
     video.tif, video_pressure.tdms/.csv, scan.uff/.csv, recording.toml and truth.h5
     (which no other command reads).
     """
+    from vfcli.cli.outputs import check_output_folder
     from vfcli.config import load_config
     from vfcli.progress import make_progress
     from vfcli.stages.synth import run_synth
 
     setup_logging(verbose, quiet)
+    check_output_folder(outdir, "OUTDIR")
     sets = list(overrides)
     sets += [f"synth.effect={effect!r}"] if effect else []
     sets += [f"synth.strength={strength}"] if strength is not None else []

@@ -11,14 +11,34 @@ import json
 import logging
 from pathlib import Path
 
+import numpy as np
+
 from vfcli import __version__
-from vfcli.errors import MissingStageError
+from vfcli.errors import ConfigError, MissingStageError
 from vfcli.store.runs import read_run, run_names, stage_digests
 from vfcli.store.transaction import Store
 
 from vfcli.stages.export_job import MANIFEST, WHAT, ExportJob, ExportResult
 
 log = logging.getLogger(__name__)
+
+
+def check_times_ms(times_ms: list[float] | None, sim_time_s: np.ndarray, run: str) -> None:
+    """Refuse an overlay time (``--time-ms``, ms) that is not a number or lies outside the window of the run the
+    overlay follows (its ``sim_time_s``, s; half a frame of slack at each end): it was moved to the nearest end
+    without a word, and a NaN was written into export.json.
+
+    Raises
+    ------
+    ConfigError
+        One line naming the time and the run's window.
+    """
+    t = 1e3 * np.asarray(sim_time_s, dtype=float)
+    half = 0.5 * float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    lo, hi = float(t[0]) - half, float(t[-1]) + half
+    for value in times_ms or []:
+        if not (np.isfinite(value) and lo <= value <= hi):
+            raise ConfigError(f"--time-ms {value:g}: outside run {run}'s window, {t[0]:g}-{t[-1]:g} ms")
 
 
 def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None = None,
@@ -47,7 +67,9 @@ def export_store(path: str | Path, out_dir: str | Path, runs: list[str] | None =
             if old.get("key") == key and all((out / f).exists() for f in old.get("files", [])):
                 log.info("%s is up to date (store and options unchanged); --force rewrites it", out)
                 return ExportResult(str(out), "up-to-date", {"files": len(old["files"])})
-        job = ExportJob(reader, [read_run(reader, n) for n in wanted], out, times_ms, fps, points_px)
+        loaded = [read_run(reader, n) for n in wanted]
+        check_times_ms(times_ms, loaded[0].sim_time, loaded[0].name)
+        job = ExportJob(reader, loaded, out, times_ms, fps, points_px)
         out.mkdir(parents=True, exist_ok=True)
         for item in WHAT:
             if item in what:
