@@ -511,3 +511,151 @@ def test_a_newline_in_a_file_name_or_a_set_key_still_gives_one_line(tmp_path):
     r = run_vfcli("config", tmp_path / "b.h5", "--set", "camera\n.x=1")
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "camera\\n" in r.stderr
+
+
+# --------------------------------------------------------------------------- cut-off CSV rows, library chatter
+
+def _assert_one_line(r: subprocess.CompletedProcess, code: int, *needles: str) -> None:
+    """Refused with exactly one line on stderr: no library warning, log record or numpy advice."""
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == code, r.stderr
+    assert len(lines) == 1, r.stderr
+    for bad in ("Traceback", "Warning", "ERROR tifffile", "nptdms", "usecols"):
+        assert bad not in r.stderr, r.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+
+
+def _cut_inside_last_row(path: Path) -> str:
+    """Cut ``path`` two digits into the second value of its last row (a copy interrupted
+    mid-line: ``...,14`` where the row had ``...,1404.22``); return what is left of the row."""
+    raw = path.read_bytes()
+    start = raw.rstrip(b"\r\n").rfind(b"\n") + 1
+    path.write_bytes(raw[: raw.index(b",", start) + 3])
+    return raw[start: raw.index(b",", start) + 3].decode()
+
+
+def _csv_module_pressure(path: Path) -> Path:
+    """A pressure CSV written by Python's csv module (CRLF line ends), time and pressure columns."""
+    import csv
+
+    x = _pressure_samples()
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["time [s]", "p_sub [Pa]"])
+        w.writerows([repr(k / FS_P), repr(float(v))] for k, v in enumerate(x))
+    return path
+
+
+@pytest.mark.parametrize("quiet", [True, False])
+@pytest.mark.parametrize("writer", ["numpy", "csv"])
+def test_pressure_csv_cut_inside_its_last_row_is_refused(tmp_path, hsc_store, writer, quiet):
+    # before: exit 0, the last sample stored as 14 Pa where the file had 1404.22
+    from vfcli.io.pressure import write_pressure_csv
+
+    store, video, before = hsc_store
+    path = tmp_path / "cut.csv"
+    if writer == "numpy":
+        write_pressure_csv(path, _pressure_samples(), FS_P)
+    else:
+        _csv_module_pressure(path)
+    assert read_pressure(path).samples.size == 1000
+    row = _cut_inside_last_row(path)
+    r = run_vfcli("ingest-hsc", *(["-q"] if quiet else []), "--force", store, video, "--pressure", path)
+    _assert_one_line(r, 3, "cut.csv", "last row", "cut off", repr(row), "add a line break")
+    assert store.read_bytes() == before
+
+
+def test_pressure_csv_complete_but_without_a_final_line_break_says_what_to_do(tmp_path):
+    path = tmp_path / "p.csv"
+    path.write_text("# fs = 1000\np\n1\n2\n3")
+    with pytest.raises(InputDataError, match="p.csv: .*last row '3' .*add a line break at its end"):
+        read_pressure(path)
+    path.write_text("# fs = 1000\np\n1\n2\n3\n# end")   # a comment last: no data row cut off
+    assert read_pressure(path).samples.tolist() == [1.0, 2.0, 3.0]
+
+
+def test_pressure_csv_with_a_short_row_names_its_line_not_numpy_advice(tmp_path, hsc_store):
+    store, video, before = hsc_store
+    path = _csv_module_pressure(tmp_path / "short.csv")
+    lines = path.read_bytes().split(b"\r\n")
+    lines[500] = lines[500].split(b",")[0]           # line 501: the time value only
+    path.write_bytes(b"\r\n".join(lines))
+    r = run_vfcli("ingest-hsc", "--force", store, video, "--pressure", path)
+    _assert_one_line(r, 3, "short.csv", "line 501", "1 value", "2")
+    assert store.read_bytes() == before
+
+
+def test_pressure_csv_with_text_in_a_row_names_line_and_column(tmp_path):
+    path = _csv_module_pressure(tmp_path / "word.csv")
+    text = path.read_text().splitlines()
+    text[7] = text[7].split(",")[0] + ",n/a"
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(InputDataError, match="word.csv: line 8, column 2 \\('p_sub \\[Pa\\]'\\): 'n/a' is not a number"):
+        read_pressure(path)
+
+
+@pytest.mark.parametrize("quiet", [True, False])
+def test_tdms_cut_anywhere_gives_one_line_without_nptdms_warnings(tmp_path, hsc_store, quiet):
+    # before: npTDMS's two warnings, each printed twice (its own handler and vfcli's), even with -q
+    store, video, before = hsc_store
+    raw = _tdms(tmp_path / "p.tdms", _pressure_samples(1000)).read_bytes()
+    for keep in (3000, 1000, len(raw) - 3):
+        path = tmp_path / f"cut{keep}.tdms"
+        path.write_bytes(raw[:keep])
+        r = run_vfcli("ingest-hsc", *(["-q"] if quiet else []), "--force", store, video, "--pressure", path)
+        _assert_one_line(r, 3, path.name, "truncated")
+    assert store.read_bytes() == before
+
+
+def _ldv_csv(path: Path) -> Path:
+    from vfcli.io.ldv.write import write_ldv_csv
+
+    return write_ldv_csv(path, _scan())
+
+
+_GRID = ("--set", "ingest_ldv.grid_rows=3", "--set", "ingest_ldv.grid_cols=4")
+
+
+@pytest.mark.parametrize("quiet", [True, False])
+def test_ldv_csv_cut_anywhere_gives_one_line(tmp_path, hsc_store, quiet):
+    # before: a cut inside the header row printed numpy's UserWarning and a line of vfcli's source;
+    # a cut inside a row passed on numpy's advice to "use `usecols`"
+    store, _, before = hsc_store
+    raw = _ldv_csv(tmp_path / "scan.csv").read_bytes()
+    header_end = raw.index(b"\ns0,") if b"\ns0," in raw else raw.index(b",s1,")
+    for keep in (header_end, raw.index(b"\n1,") + 500, len(raw) // 2, len(raw) - 7):
+        path = tmp_path / f"cut{keep}.csv"
+        path.write_bytes(raw[:keep])
+        r = run_vfcli("ingest-ldv", *(["-q"] if quiet else []), store, path, *_GRID)
+        _assert_one_line(r, 3, path.name, "last row", "cut off")
+    assert store.read_bytes() == before
+
+
+def test_ldv_csv_with_only_its_header_or_a_short_row_gives_one_line(tmp_path, hsc_store):
+    store, _, before = hsc_store
+    path = _ldv_csv(tmp_path / "scan.csv")
+    lines = path.read_text().splitlines(keepends=True)
+    head = tmp_path / "head.csv"
+    head.write_text("".join(lines[:5]))                      # comments and header, no rows
+    r = run_vfcli("ingest-ldv", store, head, *_GRID)
+    _assert_one_line(r, 3, "head.csv", "no data rows")
+    short = tmp_path / "short.csv"
+    lines[9] = ",".join(lines[9].split(",")[:100]) + "\n"   # line 10: 100 of 406 values
+    short.write_text("".join(lines))
+    r = run_vfcli("ingest-ldv", store, short, *_GRID)
+    _assert_one_line(r, 3, "short.csv", "line 10", "100 values", "406")
+    assert store.read_bytes() == before
+
+
+@pytest.mark.parametrize("quiet", [True, False])
+def test_truncated_tiff_gives_one_line_without_tifffile_logging(tmp_path, hsc_store, quiet):
+    # before: "ERROR tifffile: <tifffile.TiffPages @8> invalid page offset ..." above vfcli's line
+    store, video, before = hsc_store
+    raw = video.read_bytes()
+    for keep in (len(raw) // 3, len(raw) - 100):
+        path = tmp_path / f"cut{keep}.tif"
+        path.write_bytes(raw[:keep])
+        r = run_vfcli("ingest-hsc", *(["-q"] if quiet else []), "--force", store, path)
+        _assert_one_line(r, 3, path.name)
+    assert store.read_bytes() == before

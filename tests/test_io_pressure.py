@@ -139,7 +139,7 @@ def test_csv_with_inf_and_text(tmp_path):
         read_pressure(bad)
     txt = tmp_path / "words.csv"
     txt.write_text("# fs = 1000\np\n1\nbanana\n")
-    with pytest.raises(InputDataError, match="words.csv.*not all numbers"):
+    with pytest.raises(InputDataError, match="words.csv: line 4, column 1 \\('p'\\): 'banana' is not a number"):
         read_pressure(txt)
 
 

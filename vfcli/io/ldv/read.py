@@ -27,7 +27,8 @@ CSV (vfcli layout, written by :func:`vfcli.io.ldv.write.write_ldv_csv`)
     ``# reference_unit = Pa``, ``# length_unit = mm`` (these defaults), then a
     header row ``node,x,y,z,channel,t0,s0,s1,...`` and one row per point and
     channel: node number, coordinates, ``velocity`` or ``reference``, start
-    time (s), samples. Rows in any order.
+    time (s), samples. Rows in any order, all of the same length, each ending
+    with a line break (a last row without one may be cut off: refused).
 MAT (``scipy.io.loadmat``, MATLAB v5/v7, not v7.3)
     ``coords`` (P, 3), ``velocity`` (P, S) and ``fs`` (Hz) are required;
     optional ``node_ids`` (P,) (default 1..P), ``reference`` (P, S), ``t0`` (P,)
@@ -46,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from vfcli.errors import InputDataError
-from vfcli.io._common import check_finite, require_file
+from vfcli.io._common import check_finite, check_last_row_complete, numeric_rows, require_file
 from vfcli.io.ldv.dropouts import detect_dropouts
 from vfcli.io.ldv.grid import infer_grid
 from vfcli.io.limits import (LDV_EXTENT_MM, LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S, MAX_ABS_PRESSURE_PA,
@@ -409,47 +410,45 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
 
 # --------------------------------------------------------------------------- CSV
 
-def _comment_meta(p: Path) -> tuple[dict, int]:
+def _comment_meta(lines: list[str]) -> tuple[dict, int]:
+    """The ``# key = value`` comments above the header, and the number of lines they and blank lines take."""
     meta, n_skip = {}, 0
-    with open(p, "r", encoding="utf-8") as fh:
-        for line in fh:
-            s = line.strip()
-            if s.startswith("#"):
-                m = re.match(r"^#\s*([A-Za-z_0-9]+)\s*[=:]\s*(.+?)\s*$", s)
-                if m:
-                    meta[m.group(1).lower()] = m.group(2)
-                n_skip += 1
-            elif not s:
-                n_skip += 1
-            else:
-                return meta, n_skip
+    for line in lines:
+        s = line.strip()
+        if s.startswith("#"):
+            m = re.match(r"^#\s*([A-Za-z_0-9]+)\s*[=:]\s*(.+?)\s*$", s)
+            if m:
+                meta[m.group(1).lower()] = m.group(2)
+            n_skip += 1
+        elif not s:
+            n_skip += 1
+        else:
+            break
     return meta, n_skip
 
 
 def _read_csv(p: Path, expected_grid) -> LdvScan:
     try:
-        meta, n_skip = _comment_meta(p)
-        with open(p, "r", encoding="utf-8") as fh:
-            for _ in range(n_skip):
-                fh.readline()
-            header = fh.readline().strip().lower().split(",")
-            if header[:6] != ["node", "x", "y", "z", "channel", "t0"]:
-                raise InputDataError("CSV header must start with node,x,y,z,channel,t0", p)
-            codes = {"velocity": 0.0, "reference": 1.0}
-
-            def conv(s):
-                s = s.strip().strip('"').lower()
-                if s not in codes:
-                    raise ValueError(f"channel {s!r} is not velocity/reference")
-                return codes[s]
-
-            table = np.loadtxt(fh, delimiter=",", converters={4: conv}, ndmin=2, dtype=np.float64)
+        text = p.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise InputDataError("not a text CSV file", p) from None
-    except ValueError as exc:
-        raise InputDataError(f"bad CSV row: {exc}", p) from None
-    if table.size == 0:
-        raise InputDataError("CSV has no data rows", p)
+    check_last_row_complete(text, p)
+    lines = text.splitlines()
+    meta, n_skip = _comment_meta(lines)
+    header = lines[n_skip].strip().lower().split(",") if n_skip < len(lines) else [""]
+    if header[:6] != ["node", "x", "y", "z", "channel", "t0"]:
+        raise InputDataError("CSV header must start with node,x,y,z,channel,t0", p)
+    codes = {"velocity": 0.0, "reference": 1.0}
+
+    def conv(s):
+        s = s.strip().strip('"').lower()
+        if s not in codes:
+            raise ValueError(f"channel {s!r} is not velocity/reference")
+        return codes[s]
+
+    rows = [(k, line) for k, line in enumerate(lines[n_skip + 1:], n_skip + 2)
+            if line.strip() and not line.lstrip().startswith("#")]
+    table = numeric_rows(rows, ",", p, header, converters={4: conv})
     if "fs" not in meta:
         raise InputDataError("missing '# fs = <Hz>' comment", p)
     try:

@@ -9,19 +9,21 @@ Optional comment lines starting with ``#``, which may set ``# fs = 50000`` (Hz; 
   else the only other one); a unit in the header name (``p_sub [kPa]`` or ``pressure (Pa)``) is used;
 * or a single column of samples (header optional) with ``# fs = ...``.
 
+Every row holds the same number of values and ends with a line break (a last row without one may be
+cut off: refused).
+
 The time column must be uniform: every sample within 0.1 sample period of ``t0 + k / fs``.
 """
 from __future__ import annotations
 
 import csv
-import io
 import re
 from pathlib import Path
 
 import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
-from vfcli.io._common import check_finite
+from vfcli.io._common import check_finite, check_last_row_complete, numeric_rows
 from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit
 
 _TIME_NAME = re.compile(r"^\s*(t|time)\b", re.IGNORECASE)
@@ -34,9 +36,10 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
         text = p.read_text(encoding="utf-8")
     except UnicodeDecodeError:
         raise InputDataError("not a text CSV file (undecodable bytes)", p) from None
+    check_last_row_complete(text, p)
     meta: dict[str, str] = {}
-    lines = []
-    for line in text.splitlines():
+    lines: list[tuple[int, str]] = []   # (line number in the file, row)
+    for number, line in enumerate(text.splitlines(), 1):
         s = line.strip()
         if not s:
             continue
@@ -45,22 +48,14 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
             if m:
                 meta[m.group(1).strip().lower().replace(" ", "_")] = m.group(2)
             continue
-        lines.append(s)
+        lines.append((number, s))
     if not lines:
         raise InputDataError("CSV has no data rows", p)
-    delim = ";" if ";" in lines[0] else ("\t" if "\t" in lines[0] else ",")
-    first = next(csv.reader([lines[0]], delimiter=delim))
+    delim = ";" if ";" in lines[0][1] else ("\t" if "\t" in lines[0][1] else ",")
+    first = next(csv.reader([lines[0][1]], delimiter=delim))
     has_header = not all(_is_number(c) for c in first)
     header = [c.strip() for c in first] if has_header else None
-    body = "\n".join(lines[1:] if has_header else lines)
-    if not body.strip():
-        raise InputDataError("CSV has no data rows", p)
-    try:
-        table = np.loadtxt(io.StringIO(body), delimiter=delim, ndmin=2, dtype=np.float64)
-    except ValueError as exc:
-        raise InputDataError(f"CSV data rows are not all numbers: {exc}", p) from None
-    if table.size == 0:
-        raise InputDataError("CSV has no data rows", p)
+    table = numeric_rows(lines[1:] if has_header else lines, delim, p, header)
     ncol = table.shape[1]
     if header is not None and len(header) != ncol:
         raise InputDataError(f"header has {len(header)} names, the rows {ncol} values", p)

@@ -7,12 +7,12 @@ otherwise the only channel in the file, or the only one whose name looks like
 """
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
+from vfcli.io._common import LibraryOutput, library_output
 from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit
 
 
@@ -23,35 +23,19 @@ def read_tdms(p: Path, group: str | None, channel: str | int | None,
     with open(p, "rb") as fh:
         if fh.read(4) != b"TDSm":
             raise InputDataError("not a TDMS file (no 'TDSm' lead-in)", p)
-    nptdms_log = logging.getLogger("nptdms")
-    said = _Said()
-    nptdms_log.addHandler(said)
-    try:
+    with library_output(p, "nptdms") as said:
         try:
             tdms = TdmsFile.open(p)  # metadata only; the chosen channel's data is read below
         except Exception as exc:  # npTDMS raises ValueError/struct.error/... on corrupt files
             raise InputDataError(f"unreadable TDMS: {type(exc).__name__}: {exc}", p) from None
         try:
-            return _read_tdms_channel(p, tdms, group, channel, unit, said.messages)
+            return _read_tdms_channel(p, tdms, group, channel, unit, said)
         finally:
             tdms.close()
-    finally:
-        nptdms_log.removeHandler(said)
-
-
-class _Said(logging.Handler):
-    """Collects npTDMS's warnings (it reads a truncated file with a logged warning only)."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.messages: list[str] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.messages.append(record.getMessage())
 
 
 def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | None,
-                       unit: str | None, warned: list[str]) -> PressureRecord:
+                       unit: str | None, said: LibraryOutput) -> PressureRecord:
     try:
         chans = [(g.name, c) for g in tdms.groups() for c in g.channels()]
     except Exception as exc:
@@ -85,7 +69,7 @@ def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | No
         raise InputDataError(f"wf_increment {dt} s is not positive", p)
     if not np.issubdtype(np.asarray(data).dtype, np.number):
         raise InputDataError(f"channel {gname}/{ch.name} is not numeric", p)
-    _check_tdms_complete(p, tdms, gname, ch, len(data), warned)
+    _check_tdms_complete(p, tdms, gname, ch, len(data), said.messages)
     file_unit = str(props.get("unit_string", "")).strip() or None
     unit_used = resolve_unit(file_unit, unit, p)
     start = props.get("wf_start_time")
@@ -103,7 +87,8 @@ def _check_tdms_complete(p: Path, tdms, gname: str, ch, n: int, warned: list[str
     name = f"{gname}/{ch.name}"
     trunc = [w for w in warned if "less data than expected" in w or "not a multiple of the chunk" in w]
     if trunc:
-        raise InputDataError(f"channel {name} is truncated ({n} samples read; npTDMS: {trunc[0][:120]})", p)
+        said = trunc[0].split(", will attempt")[0].split(". Will attempt")[0]
+        raise InputDataError(f"channel {name} is truncated ({n} samples read; npTDMS: {said[:120]})", p)
     try:
         dt = ch.properties.get("wf_increment")
         promised = [len(c) for c in tdms[gname].channels()

@@ -25,7 +25,7 @@ from typing import Iterable
 import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
-from vfcli.io._common import natural_key, require_file
+from vfcli.io._common import library_output, natural_key, require_file
 from vfcli.io.video.base import VideoMeta, VideoSource, register_reader
 
 logger = logging.getLogger(__name__)
@@ -57,17 +57,23 @@ class TiffSource(VideoSource):
         with open(p, "rb") as fh:
             if fh.read(4) not in _TIFF_MAGIC:
                 raise InputDataError("not a TIFF file (bad magic bytes)", p)
-        try:
-            self._tif = tifffile.TiffFile(p)
-            pages = self._tif.pages
-            first = pages.first
-            n = len(pages)
-            shape, dtype = tuple(int(s) for s in first.shape), first.dtype
-            fps = self._fps_from_metadata()
-        except InputDataError:
-            raise
-        except Exception as exc:  # tifffile raises many types on corrupt files
-            raise InputDataError(f"unreadable TIFF: {type(exc).__name__}: {exc}", p) from None
+        with library_output(p, "tifffile") as said:
+            try:
+                self._tif = tifffile.TiffFile(p)
+                pages = self._tif.pages
+                first = pages.first
+                n = len(pages)
+                shape, dtype = tuple(int(s) for s in first.shape), first.dtype
+                fps = self._fps_from_metadata()
+            except InputDataError:
+                raise
+            except Exception as exc:  # tifffile raises many types on corrupt files
+                raise InputDataError(f"unreadable TIFF: {type(exc).__name__}: {exc}", p) from None
+            broken = said.errors("<tifffile.TiffPages")
+            if broken:  # tifffile stops counting pages where the chain breaks, and logs an error
+                self.close()
+                raise InputDataError(f"truncated or damaged TIFF: its chain of pages breaks after {n} page(s) "
+                                     f"(tifffile: {broken[0].split('> ', 1)[-1][:120]}; the file holds {p.stat().st_size} bytes)", p)
         if len(shape) != 2:
             self.close()
             raise InputDataError(
@@ -111,18 +117,18 @@ class TiffSource(VideoSource):
     def _read_range(self, start: int, stop: int) -> np.ndarray:
         m = self.meta
         out = np.empty((stop - start, m.height, m.width), m.dtype)
-        for j, i in enumerate(range(start, stop)):
-            try:
-                page = self._tif.pages[i]
-                img = page.asarray()
-            except Exception as exc:
-                raise InputDataError(f"page {i} unreadable: {type(exc).__name__}: {exc}",
-                                     self.path) from None
-            if img.shape != out.shape[1:] or img.dtype != m.dtype:
-                raise InputDataError(
-                    f"page {i} is {img.shape} {img.dtype}, page 0 is "
-                    f"{out.shape[1:]} {m.dtype}", self.path)
-            out[j] = img
+        with library_output(self.path, "tifffile"):
+            for j, i in enumerate(range(start, stop)):
+                try:
+                    img = self._tif.pages[i].asarray()
+                except Exception as exc:
+                    raise InputDataError(f"page {i} unreadable: {type(exc).__name__}: {exc}",
+                                         self.path) from None
+                if img.shape != out.shape[1:] or img.dtype != m.dtype:
+                    raise InputDataError(
+                        f"page {i} is {img.shape} {img.dtype}, page 0 is "
+                        f"{out.shape[1:]} {m.dtype}", self.path)
+                out[j] = img
         return out
 
 
@@ -187,7 +193,8 @@ def _imread(path: Path) -> np.ndarray:
         import tifffile
 
         try:
-            img = tifffile.imread(path, key=0)
+            with library_output(path, "tifffile"):
+                img = tifffile.imread(path, key=0)
         except Exception as exc:
             raise InputDataError(f"unreadable image: {type(exc).__name__}: {exc}", path) from None
     else:
