@@ -121,6 +121,24 @@ def test_stored_config_is_updated_by_a_new_file(tmp_path, vfcli):
     assert RecordingConfig.model_validate(shown).camera.px_per_mm == 40.0
 
 
+def test_show_without_a_store_or_a_file_is_one_line_and_share_without_video_names_the_missing_stage(tmp_path, vfcli):
+    """`vfcli config nothere.h5 --show` printed the defaults with exit 0, as if a mistyped store held them; `vfcli
+    share` of a store without /hsc exited 2 where the documented code for a missing stage is 5 (session 35)."""
+    missing = tmp_path / "nothere.h5"
+    res = vfcli("config", missing, "--show")
+    assert res.returncode == 2 and res.stdout == "" and len(res.stderr.strip().splitlines()) == 1, res
+    assert "no such store file" in res.stderr and not missing.exists()
+    cfg = tmp_path / "rec.toml"
+    cfg.write_text("[camera]\npx_per_mm = 25\n")
+    shown = json.loads(vfcli("config", missing, "--config", cfg, "--show").stdout)   # what the file gives
+    assert shown["camera"]["px_per_mm"] == 25.0
+    store = tmp_path / "r.h5"
+    assert vfcli("config", store, "--config", cfg).returncode == 0                   # a store with its config only
+    res = vfcli("share", store, tmp_path / "out.h5")
+    assert res.returncode == 5 and "run `vfcli ingest-hsc` first" in res.stderr, res.stderr
+    assert not (tmp_path / "out.h5").exists()
+
+
 def test_the_example_config_is_valid_and_spells_out_the_defaults():
     stored, _ = load_config(ROOT / "examples" / "recording.toml")
     assert stored == RecordingConfig()

@@ -6,6 +6,7 @@ import dataclasses
 import click
 
 from vfcli.cli.common import store_command
+from vfcli.errors import ConfigError
 
 
 @click.command("config")
@@ -21,6 +22,10 @@ def config_cmd(ctx, show: bool):  # type: ignore[no-untyped-def]
     from vfcli.stages.base import StageResult, save_recording_config
 
     if show:
+        if not ctx.store.exists() and ctx.config_file_sha256 is None:
+            # only the defaults to show: a mistyped store name must not look like a recording's config
+            raise ConfigError("no such store file (give --config FILE to show the config a file gives)",
+                              ctx.store.path)
         click.echo(ctx.config.model_dump_json(indent=2))
         return []
     overrides = list(click.get_current_context().params.get("overrides") or ())

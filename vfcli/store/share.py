@@ -18,7 +18,7 @@ from typing import Any, Iterator
 
 import h5py
 
-from vfcli.errors import ConfigError
+from vfcli.errors import ConfigError, MissingStageError
 from vfcli.store import integrity, layout
 from vfcli.store.frames import COMPRESSIONS, FrameReader
 from vfcli.store.parts import own_parts, refuse_missing, writing
@@ -61,7 +61,7 @@ def copy_for_sharing(src: str | Path, dst: str | Path, compression: str = "gzip"
         check_format(f, src)
         refuse_missing(f, real, src)
         if "hsc" not in f or not f["hsc"].attrs.get("complete", False) or "frames" not in f["hsc"]:
-            raise ConfigError("has no complete /hsc video to re-encode; run `vfcli ingest-hsc` first", src)
+            raise MissingStageError("has no complete /hsc video to re-encode; run `vfcli ingest-hsc` first", src)
         with writing(tmp, fs_strategy="fsm", fs_persist=True, libver=("v110", "latest")) as out:
             for k, v in f.attrs.items():
                 out.attrs[k] = v
