@@ -94,3 +94,25 @@ def test_the_chord_of_the_frame_and_the_gaps_share_of_it_by_hand():
     assert in_view == 150.0                                       # the folds, shorter than the chord
     _, in_view = gap_length_share(counts, length_px=1000.0)
     assert in_view == pytest.approx(199 * np.sqrt(2) + 1, rel=0.02)  # the chord, where the folds run off the frame
+
+
+def test_a_video_shorter_than_one_glottal_cycle_is_refused_by_flow(video, tmp_path):
+    """A 2-frame video (a new user's cut file) ran through flow and optimize to a "converged" fit of 2 % of a
+    glottal cycle with a stated uncertainty of 10 % (session 35). /sync's f0 is read from the pressure, which
+    covers the whole recording: a video shorter than one period of it is now refused by flow, exit 3."""
+    raw, _ = video
+    store = tmp_path / "short.h5"
+    for args in (("ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
+                  "--config", raw / "recording.toml", "--set", "ingest_hsc.n_frames=20"),
+                 ("ingest-ldv", store, raw / "scan.uff"), ("sync", store)):
+        res = run_vfcli(*args)
+        assert res.returncode == 0, (args[0], res.stderr)
+    with Store(store).read() as r:
+        f0 = float(r.attrs("sync")["f0_video_hz"])
+        fps = float(r.attrs("hsc")["fps_hz"])
+    assert 20 / fps * f0 < 1.0                                   # the premise: 2 ms of a ~8 ms cycle
+    before = store.read_bytes()
+    res = run_vfcli("flow", store)
+    assert res.returncode == 3 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert "the video holds 20 frames (2 ms), less than one glottal cycle" in res.stderr
+    assert store.read_bytes() == before

@@ -35,6 +35,17 @@ log = logging.getLogger(__name__)
 FIELDS_MANTISSA_BITS = 12
 
 
+def _check_one_cycle(reader: StoreReader, n_frames: int, fps_hz: float) -> None:
+    """Refuse a video shorter than one glottal cycle at /sync's f0 (a 2-frame video ran through to a
+    "converged" fit of 2 % of a cycle, with a stated uncertainty of 10 %). Nothing is checked without /sync's f0."""
+    f0 = float(reader.attrs("sync").get("f0_video_hz", np.nan)) if reader.has_stage("sync") else np.nan
+    if np.isfinite(f0) and f0 > 0 and n_frames / fps_hz * f0 < 1.0:
+        raise InputDataError(
+            f"the video holds {n_frames} frames ({1e3 * n_frames / fps_hz:.3g} ms), less than one glottal cycle "
+            f"({1e3 / f0:.3g} ms at /sync's f0 {f0:.4g} Hz): the gap, the flow and the fit need at least one whole "
+            "cycle; record a longer video (or widen ingest_hsc's frame range)", reader.path)
+
+
 def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
     """Body of /flow: stream /hsc frames through the flow step, one frame at a time."""
     hsc = reader.attrs("hsc")
@@ -46,6 +57,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         )
     n, h, w = (int(v) for v in frames.shape)
     fps, px_per_mm = float(hsc["fps_hz"]), float(hsc["px_per_mm"])
+    _check_one_cycle(reader, n, fps)
     rotation = float(hsc.get("rotation_deg", 0.0))
     frame_time = reader.read("hsc", "frame_time")
     calib, stream = flow_pipeline(frames, cfg, fps=fps, px_per_mm=px_per_mm, rotation_deg=rotation,
