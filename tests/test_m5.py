@@ -89,9 +89,11 @@ def test_the_config_refuses_shapes_the_model_would_reject(override, field):
 
 
 def test_every_mesh_config_the_config_accepts_builds_an_m5_profile():
-    """Random [mesh] values inside the config's bounds: the config refuses them or M5Params accepts them."""
+    """Random [mesh] values inside the config's bounds: the config refuses them, or M5Params accepts them and
+    the mesher triangulates their profile."""
     from vfcli.config import MeshConfig
     from vfcli.model.m5 import m5_params_from
+    from vfcli.model.mesh import _cap_triangulation
 
     rng = np.random.default_rng(0)
     bounds = {"thickness_mm": (0.5, 10), "exit_radius_mm": (0.05, 5), "entrance_radius_mm": (0.05, 5),
@@ -105,6 +107,71 @@ def test_every_mesh_config_the_config_accepts_builds_an_m5_profile():
         except ValueError:  # pydantic's ValidationError
             refused += 1
             continue
-        m5_params_from(cfg)
+        params = m5_params_from(cfg)
+        _cap_triangulation(params.contour(1.5)[0], 1.5)  # raises on a non-convex profile
         accepted += 1
     assert accepted > 50 and refused > 50
+
+
+def _shape(**changes):
+    """The M5 fields with their defaults, some changed, as any settings object (no validation)."""
+    from dataclasses import fields
+    from types import SimpleNamespace
+
+    return SimpleNamespace(**{**{f.name: f.default for f in fields(M5Params)}, **changes})
+
+
+def _height_limited_angle(sweep_deg, **changes):
+    """The inferior angle (degrees) at which the profile is exactly MAX_HEIGHT_MM tall."""
+    from vfcli.model.m5 import MAX_HEIGHT_MM
+
+    s = _shape(entrance_sweep_deg=sweep_deg, **changes)
+    a = math.radians(sweep_deg)
+    rise = MAX_HEIGHT_MM - s.thickness_mm - s.entrance_radius_mm * math.sin(a)
+    return math.degrees(math.atan(rise / (s.depth_mm - s.entrance_radius_mm * (1 - math.cos(a)))))
+
+
+@pytest.mark.parametrize("changes", [
+    {},                                                          # Scherer's M5: sweep + angle = 90, tangent
+    {"entrance_sweep_deg": 30.0, "inferior_angle_deg": 60.0},    # tangent too
+    {"entrance_sweep_deg": 30.0, "inferior_angle_deg": 59.999},  # convex corner
+    {"entrance_sweep_deg": 90.0, "inferior_angle_deg": 0.0},
+    {"entrance_sweep_deg": 1.0, "inferior_angle_deg": _height_limited_angle(1.0) - 0.01},
+    {"entrance_sweep_deg": 5.0, "inferior_angle_deg": _height_limited_angle(5.0, depth_mm=20.0, thickness_mm=10.0) - 0.01,
+     "depth_mm": 20.0, "thickness_mm": 10.0, "entrance_radius_mm": 1.5},
+])
+def test_m5_shape_problem_accepts_convex_profiles_of_sensible_height(changes):
+    from vfcli.model.m5 import MAX_HEIGHT_MM, m5_shape_problem
+
+    assert m5_shape_problem(_shape(**changes)) is None
+    p = M5Params(**changes)
+    assert p.height_mm <= MAX_HEIGHT_MM
+    contour, _ = p.contour(0.5)
+    e_in, e_out = contour - np.roll(contour, 1, axis=0), np.roll(contour, -1, axis=0) - contour
+    turn = e_in[:, 0] * e_out[:, 1] - e_in[:, 1] * e_out[:, 0]
+    assert np.all(turn >= -1e-12)  # convex: the counter-clockwise contour never turns right
+
+
+@pytest.mark.parametrize("changes, names, limit", [
+    ({"inferior_angle_deg": 40.001}, ("mesh.entrance_sweep_deg 50", "mesh.inferior_angle_deg 40.001"), "at most 40 deg"),
+    ({"inferior_angle_deg": 60.0}, ("mesh.inferior_angle_deg 60",), "at most 40 deg"),
+    ({"inferior_angle_deg": 89.99}, ("mesh.inferior_angle_deg 89.99",), "at most 40 deg"),
+    ({"entrance_sweep_deg": 70.0}, ("mesh.entrance_sweep_deg 70",), "at most 20 deg"),
+    ({"entrance_sweep_deg": 30.0, "inferior_angle_deg": 60.001}, ("mesh.inferior_angle_deg 60.001",), "at most 60 deg"),
+    ({"entrance_sweep_deg": 1.0, "inferior_angle_deg": _height_limited_angle(1.0) + 0.01},
+     ("mesh.inferior_angle_deg", "mm tall"), f"at most {math.floor(_height_limited_angle(1.0) * 10) / 10:g} deg"),
+    ({"entrance_sweep_deg": 0.01, "inferior_angle_deg": 89.99}, ("mesh.inferior_angle_deg 89.99", "mm tall"), "at most"),
+])
+def test_m5_shape_problem_names_the_fields_and_the_largest_angle(changes, names, limit):
+    """A concave corner where the entrance arc meets the inferior surface (sweep + angle > 90 deg), or a
+    profile taller than MAX_HEIGHT_MM (tan of an inferior angle near 90 deg), is refused with the
+    largest inferior angle that would do."""
+    from vfcli.model.m5 import m5_shape_problem
+
+    msg = m5_shape_problem(_shape(**changes), prefix="mesh.")
+    assert msg is not None and "\n" not in msg
+    for name in names:
+        assert name in msg
+    assert limit in msg
+    with pytest.raises(ValueError, match="inferior_angle_deg"):
+        M5Params(**changes)

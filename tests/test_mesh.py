@@ -146,3 +146,36 @@ def test_preview_png_shows_every_tag_colour(mesh, tmp_path):
     for colour, label in TAG_STYLE.values():
         close = np.all(np.abs(img - np.array(to_rgb(colour))) < 0.02, axis=-1)
         assert close.sum() > 50, f"no {label} pixels in the preview"
+
+
+@pytest.mark.parametrize("overrides, field, allowed", [
+    (["mesh.min_dihedral_deg=18.5"], "mesh.min_dihedral_deg = 18.5", "less than or equal to 18"),
+    (["mesh.inferior_angle_deg=60"], "mesh.inferior_angle_deg 60", "at most 40 deg"),
+    (["mesh.entrance_sweep_deg=70"], "mesh.entrance_sweep_deg 70", "at most 20 deg"),
+    (["mesh.entrance_sweep_deg=1", "mesh.inferior_angle_deg=89"], "mesh.inferior_angle_deg 89", "mm tall"),
+])
+def test_a_mesh_tetgen_or_the_m5_profile_cannot_take_exits_2_and_leaves_the_store(tmp_path, overrides, field, allowed):
+    """min_dihedral_deg above the bound tetgen's refinement ends at; a concave or 461 mm tall M5 profile:
+    one line naming the setting and what is allowed, before anything is built."""
+    from conftest import run_vfcli
+
+    store = tmp_path / "rec.h5"
+    assert run_vfcli("mesh", store, "--set", "mesh.target_edge_mm=3").returncode == 0
+    before = (store.read_bytes(), store.stat().st_mtime_ns)
+    res = run_vfcli("mesh", store, "--force", "--set", "mesh.target_edge_mm=3", *[a for o in overrides for a in ("--set", o)],
+                    timeout=120)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().count("\n") == 0 and "Traceback" not in res.stderr
+    assert field in res.stderr and allowed in res.stderr
+    assert (store.read_bytes(), store.stat().st_mtime_ns) == before
+
+
+def test_a_quality_refinement_that_does_not_end_stops_with_a_config_error(monkeypatch):
+    """Above MAX_MIN_DIHEDRAL_DEG tetgen's refinement runs without end (25 degrees: > 60 s and a growing
+    memory at 1.5 mm); its bound on added points (-S) stops it with one clear line."""
+    import vfcli.model.mesh as mesh_module
+    from vfcli.errors import ConfigError
+
+    monkeypatch.setattr(mesh_module, "MAX_MIN_DIHEDRAL_DEG", 34.0)  # let build_mesh pass 25 to tetgen
+    with pytest.raises(ConfigError, match="did not end within .* mesh.min_dihedral_deg 25"):
+        build_mesh(PARAMS, target_edge_mm=1.5, min_dihedral_deg=25.0)

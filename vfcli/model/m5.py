@@ -39,6 +39,50 @@ _MAX_ARC_STEP_DEG = 30.0
 
 SEGMENTS = ("superior", "exit_arc", "medial", "entrance_arc", "inferior", "lateral")
 
+#: tallest profile (mm) the model builds: the tan() of an inferior angle near 90 degrees makes the
+#: height H unbounded (and the mesher's memory with it); Scherer's M5 is 10.4 mm tall, the widened
+#: synth draws reach 16 mm, and 40 mm is the config's largest length_mm
+MAX_HEIGHT_MM = 40.0
+
+
+def m5_shape_problem(shape: object, prefix: str = "") -> str | None:
+    """What makes an M5 profile unbuildable, as one line naming the fields; None if it is fine.
+
+    Parameters
+    ----------
+    shape : any object with the shape fields of :class:`M5Params` (``thickness_mm``,
+        ``exit_radius_mm``, ``entrance_radius_mm``, ``depth_mm`` in mm; ``entrance_sweep_deg``,
+        ``inferior_angle_deg`` in degrees), each already in its own range.
+    prefix : put before each field name (``"mesh."`` for the config).
+
+    The arcs must fit (R_O < T, R_O < D, the entrance arc ends medial of the lateral wall); the
+    entrance arc may not turn past the inferior surface's direction (sweep + inferior angle
+    <= 90 degrees; above that the contour has a concave corner there, which the mesher's cap
+    triangulation cannot follow; Scherer's M5 is tangent, sum 90); and the height H may not exceed
+    :data:`MAX_HEIGHT_MM` (H grows as tan(inferior angle)).
+    """
+    t, r_o, r_l, d = shape.thickness_mm, shape.exit_radius_mm, shape.entrance_radius_mm, shape.depth_mm
+    sweep, angle = shape.entrance_sweep_deg, shape.inferior_angle_deg
+    if r_o >= t:
+        return f"{prefix}exit_radius_mm ({r_o}) must be smaller than {prefix}thickness_mm ({t})"
+    a = math.radians(sweep)
+    run = d - r_l * (1 - math.cos(a))  # lateral extent of the inferior surface, mm
+    if r_o >= d or run <= 0:
+        return f"{prefix}depth_mm ({d}) is too small for the exit and entrance arcs"
+    if sweep + angle > 90.0 + 1e-9:
+        return (f"{prefix}entrance_sweep_deg {sweep:g} + {prefix}inferior_angle_deg {angle:g} = {sweep + angle:g} deg "
+                f"turns the entrance arc past the inferior surface (a concave corner in the M5 profile; "
+                f"Scherer's M5 is tangent there, sum 90): {prefix}inferior_angle_deg at most {90 - sweep:g} deg "
+                f"with this sweep")
+    rise = t + r_l * math.sin(a)  # height at the end of the entrance arc, mm
+    height = rise + run * math.tan(math.radians(angle))
+    if height > MAX_HEIGHT_MM:
+        largest = math.degrees(math.atan(max(MAX_HEIGHT_MM - rise, 0.0) / run))
+        return (f"{prefix}inferior_angle_deg {angle:g} with {prefix}depth_mm {d:g} makes the M5 profile "
+                f"{height:.4g} mm tall, more than {MAX_HEIGHT_MM:g} mm: {prefix}inferior_angle_deg at most "
+                f"{math.floor(largest * 10) / 10:g} deg here")
+    return None
+
 
 def _pair(value: object, name: str) -> tuple[float, float]:
     arr = np.asarray(value, dtype=float).ravel()
@@ -96,15 +140,9 @@ class M5Params:
             raise ValueError(f"M5 entrance_sweep_deg must be in (0, 90], got {self.entrance_sweep_deg!r}")
         if not 0 <= self.inferior_angle_deg < 90:
             raise ValueError(f"M5 inferior_angle_deg must be in [0, 90), got {self.inferior_angle_deg!r}")
-        if self.exit_radius_mm >= self.thickness_mm:
-            raise ValueError(
-                f"M5 exit_radius_mm ({self.exit_radius_mm}) must be smaller than thickness_mm ({self.thickness_mm})"
-            )
-        run = self.depth_mm - self.entrance_radius_mm * (1 - math.cos(math.radians(self.entrance_sweep_deg)))
-        if self.exit_radius_mm >= self.depth_mm or run <= 0:
-            raise ValueError(
-                f"M5 depth_mm ({self.depth_mm}) is too small for the exit and entrance arcs"
-            )
+        problem = m5_shape_problem(self)
+        if problem is not None:
+            raise ValueError(f"M5 {problem}")
 
     # ----------------------------------------------------------------- geometry
     @property

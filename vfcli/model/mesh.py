@@ -65,6 +65,14 @@ SIDE_SUPERIOR = 2
 DEFAULT_EDGE_MM = 1.5
 DEFAULT_MIN_RATIO = 1.5
 DEFAULT_MIN_DIHEDRAL_DEG = 15.0
+#: largest tetgen minimum dihedral angle target (degrees, the config's bound too): on the M5 prism
+#: tetgen's quality refinement ran without end from 21 (target edge 0.7 mm), 21.5 (1.0 mm) and
+#: 22 degrees (1.5 mm) on; at 20 it already doubled the mesh at 0.4-0.5 mm, at 18 it adds ~20 %
+MAX_MIN_DIHEDRAL_DEG = 18.0
+#: tetgen may add at most this many points per max-volume tet of the fold and per surface point
+#: (``-S``), so that a refinement that does not end stops instead of filling the memory; meshes
+#: within the bounds add at most 0.35 per max-volume tet
+_MAX_ADDED_PER_TET = 4
 
 # outward faces of a positively oriented tet (p0, p1, p2, p3)
 _TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
@@ -327,8 +335,8 @@ def build_mesh(params: M5Params | None = None, target_edge_mm: float = DEFAULT_E
     target_edge_mm : target edge length (mm) of the surface triangulation; the
         interior tets are limited to the volume of a regular tet of this edge.
     min_ratio : tetgen radius-edge ratio bound (``-q`` first value, > 1).
-    min_dihedral_deg : tetgen minimum dihedral angle (``-q`` second value);
-        a target, not a guarantee (see :meth:`FoldMesh.min_dihedral_deg`).
+    min_dihedral_deg : tetgen minimum dihedral angle (``-q`` second value), degrees, at most
+        :data:`MAX_MIN_DIHEDRAL_DEG`; a target, not a guarantee (see :meth:`FoldMesh.min_dihedral_deg`).
 
     Returns
     -------
@@ -338,7 +346,8 @@ def build_mesh(params: M5Params | None = None, target_edge_mm: float = DEFAULT_E
     Raises
     ------
     ValueError : sizes out of range (the config validates them first).
-    ConfigError : tetgen fails on these switches (change mesh.min_ratio or mesh.min_dihedral_deg).
+    ConfigError : tetgen fails on these switches, or its quality refinement does not end within
+        its bound on added points (change mesh.min_ratio or mesh.min_dihedral_deg).
     """
     import tetgen
 
@@ -348,18 +357,23 @@ def build_mesh(params: M5Params | None = None, target_edge_mm: float = DEFAULT_E
         raise ValueError(f"mesh target_edge_mm must be in [0.05, 5] mm, got {target_edge_mm!r}")
     if not (min_ratio > 1.0):
         raise ValueError(f"mesh min_ratio must be > 1, got {min_ratio!r}")
-    if not (0.0 <= min_dihedral_deg < 35.0):
-        raise ValueError(f"mesh min_dihedral_deg must be in [0, 35), got {min_dihedral_deg!r}")
+    if not (0.0 <= min_dihedral_deg <= MAX_MIN_DIHEDRAL_DEG):
+        raise ValueError(f"mesh min_dihedral_deg must be in [0, {MAX_MIN_DIHEDRAL_DEG:g}], got {min_dihedral_deg!r}")
 
     pts, tris, contour, seg = _prism_surface(params, h)
     max_vol = h ** 3 / (6 * math.sqrt(2))
-    switches = f"pYq{min_ratio:g}/{min_dihedral_deg:g}a{max_vol:.6g}Q"
+    max_added = _MAX_ADDED_PER_TET * (math.ceil(params.volume_mm3() / max_vol) + len(pts))
+    switches = f"pYq{min_ratio:g}/{min_dihedral_deg:g}a{max_vol:.6g}S{max_added}Q"
     tg = tetgen.TetGen(pts.astype(np.float64), tris.astype(np.int32))
     try:
         with _quiet_stdout():
             nodes, elems, *_ = tg.tetrahedralize(switches=switches)
     except RuntimeError as exc:  # pragma: no cover - tetgen failure
         raise ConfigError(f"tetgen failed with switches {switches!r}: {exc}") from exc
+    if len(nodes) - len(pts) >= max_added:
+        raise ConfigError(f"tetgen's quality refinement did not end within {max_added} added points (mesh.min_ratio "
+                          f"{min_ratio:g}, mesh.min_dihedral_deg {min_dihedral_deg:g}): raise min_ratio or lower "
+                          f"min_dihedral_deg")
     nodes = np.asarray(nodes, dtype=np.float64)
     tets = np.asarray(elems, dtype=np.int64)[:, :4]
     used = np.unique(tets)
