@@ -139,6 +139,23 @@ def test_show_without_a_store_or_a_file_is_one_line_and_share_without_video_name
     assert not (tmp_path / "out.h5").exists()
 
 
+@pytest.mark.parametrize("item, field", [("camera.px_per_mm=true", "px_per_mm = true"),
+                                         ("mesh.n_harmonics=false", None),
+                                         ("camera.offset_px=[true, 2]", "offset_px = [true, 2]"),
+                                         ("optimize.n_frames=true", "n_frames = true")])
+def test_true_or_false_where_a_number_is_meant_is_a_config_error(item, field):
+    """pydantic reads `camera.px_per_mm = true` as 1.0: it was stored so (session 35); a flag stays a flag."""
+    if field is None:     # an unknown key is still named as one
+        with pytest.raises(ConfigError, match="unknown setting"):
+            load_config(None, None, [item])
+        return
+    with pytest.raises(ConfigError) as err:
+        load_config(None, None, [item])
+    assert f"{field}: a number is meant here, not true/false" in str(err.value) and "Value error" not in str(err.value)
+    _, cfg = load_config(None, None, ["flow.subpixel_edges=false", "optimize.tie_folds=true"])
+    assert cfg.flow.subpixel_edges is False and cfg.optimize.tie_folds is True
+
+
 def test_the_example_config_is_valid_and_spells_out_the_defaults():
     stored, _ = load_config(ROOT / "examples" / "recording.toml")
     assert stored == RecordingConfig()

@@ -19,9 +19,32 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 from vfcli.errors import ConfigError
 
 
+def _allows_bool(annotation: Any) -> bool:
+    """Whether a field's type admits true/false anywhere (a bool, or a union, Literal or container holding one)."""
+    if annotation is bool:
+        return True
+    return any(a is bool or (a in (True, False) and isinstance(a, bool)) or _allows_bool(a)
+               for a in typing.get_args(annotation))
+
+
+def _holds_bool(value: Any) -> bool:
+    return isinstance(value, bool) or (isinstance(value, (list, tuple)) and any(_holds_bool(v) for v in value))
+
+
 class _Section(BaseModel):
     # allow_inf_nan=False: NaN/inf in any float field (tuples too) is a config error at load time
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_bool_for_a_number(cls, data: Any) -> Any:
+        """true/false where a number (or text) is meant is an error: pydantic reads `px_per_mm = true` as 1.0."""
+        if isinstance(data, dict):
+            for name, value in data.items():
+                field = cls.model_fields.get(name)
+                if field is not None and _holds_bool(value) and not _allows_bool(field.annotation):
+                    raise ValueError(f"{name} = {str(value).lower()}: a number is meant here, not true/false")
+        return data
 
 
 #: A pixel coordinate, px (bounded: a camera frame is at most a few thousand px).
@@ -419,8 +442,8 @@ def _one_line(exc: ValidationError, source: str) -> str:
         loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
         if err["type"] == "extra_forbidden":
             parts.append(_unknown_setting(tuple(err["loc"])))
-        elif isinstance(err.get("input"), dict):  # a rule across the fields of a section
-            parts.append(f"{loc}: {err['msg']}")
+        elif isinstance(err.get("input"), dict):  # a rule across the fields of a section (our own words)
+            parts.append(f"{loc}: {err['msg'].removeprefix('Value error, ')}")
         else:
             parts.append(f"{loc} = {err.get('input')!r}: {err['msg']}")
     return f"{source}: invalid config: " + "; ".join(parts)
