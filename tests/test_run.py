@@ -170,6 +170,26 @@ def test_a_value_set_with_vfcli_config_is_kept_by_the_next_run_of_the_raw_folder
     assert {s["name"]: s["action"] for s in json.loads(res.stdout)["stages"]}["sync"] == "up to date"
 
 
+def test_a_run_that_fails_says_what_it_ran_before(phantom, tmp_path):
+    """A step that fails (a scan cut short) stops the run with its one error line and exit code; the steps
+    before it are committed, and the output said nothing of them (--json printed nothing at all)."""
+    raw0, _, _, _ = phantom
+    raw = tmp_path / "raw"
+    shutil.copytree(raw0, raw)
+    scan = (raw / "scan.uff").read_bytes()
+    (raw / "scan.uff").write_bytes(scan[: len(scan) // 2])
+    res = run_vfcli("run", tmp_path / "a.h5", "--raw", raw, *_sets(SETS), "--json")
+    assert res.returncode == 3 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    out = json.loads(res.stdout)
+    assert out["ok"] is False
+    assert [(s["name"], s["action"]) for s in out["stages"]] == [("ingest-hsc", "ran"), ("ingest-ldv", "failed")]
+    assert out["stages"][1]["reason"] in res.stderr
+    res = run_vfcli("run", tmp_path / "b.h5", "--raw", raw, *_sets(SETS))
+    assert res.returncode == 3 and res.stdout.startswith("ingest-hsc: ran (") and "ingest-ldv" not in res.stdout
+    with Store(tmp_path / "b.h5").read() as r:
+        assert r.stage_paths() == ["/hsc"]
+
+
 def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
     raw, store0, _, _ = phantom
     store = tmp_path / "rec.h5"

@@ -70,7 +70,9 @@ def run_entry(entry_json: Mapping[str, Any], inner_map: bool = False) -> dict[st
         if out["status"] == "failed":
             out["error"], out["exit_code"] = "the run did not complete", EXIT_INTERNAL
     except VfcliError as exc:
-        out.update(status="failed", error=str(exc), exit_code=exc.exit_code)
+        partial = getattr(exc, "partial", None)   # the steps that ran before the one that failed
+        out.update(status="failed", error=str(exc), exit_code=exc.exit_code,
+                   summary=partial.to_json() if partial is not None else None)
     except Exception as exc:  # a bug in one recording must not stop the others
         out.update(status="failed", error=f"internal error: {type(exc).__name__}: {exc}", exit_code=EXIT_INTERNAL,
                    traceback=traceback.format_exc())

@@ -11,6 +11,7 @@ import click
 
 from vfcli.cli.choices import RUN_STEPS
 from vfcli.cli.common import run_options, setup_logging
+from vfcli.errors import VfcliError
 
 #: The steps, for --until (`vfcli batch` imports this name too).
 STEP_NAMES = RUN_STEPS
@@ -54,11 +55,18 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
     setup_logging(verbose, quiet)
     check_output_folder(export_dir, "--export")
     check_output_file(report_file, "--report")
-    summary = run_recording(
-        Path(store), Path(raw_dir) if raw_dir else None, until=until, overrides=list(overrides),
-        config_path=Path(config_path) if config_path else None, dry_run=dry_run, force=force,
-        command=" ".join(shlex.quote(a) for a in ["vfcli", *sys.argv[1:]]),
-        progress=make_progress(False if quiet else None))
+    try:
+        summary = run_recording(
+            Path(store), Path(raw_dir) if raw_dir else None, until=until, overrides=list(overrides),
+            config_path=Path(config_path) if config_path else None, dry_run=dry_run, force=force,
+            command=" ".join(shlex.quote(a) for a in ["vfcli", *sys.argv[1:]]),
+            progress=make_progress(False if quiet else None))
+    except VfcliError as exc:
+        # the steps that ran (and are committed) before the one that failed; the error itself is one line on stderr
+        partial = getattr(exc, "partial", None)
+        if partial is not None:
+            _print(partial, [], as_json, quiet)
+        raise
     extra: list[dict[str, Any]] = []
     if export_dir and not dry_run:
         from vfcli.stages.export import export_store
@@ -74,12 +82,19 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
 
             write_report(store, report_file)
             extra.append({"name": "report", "action": "ran", "path": str(report_file)})
+    _print(summary, extra, as_json, quiet)
+
+
+def _print(summary, extra: list[dict[str, Any]], as_json: bool, quiet: bool) -> None:
+    """The run's summary on stdout: JSON, or one line per step (and per --export / --report output)."""
     if as_json:
         click.echo(json.dumps({**summary.to_json(), "outputs": extra}, indent=2))
         return
     if quiet:
         return
     for st in summary.stages:
+        if st.action == "failed":
+            continue     # its error is the command's one line on stderr
         took = f" [{st.seconds:.1f} s]" if st.seconds > 0 else ""
         click.echo(f"{st.name}: {st.action} ({st.reason}){took}")
     for out in extra:

@@ -23,7 +23,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from vfcli.errors import ConfigError
+from vfcli.errors import ConfigError, VfcliError
 from vfcli.io.raw_folder import RawFiles, find_raw_files
 from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
@@ -54,7 +54,7 @@ class StageOutcome:
     """What happened to one step.
 
     action : "ran" | "up to date" | "would run" (dry run) | "skipped" (after --until, or an
-        ingest step without a raw folder).  reason : why (for "ran"/"would run": what was
+        ingest step without a raw folder) | "failed" (the step that stopped the run: its error as reason).  reason : why (for "ran"/"would run": what was
         missing or changed).  seconds : wall time of the step.  warnings : the warnings it logged.
     """
 
@@ -380,6 +380,11 @@ def run_recording(
         t0 = time.perf_counter()
         try:
             results = _run_step(step, context(), raw_files)
+        except VfcliError as exc:
+            # what the run did before the step that failed, for the command's output (the error is its one line)
+            failed = StageOutcome(step, "failed", str(exc), time.perf_counter() - t0, collect.messages)
+            exc.partial = RunSummary(store, [*done, failed], False, time.perf_counter() - t_start)
+            raise
         finally:
             logger.removeHandler(collect)
         ran = any(r.status == "written" for r in results)
