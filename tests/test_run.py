@@ -278,7 +278,9 @@ def test_without_raw_the_ingest_steps_are_skipped_and_a_missing_stage_is_named(t
     assert res.returncode == 5 and len(res.stderr.strip().splitlines()) == 1 and "/hsc" in res.stderr, res.stderr
     dry = run_vfcli("run", tmp_path / "none.h5", "--dry-run", "--json")
     stages = {s["name"]: s for s in json.loads(dry.stdout)["stages"]}
-    assert stages["ingest-hsc"]["action"] == "skipped" and stages["sync"]["action"] == "would run"
+    assert stages["ingest-hsc"]["action"] == "skipped" and stages["mesh"]["action"] == "would run"
+    # the dry run said "would run" for the step the run then stopped at (exit 5)
+    assert (stages["sync"]["action"], stages["sync"]["reason"]) == ("would fail", "/hsc missing (no raw folder given: --raw)")
     assert not (tmp_path / "none.h5").exists()
 
 

@@ -54,7 +54,8 @@ class StageOutcome:
     """What happened to one step.
 
     action : "ran" | "up to date" | "would run" (dry run) | "skipped" (after --until, or an
-        ingest step without a raw folder) | "failed" (the step that stopped the run: its error as reason).  reason : why (for "ran"/"would run": what was
+        ingest step without a raw folder) | "failed" (the step that stopped the run: its error as reason) |
+        "would fail" (dry run: a group it needs is missing and no earlier step writes it).  reason : why (for "ran"/"would run": what was
         missing or changed).  seconds : wall time of the step.  warnings : the warnings it logged.
     """
 
@@ -125,6 +126,19 @@ def _upstream(name: str, ctx: RunContext) -> list[str]:
     if name == "optimize" and ctx.config.optimize.loads != "pressure":
         reads = tuple(r for r in reads if r != "hsc")
     return [layout.stage(r).group_path(RUN_NAME if layout.stage(r).has_runs else None) for r in reads]
+
+
+def missing_upstream(ctx: RunContext, active: list[str], step: str) -> str | None:
+    """The group ``step`` needs that neither the store holds nor a step of this run before it writes
+    (a dry run said "would run" where the run then stopped with exit 5); None when there is none."""
+    have: set[str] = set()
+    if ctx.store.exists():
+        with ctx.store.read() as r:
+            have = set(r.stage_paths())
+    for earlier in active[:active.index(step)]:
+        have |= {layout.stage(n).group_path(run) for n, run in STEPS[earlier]}
+    own = {layout.stage(n).group_path(run) for n, run in STEPS[step]}
+    return next((up for n, _ in STEPS[step] for up in _upstream(n, ctx) if up not in have | own), None)
 
 
 def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, str | None]:
@@ -361,9 +375,14 @@ def run_recording(
         elif dry_run:
             # the diagnose step's skip is known ahead when /flow is there and stays as it is
             skip = diagnose_skip_reason(ctx) if step == "diagnose" and ctx.store.exists() and not why.get("flow") else None
-            outcomes.append(StageOutcome(step, "skipped", skip) if skip else
-                            StageOutcome(step, "would run" if why[step] else "up to date",
-                                         why[step] or "inputs and config unchanged"))
+            gone = missing_upstream(ctx, active, step) if why[step] else None
+            if gone:
+                hint = " (no raw folder given: --raw)" if raw_files is None and gone in ("/hsc", "/ldv") else ""
+                outcomes.append(StageOutcome(step, "would fail", f"{gone} missing{hint}"))
+            else:
+                outcomes.append(StageOutcome(step, "skipped", skip) if skip else
+                                StageOutcome(step, "would run" if why[step] else "up to date",
+                                             why[step] or "inputs and config unchanged"))
     if dry_run:
         return RunSummary(store, outcomes, True, time.perf_counter() - t_start)
     done: list[StageOutcome] = []
