@@ -377,7 +377,8 @@ def run_recording(
             skip = diagnose_skip_reason(ctx) if step == "diagnose" and ctx.store.exists() and not why.get("flow") else None
             gone = missing_upstream(ctx, active, step) if why[step] else None
             if gone:
-                hint = " (no raw folder given: --raw)" if raw_files is None and gone in ("/hsc", "/ldv") else ""
+                raw_groups = {layout.stage(n).group_path(r) for s in _RAW_STEPS for n, r in STEPS[s]}
+                hint = " (no raw folder given: --raw)" if raw_files is None and gone in raw_groups else ""
                 outcomes.append(StageOutcome(step, "would fail", f"{gone} missing{hint}"))
             else:
                 outcomes.append(StageOutcome(step, "skipped", skip) if skip else
