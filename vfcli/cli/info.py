@@ -18,6 +18,8 @@ def _flag(st: dict[str, Any]) -> str:
 
 
 def _details(info: dict[str, Any]) -> None:
+    from vfcli.store.info import plain_warnings
+
     click.echo(f"{info['path']}  ({info['size_bytes'] / 1e6:.1f} MB, format {info['format']} v{info['format_version']}, created {info['created_utc']})")
     if info.get("parts_folder"):
         click.echo(f"  + parts folder {info['parts_folder']} ({info['parts_bytes'] / 1e6:.1f} MB): the store is this file "
@@ -45,7 +47,7 @@ def _details(info: dict[str, Any]) -> None:
         figures = ", ".join(f"{k}={v}" for k, v in summary.get("figures", {}).items() if not isinstance(v, (dict, list)))
         if figures:
             click.echo(f"      figures: {figures}")
-        for warning in summary.get("warnings", []):
+        for warning in plain_warnings(summary.get("warnings", [])):
             click.echo(f"      warning: {warning}")
     missing = info["missing_stages"]
     if missing:

@@ -10,7 +10,6 @@ import datetime as _dt
 import json
 import logging
 import os
-import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ from vfcli.errors import ConfigError, VfcliError
 from vfcli.export import figures, video
 from vfcli.report.html import esc, figure, fmt, kv_table, page, pretty_json, table, video_tag
 from vfcli.store import layout
+from vfcli.store.info import plain_warnings
 from vfcli.store.runs import read_run, run_names, stage_runs
 from vfcli.store.transaction import Store, StoreReader
 
@@ -58,21 +58,7 @@ def _stage_attrs(reader: StoreReader, path: str) -> tuple[dict[str, Any], list[s
             notes += [str(w) for w in summary.pop("warnings", []) or []]
     plain = {k: v for k, v in attrs.items()
              if k not in _HIDDEN and k not in ("notes", "warnings", "warnings_json", layout.SUMMARY_ATTR)}
-    return plain, _plain_notes(notes), summary
-
-
-_LOG_PREFIX = re.compile(r"^(?:WARNING|ERROR|INFO|DEBUG) [\w.]+: ")
-
-
-def _plain_notes(notes: list[str]) -> list[str]:
-    """A stage's notes as a reader wants them: without the logger's "WARNING vfcli.module: " prefix, and once
-    (a stage stores a warning both as its note and as its command's logged line, which may name the file first)."""
-    texts = [_LOG_PREFIX.sub("", n).strip() for n in notes]
-    out: list[str] = []
-    for i, t in enumerate(texts):
-        if t and t not in out and not any(j != i and len(u) > len(t) and u.endswith(t) for j, u in enumerate(texts)):
-            out.append(t)
-    return out
+    return plain, plain_warnings(notes), summary
 
 
 def _words(diag_attrs: dict[str, Any]) -> list[str]:

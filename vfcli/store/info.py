@@ -3,11 +3,27 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 from typing import Any, Callable
 
 from vfcli.store import layout, parts
 from vfcli.store.transaction import Store
+
+_LOG_PREFIX = re.compile(r"^(?:WARNING|ERROR|INFO|DEBUG) [\w.]+: ")
+
+
+def plain_warnings(messages: list[str]) -> list[str]:
+    """A stage's stored warnings as a reader wants them: without the logger's "WARNING vfcli.module: " prefix
+    (kept in the store, for whoever debugs), and once (a stage may store a warning both as its note and as its
+    command's logged line, which names the file first)."""
+    texts = [_LOG_PREFIX.sub("", str(m)).strip() for m in messages]
+    out: list[str] = []
+    for i, t in enumerate(texts):
+        if t and t not in out and not any(j != i and len(u) > len(t) and u.endswith(t) for j, u in enumerate(texts)):
+            out.append(t)
+    return out
+
 
 #: ``(stage name, run) -> settings JSON`` the stage would record now (None: not compared).
 ExpectedConfig = Callable[[str, "str | None"], "str | None"]
