@@ -10,6 +10,7 @@ walk-through (session 35). The folder checks run the real command without root's
 from __future__ import annotations
 
 import hashlib
+import os
 import shutil
 import subprocess
 import sys
@@ -93,9 +94,9 @@ def test_export_times_outside_the_run_are_refused(tmp_path_factory, tmp_path):
 
 
 def _unprivileged(*args, cwd):
+    # the suite's environment (make's PYTHONPYCACHEPREFIX: no bytecode written into the source tree)
     return subprocess.run([*UNPRIVILEGED, sys.executable, "-m", "vfcli.cli.main", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True, timeout=600, env={"PYTHONPATH": str(ROOT),
-                                                                            "PATH": "/usr/bin:/bin"})
+                          capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
 
 
 @pytest.mark.skipif(not SETPRIV, reason="setpriv (util-linux) is not installed")

@@ -23,8 +23,7 @@ def _allows_bool(annotation: Any) -> bool:
     """Whether a field's type admits true/false anywhere (a bool, or a union, Literal or container holding one)."""
     if annotation is bool:
         return True
-    return any(a is bool or (a in (True, False) and isinstance(a, bool)) or _allows_bool(a)
-               for a in typing.get_args(annotation))
+    return any(a is bool or isinstance(a, bool) or _allows_bool(a) for a in typing.get_args(annotation))
 
 
 def _holds_bool(value: Any) -> bool:

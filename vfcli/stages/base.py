@@ -13,7 +13,7 @@ from vfcli.config import FlowConfig, RecordingConfig, fields_shaping, load_confi
 from vfcli.errors import MissingStageError
 from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
-from vfcli.store.provenance import describe_inputs
+from vfcli.store.provenance import describe_inputs, sha256_file
 from vfcli.store import StageWriter, Store, StoreReader
 
 log = logging.getLogger(__name__)
@@ -52,7 +52,7 @@ class RunContext:
             with store.read() as r:
                 stored_json = r.recording_config_json()
         stored, effective = load_config(config_path, stored_json, overrides)
-        file_sha = config_file_sha256(config_path) if config_path is not None else None
+        file_sha = sha256_file(config_path) if config_path is not None else None   # load_config read it just now
         return cls(store=store, stored_config=stored, config=effective, config_file_sha256=file_sha, **kwargs)
 
     def config_is_stored(self, reader: StoreReader, stored_json: str) -> bool:
@@ -62,16 +62,6 @@ class RunContext:
         return reader.recording_config_json() == stored_json and (
             self.config_file_sha256 is None
             or reader.root_attrs().get(layout.ROOT_CONFIG_FILE_ATTR) == self.config_file_sha256)
-
-
-def config_file_sha256(path: str | Path) -> str:
-    """SHA-256 (hex) of a config file's bytes (it was just read: a file that is gone now hashes as empty)."""
-    import hashlib
-
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return hashlib.sha256(b"").hexdigest()
 
 
 def stage_config_json(name: str, config: RecordingConfig) -> str | None:

@@ -27,9 +27,9 @@ from vfcli.errors import ConfigError, VfcliError
 from vfcli.io.raw_folder import RawFiles, find_raw_files
 from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
-from vfcli.stages.base import RunContext, StageResult, config_file_sha256, stage_config_json
+from vfcli.stages.base import RunContext, StageResult, stage_config_json
 from vfcli.store import Store, layout
-from vfcli.store.provenance import describe_inputs, same_inputs
+from vfcli.store.provenance import describe_inputs, same_inputs, sha256_file
 from vfcli.store.reader import StageStatus
 
 log = logging.getLogger(__name__)
@@ -306,8 +306,11 @@ def _changed_raw_config(store: Path, config: Path) -> Path | None:
         if r.recording_config_json() is None:
             return config
         last = r.root_attrs().get(layout.ROOT_CONFIG_FILE_ATTR)
-    if last == config_file_sha256(config):
-        return None
+    try:
+        if last == sha256_file(config):
+            return None
+    except OSError:
+        return config     # unreadable: loading it says so, in one line
     log.warning("%s differs from the config file last stored with %s: it replaces the stored recording config "
                 "(values set with `vfcli config` since then too)", config, store)
     return config
