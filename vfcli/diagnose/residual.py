@@ -76,7 +76,7 @@ def pixel_regions(baseline, n_regions: int = N_REGIONS) -> np.ndarray:
     mesh = p.mesh
     vreg = vertex_regions(mesh.uv, vertex_fold(len(mesh.nodes), mesh.tets, mesh.tet_fold))
     n_pix = int(np.prod(p.camera.shape))
-    counts = np.zeros(n_pix * (n_regions + 1))
+    keys = []                                         # pixel * (n_regions + 1) + region, every frame's
     for fr in baseline.frames:
         m = fr.m_both.tocsr()
         if m.shape[0] == 0:
@@ -87,9 +87,10 @@ def pixel_regions(baseline, n_regions: int = N_REGIONS) -> np.ndarray:
         first = order[m.indptr[:-1][np.diff(m.indptr) > 0]]
         rows_with = np.flatnonzero(np.diff(m.indptr) > 0)
         reg = vreg[m.indices[first]]
-        counts += np.bincount(fr.pix_both[rows_with] * (n_regions + 1) + np.where(reg >= 0, reg, n_regions),
-                              minlength=counts.size)
-    counts = counts.reshape(n_pix, n_regions + 1)
+        keys.append(fr.pix_both[rows_with] * (n_regions + 1) + np.where(reg >= 0, reg, n_regions))
+    # one count at the end: a count per frame, each the size of the image times the regions, was most of the time
+    flat = np.concatenate(keys) if keys else np.zeros(0, int)
+    counts = np.bincount(flat, minlength=n_pix * (n_regions + 1)).reshape(n_pix, n_regions + 1)
     best = np.argmax(counts[:, :n_regions], axis=1)
     best[counts[:, :n_regions].sum(axis=1) == 0] = -1
     return best.reshape(p.camera.shape)

@@ -131,14 +131,20 @@ def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64, pixel_str
     time as dot products (no (F, H, W, C) temporaries: a 250-frame 384 x 384 px window needed ~4 GB
     of them before).
     """
+    from scipy import fft as sfft
+
     r = np.asarray(residuals, dtype=float)
     if pixel_stride > 1:
         r = r[:, ::pixel_stride, ::pixel_stride]
     f, h, w, ch = r.shape
-    shape = (2 * h, 2 * w)
+    lag = min(max_lag_px, h - 1, w - 1)
+    # zero-padded to at least (h + lag, w + lag): the circular correlation is then the linear one at every lag
+    # up to ``lag`` (the only lags used); scipy's FFT at a fast length, not numpy's at (2h, 2w): 2.9 -> 0.9 s in
+    # the diagnosis of a 160 x 160 px phantom, equal to round-off
+    shape = (sfft.next_fast_len(h + lag, real=True), sfft.next_fast_len(w + lag, real=True))
     # power spectra summed over frames and channels; the inverse transform is linear, so one at the end
-    num_spec = np.zeros((2 * h, w + 1))
-    cnt_spec = np.zeros((2 * h, w + 1))
+    num_spec = np.zeros((shape[0], shape[1] // 2 + 1))
+    cnt_spec = np.zeros((shape[0], shape[1] // 2 + 1))
     seen = np.zeros((h, w, ch), bool)
     n_res, ss = 0, 0.0
     for k in range(f):
@@ -147,20 +153,18 @@ def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64, pixel_str
         n_res += int(valid.sum())
         ss += float(np.vdot(z, z))
         seen |= valid
-        fz = np.fft.rfft2(z, shape, axes=(0, 1))
-        fm = np.fft.rfft2(valid.astype(float), shape, axes=(0, 1))
+        fz = sfft.rfft2(z, shape, axes=(0, 1))
+        fm = sfft.rfft2(valid.astype(float), shape, axes=(0, 1))
         num_spec += np.sum(fz.real**2 + fz.imag**2, axis=-1)
         cnt_spec += np.sum(fm.real**2 + fm.imag**2, axis=-1)
-    num = np.fft.irfft2(num_spec, shape)
-    cnt = np.fft.irfft2(cnt_spec, shape)
     if n_res == 0:
         return ResidualCorrelation(0, 1.0, 1.0, 0.0)
     var = ss / n_res
     if var <= 0:
         return ResidualCorrelation(n_res, 1.0, 1.0, float(n_res))
-    lag = min(max_lag_px, h - 1, w - 1)
-    num = np.fft.fftshift(num)[h - lag:h + lag + 1, w - lag:w + lag + 1]
-    cnt = np.fft.fftshift(cnt)[h - lag:h + lag + 1, w - lag:w + lag + 1]
+    lags = np.ix_(np.arange(-lag, lag + 1) % shape[0], np.arange(-lag, lag + 1) % shape[1])
+    num = sfft.irfft2(num_spec, shape)[lags]
+    cnt = sfft.irfft2(cnt_spec, shape)[lags]
     enough = cnt > 0.1 * cnt.max()
     rho = np.where(enough, num / np.maximum(cnt, 1e-12) / var, 0.0)
     area = _radial_integral(rho, lag)
