@@ -197,6 +197,53 @@ def test_stereo_wav_with_a_channel_name_is_a_config_error(tmp_path, hsc_store):
     assert store.read_bytes() == before
 
 
+def _stored_pressure(store: Path) -> tuple[np.ndarray, list[str]]:
+    from vfcli.store import Store
+
+    with Store(store).read() as r:
+        return np.asarray(r.read("hsc", "pressure")), r.summary("hsc")["warnings"]
+
+
+def test_a_wav_pressure_is_read_at_the_readers_calibration_and_an_unset_one_is_a_stored_warning(tmp_path):
+    """`vfcli ingest-hsc --pressure p.wav` stored the pressure 10 times too small (the config's default full
+    scale, 1000 Pa, against the reader's 10 kPa) without a word; a WAV states no unit."""
+    import tifffile
+    from scipy.io import wavfile
+
+    video = tmp_path / "v.tif"
+    tifffile.imwrite(video, _frames(), description='{"fps": 10000.0}')
+    p = _pressure_samples()
+    wavfile.write(tmp_path / "p.wav", int(FS_P), (p / 1e4).astype(np.float32))   # full scale 1.0 = 10 kPa
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "a.h5", video, "--pressure", tmp_path / "p.wav")
+    assert r.returncode == 0, r.stderr
+    stored, warnings = _stored_pressure(tmp_path / "a.h5")
+    np.testing.assert_allclose(stored, p, rtol=1e-6)
+    assert [w for w in warnings if "a WAV states no unit" in w and "ingest_hsc.wav_full_scale_pa" in w], warnings
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "b.h5", video, "--pressure", tmp_path / "p.wav",
+                  "--set", "ingest_hsc.wav_full_scale_pa=2000")
+    assert r.returncode == 0, r.stderr
+    stored, warnings = _stored_pressure(tmp_path / "b.h5")
+    np.testing.assert_allclose(stored, p / 5, rtol=1e-6)
+    assert not [w for w in warnings if "WAV" in w], warnings
+
+
+def test_a_stereo_wav_needs_its_channel_and_takes_it_as_a_number(tmp_path, hsc_store):
+    """A stereo WAV was read from channel 0 without a word (all zeros here), and `pressure_channel=1` was
+    refused as "Input should be a valid string" although the reader asks for the channel's index."""
+    from scipy.io import wavfile
+
+    store, video, before = hsc_store
+    p = _pressure_samples()
+    wavfile.write(tmp_path / "st.wav", int(FS_P), np.stack([0 * p, p / 1e4], axis=1).astype(np.float32))
+    r = run_vfcli("ingest-hsc", "-q", "--force", store, video, "--pressure", tmp_path / "st.wav")
+    _assert_refused(r, 3, "st.wav", "2 WAV channels", "ingest_hsc.pressure_channel")
+    assert store.read_bytes() == before
+    r = run_vfcli("ingest-hsc", "-q", "--force", store, video, "--pressure", tmp_path / "st.wav",
+                  "--set", "ingest_hsc.pressure_channel=1", "--set", "ingest_hsc.wav_full_scale_pa=10000")
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_allclose(_stored_pressure(store)[0], p, rtol=1e-6)
+
+
 def test_finite_but_absurd_pressure_is_refused_at_ingest(tmp_path, hsc_store):
     store, video, before = hsc_store
     path = _tdms(tmp_path / "huge.tdms", _pressure_samples() * 1e305)

@@ -14,7 +14,7 @@ import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from vfcli.errors import ConfigError
 
@@ -101,13 +101,23 @@ class IngestHscConfig(_Section):
         None, description="Region of interest (col0, row0, width, height) in px; null: whole frame"
     )
     pressure_group: str | None = Field(None, description="TDMS group of the pressure; null: the only one")
-    pressure_channel: str | None = Field(None, description="TDMS/CSV channel of the pressure; null: auto")
+    pressure_channel: str | None = Field(
+        None, description="Channel of the pressure: a TDMS/CSV channel name, or a WAV channel's index (0, 1, ...); "
+        "null: the only one")
     compression: Literal["auto", "nbit", "gzip", "gzip4", "none"] = Field(
         "auto",
         description="Filter of the stored frames, all standard HDF5: auto (nbit for a 12-bit packed MRAW, else "
         "gzip), nbit (12 bits per pixel, uncompressed, 12-bit video only), gzip (deflate 1 + shuffle), gzip4, none",
     )
-    wav_full_scale_pa: float = Field(1000.0, gt=0, le=1e7, description="WAV pressure: Pa at digital full scale")
+    wav_full_scale_pa: float = Field(
+        10_000.0, gt=0, le=1e7, description="WAV pressure: Pa at digital full scale (a WAV states no unit: set your "
+        "amplifier's calibration; the default is vfcli.io.pressure.wav's, a 10 kPa transducer range)")
+
+    @field_validator("pressure_channel", mode="before")
+    @classmethod
+    def _channel_index_as_text(cls, v):
+        """A WAV channel given as its number (``pressure_channel = 1``) is the text "1"."""
+        return str(v) if isinstance(v, int) and not isinstance(v, bool) else v
 
 
 class IngestLdvConfig(_Section):

@@ -159,7 +159,8 @@ def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, 
         if np.isfinite(bound) and speed_p99 > FAR_BEYOND * bound:
             log.warning("fields: surface speeds reach %.0f mm/s (99th percentile), far beyond the %.0f mm/s the "
                         "recorded pressure can drive; check ingest_ldv.length_unit and the vibrometer's velocity unit, "
-                        "camera.px_per_mm and camera.fps_hz", speed_p99, bound)
+                        "camera.px_per_mm and camera.fps_hz, and the pressure's unit (a WAV's: "
+                        "ingest_hsc.wav_full_scale_pa)", speed_p99, bound)
 
 
 def _check_on_folds(reader: StoreReader, points_px: np.ndarray, shape: tuple[int, int]) -> None:

@@ -3,7 +3,8 @@
 Sampling rate from the header; integer samples are divided by full scale (int16: 32768,
 int32: 2**31, uint8: centred on 128; float: 1.0) and multiplied by ``wav_pa_per_full_scale``
 (default :data:`WAV_PA_PER_FULL_SCALE` = 10 kPa, a typical transducer range: set it to your
-amplifier's calibration). ``channel`` picks a column of a multi-channel WAV by index (default 0).
+amplifier's calibration). ``channel`` picks a column of a multi-channel WAV by index; a WAV of more
+than one channel without it is refused (as TDMS and CSV refuse a channel they cannot choose).
 """
 from __future__ import annotations
 
@@ -64,8 +65,13 @@ def read_wav(p: Path, channel: str | int | None, pa_per_fs: float) -> PressureRe
             fs, data = wavfile.read(p, mmap=False)
     except Exception as exc:  # scipy raises ValueError/EOFError/... on corrupt files
         raise InputDataError(f"unreadable WAV: {type(exc).__name__}: {exc}", p) from None
+    if data.ndim == 2 and data.shape[1] == 1:
+        data = data[:, 0]
     if data.ndim == 2:
-        idx = 0 if channel is None else int(channel)
+        if channel is None:
+            raise InputDataError(f"cannot choose the pressure channel among the {data.shape[1]} WAV channels: set "
+                                 "ingest_hsc.pressure_channel to its index (0, 1, ...)", p)
+        idx = int(channel)
         if not 0 <= idx < data.shape[1]:
             raise InputDataError(f"channel {idx} outside the {data.shape[1]} WAV channels", p)
         data = data[:, idx]
