@@ -116,6 +116,20 @@ def test_csv_time_column_in_ms_and_unit_in_header(tmp_path):
     assert np.allclose(rec.samples, np.arange(50) * 10.0)
 
 
+def test_csv_whose_t0_comment_contradicts_its_time_column_is_refused(tmp_path):
+    """A '# t0' that disagrees with the time column was dropped without a word (a contradicting '# fs' was
+    refused); one that agrees, to within a tenth of a sample, is kept."""
+    path = write_pressure_csv(tmp_path / "p.csv", _signal(), FS, t0=0.0)
+    text = path.read_text()
+    for t0, ok in (("0.002", False), ("nan", False), (repr(0.05 / FS), True)):
+        (tmp_path / "q.csv").write_text(text.replace("# t0 = 0.0", f"# t0 = {t0}"))
+        if ok:
+            assert read_pressure(tmp_path / "q.csv").t0 == 0.0
+        else:
+            with pytest.raises(InputDataError, match=rf"q.csv.*'# t0 = {t0}' disagrees with the time column"):
+                read_pressure(tmp_path / "q.csv")
+
+
 def test_csv_non_uniform_time_column(tmp_path):
     t = np.arange(100) / FS
     t[60:] += 1 / FS  # one sample missing

@@ -12,7 +12,8 @@ Optional comment lines starting with ``#``, which may set ``# fs = 50000`` (Hz; 
 Every row holds the same number of values and ends with a line break (a last row without one may be
 cut off: refused).
 
-The time column must be uniform: every sample within 0.1 sample period of ``t0 + k / fs``.
+The time column must be uniform: every sample within 0.1 sample period of ``t0 + k / fs``; ``# fs`` and ``# t0``
+comments, where given beside it, must agree with it.
 """
 from __future__ import annotations
 
@@ -90,7 +91,8 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
                                       "sampling_rate_hz") if k in meta), None)
     try:
         fs_meta = None if fs_meta is None else float(fs_meta.split()[0])
-        t0 = float(meta.get("t0", "0").split()[0])
+        t0_meta = None if "t0" not in meta else float(meta["t0"].split()[0])
+        t0 = 0.0 if t0_meta is None else t0_meta
     except ValueError:
         raise InputDataError("'# fs' or '# t0' comment is not a number", p) from None
     if t_col is not None:
@@ -105,6 +107,8 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
                 raise InputDataError(f"'# fs = {fs_meta:g}' disagrees with the time column "
                                      f"({fs:g} Hz)", p)
             fs = fs_meta
+        if t0_meta is not None and not abs(t0 - t0_meta) <= 0.1 / fs:                # NaN included
+            raise InputDataError(f"'# t0 = {t0_meta:g}' disagrees with the time column (first time {t0:g} s)", p)
     elif fs_meta is not None:
         fs = fs_meta
     else:
