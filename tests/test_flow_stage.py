@@ -269,8 +269,28 @@ def test_a_warning_of_the_flow_step_is_stored_with_the_stage(tmp_path):
         summary = r.summary("flow")
     assert summary["figures"]["open_frames"] == 12
     assert any("a glottal gap in all 12 frames" in w and "flow.threshold" in w for w in summary["warnings"])
-    # the gap spans cols 4-60 of the 64 px in view: no doubt about its length
-    assert not any("was found over" in w for w in summary["warnings"])
+    # the gap spans cols 4-60 of the 64 px in view: no doubt about its length, short or long
+    assert not any("was found over" in w or "times the folds' length" in w for w in summary["warnings"])
+
+
+def test_a_gap_longer_than_the_folds_is_a_stored_warning_that_names_the_scale(tmp_path):
+    """camera.px_per_mm half the true one gave exit 0 without a word and an inferior surface 35 % off (the gap
+    then spans 1.6-1.7 times the folds' length, which clamped folds cannot open over). Here the slit of the test
+    above (cols 4-60) in a store whose scale is a sixth of the phantom's: the folds' 15 mm are 37.5 px."""
+    ph = SlitPhantom(height=64, width=64, midline_row=31.3, glottis_cols=(4, 60), lam_px=11.0)
+    path = tmp_path / "r.h5"
+    write_store(path, np.stack([ph.render(ph.frame_time(k)) for k in range(4, 28, 2)]), ph.fps, ph.px_per_mm / 6)
+    run_flow(RunContext.open(path, overrides=["flow.subpixel_edges=false"]))
+    with Store(path).read() as r:
+        warnings = r.summary("flow")["warnings"]
+        cols = np.flatnonzero(r.read("flow", "gap_mask").any(axis=(0, 1)))
+    long = [w for w in warnings if "times the folds' length" in w]
+    assert len(long) == 1, warnings
+    spans, ratio, length = (float(x) for x in re.search(r"spans (\d+) px along the glottis, ([0-9.]+) times the "
+                                                        r"folds' length \(mesh.length_mm times camera.px_per_mm: "
+                                                        r"(\d+) px\)", long[0]).groups())
+    assert spans == pytest.approx(cols[-1] - cols[0] + 1, abs=1) and length == 38 and ratio == pytest.approx(spans / 37.5, abs=0.05)
+    assert "check camera.px_per_mm" in long[0]
 
 
 def test_a_gap_found_over_a_short_part_of_the_glottis_in_view_is_a_stored_warning(tmp_path):

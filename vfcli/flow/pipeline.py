@@ -39,7 +39,7 @@ from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLV
 from vfcli.flow.gap.subpixel.segment import ray_fits
 from vfcli.flow.gap.subpixel.taper import taper_limits
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
-from vfcli.flow.plausibility import GAP_LENGTH_WARN, gap_length_share
+from vfcli.flow.plausibility import GAP_END_PX, GAP_LENGTH_WARN, GAP_LONGER_WARN, gap_length_share
 from vfcli.flow.velocity_field import GapAwareFill, LdvTps, combine_fields, hull_mask, points_in_gap
 
 log = logging.getLogger(__name__)
@@ -114,7 +114,8 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_count
                        length_px: float | None = None) -> None:
     """Check the glottal area of every frame (n,) mm^2: fail on no gap at all, warn on a gap in every frame,
     and (given the gap counts (H, W) over the frames and the folds' length in px) warn when the gap was found
-    over less than :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN` of the glottis in view.
+    over less than :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN` of the glottis in view, or over more than the
+    folds' length (:data:`vfcli.flow.plausibility.GAP_LONGER_WARN`: the scale or the length is wrong).
 
     Raises
     ------
@@ -138,6 +139,11 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_count
                     "flow.threshold (counts)", n, how, calib.threshold)
     if gap_counts is not None and length_px and (np.asarray(gap_counts) > 0).sum() >= 3:
         found, in_view = gap_length_share(gap_counts, length_px)
+        if found > GAP_LONGER_WARN * length_px + 2 * GAP_END_PX:
+            log.warning("flow: the glottal gap spans %.0f px along the glottis, %.1f times the folds' length "
+                        "(mesh.length_mm times camera.px_per_mm: %.0f px), which folds clamped at both ends cannot "
+                        "open over: check camera.px_per_mm (measured in the folds' plane, at this zoom) and "
+                        "mesh.length_mm, then rerun ingest-hsc and flow", found, found / length_px, length_px)
         if in_view > 0 and found < GAP_LENGTH_WARN * in_view:
             log.warning("flow: the glottal gap was found over %.0f px of the %.0f px of glottis in view (%.0f %%; folds "
                         "clamped at both ends open over about three quarters of it): its narrow parts are not "

@@ -19,7 +19,8 @@
   :data:`GAP_LENGTH_WARN` of the length in view means the slit's narrow parts were not resolved
   (a slit one or two pixels wide under sharp optics stays above the gap threshold), or an opening
   that is not the whole glottis (a posterior chink): the glottal area and the gap term then cover
-  only that part.
+  only that part. The other way, a gap longer than the folds (:data:`GAP_LONGER_WARN`) is impossible
+  with both ends clamped: the image scale (camera.px_per_mm) or the folds' length is wrong.
 """
 from __future__ import annotations
 
@@ -58,6 +59,12 @@ OFF_FOLD_FAIL = 0.5
 #: Share of the glottis length in view below which the gap's extent over the recording is doubtful
 #: (`flow` warns): half, against the three quarters a clamped fold's opening spans (module doc).
 GAP_LENGTH_WARN = 0.5
+#: A gap's extent over the recording above this multiple of the folds' length, plus :data:`GAP_END_PX` for
+#: the pixel grid and the blur at each end, cannot be the glottis of folds clamped at both ends (`flow`
+#: warns: the scale or the length is wrong). On 136 stores of phantoms (default and widened panels, blur
+#: 0.3-2.8 px) the extent was 0.39-0.85 of the length; a px_per_mm half the true one gave 1.57 and 1.70.
+GAP_LONGER_WARN = 1.1
+GAP_END_PX = 2.0
 
 
 def points_on_image(points_px: np.ndarray, shape: tuple[int, int], margin_px: float = 0.5) -> np.ndarray:
