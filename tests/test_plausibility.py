@@ -10,7 +10,8 @@ import pytest
 
 from _small_phantom import SMALL, shared_phantom_with_hsc
 from conftest import run_vfcli
-from vfcli.flow.plausibility import gap_length_share, image_chord_px, points_on_image, pressure_velocity_bound
+from vfcli.flow.plausibility import (area_f0, gap_length_share, image_chord_px, points_on_image,
+                                    pressure_velocity_bound)
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.store import Store, copy_store
@@ -75,6 +76,40 @@ def test_velocities_beyond_what_the_pressure_drives_are_a_stored_warning(video, 
         warnings = r.summary("fields")["warnings"]
     hit = [w for w in warnings if "beyond the" in w and "the recorded pressure can drive" in w]
     assert len(hit) == 1, warnings
+    with Store(store).read() as r:      # the video's own frame rate: its glottal area keeps the pressure's rhythm
+        assert not [w for w in r.summary("flow")["warnings"] if "repeats at" in w]
+
+
+def test_the_glottal_areas_rhythm_by_hand():
+    """A pulse train of 120 Hz (the glottis closed 40 % of each cycle) sampled at 10 kHz: its f0 on the right
+    time base, twice it on one twice too fast, nothing from a video of one opening or a constant area."""
+    t = np.arange(300) / 10_000.0
+    area = np.maximum(np.sin(2 * np.pi * 120.0 * t) - 0.3, 0.0)
+    assert area_f0(area, 10_000.0, (50.0, 500.0), 120.0) == pytest.approx(120.0, rel=0.004)
+    # 3.6 cycles read at 20 kHz: 1.8 cycles of the pressure, but 4 openings
+    assert area_f0(area, 20_000.0, (50.0, 500.0), 120.0) == pytest.approx(240.0, rel=0.004)
+    assert area_f0(area[:100], 10_000.0, (50.0, 500.0), 120.0) is None          # 1.2 cycles: one opening
+    assert area_f0(np.ones(300), 10_000.0, (50.0, 500.0), 120.0) is None
+
+
+def test_a_video_frame_rate_off_by_a_tenth_is_a_stored_warning(video, tmp_path):
+    """A CIHX recordRate of 20000 for 10000 ran to an inferior surface 26 % off with exit 0 and no word about the
+    frame rate: the glottal area repeats at another frequency than the pressure beside the video (/sync's f0),
+    on a time base 10 % too fast here (the phantom's 2.4 cycles read as 2.2)."""
+    raw, _ = video
+    store = tmp_path / "fast.h5"
+    for args in (("ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms",
+                  "--config", raw / "recording.toml"), ("ingest-ldv", store, raw / "scan.uff"), ("sync", store),
+                 ("flow", store)):
+        res = run_vfcli(*args, "--set", "camera.fps_hz=11000")
+        assert res.returncode == 0, (args[0], res.stderr)
+    with Store(store).read() as r:
+        warnings = r.summary("flow")["warnings"]
+        f0 = float(r.attrs("sync")["f0_video_hz"])
+    hit = [w for w in warnings if "repeats at" in w]
+    assert len(hit) == 1, warnings
+    assert "(11000 frames/s)" in hit[0] and "frame rate" in hit[0] and "factor of 1.1:" in hit[0]
+    assert f"at {f0:.4g} Hz (/sync's f0)" in hit[0]
 
 
 def test_the_chord_of_the_frame_and_the_gaps_share_of_it_by_hand():

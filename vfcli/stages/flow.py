@@ -18,9 +18,9 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from vfcli.config import FlowConfig
+from vfcli.config import FlowConfig, SyncConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, contrast_block,
+from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, area_f0, contrast_block,
                                     points_on_folds_of_video, points_on_image, pressure_velocity_bound)
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
@@ -44,6 +44,19 @@ def _check_one_cycle(reader: StoreReader, n_frames: int, fps_hz: float) -> None:
             f"the video holds {n_frames} frames ({1e3 * n_frames / fps_hz:.3g} ms), less than one glottal cycle "
             f"({1e3 / f0:.3g} ms at /sync's f0 {f0:.4g} Hz): the gap, the flow and the fit need at least one whole "
             "cycle; record a longer video (or widen ingest_hsc's frame range)", reader.path)
+
+
+def _check_area_rhythm(reader: StoreReader, area: np.ndarray, fps_hz: float, sync: SyncConfig) -> None:
+    """Warn when the glottal area repeats at another frequency than the pressure beside the video (/sync's
+    f0), beyond sync.max_drift: the video's frame rate is wrong (a CIHX recordRate of 20000 for 10000 ran to
+    an inferior surface 26 % off with no word about it). Nothing is checked without /sync's f0."""
+    f0 = float(reader.attrs("sync").get("f0_video_hz", np.nan)) if reader.has_stage("sync") else np.nan
+    fa = area_f0(area, fps_hz, (sync.f0_min_hz, sync.f0_max_hz), f0)
+    if fa is not None and abs(fa / f0 - 1.0) > sync.max_drift:
+        log.warning("flow: the glottal area repeats at %.4g Hz on the video's time base (%.6g frames/s), the pressure "
+                    "beside the video at %.4g Hz (/sync's f0); the folds open once per cycle of the pressure, so the "
+                    "video's frame rate is likely wrong by a factor of %.3g: check the frame rate the video file "
+                    "states (or camera.fps_hz), then rerun ingest-hsc", fa, fps_hz, f0, fa / f0)
 
 
 def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageWriter) -> dict[str, Any]:
@@ -81,6 +94,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         check_flow_product(area, calib, gap_counts, ctx.config.mesh.length_mm * px_per_mm)
     except InputDataError as exc:
         raise InputDataError(str(exc), reader.path) from None
+    _check_area_rhythm(reader, area, fps, ctx.config.sync)
     s.put("glottal_area", area)
     s.put("frame_time", frame_time)
     model, gap = calib.edge_model, calib.gap
