@@ -3,6 +3,7 @@ one-line warning in its stored summary, and fails with exit 3 (store unchanged) 
 product is unusable. Real CLI runs on a small phantom."""
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -78,6 +79,29 @@ def test_velocities_beyond_what_the_pressure_drives_are_a_stored_warning(video, 
     assert len(hit) == 1, warnings
     with Store(store).read() as r:      # the video's own frame rate: its glottal area keeps the pressure's rhythm
         assert not [w for w in r.summary("flow")["warnings"] if "repeats at" in w]
+        # the scan's own pressure beside it (its velocities scaled, not its reference): one operating point
+        assert not [w for w in r.summary("sync")["warnings"] if "differs between the video and the scan" in w]
+
+
+def test_a_scan_recorded_at_another_pressure_is_a_stored_warning_of_sync(video, tmp_path):
+    """The video of one operating point with the scan of another (its pressure half as high again) aligned on
+    every point and ran to an inferior surface about 50 % off with exit 0: the pressure beside each tells."""
+    raw, hsc = video
+    store = _copy(hsc, tmp_path)
+    scan = read_ldv(raw / "scan.uff")
+    assert scan.reference_unit == "Pa"
+    write_ldv_uff(tmp_path / "scan.uff", replace(scan, reference=scan.reference * 1.5))
+    for args in (["ingest-ldv", store, tmp_path / "scan.uff"], ["sync", store]):
+        res = run_vfcli(*args)
+        assert res.returncode == 0, (args[0], res.stderr)
+    with Store(store).read() as r:
+        warnings = r.summary("sync")["warnings"]
+        assert int(r.read("sync", "ok").sum()) > 300                 # sync itself is content: the phases match
+    hit = [w for w in warnings if "differs between the video and the scan" in w]
+    assert len(hit) == 1, warnings
+    mean = re.search(r"its mean is (\d+) Pa beside the video, (\d+) Pa beside the scan", hit[0])
+    assert mean and float(mean.group(2)) == pytest.approx(1.5 * float(mean.group(1)), rel=0.01)
+    assert "swing" in hit[0] and "operating points" in hit[0] and "different recordings" in hit[0]
 
 
 def test_the_glottal_areas_rhythm_by_hand():

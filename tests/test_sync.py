@@ -602,3 +602,21 @@ def test_the_average_before_striding_keeps_a_harmonic_in_phase_and_the_ends_as_r
     ratio = prefiltered(noise, 6)[:, 3:-3].var() / noise.var()
     assert ratio == pytest.approx(1 / 7, rel=0.05)
     assert prefiltered(noise, 1) is noise
+
+
+def test_pressure_levels_over_whole_cycles_and_their_tolerance():
+    """vfcli.sync.levels: the mean and swing of 800 + 300 sin over 2.6 cycles are those of its 2 whole cycles
+    (800 Pa and 300 / sqrt 2 exactly); a level 5 % off agrees, one 20 % off does not, and a scan whose points
+    spread widely widens the tolerance to 4 of their standard deviations."""
+    from vfcli.sync.levels import cycle_levels, level_mismatch
+
+    fs, f0 = 50_000.0, 125.0
+    t = np.arange(int(2.6 * fs / f0)) / fs
+    mean, swing = cycle_levels(800 + 300 * np.sin(2 * np.pi * f0 * t), fs, f0)
+    assert mean == pytest.approx(800.0, abs=1e-9) and swing == pytest.approx(300 / np.sqrt(2), rel=1e-9)
+    assert cycle_levels(t[:100], fs, f0) is None                                  # no whole cycle
+    points = np.column_stack([np.full(50, 800.0), np.full(50, 212.0)])
+    assert level_mismatch((840.0, 212.0), points) == []
+    assert [m[0] for m in level_mismatch((960.0, 170.0), points)] == ["mean", "swing"]
+    spread = points + np.column_stack([np.linspace(-60, 60, 50), np.zeros(50)])   # sd 35 Pa: tolerance 140 Pa
+    assert level_mismatch((930.0, 212.0), spread) == [] and level_mismatch((960.0, 212.0), spread)[0][0] == "mean"

@@ -70,6 +70,28 @@ def check_aligned(aligned: int, points: int, reasons: Counter, f0_video_hz: floa
                          ldv_source)
 
 
+def _check_levels(reader: StoreReader, inp: SyncInputs, res) -> None:
+    """Warn when the pressure beside the video and beside the scan differ in mean or swing
+    (:mod:`vfcli.sync.levels`): another operating point or another recording. Only a reference stored in Pa
+    is compared (a scan's reference in volts says nothing of the level)."""
+    from vfcli.sync.levels import cycle_levels, level_mismatch
+
+    if str(reader.dataset("ldv", "reference").attrs.get("units", "")) != "Pa":
+        return
+    video = cycle_levels(inp.pressure, inp.fs_pressure, res.f0_video_hz)
+    points = [cycle_levels(inp.reference[i], inp.fs_ldv, res.f0_hz[i]) for i in np.flatnonzero(res.ok)]
+    points = np.array([p for p in points if p is not None])
+    if video is None or not len(points):
+        return
+    differ = [f"its {'mean' if name == 'mean' else 'swing (RMS of its oscillating part)'} is {v:.0f} Pa beside the "
+              f"video, {scan:.0f} Pa beside the scan ({lo:.0f}-{hi:.0f} Pa over its {len(points)} aligned points)"
+              for name, v, scan, lo, hi in level_mismatch(video, points)]
+    if differ:
+        log.warning("the subglottal pressure differs between the video and the scan: %s; they were recorded at "
+                    "different operating points, or are files of different recordings, or one pressure's unit is "
+                    "wrong (%s): the fit assumes one oscillation", "; ".join(differ), inp.ldv_source)
+
+
 def run_sync(ctx: RunContext) -> StageResult:
     """Phase-lock every LDV point to the video (/hsc pressure) and store the aligned velocities
     (the alignment, and scipy with it, is imported only when /sync is written)."""
@@ -97,6 +119,7 @@ def run_sync(ctx: RunContext) -> StageResult:
         s.set_attrs(f0_video_hz=res.f0_video_hz, template_real=res.template.real, template_imag=res.template.imag)
         for why, n in reasons.items():
             log.warning("%d LDV point(s) not aligned: %s", n, why)
+        _check_levels(reader, inp, res)
         return {
             "points": int(res.ok.size),
             "aligned": int(res.ok.sum()),
