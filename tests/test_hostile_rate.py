@@ -40,6 +40,8 @@ def test_a_rate_off_by_a_factor_is_refused_with_the_rate_the_data_imply(stated):
     assert msg.startswith("scan.uff: ") and f"stated vibrometer sampling rate {stated:g} Hz" in msg
     implied = float(msg.split("the data imply ")[1].split(" Hz")[0])
     assert abs(implied / FS - 1) < 0.003, implied          # measured: within 0.05 % (short, noisy epochs)
+    # the other cause it names, and no advice to widen sync.max_drift (which would join two oscillations)
+    assert "phonated at different f0" in msg and "different recordings" in msg and "max_drift" not in msg
 
 
 @pytest.mark.parametrize("stated, f0_video", [(FS, F0), (FS, F0 * 1.03), (FS * 0.97, F0)])

@@ -97,6 +97,7 @@ def test_a_sync_that_aligns_no_point_fails_with_the_reasons_and_leaves_the_store
     assert res.returncode == 3, res.stderr
     line = res.stderr.strip().splitlines()[-1]
     assert "only 0 of 374 LDV points could be aligned" in line and "no periodicity" in line, line
+    assert "same recording" in line and "ingest_ldv.reference_id1" in line, line
     assert "Traceback" not in res.stderr
     assert store.read_bytes() == before
     with Store(store).read() as r:

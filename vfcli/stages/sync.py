@@ -65,8 +65,11 @@ def check_aligned(aligned: int, points: int, reasons: Counter, f0_video_hz: floa
     if aligned >= MIN_ALIGNED:
         return
     why = "; ".join(f"{n} x {r}" for r, n in reasons.most_common(2))
+    hint = ("; the scan's reference pressure matches the video's at no point: check that the scan and the video are "
+            "of the same recording and that the scan's reference channel holds the pressure (ingest_ldv.reference_id1; "
+            "a swapped or disconnected channel)" if aligned == 0 else "")
     raise InputDataError(f"sync: only {aligned} of {points} LDV points could be aligned to the video (f0 "
-                         f"{f0_video_hz:.2f} Hz), `flow` needs at least {MIN_ALIGNED}; commonest reasons: {why}",
+                         f"{f0_video_hz:.2f} Hz), `flow` needs at least {MIN_ALIGNED}; commonest reasons: {why}{hint}",
                          ldv_source)
 
 

@@ -189,5 +189,6 @@ def check_ldv_rate(f0_video_hz: float, reference: np.ndarray, fs: float, *, f_ra
     raise InputDataError(
         f"the stated vibrometer sampling rate {fs:g} Hz contradicts the recording: at that rate the "
         f"reference pressure's f0 is {med:.1f} Hz ({int(agree.sum())} of {f0s.size} epochs probed) against "
-        f"{f0_video_hz:.1f} Hz in the video's pressure, so the data imply {implied:.0f} Hz; correct the file's "
-        f"sampling rate (or, if the scan was phonated at another f0, raise sync.max_drift)", source)
+        f"{f0_video_hz:.1f} Hz in the video's pressure: either the file's sampling rate is wrong (the data imply "
+        f"{implied:.0f} Hz: correct it) or the scan and the video were phonated at different f0 (another operating "
+        f"point, or files of different recordings), which one fit cannot join", source)
