@@ -134,6 +134,26 @@ def test_a_video_frame_rate_off_by_a_tenth_is_a_stored_warning(video, tmp_path):
     assert len(hit) == 1, warnings
     assert "(11000 frames/s)" in hit[0] and "frame rate" in hit[0] and "factor of 1.1:" in hit[0]
     assert f"at {f0:.4g} Hz (/sync's f0)" in hit[0]
+    with Store(store).read() as r:     # the vibrometer's own unit: vertical and horizontal of one order
+        assert not [w for w in r.summary("fields")["warnings"] if "times the video's horizontal velocity" in w]
+
+
+def test_a_vibrometer_velocity_in_m_per_s_read_as_mm_per_s_is_a_stored_warning(video, tmp_path):
+    """Velocities in m/s in a file that says mm/s ran to an inferior surface 124 % off with exit 0, with only the
+    static-shape warning: the vibrometer's vertical velocity is then 1000 times smaller than the video's motion."""
+    raw, hsc = video
+    store = _copy(hsc, tmp_path)
+    scan = read_ldv(raw / "scan.uff")
+    write_ldv_uff(tmp_path / "scan.uff", replace(scan, velocity_mm_s=scan.velocity_mm_s * 1e-3))
+    for args in (["ingest-ldv", store, tmp_path / "scan.uff"], ["sync", store], ["flow", store]):
+        res = run_vfcli(*args)
+        assert res.returncode == 0, (args[0], res.stderr)
+    with Store(store).read() as r:
+        warnings = r.summary("fields")["warnings"]
+    hit = [w for w in warnings if "times the video's horizontal velocity" in w]
+    assert len(hit) == 1, warnings
+    ratio = float(re.search(r"is ([0-9.e-]+) times the video's", hit[0]).group(1))
+    assert 1e-4 < ratio < 1 / 30 and "velocity unit" in hit[0]
 
 
 def test_the_chord_of_the_frame_and_the_gaps_share_of_it_by_hand():

@@ -70,6 +70,11 @@ GAP_LENGTH_WARN = 0.5
 #: 0.3-2.8 px) the extent was 0.39-0.85 of the length; a px_per_mm half the true one gave 1.57 and 1.70.
 GAP_LONGER_WARN = 1.1
 GAP_END_PX = 2.0
+#: The superior surface moves vertically and horizontally by the same order (0.3-3 times each other: the
+#: vibrometer's vertical against the optical flow's horizontal velocity, RMS over the valid pixels, was 1.5-6.1
+#: on 60 phantom stores); a ratio beyond this factor either way is a unit (a velocity in m/s read as mm/s gave
+#: 0.003), not the folds: `flow` warns.
+VELOCITY_ORDER = 30.0
 
 
 def points_on_image(points_px: np.ndarray, shape: tuple[int, int], margin_px: float = 0.5) -> np.ndarray:

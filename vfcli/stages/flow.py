@@ -20,7 +20,8 @@ import numpy as np
 
 from vfcli.config import FlowConfig, SyncConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
-from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, area_f0, contrast_block,
+from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, VELOCITY_ORDER,
+                                    area_f0, contrast_block,
                                     points_on_folds_of_video, points_on_image, pressure_velocity_bound)
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
@@ -156,9 +157,16 @@ def _ldv_points(reader: StoreReader, n_frames: int) -> tuple[np.ndarray, np.ndar
 
 
 def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, shape: tuple[int, int],
-                  speed_p99: float) -> None:
-    """The LDV points the spline uses lie on the frames (none: exit 3), and the field's speeds
-    (largest chunk's 99th percentile, mm/s) are within what the recorded pressure can drive."""
+                  speed_p99: float, rms_vertical: float = np.nan, rms_horizontal: float = np.nan) -> None:
+    """The LDV points the spline uses lie on the frames (none: exit 3), the field's speeds (largest chunk's 99th
+    percentile, mm/s) are within what the recorded pressure can drive, and its vertical velocity (the
+    vibrometer's, RMS mm/s) is of the order of its horizontal one (the video's): VELOCITY_ORDER."""
+    if rms_vertical > 0 and rms_horizontal > 0 and not (
+            1 / VELOCITY_ORDER <= rms_vertical / rms_horizontal <= VELOCITY_ORDER):
+        log.warning("fields: the vibrometer's vertical velocity (RMS %.3g mm/s where the fields are valid) is %.2g "
+                    "times the video's horizontal velocity (RMS %.3g mm/s), where the superior surface moves by the "
+                    "same order both ways: check the velocity unit of the vibrometer's file (m/s against mm/s), "
+                    "camera.px_per_mm and camera.fps_hz", rms_vertical, rms_vertical / rms_horizontal, rms_horizontal)
     on = points_on_image(points_px[good], shape)
     advice = "check ingest_ldv.length_unit, ldv_frame.affine and camera.px_per_mm, then rerun ingest-ldv"
     if not on.any():
@@ -235,6 +243,7 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
     ds_valid = FrameSink(s.create("valid", (n, h, w), bool))
     n_valid = i = 0
     speed_p99 = 0.0
+    sum_sq = np.zeros(2)                 # vertical, horizontal squared speeds over the valid pixels
     bar = ctx.progress(total=n, desc="fields", unit="frame")
     for field, valid in velocity_fields(chunks(), points_px, good, (h, w), cfg):
         j = i + len(field)
@@ -242,11 +251,14 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
         ds_valid[i:j] = valid
         n_valid += int(valid.sum())
         if valid.any():
-            speed_p99 = max(speed_p99, float(np.percentile(np.linalg.norm(field[valid], axis=-1), 99)))
+            v = field[valid].astype(float)
+            speed_p99 = max(speed_p99, float(np.percentile(np.linalg.norm(v, axis=-1), 99)))
+            sum_sq += np.nansum(v[:, 2] ** 2), np.nansum(v[:, 0] ** 2 + v[:, 1] ** 2)
         bar.update(j - i)
         i = j
     bar.close()
-    _check_fields(reader, points_px, good, (h, w), speed_p99)
+    rms = np.sqrt(sum_sq / max(n_valid, 1))
+    _check_fields(reader, points_px, good, (h, w), speed_p99, float(rms[0]), float(rms[1]))
     s.put("frame_time", frame_time)
     s.put("ldv_px", points_px)
     s.put("ldv_used", good)

@@ -143,7 +143,8 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
 
 
 def _wav_scale_is_default(ctx: RunContext) -> bool:
-    """ingest_hsc.wav_full_scale_pa is at its default and no config file set it (as :func:`vfcli.config.default_calibration`)."""
+    """ingest_hsc.wav_full_scale_pa is at its default and no config file set it (as
+    :func:`vfcli.config.default_calibration`)."""
     cfg = ctx.config.ingest_hsc
     default = type(cfg).model_fields["wav_full_scale_pa"].default
     return cfg.wav_full_scale_pa == default and "wav_full_scale_pa" not in ctx.stored_config.ingest_hsc.model_fields_set
