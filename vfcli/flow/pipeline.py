@@ -74,13 +74,22 @@ def batches(frames: Frames, n_frames: int, size: int = CHUNK_FRAMES) -> Iterator
         yield frames[i : i + size]
 
 
-def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool, lateral_axis: int = 0) -> None:
+#: A configured camera rotation further than this from the sampled gap's principal axis (modulo a half turn,
+#: which the gap cannot tell) is warned about, deg: the axis is measured to 0.1 deg on the widened phantoms
+#: (docs/benchmarks.md); 10 deg mixes a sixth of the lateral velocity into the longitudinal one.
+ROTATION_WARN_DEG = 10.0
+
+
+def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool, lateral_axis: int = 0,
+                      rotation_deg: float | None = None, pose_estimated: bool = False) -> None:
     """Warn when the gap masks of the sampled frames (k, H, W) bool do not look like a glottis.
 
     The folds close in every cycle and the gap is a slit: a "gap" in every sampled frame
     or one covering more than :data:`MAX_GAP_FRACTION` of the image is more likely a dark
     fixture, shadow or texture below the threshold. A gap whose principal axis runs along
-    the lateral image axis means the configured camera rotation is a quarter turn off.
+    the lateral image axis means the configured camera rotation is a quarter turn off; given
+    ``rotation_deg`` of a configured pose (not ``pose_estimated``: there the rotation is only the search's
+    prior), one more than :data:`ROTATION_WARN_DEG` from it (modulo 180 deg) is warned about too.
     """
     how = "automatic" if auto else "configured"
     open_share = float(masks.any(axis=(1, 2)).mean())
@@ -98,11 +107,19 @@ def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool, lateral_a
     counts = masks.sum(axis=0)
     if (counts > 0).sum() >= 3:
         angle = gap_axis(counts).rotation_deg
+        other = angle - 180 if angle > 0 else angle + 180
         if lateral_axis_for(angle) != lateral_axis:
             log.warning("flow: the sampled gap runs at %.0f deg in the image (along image %s) but the camera rotation "
                         "makes image %s lateral; set camera.rotation_deg (about %.0f or %.0f deg) and camera.pose, "
                         "then rerun ingest-hsc and flow", angle, _ALONG[lateral_axis_for(angle)],
-                        _LATERAL[lateral_axis], angle, angle - 180 if angle > 0 else angle + 180)
+                        _LATERAL[lateral_axis], angle, other)
+        elif rotation_deg is not None and not pose_estimated:
+            apart = abs((angle - rotation_deg + 90.0) % 180.0 - 90.0)
+            if apart > ROTATION_WARN_DEG:
+                log.warning("flow: the sampled gap runs at %.1f deg in the image, %.0f deg from camera.rotation_deg "
+                            "%.1f deg, which the fit uses (camera.pose = 'config'): set camera.rotation_deg (about "
+                            "%.0f or %.0f deg: the gap cannot tell a half turn), or camera.pose = 'estimate', then "
+                            "rerun ingest-hsc and flow", angle, apart, rotation_deg, angle, other)
 
 
 #: The image axis the glottis runs along, and the lateral one, for lateral_axis 0 and 1.
@@ -233,7 +250,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
         if masks.any():
             log.info("flow: the gap is a slit the %d px square median erases in every sampled frame; detected with "
                      "the median along the glottis", cfg.median_px)
-    check_sampled_gap(masks, threshold, auto, lateral)
+    check_sampled_gap(masks, threshold, auto, lateral, rotation_deg, axis_from_gap)
     centre = midline_from_masks(masks, lateral)
     line = midline_line(centre)
     if line is not None:
