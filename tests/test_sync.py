@@ -620,3 +620,16 @@ def test_pressure_levels_over_whole_cycles_and_their_tolerance():
     assert [m[0] for m in level_mismatch((960.0, 170.0), points)] == ["mean", "swing"]
     spread = points + np.column_stack([np.linspace(-60, 60, 50), np.zeros(50)])   # sd 35 Pa: tolerance 140 Pa
     assert level_mismatch((930.0, 212.0), spread) == [] and level_mismatch((960.0, 212.0), spread)[0][0] == "mean"
+
+
+def test_frame_times_beyond_the_pressure_record_name_the_frame_rate():
+    """A CIHX recordRate of 1000 for 10000 (frame times ten times too long) was refused without naming the frame
+    rate: the message now says what to check."""
+    from vfcli.errors import InputDataError
+    from vfcli.sync.align import video_phase_reference
+
+    fs = 50_000.0
+    p = 800 + 300 * np.sin(2 * np.pi * 120.0 * np.arange(1500) / fs)          # 30 ms of pressure
+    with pytest.raises(InputDataError, match=r"does not cover the frame times \(0.000000-0.299000 s\): check the "
+                                             r"video's frame rate \(the file's, or camera.fps_hz\)"):
+        video_phase_reference(p, fs, 0.0, np.arange(300) / 1000.0)

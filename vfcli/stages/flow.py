@@ -161,12 +161,6 @@ def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, 
     """The LDV points the spline uses lie on the frames (none: exit 3), the field's speeds (largest chunk's 99th
     percentile, mm/s) are within what the recorded pressure can drive, and its vertical velocity (the
     vibrometer's, RMS mm/s) is of the order of its horizontal one (the video's): VELOCITY_ORDER."""
-    if rms_vertical > 0 and rms_horizontal > 0 and not (
-            1 / VELOCITY_ORDER <= rms_vertical / rms_horizontal <= VELOCITY_ORDER):
-        log.warning("fields: the vibrometer's vertical velocity (RMS %.3g mm/s where the fields are valid) is %.2g "
-                    "times the video's horizontal velocity (RMS %.3g mm/s), where the superior surface moves by the "
-                    "same order both ways: check the velocity unit of the vibrometer's file (m/s against mm/s), "
-                    "camera.px_per_mm and camera.fps_hz", rms_vertical, rms_vertical / rms_horizontal, rms_horizontal)
     on = points_on_image(points_px[good], shape)
     advice = "check ingest_ldv.length_unit, ldv_frame.affine and camera.px_per_mm, then rerun ingest-ldv"
     if not on.any():
@@ -183,6 +177,12 @@ def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, 
                         "recorded pressure can drive; check ingest_ldv.length_unit and the vibrometer's velocity unit, "
                         "camera.px_per_mm and camera.fps_hz, and the pressure's unit (a WAV's: "
                         "ingest_hsc.wav_full_scale_pa)", speed_p99, bound)
+    if rms_vertical > 0 and rms_horizontal > 0 and not (
+            1 / VELOCITY_ORDER <= rms_vertical / rms_horizontal <= VELOCITY_ORDER):
+        log.warning("fields: the vibrometer's vertical velocity (RMS %.3g mm/s where the fields are valid) is %.2g "
+                    "times the video's horizontal velocity (RMS %.3g mm/s), where the superior surface moves by the "
+                    "same order both ways: check the velocity unit of the vibrometer's file (m/s against mm/s), "
+                    "camera.px_per_mm and camera.fps_hz", rms_vertical, rms_vertical / rms_horizontal, rms_horizontal)
 
 
 def _check_on_folds(reader: StoreReader, points_px: np.ndarray, shape: tuple[int, int]) -> None:

@@ -133,7 +133,8 @@ def video_phase_reference(
     if frame_times.min() < t0 - tol or frame_times.max() > t_end + tol:
         raise InputDataError(
             f"the pressure record ({t0:.6f}-{t_end:.6f} s) does not cover the frame times "
-            f"({frame_times.min():.6f}-{frame_times.max():.6f} s)", source)
+            f"({frame_times.min():.6f}-{frame_times.max():.6f} s): check the video's frame rate (the file's, or "
+            "camera.fps_hz) and frame range (ingest_hsc.first_frame, n_frames) against the pressure file", source)
     # the spline phase (not estimate_f0's constant f0) so that a drifting f0 still fits
     track, template = phase_track(y, fs, t0=t0, f_range=f_range, n_harmonics=n_harmonics,
                                   knot_cycles=knot_cycles, smooth=smooth, source=source)
