@@ -23,9 +23,9 @@
   with both ends clamped: the image scale (camera.px_per_mm) or the folds' length is wrong.
 * :func:`area_f0`: the glottal area's own fundamental frequency on the video's time base. The folds
   open and close once per cycle of the pressure recorded beside the video, so the two frequencies are
-  one; a different one means the video's time base (its frame rate) is wrong. On 130 phantom stores
-  (default and widened panels, 2-6 cycles each) the two agreed to 0.4 %; a frame rate 5 % high gave
-  1.051, one twice the true rate 2.001.
+  one; a different one means the video's time base (its frame rate) is wrong. On 28 phantom recordings
+  (default and widened panels, 2-6 cycles each; bench/bench_plausibility.py) the two agreed to 0.4 %; a frame
+  rate 5 % high gave 1.051, one twice the true rate 2.001.
 """
 from __future__ import annotations
 
@@ -66,14 +66,15 @@ OFF_FOLD_FAIL = 0.5
 GAP_LENGTH_WARN = 0.5
 #: A gap's extent over the recording above this multiple of the folds' length, plus :data:`GAP_END_PX` for
 #: the pixel grid and the blur at each end, cannot be the glottis of folds clamped at both ends (`flow`
-#: warns: the scale or the length is wrong). On 136 stores of phantoms (default and widened panels, blur
-#: 0.3-2.8 px) the extent was 0.39-0.85 of the length; a px_per_mm half the true one gave 1.57 and 1.70.
+#: warns: the scale or the length is wrong). On 28 phantom recordings (default and widened panels, blur 0.3-2.8 px;
+#: bench/bench_plausibility.py) the extent was 0.64-0.85 of the length; a px_per_mm half the true one gave 1.57 and
+#: 1.70.
 GAP_LONGER_WARN = 1.1
 GAP_END_PX = 2.0
-#: The superior surface moves vertically and horizontally by the same order (0.3-3 times each other: the
-#: vibrometer's vertical against the optical flow's horizontal velocity, RMS over the valid pixels, was 1.5-6.1
-#: on 60 phantom stores); a ratio beyond this factor either way is a unit (a velocity in m/s read as mm/s gave
-#: 0.003), not the folds: `flow` warns.
+#: The superior surface moves vertically and horizontally by the same order (the
+#: vibrometer's vertical against the optical flow's horizontal velocity, RMS over the valid pixels, was 2.8-3.5
+#: on 28 phantom recordings, 1.5-6.1 with a wrong scale or frame rate); a ratio beyond this factor either way is a
+#: unit (a velocity in m/s read as mm/s gave 0.003), not the folds: `flow` warns.
 VELOCITY_ORDER = 30.0
 
 
