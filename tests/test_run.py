@@ -170,6 +170,32 @@ def test_a_value_set_with_vfcli_config_is_kept_by_the_next_run_of_the_raw_folder
     assert {s["name"]: s["action"] for s in json.loads(res.stdout)["stages"]}["sync"] == "up to date"
 
 
+def test_info_calls_the_default_fit_stale_when_its_optimize_settings_change_as_run_does(phantom, tmp_path):
+    """`vfcli config --set optimize.max_iterations=4`: `vfcli run --dry-run` said the default fit would rerun (config
+    changed), `vfcli info` and the report called it ok (they compared no settings of an optimisation run)."""
+    raw0, store0, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    _copy_store(store0, store)
+
+    def optimize_status() -> dict:
+        info = json.loads(run_vfcli("info", "--json", store).stdout)
+        return {st["path"]: st for st in info["stages"]}["/optimize/default"]
+
+    # the fixture ran with --set values (not stored): stored, the fit is what the config makes
+    res = run_vfcli("config", store, *_sets(SETS))
+    assert res.returncode == 0, res.stderr
+    assert optimize_status()["stale"] is False, optimize_status()
+    res = run_vfcli("config", store, "--set", "optimize.max_iterations=4")
+    assert res.returncode == 0, res.stderr
+    st = optimize_status()
+    assert st["stale"] is True and "optimize.max_iterations 3 -> 4" in json.dumps(st), st
+    res = run_vfcli("run", store, "--raw", raw0, "--dry-run", "--json")      # the stored config alone
+    assert res.returncode == 0, res.stderr
+    dry = {s["name"]: s for s in json.loads(res.stdout)["stages"]}
+    assert dry["optimize"]["action"] == "would run" and "optimize.max_iterations 3 -> 4" in dry["optimize"]["reason"]
+    assert {dry[k]["action"] for k in ("sync", "flow", "mesh")} == {"up to date"}, dry
+
+
 def test_a_run_that_fails_says_what_it_ran_before(phantom, tmp_path):
     """A step that fails (a scan cut short) stops the run with its one error line and exit code; the steps
     before it are committed, and the output said nothing of them (--json printed nothing at all)."""

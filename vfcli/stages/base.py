@@ -86,10 +86,33 @@ def stage_config_json(name: str, config: RecordingConfig) -> str | None:
     return None
 
 
+#: The optimisation run the recording config makes (`vfcli run`, `vfcli optimize` without --run): compared with
+#: the config by `vfcli run`, `info` and `report`; other runs hold their own command-line options.
+DEFAULT_RUN = "default"
+
+
+def optimize_settings_json(config: RecordingConfig) -> str:
+    """The settings an optimisation run records (and compares to decide it is current), as JSON:
+    [optimize] and [camera]; the mesh and its material are /mesh's (an upstream stage), not the
+    live [mesh] section's."""
+    return json.dumps({"optimize": config.optimize.model_dump(mode="json"),
+                       "camera": config.camera.model_dump(mode="json")}, sort_keys=True)
+
+
+def expected_settings(name: str, run: str | None, config: RecordingConfig) -> str | None:
+    """The settings JSON stage ``name`` (run ``run``) would record under ``config``: :func:`stage_config_json`,
+    and for the default optimisation run :func:`optimize_settings_json`; None: not compared (other runs, and
+    diagnose: their own command-line options, compared by the stage itself when it runs)."""
+    if name == "optimize":
+        return optimize_settings_json(config) if run == DEFAULT_RUN else None
+    return stage_config_json(name, config)
+
+
 def expected_configs(recording_config_json: str | None) -> Callable[[str, str | None], str | None]:
-    """``(stage name, run) -> settings JSON`` each stage would record under the stored recording config."""
+    """``(stage name, run) -> settings JSON`` each stage would record under the stored recording config
+    (:func:`expected_settings`: the rules `vfcli run` decides by, so that `info` and the report say what it does)."""
     _, config = load_config(None, recording_config_json, None)
-    return lambda name, run: stage_config_json(name, config)
+    return lambda name, run: expected_settings(name, run, config)
 
 
 @dataclass

@@ -11,7 +11,6 @@ One descent: :func:`vfcli.store.fit.read_optimize_inputs` (everything from the s
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 from pathlib import Path
@@ -19,7 +18,6 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.config import RecordingConfig
 from vfcli.errors import ConfigError
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
@@ -33,7 +31,7 @@ from vfcli.inverse.sandwich import sandwich
 from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_split,
                                        instrument_std, relative_uncertainty, window_mean, window_oscillation)
 from vfcli.model.loads.pressure import PressureLoad
-from vfcli.stages.base import RunContext, StageResult, run_stage
+from vfcli.stages.base import RunContext, StageResult, optimize_settings_json, run_stage
 
 log = logging.getLogger(__name__)
 
@@ -137,14 +135,6 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None
                     summary["inferior_static_mean_z_mm"], summary["inferior_static_mean_z_std_mm"],
                     100 * summary["inferior_oscillating_uncertainty_rel"])
     return std, systematic, static_std, summary
-
-
-def optimize_settings_json(config: RecordingConfig) -> str:
-    """The settings an optimisation run records (and compares to decide it is current), as JSON:
-    [optimize] and [camera]; the mesh and its material are /mesh's (an upstream stage), not the
-    live [mesh] section's."""
-    return json.dumps({"optimize": config.optimize.model_dump(mode="json"),
-                       "camera": config.camera.model_dump(mode="json")}, sort_keys=True)
 
 
 def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False, plot: str | Path | None = None,

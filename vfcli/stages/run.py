@@ -27,7 +27,7 @@ from vfcli.errors import ConfigError, VfcliError
 from vfcli.io.raw_folder import RawFiles, find_raw_files
 from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
-from vfcli.stages.base import RunContext, StageResult, stage_config_json
+from vfcli.stages.base import DEFAULT_RUN, RunContext, StageResult, expected_settings
 from vfcli.store import Store, layout
 from vfcli.store.provenance import describe_inputs, same_inputs, sha256_file
 from vfcli.store.reader import StageStatus
@@ -35,7 +35,7 @@ from vfcli.store.reader import StageStatus
 log = logging.getLogger(__name__)
 
 #: The optimisation run `vfcli run` writes.
-RUN_NAME = "default"
+RUN_NAME = DEFAULT_RUN
 #: The steps in order: command name -> the store groups it writes ``[(stage, run)]`` (from the layout).
 STEPS: dict[str, list[tuple[str, str | None]]] = {
     step: [(st.name, RUN_NAME if st.has_runs else None) for st in layout.STAGES.values() if st.written_by == step]
@@ -99,18 +99,6 @@ def _steps_until(until: str | None) -> list[str]:
     return names[: names.index(until) + 1]
 
 
-def _settings_json(name: str, run: str | None, ctx: RunContext) -> str | None:
-    """The settings JSON stage ``name`` would record; None: not compared here (diagnose: its own
-    command-line defaults, compared by the stage itself when it runs)."""
-    if name == "optimize":
-        if run != RUN_NAME:
-            return None
-        from vfcli.stages.optimize import optimize_settings_json
-
-        return optimize_settings_json(ctx.config)
-    return stage_config_json(name, ctx.config)
-
-
 def _input_paths(step: str, raw: RawFiles) -> list[Path]:
     if step == "ingest-hsc":
         from vfcli.stages.ingest import video_files
@@ -156,7 +144,7 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
     previous: dict[str, dict[str, Any]] = {}
     if ctx.store.exists():
         with ctx.store.read() as r:
-            statuses = {st.path: st for st in r.statuses(lambda n, run: _settings_json(n, run, ctx))}
+            statuses = {st.path: st for st in r.statuses(lambda n, run: expected_settings(n, run, ctx.config))}
             for step in _RAW_STEPS:
                 if step in steps:
                     previous[step] = r.previous_inputs(*STEPS[step][0])
