@@ -128,6 +128,23 @@ def test_unchanged_inputs_do_nothing_and_rewritten_upstream_marks_sync_stale(raw
     assert "written" in res.stdout
 
 
+def test_the_same_scan_ingested_again_by_another_spelling_of_its_path_leaves_sync_current(raw, synced, tmp_path):
+    """`vfcli ingest-ldv STORE ./raw/scan.uff --force` after `raw/scan.uff`: every dataset the same, but the stored
+    dropout warning quotes the path as typed, and through the integrity manifest's hash of the attributes it changed
+    /ldv's digest: /sync, /fields and the fit were called stale and rerun."""
+    store = tmp_path / "copy.h5"
+    copy_store(synced, store)
+    with Store(store).read() as r:
+        before, warned = r.digest("ldv"), r.summary("ldv")["warnings"]
+    res = run_vfcli("ingest-ldv", store.resolve(), "scan.uff", "--force", cwd=raw)
+    assert res.returncode == 0 and "written" in res.stdout, res.stderr
+    with Store(store).read() as r:
+        assert r.summary("ldv")["warnings"] != warned            # the premise: the same warning, another path
+        assert r.digest("ldv") == before
+    info = json.loads(run_vfcli("info", store, "--json").stdout)
+    assert not {s["path"]: s["stale"] for s in info["stages"]}["/sync"], info
+
+
 # ------------------------------------------------------------------ bad input
 
 

@@ -67,7 +67,8 @@ def same_inputs(a: Mapping[str, Mapping[str, Any]], b: Mapping[str, Mapping[str,
 #: references, which depend on where the file put things) and the provenance itself.
 _NOT_CONTENT = {"DIMENSION_LIST", "REFERENCE_LIST", "CLASS", "NAME", "complete", "summary_json",
                 "stage", "vfcli_version", "command", "created_utc", "config_json", "inputs_json",
-                "upstream_json", "digest", "method_version"}   # the last: vfcli.store.layout.METHOD_ATTR
+                "upstream_json", "digest", "method_version",   # vfcli.store.layout.METHOD_ATTR
+                "manifest_json"}   # hashes of the datasets and attrs (summary_json: warnings quote paths as typed)
 
 
 def _update_attrs(h: "hashlib._Hash", attrs: Any) -> None:
