@@ -199,6 +199,7 @@ def test_tables_repeat_the_store_and_the_fit_follows_the_vibrometer(exported):
         aligned = r.read("sync", "aligned_w")
         ft = r.read("sync", "frame_time")
         ok = r.read("sync", "ok")
+        dropout, used = r.read("ldv", "dropout").astype(bool), r.read("fields", "ldv_used").astype(bool)
     rows = list(csv.DictReader(open(out / "tables" / "runs.csv")))
     assert {row["run"] for row in rows} == set(runs)
     for row in rows:
@@ -208,6 +209,10 @@ def test_tables_repeat_the_store_and_the_fit_follows_the_vibrometer(exported):
     sim = np.array([float(x["run_pressure_vz_mm_per_s"]) for x in ldv])
     idx = np.array([[int(x["point"]), int(np.argmin(np.abs(ft - float(x["time_s"]))))] for x in ldv])
     np.testing.assert_allclose(meas, aligned[idx[:, 0], idx[:, 1]], rtol=1e-5, atol=1e-3)
+    # a dropout point (spikes, a frozen stretch) was "aligned" like any other, with nothing to tell it from them
+    flags = {int(x["point"]): (x["dropout"] == "True", x["used_by_fields"] == "True") for x in ldv}
+    assert [flags[p] for p in sorted(flags)] == [(bool(dropout[p]), bool(used[p])) for p in sorted(flags)]
+    assert dropout[sorted(flags)].any() and not any(u for d, u in flags.values() if d)
     use = ok[idx[:, 0]] & np.isfinite(sim) & np.isfinite(meas)
     assert use.sum() > 100
     corr = np.corrcoef(meas[use], sim[use])[0, 1]

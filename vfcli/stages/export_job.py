@@ -268,4 +268,6 @@ class ExportJob:
                 if k.size:
                     on[j] = v[k[0]]
             sims[r.name] = on
-        return tables.write_ldv(path, ldv_px, grid, ok, ft[sel], meas, sims)
+        return tables.write_ldv(path, ldv_px, grid, ok, ft[sel], meas, sims,
+                                dropout=np.asarray(self.r.read("ldv", "dropout"), bool),
+                                used=np.asarray(self.r.read("fields", "ldv_used"), bool))
