@@ -364,8 +364,11 @@ def run_recording(
         elif step not in active:
             outcomes.append(StageOutcome(step, "skipped", "no raw folder given (--raw): the store's group is used"))
         elif dry_run:
-            # the diagnose step's skip is known ahead when /flow is there and stays as it is
-            skip = diagnose_skip_reason(ctx) if step == "diagnose" and ctx.store.exists() and not why.get("flow") else None
+            # the diagnose step's skip is known ahead when /flow is there; judged on it also when flow would rewrite
+            # it (the cycles are the glottal area's), and saying so (it said "would run", and the run skipped it)
+            skip = diagnose_skip_reason(ctx) if step == "diagnose" and ctx.store.exists() else None
+            if skip and why.get("flow"):
+                skip += " (judged on the /flow stored now, which this run would rewrite first)"
             gone = missing_upstream(ctx, active, step) if why[step] else None
             if gone:
                 raw_groups = {layout.stage(n).group_path(r) for s in _RAW_STEPS for n, r in STEPS[s]}
