@@ -267,7 +267,8 @@ def test_diagnose_is_skipped_with_its_reason_when_the_window_leaves_too_few_cycl
     # with flow to rerun too, the skip is judged on the /flow there (the dry run said "would run", the run skipped)
     stages, _ = _run(store, raw, "--dry-run", "--set", "optimize.n_frames=150", "--set", "flow.median_px=3")
     assert stages["flow"]["action"] == "would run" and stages["diagnose"]["action"] == "skipped"
-    assert stages["diagnose"]["reason"] == reason + " (judged on the /flow stored now, which this run would rewrite first)"
+    judged = " (judged on the /flow stored now, which this run would rewrite first)"
+    assert stages["diagnose"]["reason"] == reason + judged
     # --until optimize leaves it out, saying so
     stages, _ = _run(store, raw, "--dry-run", "--until", "optimize")
     assert (stages["diagnose"]["action"], stages["diagnose"]["reason"]) == ("skipped", "after --until optimize")
