@@ -8,15 +8,17 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import ROOT, VFCLI, run_vfcli
+from conftest import ROOT, VFCLI, run_vfcli, sigint_default
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
@@ -223,6 +225,30 @@ def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
     stages, _ = _run(store, raw, "--dry-run", "--set", "sync.n_harmonics=4")
     assert [n for n, s in stages.items() if s["action"] == "would run"] == ["sync", "flow", "optimize", "diagnose"]
     assert stages["sync"]["reason"].startswith("/sync: config changed") and "n_harmonics" in stages["sync"]["reason"]
+
+
+def test_ctrl_c_during_a_run_lists_the_steps_it_committed(phantom, tmp_path):
+    """Ctrl-C in flow printed only "interrupted (Ctrl-C)", where a failed run lists the steps it committed first:
+    SIGINT once flow's part file appears; the steps before it are listed as run, exit 130."""
+    raw, _, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    proc = subprocess.Popen([*VFCLI, "run", str(store), "--raw", str(raw), *_sets(SETS)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                            preexec_fn=sigint_default)
+    parts = store.parent / (store.name + ".parts")
+    deadline = time.monotonic() + 300
+    while not (parts.is_dir() and any(p.name.startswith("flow-") for p in parts.iterdir())):
+        assert proc.poll() is None and time.monotonic() < deadline, "flow never started"
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1] == "vfcli run: interrupted (Ctrl-C)" and "Traceback" not in err
+    lines = {line.split(":")[0]: line for line in out.splitlines() if ":" in line}
+    assert all(lines[s].startswith(f"{s}: ran") for s in ("ingest-hsc", "ingest-ldv", "sync")), out
+    assert "flow" not in lines, out            # the interrupted step: its line is stderr's "interrupted (Ctrl-C)"
+    with Store(store).read() as r:
+        assert r.has_stage("sync") and not r.has_stage("flow")
 
 
 def test_until_stops_and_the_library_entry_point(phantom, tmp_path):

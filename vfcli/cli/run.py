@@ -61,8 +61,9 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
             config_path=Path(config_path) if config_path else None, dry_run=dry_run, force=force,
             command=" ".join(shlex.quote(a) for a in ["vfcli", *sys.argv[1:]]),
             progress=make_progress(False if quiet else None))
-    except VfcliError as exc:
-        # the steps that ran (and are committed) before the one that failed; the error itself is one line on stderr
+    except (VfcliError, KeyboardInterrupt) as exc:
+        # the steps that ran (and are committed) before the one that failed or was interrupted; the error itself
+        # is one line on stderr
         partial = getattr(exc, "partial", None)
         if partial is not None:
             _print(partial, [], as_json, quiet)

@@ -394,9 +394,11 @@ def run_recording(
         t0 = time.perf_counter()
         try:
             results = _run_step(step, context(), raw_files)
-        except VfcliError as exc:
-            # what the run did before the step that failed, for the command's output (the error is its one line)
-            failed = StageOutcome(step, "failed", str(exc), time.perf_counter() - t0, collect.messages)
+        except (VfcliError, KeyboardInterrupt) as exc:
+            # what the run did before the step that failed (or was interrupted), for the command's output (the
+            # error is its one line; the steps before are committed, the interrupted one left as it was)
+            why_not = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else str(exc)
+            failed = StageOutcome(step, "failed", why_not, time.perf_counter() - t0, collect.messages)
             exc.partial = RunSummary(store, [*done, failed], False, time.perf_counter() - t_start)
             raise
         finally:
