@@ -48,13 +48,14 @@ def fitted_phantom(d: Path, seed: int, fit: list[str], synth: tuple[str, ...] = 
 def shared_diagnosed_phantom(tmp_path_factory, seed: int, fit: list[str], synth: tuple[str, ...] = ()) -> Path:
     """The folder of the store :func:`fitted_phantom` makes of ``seed`` with ``fit`` (which stores the
     run "fit", as :data:`ONE_SIDED_FIT` does) and ``synth``, then `vfcli diagnose --run fit --map
-    map.png` of it: rec.h5 (fitted and diagnosed), map.png, the raw files, and the diagnosis' standard
+    maps/map.png` of it: rec.h5 (fitted and diagnosed), maps/map.png, the raw files, and the diagnosis' standard
     output in stdout.txt. Built once per test run (:func:`conftest.shared_product`) for every test file
     that asks for the same one; read-only (a test that writes copies the store with
     :func:`vfcli.store.parts.copy_store`)."""
     def build(d: Path) -> None:
         store = fitted_phantom(d, seed, fit, synth)
-        res = run_vfcli("diagnose", store, "--run", "fit", "--map", d / "map.png", timeout=3000)
+        # the map in a folder not there yet: --map's folder is made (it was a traceback after the whole diagnosis)
+        res = run_vfcli("diagnose", store, "--run", "fit", "--map", d / "maps" / "map.png", timeout=3000)
         assert res.returncode == 0, res.stderr
         (d / "stdout.txt").write_text(res.stdout)
 

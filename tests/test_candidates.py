@@ -112,6 +112,7 @@ def test_inertia_says_how_far_its_linearisation_reaches_in_density():
     assert abs(inertia.lowest_mode_hz(base) - f1) < 1e-6 * f1
     words = inertia.evidence(base)
     assert f"reaches density factors up to {reach:.2g} at f0" in words and "its profile (the loads refitted" in words, words
+    assert words.endswith("(its own line, 'inertia: profile ...')"), words          # it ended "... 0.25, ..., 3) is"
     column = inertia.displacement_jacobian(base)[..., 0]
     off = {}
     for q in (0.02, 1.0 / reach):

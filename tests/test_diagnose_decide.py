@@ -41,6 +41,21 @@ def test_a_confirmed_lead_is_a_finding_and_a_failed_confirmation_is_not():
     assert d.leads == ("damping",) and d.findings == ()
 
 
+def test_a_refit_asked_for_by_name_of_no_lead_says_why_it_is_no_finding():
+    """`--refit asymmetry` on a recording whose screening gave asymmetry p = 0.76: its refit improved the held-out
+    error beyond the spread, and the verdict "no missing physics detected" stood beside it without a word."""
+    for improves, words in ((True, "predicts held-out data better beyond the spread, but a finding needs a "
+                                   "calibrated lead as well"),
+                            (False, "does not predict held-out data better beyond the spread either")):
+        conf = {"asymmetry": _Confirmation("asymmetry", improves)}
+        d = decide(NAMES, np.array([0.3, 0.9, 0.76, 1.0]), [True] * 4, 199, confirmations=conf)
+        assert d.findings == () and d.verdict == "no missing physics detected"
+        line = next(x for x in d.lines if x.startswith("asymmetry: "))
+        assert line.endswith("; its refit, asked for by name, " + words + (
+            " (the false-alarm rate is controlled over the screening)" if improves else "")), line
+        assert not any("asked for by name" in x for x in d.lines if not x.startswith("asymmetry: "))
+
+
 def test_alpha_out_of_range_is_a_bug():
     with pytest.raises(ValueError):
         decide(NAMES, np.zeros(4), [True] * 4, 199, alpha=1.5)

@@ -185,3 +185,27 @@ def test_the_camera_only_fit_reaches_its_own_minimum_and_predicts_the_vibrometer
     assert end < 0.99 * start
     assert left < 1e-3
     assert unseen > seen      # the vibrometer's own data, fitted by the whole window's loads only
+
+
+def test_a_refit_run_is_not_diagnosed_again_and_the_line_says_which_run_to_diagnose(effect):
+    """`vfcli diagnose --run fit+asymmetry` said the refit's displacements differ from its model rebuilt from the store
+    ("/mesh ... changed since the run") and advised `vfcli optimize --run fit+asymmetry`, a name optimize refuses."""
+    store, _, _, _ = effect
+    before = {p.name: p.stat().st_mtime_ns for p in [store, *sorted(store.parent.glob("rec.h5.parts/*"))]}
+    res = run_vfcli("diagnose", store, "--run", "fit+asymmetry")
+    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+    line = res.stderr.strip().splitlines()[-1]
+    assert "is diagnose's refit of run 'fit' with asymmetry" in line and "diagnose run 'fit'" in line, line
+    assert {p.name: p.stat().st_mtime_ns for p in [store, *sorted(store.parent.glob("rec.h5.parts/*"))]} == before
+
+
+def test_the_report_says_what_a_refit_run_states(effect, tmp_path):
+    """The report said "Run fit+asymmetry states no uncertainty (optimize.uncertainty = false)": a refit states its
+    parameter's interval (optimize.uncertainty was on)."""
+    store, _, _, _ = effect
+    res = run_vfcli("report", store, "--out", tmp_path / "r.html")
+    assert res.returncode == 0, res.stderr
+    page = (tmp_path / "r.html").read_text()
+    assert "Run fit+asymmetry states no uncertainty" not in page
+    assert ("Run fit+asymmetry is the diagnosis' refit of run fit with asymmetry: it states the uncertainty of "
+            "its parameter, left_softening = ") in page

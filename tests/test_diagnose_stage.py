@@ -17,7 +17,7 @@ from vfcli.store.parts import copy_store
 
 @pytest.fixture(scope="module")
 def diagnosed(tmp_path_factory):
-    """The folder of `vfcli diagnose FITTED --run fit --map map.png` (rec.h5, map.png, stdout.txt),
+    """The folder of `vfcli diagnose FITTED --run fit --map maps/map.png` (rec.h5, maps/map.png, stdout.txt),
     shared with tests/test_contact_phantom.py (read-only)."""
     seed, synth = CONTACT_PHANTOM
     return shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
@@ -30,7 +30,7 @@ def fitted(diagnosed, tmp_path_factory):
 
 
 def test_diagnose_writes_the_run_group_and_says_what_it_located(diagnosed):
-    png, fitted = diagnosed / "map.png", diagnosed / "rec.h5"
+    png, fitted = diagnosed / "maps" / "map.png", diagnosed / "rec.h5"
     stdout = (diagnosed / "stdout.txt").read_text()
     lines = stdout.splitlines()
     print(stdout)
@@ -68,6 +68,9 @@ def test_diagnose_json_parses_and_a_rerun_is_up_to_date(fitted):
     assert out["stage"] == "/diagnose/fit"
     assert out["screening"] == "5 candidates screened" and isinstance(out["lines"], list) and out["hotspots"]
     assert {"region", "component", "ratio", "p", "p_adjusted"} <= set(out["hotspots"][0])
+    with Store(fitted).read() as r:      # the smallest of all (it was the first hotspot's, ranked by ratio)
+        adjusted = r.read("diagnose", "hotspot_p_adjusted", "fit")
+    assert out["smallest_p_adjusted"] == float(f"{adjusted.min():.4g}")
     again = run_vfcli("diagnose", fitted, "--run", "fit")
     assert again.returncode == 0 and "up to date" in again.stdout
     assert "candidate screening: 5 candidates screened" in again.stdout

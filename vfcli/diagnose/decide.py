@@ -118,8 +118,16 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
                    else "not confirmed: no held-out refit")
             lines.append(f"{n}: a calibrated lead (family-wise {_p(p[i], n_replicates)}), {why}")
         else:
+            # a refit asked for by name (--refit NAME) of a candidate that is no lead: say why it cannot count, which
+            # ever way its held-out check went (a confirmed refit beside "no missing physics detected" read as a
+            # contradiction)
+            asked = ("" if n not in confirmations else
+                     "; its refit, asked for by name, predicts held-out data better beyond the spread, but a finding "
+                     "needs a calibrated lead as well (the false-alarm rate is controlled over the screening)"
+                     if bool(getattr(confirmations[n], "improves", False)) else
+                     "; its refit, asked for by name, does not predict held-out data better beyond the spread either")
             lines.append(f"{n}: no evidence beyond noise and model error (calibrated family-wise "
-                         f"{_p(p[i], n_replicates)})" + (f"; {limits[n]}" if n in limits else ""))
+                         f"{_p(p[i], n_replicates)})" + (f"; {limits[n]}" if n in limits else "") + asked)
     d = Decision(tuple(names), p, leads, findings, float(alpha), int(n_replicates), profile_leads=profiled)
     tail = d.verdict
     open_leads = [n for n in leads + profiled if n not in findings]

@@ -212,7 +212,9 @@ class Diagnosis:
                         "p": float(f"{h.p_value:.4g}"), "p_adjusted": float(f"{h.p_adjusted:.4g}")})
         return {"f0_hz": round(loc.f0_hz, 2), "noise_cycles": loc.n_cycles, "parts_tested": len(loc.hotspots),
                 "above_noise": len(loc.significant), "alpha": loc.alpha,
-                "smallest_p_adjusted": float(f"{loc.hotspots[0].p_adjusted:.4g}") if loc.hotspots else None,
+                # the hotspots are ranked by their ratio to the noise floor, not by p (hotspots[0] was reported)
+                "smallest_p_adjusted": (float(f"{min(h.p_adjusted for h in loc.hotspots):.4g}") if loc.hotspots
+                                        else None),
                 "screening": self.screening_status, "lines": self.lines, "hotspots": top,
                 **({"profiles": [p.as_dict() for p in self.profiles]} if self.profiles else {}),
                 **({"candidates": calibration_summary(self)} if self.calibration is not None else {})}

@@ -95,8 +95,15 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
         The model rebuilt from the store does not reproduce the run's stored displacements
         (/mesh, /fields or /flow changed since the run).
     """
-    stored = read_run(reader, run)
     group = layout.stage("optimize").group_path(run)
+    attrs = reader.attrs("optimize", run) if reader.has_stage("optimize", run) else {}
+    if "refit_of" in attrs:
+        # its model is the baseline's extended by a candidate, which the store cannot rebuild as a plain run: the
+        # check below failed on it with "/mesh ... changed since the run; rerun `vfcli optimize --run NAME`"
+        raise ConfigError(f"diagnose --run {run}: {group} is diagnose's refit of run {attrs['refit_of']!r} with "
+                          f"{attrs.get('refit_candidate', 'a candidate')}, not a fit diagnose can judge; diagnose "
+                          f"run {attrs['refit_of']!r} (its refit's figures are in its diagnosis)")
+    stored = read_run(reader, run)
     flow_attrs = reader.attrs("flow")
     roi = np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float)
     cfg = run_recording_config(config, stored.config, stored.attrs, roi)
@@ -263,6 +270,7 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 
+            Path(map_path).parent.mkdir(parents=True, exist_ok=True)   # as the other outputs' folders (`--map`)
             residual_map(d.located, d.locate.residual, map_path, f"residual of run {run}")
         cands = available_candidates()
         profiled = d.decision.profile_leads if d.decision is not None else ()

@@ -181,6 +181,11 @@ def _runs_section(job: ExportJob, d: Path) -> str:
         if r.displacement_std is not None:
             f = figures.uncertainty_on_folds(job.mesh, r.displacement_std, r.name, fig_dir / f"unc_{r.name}", PNG)[0]
             parts.append(figure(f, f"Stated uncertainty of run {r.name} on the fold geometry (mm)"))
+        elif "refit_of" in r.attrs:
+            # diagnose's refit states its candidate's parameter with its interval, not each displacement's sd
+            parts.append(f'<p class="muted">Run {esc(r.name)} is the diagnosis\' refit of run {esc(r.attrs["refit_of"])} '
+                         f'with {esc(r.attrs.get("refit_candidate", ""))}: it states the uncertainty of its parameter, '
+                         f'{esc(r.attrs.get("refit_theta_text", ""))}, not of each displacement.</p>')
         else:
             parts.append(f'<p class="muted">Run {esc(r.name)} states no uncertainty (optimize.uncertainty = false).</p>')
     return "\n".join(parts)

@@ -183,7 +183,8 @@ class Inertia(DisplacementTerm):
         return (f"the folds' lowest mode ({f1:.0f} Hz) lies below f0 ({baseline.f0_hz:.0f} Hz): the score test's "
                 f"linearisation reaches density factors up to {r:.2g} at f0 (less at its harmonics), so a missing mass "
                 f"near the model's own density (1) is not seen by it; its profile (the loads refitted at each of "
-                f"{', '.join(f'{v:g}' for v in self.start_values)}) is")
+                f"{', '.join(f'{v:g}' for v in self.start_values)}) is, where the diagnosis runs it (its own line, "
+                f"'inertia: profile ...')")
 
     def reduction(self, baseline, n_harmonics: int = 6, centre: float = 1.0) -> ModalReduction:
         """The modal reduction of the baseline's model and load patterns, built once per response,
