@@ -168,6 +168,27 @@ def _verify(store: Path) -> None:
 
 
 @pytest.mark.slow
+def test_a_manifests_set_values_are_the_recordings_config_after_the_batch(tmp_path, raws):
+    """A manifest entry with `set = { "flow.median_px" = 3 }` (docs/cluster.md's example): right after the batch
+    `vfcli info` called /flow, /fields and the fit STALE ("config changed: flow.median_px 3 -> 5"), and a plain
+    `vfcli run` would have undone the value. The values are now stored with the recording, as `vfcli config --set`."""
+    from vfcli.batch.manifest import RecordingEntry
+    from vfcli.batch.task import run_entry
+    from vfcli.stages.run import run_recording
+
+    store = tmp_path / "a.h5"
+    entry = RecordingEntry(name="a", raw=raws[0], store=store, until="flow", overrides={"flow.median_px": 3})
+    out = run_entry(entry.to_json())
+    assert out["status"] == "done", out
+    info = json.loads(run_vfcli("info", "--json", store).stdout)
+    assert not [st["path"] for st in info["stages"] if st["stale"]], info
+    with Store(store).read() as r:
+        assert json.loads(r.recording_config_json())["flow"]["median_px"] == 3
+        assert json.loads(r.group("flow").attrs["config_json"])["flow"]["median_px"] == 3
+    plain = run_recording(store, raws[0], until="flow", dry_run=True)
+    assert {s.action for s in plain.stages if s.name != "diagnose"} <= {"up to date", "skipped"}, plain
+
+
 def test_cli_batch_runs_resumes_and_reports_a_failed_recording(tmp_path, raws):
     manifest = _manifest(tmp_path, raws[:2], "ingest-ldv")
     with manifest.open("a") as fh:

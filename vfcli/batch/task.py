@@ -50,7 +50,7 @@ def run_entry(entry_json: Mapping[str, Any], inner_map: bool = False) -> dict[st
         cluster ran its pieces), ``summary`` (:meth:`RunSummary.to_json`, None on
         error) and ``traceback`` (only for a bug).
     """
-    from vfcli.stages.run import run_recording
+    from vfcli.stages.run import keep_overrides, run_recording
 
     entry = RecordingEntry.from_json(entry_json)
     t0 = time.perf_counter()
@@ -69,6 +69,8 @@ def run_entry(entry_json: Mapping[str, Any], inner_map: bool = False) -> dict[st
         out["status"] = outcome_status(summary)
         if out["status"] == "failed":
             out["error"], out["exit_code"] = "the run did not complete", EXIT_INTERNAL
+        else:   # the manifest's `set` is the recording's config from now on (info and a later run see it)
+            keep_overrides(Path(entry.store), dict(entry.overrides), f"vfcli batch ({entry.name})")
     except VfcliError as exc:
         partial = getattr(exc, "partial", None)   # the steps that ran before the one that failed
         out.update(status="failed", error=str(exc), exit_code=exc.exit_code,

@@ -90,6 +90,24 @@ def _override_items(overrides: Mapping[str, Any] | Sequence[str] | None) -> list
     return [str(o) for o in overrides]
 
 
+def keep_overrides(store: Path, overrides: Mapping[str, Any] | Sequence[str] | None, command: str) -> bool:
+    """Store ``overrides`` in the recording's stored config, as `vfcli config --set` does (a batch manifest's
+    ``set``: the settings its recording is processed with, not one run's). Without it `info` and the report called
+    the stages a batch had just made STALE ("config changed: flow.median_px 3 -> 5"), and a later plain `vfcli run`
+    undid the values. Returns True when the stored config changed."""
+    import dataclasses
+
+    from vfcli.config import persist_overrides
+    from vfcli.stages.base import save_recording_config
+
+    items = _override_items(overrides)
+    if not items or not Path(store).exists():
+        return False
+    ctx = RunContext.open(store, None, [], command=command)
+    stored = persist_overrides(ctx.stored_config, items)
+    return save_recording_config(dataclasses.replace(ctx, stored_config=stored, config=stored))
+
+
 def _steps_until(until: str | None) -> list[str]:
     names = list(STEPS)
     if until is None:
