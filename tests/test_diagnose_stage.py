@@ -80,6 +80,8 @@ def test_diagnose_user_errors_are_one_line(fitted):
     missing = run_vfcli("diagnose", fitted, "--run", "nope")
     assert missing.returncode == 5, missing.stderr
     assert "Traceback" not in missing.stderr and len(missing.stderr.strip().splitlines()) == 1
+    # the command that writes that run and the runs there are ("run `vfcli optimize` first" writes "default")
+    assert "run `vfcli optimize --run nope` first, or choose one of its runs: fit" in missing.stderr, missing.stderr
     with Store(fitted).read() as r:
         assert not r.has_stage("diagnose", "nope")
     bad = run_vfcli("diagnose", fitted, "--run", "fit", "--alpha", "2")

@@ -205,9 +205,14 @@ class StoreReader:
         """The stage group; :class:`MissingStageError` when it is absent or incomplete."""
         st = layout.stage(name)
         if not self.has_stage(name, run):
+            # a missing run: the runs there are, and the command that writes this one (`vfcli optimize`, which
+            # the advice named alone, writes the run "default")
+            runs = [x for x in self.runs(name) if self.has_stage(name, x)] if (run and st.has_runs) else []
+            how = (f"run `vfcli {st.written_by}{'' if run == 'default' else f' --run {run}'}` first"
+                   + (f", or choose one of its runs: {', '.join(runs)}" if runs else "")) if run else \
+                f"run `vfcli {st.written_by}` first"
             raise MissingStageError(
-                f"stage {st.group_path(run) if (run or not st.has_runs) else '/' + name} is missing; "
-                f"run `vfcli {st.written_by}` first",
+                f"stage {st.group_path(run) if (run or not st.has_runs) else '/' + name} is missing; {how}",
                 self.path,
             )
         if self.problems(st.group_path(run)):
