@@ -144,6 +144,20 @@ def test_a_diagnosis_verdict_is_shown_at_a_glance_and_its_stored_json_is_folded_
     assert "manifest_json" in diagnosis[folded:]
 
 
+def test_the_verdict_at_a_glance_names_the_unconfirmed_leads_as_the_terminal_does():
+    """The report showed "no missing physics detected" where the terminal printed "... (unconfirmed lead:
+    contact)": the stored decision is the verdict alone, the printed line names the leads."""
+    from vfcli.stages.report import _verdict
+
+    words = ["f0 120 Hz ...", "contact: a calibrated lead (family-wise p = 0.025), its refit does not predict ...",
+             "no missing physics detected (unconfirmed lead: contact)"]
+    attrs = {"decision": "no missing physics detected", "words_json": json.dumps(words),
+             "refit_run": "default+contact", "refit_candidate": "contact"}
+    assert _verdict(attrs) == ("no missing physics detected (unconfirmed lead: contact) (refit with contact stored "
+                               "as run default+contact)")
+    assert _verdict({"decision": "missing physics: asymmetry", "words_json": "[]"}) == "missing physics: asymmetry"
+
+
 def test_index_links_the_reports_of_many_recordings(report, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     a.mkdir()

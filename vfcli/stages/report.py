@@ -74,7 +74,9 @@ def _verdict(diag_attrs: dict[str, Any]) -> str:
     """The diagnosis' verdict in words, with the run its refit was stored as: its calibrated decision, or the
     line that says why it could not decide ("" when it stored neither)."""
     verdict = str(diag_attrs.get("decision", "") or "")
-    if not verdict:
+    if verdict:   # the printed line, which names the unconfirmed leads too ("... detected (unconfirmed lead: x)")
+        verdict = next((x for x in reversed(_words(diag_attrs)) if x.startswith(verdict)), verdict)
+    else:
         verdict = next((x[len("decision: "):] for x in _words(diag_attrs) if x.startswith("decision: not ")), "")
     if verdict and diag_attrs.get("refit_run"):
         verdict += f" (refit with {diag_attrs.get('refit_candidate', '?')} stored as run {diag_attrs['refit_run']})"
