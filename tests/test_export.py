@@ -58,6 +58,8 @@ def test_vtkhdf_reads_back_equal_to_the_store_at_every_step(exported):
             np.testing.assert_allclose(grid.point_data["velocity_mm_per_s"], vel[k], rtol=1e-6,
                                        atol=1e-6 * np.abs(vel).max())
             assert grid.point_data["surface_load_Pa"].shape == (mesh.n_nodes, 3)
+            # the .vtu files' fold array, which the .vtkhdf lacked
+            np.testing.assert_array_equal(grid.point_data["fold"], np.isin(np.arange(mesh.n_nodes), mesh.fold_nodes(1)))
 
 
 def test_the_pressure_run_pushes_the_inferior_surface_up_by_about_the_recorded_pressure(exported):

@@ -5,7 +5,8 @@ Point data per step (units in the array names, ParaView shows them as they are):
 ``displacement_mm`` (N, 3), ``displacement_magnitude_mm``, ``velocity_mm_per_s`` (N, 3, central
 differences of the displacements over the model times), ``displacement_std_mm`` (N, 3, the
 stated standard deviation, when the run has one) and ``surface_load_Pa`` (N, 3, the applied
-surface traction averaged onto the nodes, zero off the loaded surfaces; vfcli/export/loads.py). Points are the deformed positions
+surface traction averaged onto the nodes, zero off the loaded surfaces; vfcli/export/loads.py), and ``fold`` (0 the left
+fold, 1 the right; the same at every step). Points are the deformed positions
 (rest + displacement, mm), so ParaView's time slider plays the motion without a filter.
 """
 from __future__ import annotations
@@ -49,7 +50,7 @@ def write_pvd(path: str | Path, mesh: FoldMesh, times: np.ndarray, displacements
         grid = pv.UnstructuredGrid(cells, (mesh.nodes + displacements[k]).astype(np.float64))
         for name, v in fields.items():
             grid.point_data[name] = v[k]
-        grid.point_data["fold"] = _node_fold(mesh)
+        grid.point_data["fold"] = node_fold(mesh)
         vtu = folder / f"step_{k:04d}.vtu"
         grid.save(vtu, binary=True)
         written.append(vtu)
@@ -59,7 +60,8 @@ def write_pvd(path: str | Path, mesh: FoldMesh, times: np.ndarray, displacements
     return [path, *written]
 
 
-def _node_fold(mesh: FoldMesh) -> np.ndarray:
+def node_fold(mesh: FoldMesh) -> np.ndarray:
+    """(N,) int32 the fold of each node: 0 the left (y < 0), 1 the right, as in the store's /mesh."""
     fold = np.zeros(mesh.n_nodes, np.int32)
     fold[mesh.fold_nodes(1)] = 1
     return fold

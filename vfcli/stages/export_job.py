@@ -94,7 +94,8 @@ class ExportJob:
         for run in self.runs:
             fields = paraview.motion_fields(run.sim_time, run.displacements, run.displacement_std, self._load(run))
             pts = self.mesh.nodes[None].astype(np.float64) + run.displacements.astype(np.float64)
-            write_transient_tets(d / f"{run.name}.vtkhdf", pts, self.mesh.tets, run.sim_time, fields)
+            fold = np.broadcast_to(paraview.node_fold(self.mesh), pts.shape[:2])   # as the .vtu files have it
+            write_transient_tets(d / f"{run.name}.vtkhdf", pts, self.mesh.tets, run.sim_time, {**fields, "fold": fold})
             self.files.append(d / f"{run.name}.vtkhdf")
             self.files += paraview.write_pvd(d / f"{run.name}.pvd", self.mesh, run.sim_time, run.displacements, fields)
 
