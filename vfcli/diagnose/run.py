@@ -229,7 +229,9 @@ def calibration_summary(d: Diagnosis) -> dict[str, Any]:
             "pool_cycles": cal.n_pool_cycles, "verdict": d.decision.verdict, "leads": list(d.decision.leads),
             "findings": list(d.decision.findings),
             "tests": [{"name": n, "p_naive": float(f"{pn:.4g}"), "p_calibrated": float(f"{pc:.4g}"),
-                       "p_family": float(f"{pf:.4g}"), "statistic": float(f"{st:.4g}"),
+                       # the calibrated test's studentized statistic (as /diagnose's candidate_statistic_studentized),
+                       # not the chi2 behind p_naive: named so (it was "statistic" beside p_naive)
+                       "p_family": float(f"{pf:.4g}"), "statistic_studentized": float(f"{st:.4g}"),
                        **({"smallest_detectable": None if not np.isfinite(lim) else float(f"{lim:.4g}")}
                           if n in d.decision.limits else {})}
                       for n, pn, pc, pf, st, lim in zip(d.calibration.names, d.calibration.naive_p, cal.p_value,
