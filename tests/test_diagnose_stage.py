@@ -76,6 +76,19 @@ def test_diagnose_json_parses_and_a_rerun_is_up_to_date(fitted):
     assert "candidate screening: 5 candidates screened" in again.stdout
 
 
+def test_an_up_to_date_diagnosis_over_a_stale_stage_says_so(fitted, tmp_path):
+    """After `vfcli config --set flow.median_px=3` a second `vfcli diagnose` printed the old verdict as "up to
+    date" while `vfcli info` called the diagnosis STALE (the config change upstream not applied yet)."""
+    store = copy_store(fitted, tmp_path / "rec.h5")
+    res = run_vfcli("config", store, "--set", "flow.median_px=3")
+    assert res.returncode == 0, res.stderr
+    res = run_vfcli("diagnose", store, "--run", "fit")
+    assert res.returncode == 0 and "up to date" in res.stdout, res.stderr
+    hit = [x for x in res.stderr.splitlines() if "is up to date with what it read, but" in x]
+    assert len(hit) == 1 and "but /optimize/fit is STALE (" in hit[0] and "/flow is stale" in hit[0], res.stderr
+    assert "`vfcli run` redoes the stages in order" in hit[0]
+
+
 def test_diagnose_user_errors_are_one_line(fitted):
     missing = run_vfcli("diagnose", fitted, "--run", "nope")
     assert missing.returncode == 5, missing.stderr

@@ -108,6 +108,24 @@ def expected_settings(name: str, run: str | None, config: RecordingConfig) -> st
     return stage_config_json(name, config)
 
 
+def _warn_stale_upstream(ctx: RunContext, path: str, upstream: list[tuple[str, str | None]]) -> None:
+    """Warn when a stage found up to date with its own inputs uses a stage `vfcli info` calls STALE (a config
+    change upstream that no command has applied yet): `vfcli diagnose` said "up to date" and printed the old verdict
+    while info said the diagnosis was stale."""
+    from vfcli.store import layout
+
+    if not upstream:
+        return
+    with ctx.store.read() as r:
+        status = {st.path: st for st in r.statuses(lambda n, run: expected_settings(n, run, ctx.config))}
+    for name, run in upstream:
+        st = status.get(layout.stage(name).group_path(run))
+        if st is not None and st.stale:
+            log.warning("%s is up to date with what it read, but %s is STALE (%s): `vfcli run` redoes the stages in "
+                        "order", path, st.path, "; ".join(st.stale_because))
+            return
+
+
 def expected_configs(recording_config_json: str | None) -> Callable[[str, str | None], str | None]:
     """``(stage name, run) -> settings JSON`` each stage would record under the stored recording config
     (:func:`expected_settings`: the rules `vfcli run` decides by, so that `info` and the report say what it does)."""
@@ -174,6 +192,7 @@ def run_stage(
             with ctx.store.write(ctx.command) as w:
                 w.set_recording_config(stored_json, ctx.config_file_sha256)
         log.info("%s is up to date (inputs and config unchanged); --force reruns", path)
+        _warn_stale_upstream(ctx, path, upstream)
         return StageResult(path, "up-to-date", dict(stored_summary.get("figures", {})))
     hashed = _Background(describe_inputs, input_paths, previous) if inputs is None else None
     with ctx.store.write(ctx.command) as w:
