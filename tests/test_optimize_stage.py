@@ -72,6 +72,20 @@ def test_optimize_stores_a_decreasing_history_and_the_motion(store, tmp_path):
     assert "up to date" in again.stdout
 
 
+def test_setup_with_pressure_loads_is_refused_and_resume_without_a_checkpoint_says_so(store):
+    """`--setup 3x3x10-two-sided --loads pressure` fitted the pressure model with the setup silently dropped (a
+    result equal to the default run's); `--resume` of a run with no checkpoint started afresh without a word."""
+    path, _ = store
+    before = {p.name: p.stat().st_mtime_ns for p in path.parent.rglob("*")}
+    res = run_vfcli("optimize", path, "--setup", "3x3x10-two-sided", "--loads", "pressure", "--run", "both")
+    assert res.returncode == 2 and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    assert "--setup 3x3x10-two-sided fits the paper's free force field, --loads pressure" in res.stderr
+    assert {p.name: p.stat().st_mtime_ns for p in path.parent.rglob("*")} == before
+    res = run_vfcli("optimize", path, *FIT, "--set", "optimize.max_iterations=1", "--run", "fresh", "--resume")
+    assert res.returncode == 0, res.stderr
+    assert "--resume: no checkpoint of this run" in res.stderr and "fitting from the start" in res.stderr
+
+
 def test_resume_after_sigkill_ends_where_an_uninterrupted_run_ends(store):
     path, _ = store
     opts = [*FIT, "--set", "optimize.max_iterations=7"]

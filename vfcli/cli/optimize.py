@@ -28,12 +28,18 @@ def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot, uncertai
     displacements and their standard deviations). Config section [optimize].
     """
     from vfcli.cli.outputs import PICTURE_FORMATS, check_output_file
+    from vfcli.errors import ConfigError
     from vfcli.config import RecordingConfig, apply_overrides
     from vfcli.stages.optimize import run_optimize
 
     check_output_file(plot, "--plot", PICTURE_FORMATS)
     check_output_file(uncertainty_plot, "--uncertainty-map", PICTURE_FORMATS)
 
+    if setup and loads == "pressure":
+        # --loads after --setup made the fit the pressure model's, --setup silently dropped
+        raise ConfigError(f"--setup {setup} fits the paper's free force field, --loads pressure the pressure load "
+                          "model, which has no setup: give one of them (with --setup, --loads free or "
+                          "free-regularised)")
     # a --setup names one of the paper's free force fields
     sets = ([f"optimize.setup={setup!r}", "optimize.loads='free'"] if setup else [])
     sets += [f"optimize.loads={loads!r}"] if loads else []

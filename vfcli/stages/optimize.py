@@ -48,6 +48,8 @@ def _save_checkpoint(path: Path, state: FitState, settings_json: str) -> None:
 
 def _load_checkpoint(path: Path, settings_json: str) -> FitState | None:
     if not path.exists():
+        # --resume without a checkpoint started afresh without a word
+        log.warning("--resume: no checkpoint of this run (%s); fitting from the start", path.name)
         return None
     with np.load(path, allow_pickle=False) as z:
         if str(z["settings_json"]) != settings_json:
