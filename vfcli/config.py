@@ -550,38 +550,6 @@ def persist_overrides(stored: RecordingConfig, overrides: list[str]) -> Recordin
     return _validate(apply_overrides(stored.model_dump(mode="json", exclude_unset=True), overrides), "--set")
 
 
-#: Settings a lab measures for its own setup; left at the default they silently scale results.
-CALIBRATION: dict[str, tuple[str, str]] = {
-    "camera.px_per_mm": ("px/mm", "measure it on a calibration target in the folds' plane"),
-}
-
-
-def default_calibration(stored: RecordingConfig, effective: RecordingConfig) -> list[str]:
-    """The :data:`CALIBRATION` keys that no config file or ``--set`` gave a value: they are at
-    their default (a value equal to the default counts as given when the stored config sets it)."""
-    out = []
-    for key in CALIBRATION:
-        section, name = key.split(".")
-        model = getattr(effective, section)
-        default = type(model).model_fields[name].default
-        if getattr(model, name) == default and name not in getattr(stored, section).model_fields_set:
-            out.append(key)
-    return out
-
-
-def calibration_warnings(stored: RecordingConfig, effective: RecordingConfig, store: str | Path) -> list[str]:
-    """One line per :func:`default_calibration` key: its default value and how to set it."""
-    lines = []
-    for key in default_calibration(stored, effective):
-        section, name = key.split(".")
-        value = getattr(getattr(effective, section), name)
-        unit, how = CALIBRATION[key]
-        lines.append(f"{key} is not set: the default {value:g} {unit} is used, and every length and velocity from "
-                     f"the video scales with it; {how} and set it with `vfcli config {store} --set {key}=VALUE` "
-                     f"(or in recording.toml), then rerun")
-    return lines
-
-
 def export_schemas(out_dir: str | Path) -> list[Path]:
     """Write one JSON Schema per config model into ``out_dir``; returns the paths."""
     out_dir = Path(out_dir)

@@ -8,7 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.config import SyncConfig, calibration_warnings
+from vfcli.calibration import calibration_warnings, default_calibration
+from vfcli.config import SyncConfig
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.flow.plausibility import points_on_image
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
@@ -121,7 +122,8 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
         if pressure is not None:
             rec = read_pressure(pressure, cfg.pressure_group, cfg.pressure_channel,
                                 wav_pa_per_full_scale=cfg.wav_full_scale_pa)
-            if Path(pressure).suffix.lower() == ".wav" and _wav_scale_is_default(ctx):
+            if Path(pressure).suffix.lower() == ".wav" and default_calibration(
+                    ctx.stored_config, ctx.config, ["ingest_hsc.wav_full_scale_pa"]):
                 log.warning("%s: a WAV states no unit; its samples were read as %g Pa at digital full scale, "
                             "ingest_hsc.wav_full_scale_pa's default: set your amplifier's calibration with `vfcli "
                             "config %s --set ingest_hsc.wav_full_scale_pa=VALUE` (or in recording.toml), then rerun",
@@ -140,14 +142,6 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
     for line in calibration_warnings(ctx.stored_config, ctx.config, ctx.store.path):
         log.warning(line)  # after the write: a failed ingest prints its error alone
     return result
-
-
-def _wav_scale_is_default(ctx: RunContext) -> bool:
-    """ingest_hsc.wav_full_scale_pa is at its default and no config file set it (as
-    :func:`vfcli.config.default_calibration`)."""
-    cfg = ctx.config.ingest_hsc
-    default = type(cfg).model_fields["wav_full_scale_pa"].default
-    return cfg.wav_full_scale_pa == default and "wav_full_scale_pa" not in ctx.stored_config.ingest_hsc.model_fields_set
 
 
 def _to_camera_frame(coords_mm: np.ndarray, affine: np.ndarray) -> np.ndarray:
