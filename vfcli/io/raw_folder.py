@@ -11,7 +11,7 @@ files are recognised by their extension:
 When a folder holds more than one candidate of a kind (two videos, a ``.csv`` pressure, a
 ``.mat`` scan), a manifest ``vfcli-files.toml`` in the folder names the files, relative to it::
 
-    video = "cam/take2.cihx"
+    video = "cam/take2.cihx"       # or a folder of numbered images: "frames/"
     pressure = "daq/pressure.csv"
     ldv = "scan/points.uff"
     config = "recording.toml"      # optional; "" for none
@@ -88,8 +88,11 @@ def _candidates(folder: Path, kind: str) -> list[Path]:
 def _one(folder: Path, kind: str, manifest: dict[str, str], required: bool) -> Path | None:
     if kind in manifest:
         path = folder / manifest[kind]
+        if kind == "video" and path.is_dir():      # a folder of numbered images, as `vfcli ingest-hsc` reads it
+            return path
         if not path.is_file():
-            raise InputDataError(f"{FILES_MANIFEST} names {kind} = {manifest[kind]!r}, which is not a file in the folder",
+            what = "a file or a folder of images" if kind == "video" else "a file"
+            raise InputDataError(f"{FILES_MANIFEST} names {kind} = {manifest[kind]!r}, which is not {what} in the folder",
                                  folder)
         return path
     found = _candidates(folder, kind)
@@ -100,8 +103,9 @@ def _one(folder: Path, kind: str, manifest: dict[str, str], required: bool) -> P
     if not found:
         if not required:
             return None
+        other = " or is a folder of images" if kind == "video" else ""
         raise InputDataError(f"no {_WHAT[kind]} ({', '.join(_KINDS[kind])}) in the folder; name it in "
-                             f"{FILES_MANIFEST} ({kind} = \"...\") if it has another extension", folder)
+                             f"{FILES_MANIFEST} ({kind} = \"...\") if it has another extension{other}", folder)
     return found[0]
 
 
