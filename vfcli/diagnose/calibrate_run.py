@@ -161,6 +161,22 @@ def pool_shifts(cycles: Cycles, window: np.ndarray, max_each_side: int = MAX_POO
     return out
 
 
+def calibration_shifts(cycles: Cycles, window: np.ndarray) -> list[int]:
+    """:func:`pool_shifts`, at least 3 of them (the calibration's noise stretches).
+
+    Raises
+    ------
+    vfcli.diagnose.cycles.TooFewCycles
+        Fewer than 3 whole-cycle stretches of the window's length inside the recording."""
+    from vfcli.diagnose.cycles import TooFewCycles
+
+    shifts = pool_shifts(cycles, window)
+    if len(shifts) < 3:
+        raise TooFewCycles(f"{len(shifts)} stretch(es) of the window's length at whole cycles from it inside the "
+                           "recording: the calibration needs at least 3")
+    return shifts
+
+
 def stretch_motion(baseline, rec, cycles: Cycles, window: np.ndarray, k: int) -> np.ndarray:
     """(n_motion_rows,) the measured velocity (model axes, mm/s) of the stretch k cycles from the window, at the
     window frames' phases and compared pixels (linear interpolation between frames), NaN where not valid."""
@@ -206,12 +222,7 @@ def calibrate_run(candidates, baseline, rec, cycles: Cycles, window: np.ndarray,
     vfcli.diagnose.cycles.TooFewCycles
         Fewer than 3 whole-cycle stretches of the recording outside the window.
     """
-    from vfcli.diagnose.cycles import TooFewCycles
-
-    shifts = pool_shifts(cycles, window)
-    if len(shifts) < 3:
-        raise TooFewCycles(f"{len(shifts)} stretch(es) of the window's length at whole cycles from it inside the "
-                           "recording: the calibration needs at least 3")
+    shifts = calibration_shifts(cycles, window)
     omega = row_weights(baseline)
     cols = [baseline.measure_linear(c) for c in columns]
     basis = ScoreBasis([omega[:, None] * c for c in cols], [c.T @ (omega[:, None] * c) for c in cols],

@@ -64,6 +64,25 @@ class NoiseFloor:
                           self.known_harm_var + known_harm_var, self.n_cycles)
 
 
+def floor_cycle_ids(cycles: Cycles, exclude: np.ndarray | None = None) -> np.ndarray:
+    """(n,) the whole cycles the noise floor is measured on: those with no ``exclude`` frame while at
+    least 3 remain, else all of them (see :func:`cycle_floor`).
+
+    Raises
+    ------
+    TooFewCycles
+        Fewer than 2 whole cycles."""
+    ids = np.unique(cycles.cycle[cycles.cycle >= 0])
+    if exclude is not None:
+        hit = np.unique(cycles.cycle[np.asarray(exclude, bool) & (cycles.cycle >= 0)])
+        kept = np.setdiff1d(ids, hit)
+        if len(kept) >= 3:
+            ids = kept
+    if len(ids) < 2:
+        raise TooFewCycles(f"{len(ids)} whole glottal cycle(s) in the recording: the noise floor needs at least 2")
+    return ids
+
+
 def cycle_floor(series: np.ndarray, cycles: Cycles, n_harmonics: int,
                 exclude: np.ndarray | None = None) -> NoiseFloor:
     """Cycle-to-cycle noise floor of a measured series (module docstring).
@@ -85,14 +104,7 @@ def cycle_floor(series: np.ndarray, cycles: Cycles, n_harmonics: int,
     f, r, c = y.shape
     if len(cycles.cycle) != f:
         raise ValueError(f"series has {f} frames, cycles {len(cycles.cycle)}")
-    ids = np.unique(cycles.cycle[cycles.cycle >= 0])
-    if exclude is not None:
-        hit = np.unique(cycles.cycle[np.asarray(exclude, bool) & (cycles.cycle >= 0)])
-        kept = np.setdiff1d(ids, hit)
-        if len(kept) >= 3:
-            ids = kept
-    if len(ids) < 2:
-        raise TooFewCycles(f"{len(ids)} whole glottal cycle(s) in the recording: the noise floor needs at least 2")
+    ids = floor_cycle_ids(cycles, exclude)
     nb, k = len(PHASE_NAMES), n_harmonics
     y = y - periodic_template(y, cycles, np.isin(cycles.cycle, ids))
     means = np.full((len(ids), r, c, nb), np.nan)

@@ -16,13 +16,13 @@ from typing import Any, Callable
 import numpy as np
 
 from vfcli.camera.pose import model_axes_velocity
-from vfcli.diagnose.calibrate_run import calibrate_run
+from vfcli.diagnose.calibrate_run import calibrate_run, calibration_shifts
 from vfcli.diagnose.candidate import available_candidates, screenings
 from vfcli.diagnose.candidates.blocks import screen_run_columns
 from vfcli.diagnose.profile import profile_screens
 from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles, glottal_cycles
 from vfcli.diagnose.locate import Located, decompose, rank_hotspots
-from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
+from vfcli.diagnose.noise import cycle_floor, floor_cycle_ids, ldv_known_variance, ldv_noise_density
 from vfcli.diagnose.regions import (COMPONENT_NAMES, GAP_COMPONENT_NAMES, N_GAP_REGIONS, N_REGIONS,
                                     gap_region_names, region_names)
 from vfcli.diagnose.residual import WindowResidual, medial_silhouettes, region_means, window_residual
@@ -107,6 +107,34 @@ def floor_frames(cycles: Cycles, window: np.ndarray, max_cycles: int = MAX_FLOOR
     return slice(int(inside[0]), int(inside[-1]) + 1)
 
 
+def floor_cycles(cycles: Cycles, window: np.ndarray) -> tuple[slice, Cycles, np.ndarray]:
+    """(frames, their cycles, (frames,) bool the window's among them): what the noise floor is measured on
+    (:func:`floor_frames`) for the window's frames ``window``."""
+    if window[-1] >= len(cycles.phase):
+        raise ValueError(f"window frames {window[0]}..{window[-1]} run past the recording ({len(cycles.phase)})")
+    span = floor_frames(cycles, window)
+    around = Cycles(cycles.f0_hz, cycles.phase[span], cycles.cycle[span], cycles.phase_name[span])
+    exclude = np.zeros(span.stop - span.start, bool)
+    exclude[window - span.start] = True
+    return span, around, exclude
+
+
+def uncalibrated_reason(area: np.ndarray, dt: float, f0_hz: float | None, first: int, n_frames: int) -> str | None:
+    """Why :func:`diagnose_run` cannot decide on the window ``first .. first + n_frames - 1`` of a recording
+    whose glottal area is ``area`` ((F,), frames ``dt`` s apart): its own checks, on the area alone (no whole
+    cycle; fewer than 2 for the noise floor; fewer than 3 stretches for the calibration), or None.
+    f0_hz : the subglottal pressure's f0 (``/sync``), Hz, or None."""
+    try:
+        cycles = glottal_cycles(np.asarray(area, float), dt, f0_hz)
+        window = np.arange(first, first + n_frames)
+        _, around, exclude = floor_cycles(cycles, window)
+        floor_cycle_ids(around, exclude)
+        calibration_shifts(cycles, window)
+    except TooFewCycles as exc:
+        return str(exc)
+    return None
+
+
 def measured_motion_series(rec: Recording, camera_rotation_deg: float, pixel_region: np.ndarray,
                            frames: slice) -> np.ndarray:
     """(F, 18, 3) measured velocity in model axes, mean over each region's valid pixels per frame, mm/s,
@@ -148,12 +176,7 @@ def locate_run(baseline, rec: Recording, settings: LocateSettings | None = None)
     res = window_residual(baseline)
     cycles = glottal_cycles(np.asarray(rec.glottal_area, float), p.dt, rec.pressure_f0_hz)
     window = np.arange(rec.window_start, rec.window_start + p.n_frames)
-    if window[-1] >= len(cycles.phase):
-        raise ValueError(f"window frames {window[0]}..{window[-1]} run past the recording ({len(cycles.phase)})")
-    span = floor_frames(cycles, window)
-    around = Cycles(cycles.f0_hz, cycles.phase[span], cycles.cycle[span], cycles.phase_name[span])
-    exclude = np.zeros(span.stop - span.start, bool)
-    exclude[window - span.start] = True
+    span, around, exclude = floor_cycles(cycles, window)
 
     motion_all = measured_motion_series(rec, p.camera.rotation_deg, res.pixel_region, span)
     floor = cycle_floor(motion_all, around, k, exclude)

@@ -42,11 +42,6 @@ STEPS: dict[str, list[tuple[str, str | None]]] = {
     for step in ("ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize", "diagnose")
 }
 _RAW_STEPS = ("ingest-hsc", "ingest-ldv")
-#: whole glottal cycles the diagnose step needs outside the fitted window: its noise floor is the
-#: cycle-to-cycle variation of the recording with whole cycles as the units of replication
-#: (:func:`vfcli.diagnose.noise.cycle_floor`); from 3 cycles that do not touch the window the floor is
-#: independent of the residual it judges and its variance has 2 degrees of freedom
-DIAGNOSE_MIN_CYCLES = 3
 
 
 @dataclass
@@ -230,30 +225,11 @@ def _run_step(step: str, ctx: RunContext, raw: RawFiles | None) -> list[StageRes
     raise ValueError(f"unknown step {step!r}")
 
 
-def cycles_outside_window(area: np.ndarray, dt: float, first: int, n_frames: int,
-                          f0_hz: float | None = None) -> tuple[int, int]:
-    """Whole glottal cycles of a recording: (all of them, those with no frame in the window).
-
-    area : (F,) glottal area per frame (any unit).  dt : frame interval, s.
-    first, n_frames : the fitted window, frames ``first .. first + n_frames - 1``.
-    f0_hz : the subglottal pressure's f0 (``/sync``), Hz, or None.
-    The cycles are :func:`vfcli.diagnose.cycles.glottal_cycles`' (0, 0 when there is none), as diagnose counts them.
-    """
-    from vfcli.diagnose.cycles import TooFewCycles, glottal_cycles
-
-    try:
-        cyc = glottal_cycles(np.asarray(area, float), dt, f0_hz)
-    except TooFewCycles:
-        return 0, 0
-    ids = np.unique(cyc.cycle[cyc.cycle >= 0])
-    hit = cyc.cycle[max(first, 0):first + n_frames]
-    return len(ids), len(np.setdiff1d(ids, hit))
-
-
 def diagnose_skip_reason(ctx: RunContext) -> str | None:
-    """Why the diagnose step cannot run on this recording (too few whole glottal cycles outside the
-    fitted window, :data:`DIAGNOSE_MIN_CYCLES`), or None (also when /flow is not there yet: the
-    stage then names what is missing)."""
+    """Why the diagnose step cannot decide on this recording's fitted window, by diagnose's own checks
+    (:func:`vfcli.diagnose.run.uncalibrated_reason`: a noise floor of 2 whole glottal cycles and 3
+    stretches of the window's length at whole cycles from it), or None (also when /flow is not there
+    yet: the stage then names what is missing)."""
     with ctx.store.read() as r:
         if not r.has_stage("flow"):
             return None
@@ -267,15 +243,17 @@ def diagnose_skip_reason(ctx: RunContext) -> str | None:
         dt = float(np.median(np.diff(times)))
         n = window_frames(r, ctx.config, dt)
     first = ctx.config.optimize.first_frame
-    total, outside = cycles_outside_window(area, dt, first, n, f0)
-    if outside >= DIAGNOSE_MIN_CYCLES:
-        return None
+    if first + n > len(area):
+        return None                   # optimize refuses the window, naming it
     from vfcli.diagnose.cycles import too_few_advice
+    from vfcli.diagnose.run import uncalibrated_reason
 
-    return (f"the recording holds {outside} whole glottal cycle(s) outside the fitted window (frames {first}-"
-            f"{first + n - 1}; {total} in all), diagnose needs {DIAGNOSE_MIN_CYCLES}: its noise floor is the "
-            f"cycle-to-cycle variation of whole cycles that do not touch the window it judges; "
-            f"{too_few_advice(area, dt, f0)}")
+    reason = uncalibrated_reason(area, dt, f0, first, n)
+    if reason is None:
+        return None
+    shorter = ", or fit a shorter window (optimize.n_frames)" if "stretch(es)" in reason else ""
+    return (f"its decision on the fitted window (frames {first}-{first + n - 1}) could not be calibrated: {reason}; "
+            f"{too_few_advice(area, dt, f0)}{shorter}")
 
 
 class _Collect(logging.Handler):
