@@ -1,10 +1,12 @@
 """M5 tetrahedral mesh: volume, tags, orientation, (u, v) maps, mirror symmetry."""
+import json
+
 import numpy as np
 import pytest
 
 from vfcli.model.m5 import M5Params
 from vfcli.model.mesh import (SIDE_INFERIOR, SIDE_NONE, SIDE_SUPERIOR, TAG_FIXTURE, TAG_INFERIOR, TAG_MEDIAL,
-                        TAG_SUPERIOR, FoldMesh, boundary_faces, build_mesh)
+                        TAG_SUPERIOR, FoldMesh, boundary_faces, build_mesh, dihedral_angles_deg)
 
 PARAMS = M5Params()
 
@@ -150,6 +152,7 @@ def test_preview_png_shows_every_tag_colour(mesh, tmp_path):
 
 @pytest.mark.parametrize("overrides, field, allowed", [
     (["mesh.min_dihedral_deg=18.5"], "mesh.min_dihedral_deg = 18.5", "less than or equal to 18"),
+    (["mesh.target_edge_mm=0.1"], "mesh.target_edge_mm = 0.1", "greater than or equal to 0.5"),   # tetgen ran 12 min
     (["mesh.inferior_angle_deg=60"], "mesh.inferior_angle_deg 60", "at most 40 deg"),
     (["mesh.entrance_sweep_deg=70"], "mesh.entrance_sweep_deg 70", "at most 20 deg"),
     (["mesh.entrance_sweep_deg=1", "mesh.inferior_angle_deg=89"], "mesh.inferior_angle_deg 89", "mm tall"),
@@ -179,3 +182,38 @@ def test_a_quality_refinement_that_does_not_end_stops_with_a_config_error(monkey
     monkeypatch.setattr(mesh_module, "MAX_MIN_DIHEDRAL_DEG", 34.0)  # let build_mesh pass 25 to tetgen
     with pytest.raises(ConfigError, match="did not end within .* mesh.min_dihedral_deg 25"):
         build_mesh(PARAMS, target_edge_mm=1.5, min_dihedral_deg=25.0)
+
+
+def test_sigterm_while_tetgen_meshes_ends_the_process_at_once_and_leaves_the_store(tmp_path):
+    """tetgen's C code never returns to Python's SIGTERM handler until it is done: a SIGTERM sent while it meshed
+    at mesh.target_edge_mm = 0.1 went unanswered for 12 min.  Now the signal's default action ends the process at
+    once (returncode -SIGTERM, where the handler would have exited 143 after tetgen), the store left as by kill -9."""
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import ROOT, run_vfcli
+
+    store = tmp_path / "rec.h5"
+    assert run_vfcli("mesh", store, "--set", "mesh.target_edge_mm=3").returncode == 0
+    before = (store.read_bytes(), store.stat().st_mtime_ns)
+    proc = subprocess.Popen([sys.executable, "-m", "vfcli.cli.main", "mesh", str(store), "--force", "-v", "--set",
+                             "mesh.target_edge_mm=0.5"], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    for line in proc.stderr:                      # tetgen takes 4 s at 0.5 mm: the signal lands inside it
+        if "tetgen meshes the folds" in line:
+            proc.send_signal(signal.SIGTERM)
+            break
+    assert proc.wait(timeout=60) == -signal.SIGTERM
+    assert (store.read_bytes(), store.stat().st_mtime_ns) == before
+    assert run_vfcli("info", "--verify", store).returncode == 0
+    res = run_vfcli("mesh", store, "--force", "--set", "mesh.target_edge_mm=3", "--json")
+    assert res.returncode == 0 and not list(tmp_path.glob(".rec.h5.vfcli-*.tmp")), res.stderr
+    # the dihedral target is tetgen's goal, not a bound: the summary says how many tets miss it
+    from vfcli.store import Store
+    from vfcli.store.mesh import read_mesh
+
+    out = json.loads(res.stdout)
+    with Store(store).read() as r:
+        stored = read_mesh(r)
+    below = int((dihedral_angles_deg(stored.nodes, stored.tets).min(axis=1) < 15.0).sum())
+    assert out["min_dihedral_target_deg"] == 15.0 and out["tets_below_target"] == below > 0

@@ -1,4 +1,5 @@
-"""Signals during a store write: SIGTERM aborts it like Ctrl-C, and neither interrupts the commit's rename.
+"""Signals during a store write: SIGTERM aborts it like Ctrl-C, neither interrupts the commit's rename,
+and both end a long call into C code at once.
 
 Only the main thread installs handlers (Python runs signal handlers there); elsewhere these
 are no-ops.
@@ -53,3 +54,21 @@ def deferred() -> Iterator[None]:
             signal.signal(s, handler)
         for s in dict.fromkeys(pending):
             signal.raise_signal(s)
+
+
+@contextmanager
+def killable() -> Iterator[None]:
+    """SIGINT and SIGTERM kill the process at once (their default action) during a long call into C
+    code that never returns to Python, where a Python handler would wait for it to end (tetgen ran
+    12 min past a SIGTERM).  The store is then left as by ``kill -9``: unchanged, the temporary copy
+    removed by the next writer.  Only in the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    sigs = (signal.SIGINT, signal.SIGTERM)
+    previous = {s: signal.signal(s, signal.SIG_DFL) for s in sigs}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
