@@ -206,6 +206,9 @@ def test_tables_repeat_the_store_and_the_fit_follows_the_vibrometer(exported):
     assert {row["run"] for row in rows} == set(runs)
     for row in rows:
         assert float(row["E_final"]) == pytest.approx(float(runs[row["run"]].history["total"][-1]), rel=1e-5)
+        # the stage's time (setup, fit, stated uncertainty) beside its fit loop's
+        assert float(row["wall_time_s"]) == pytest.approx(runs[row["run"]].attrs["stage_time_s"], abs=1e-3)
+        assert float(row["fit_time_s"]) < float(row["wall_time_s"])
     ldv = list(csv.DictReader(open(out / "tables" / "ldv_velocities.csv")))
     meas = np.array([float(x["measured_vz_mm_per_s"]) for x in ldv])
     sim = np.array([float(x["run_pressure_vz_mm_per_s"]) for x in ldv])

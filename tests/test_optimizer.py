@@ -1,5 +1,6 @@
 """Fitting a forward-simulated case: recovery, monotone decrease, speed against the paper's method, resume."""
 import doctest
+import logging
 
 import numpy as np
 import pytest
@@ -7,6 +8,7 @@ import pytest
 import vfcli.inverse.optimizers.base
 from vfcli.model.mesh import TAG_SUPERIOR
 from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
+from vfcli.stages.optimize import check_convergence
 
 try:  # tests/ on sys.path (no tests/__init__.py)
     from _forward_case import forward_case
@@ -149,3 +151,25 @@ def test_out_of_range_fit_options_are_bugs_not_config_errors():
         with pytest.raises(ValueError) as err:
             FitOptions(**bad)
         assert not isinstance(err.value, ConfigError)
+
+
+def test_a_line_search_that_finds_no_decrease_is_a_minimum_only_where_nothing_was_promised(caplog):
+    """`--method paper` stopped after one iteration that lowered E by 2e-5 of it (Gauss-Newton reaches 4 % of that
+    E) and said converged: every failed line search counted as a minimum.  Coarse forward differences (fd_step 10
+    on this case) point where E does not fall: the fit stops unconverged, saying so.  At a real minimum the failed
+    search is one whose direction promised a decrease within ftol or round-off: converged."""
+    micro = forward_case(resolution=(1, 1, 3), sides=("inferior",), n_frames=6)
+    coarse = fit(micro.problem, method="paper", max_iter=50, options=FitOptions(initial_step=100.0, fd_step=10.0))
+    total = coarse.history["total"]
+    assert not coarse.converged and coarse.message.endswith("stopped before a minimum"), coarse.message
+    assert coarse.state.iteration < 50 and total[-1] > 0.5 * total[0]       # measured: 1 iteration, 0.876 of E
+    with caplog.at_level(logging.WARNING, logger="vfcli"):                  # the stage stores it as a warning
+        check_convergence(coarse, "paper")
+    assert len(caplog.records) == 1 and "stopped before a minimum after 1 iteration(s)" in caplog.text
+    assert "--method gauss-newton" in caplog.text
+    exact = fit(micro.problem, method="gauss-newton", max_iter=100, options=FitOptions(ftol=0.0))
+    assert exact.converged and exact.message.endswith("within ftol or round-off: a minimum"), exact.message
+    assert exact.history["total"][-1] < 1e-20 * total[0]                    # measured 5e-32 of it
+    caplog.clear()
+    check_convergence(exact, "gauss-newton")
+    assert not caplog.records

@@ -23,7 +23,8 @@ from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.io.raw_folder import FILES_MANIFEST, find_raw_files
-from vfcli.stages.run import DIAGNOSE_MIN_CYCLES, STEPS, cycles_outside_window, run_recording
+from vfcli.diagnose.run import uncalibrated_reason
+from vfcli.stages.run import STEPS, run_recording
 from vfcli.store import Store
 
 #: f0 250 Hz: 20 ms hold 5 glottal cycles, enough for the diagnose step
@@ -93,7 +94,7 @@ def test_run_goes_to_the_end(phantom):
         assert sorted(r.stage_paths()) == ["/diagnose/default", "/fields", "/flow", "/hsc", "/ldv", "/mesh",
                                            "/optimize/default", "/sync"]
         assert r.attrs("mesh")["youngs_modulus_pa"] > 0 and r.read("optimize", "controls", "default").size > 0
-        assert r.attrs("diagnose", "default")["n_cycles"] >= DIAGNOSE_MIN_CYCLES
+        assert r.attrs("diagnose", "default")["n_cycles"] >= 3
         assert r.attrs("hsc")["px_per_mm"] == 9.0  # from the raw folder's recording.toml
 
 
@@ -270,14 +271,21 @@ def test_until_stops_and_the_library_entry_point(phantom, tmp_path):
         assert any("dropout" in w for w in r.summary("ldv")["warnings"])  # stored all the same
 
 
-def test_whole_cycles_outside_the_window_of_a_known_area():
-    # 1 - cos: rises through half its range at frames 10, 50, 90, 130, 170: whole cycles 10-49, ..., 130-169
+def test_the_run_skips_diagnose_by_diagnoses_own_rule_on_a_known_area():
+    """`vfcli run` skipped diagnose with fewer than 3 whole cycles outside the window, where `vfcli diagnose` alone
+    measured its floor and calibrated its decision (a 0.04 s phantom, window 120-159).  The gate is now diagnose's
+    own checks: 2 whole cycles for the noise floor, 3 stretches of the window's length at whole cycles from it."""
+    # 1 - cos: rises through half its range at frames 10, 50, 90, 130, 170: whole cycles 10-49, ..., 130-169;
+    # the phase runs from -0.25 (frame 0) to 4.725 (frame 199)
     area = 1 - np.cos(2 * np.pi * np.arange(200) / 40)
-    assert cycles_outside_window(area, 1e-4, 20, 12) == (4, 3)    # the window lies in the first cycle
-    assert cycles_outside_window(area, 1e-4, 0, 84) == (4, 2)     # frames 0-9 are in no whole cycle
-    assert cycles_outside_window(area, 1e-4, 45, 10) == (4, 2)    # across a cycle's end: two touched
-    assert cycles_outside_window(area[:45], 1e-4, 0, 12) == (0, 0)  # one crossing: no whole cycle
-    assert cycles_outside_window(np.ones(50), 1e-4, 0, 12) == (0, 0)  # flat: no cycle
+    assert uncalibrated_reason(area, 1e-4, None, 20, 12) is None          # shifts +1 .. +4
+    # across a cycle's end: 2 of the 4 whole cycles touched (the old gate skipped), shifts -1, +1, +2, +3
+    assert uncalibrated_reason(area, 1e-4, None, 45, 10) is None
+    assert uncalibrated_reason(area, 1e-4, None, 0, 84) == (
+        "2 stretch(es) of the window's length at whole cycles from it inside the recording: the calibration needs "
+        "at least 3")                                                    # +1, +2 only
+    assert "no whole glottal cycle" in uncalibrated_reason(area[:45], 1e-4, None, 0, 12)
+    assert uncalibrated_reason(np.ones(50), 1e-4, None, 0, 12) == "the glottal area is flat: no glottal cycle"
 
 
 def test_diagnose_is_skipped_with_its_reason_when_the_window_leaves_too_few_cycles(phantom, tmp_path):
@@ -288,8 +296,9 @@ def test_diagnose_is_skipped_with_its_reason_when_the_window_leaves_too_few_cycl
     stages, _ = _run(store, raw, "--dry-run", "--set", "optimize.n_frames=150")
     assert stages["optimize"]["action"] == "would run" and stages["diagnose"]["action"] == "skipped"
     reason = stages["diagnose"]["reason"]
-    assert f"needs {DIAGNOSE_MIN_CYCLES}" in reason and "outside the fitted window (frames 20-169" in reason
-    assert "record longer" in reason
+    assert reason.startswith("its decision on the fitted window (frames 20-169) could not be calibrated: ") and \
+        "the calibration needs at least 3" in reason, reason
+    assert "record longer" in reason and "or fit a shorter window (optimize.n_frames)" in reason
     # with flow to rerun too, the skip is judged on the /flow there (the dry run said "would run", the run skipped)
     stages, _ = _run(store, raw, "--dry-run", "--set", "optimize.n_frames=150", "--set", "flow.median_px=3")
     assert stages["flow"]["action"] == "would run" and stages["diagnose"]["action"] == "skipped"
@@ -327,6 +336,39 @@ def test_the_raw_files_are_found_by_extension_or_named_in_a_manifest(phantom, tm
         find_raw_files(d)
     (d / FILES_MANIFEST).write_text('video = "nothere.avi"\n')
     with pytest.raises(InputDataError, match="nothere.avi"):
+        find_raw_files(d)
+
+
+def test_a_folder_of_images_named_in_the_manifest_is_the_runs_video(phantom, tmp_path):
+    """`vfcli run` could not take the folder of numbered images `vfcli ingest-hsc` reads (a camera's TIFF export):
+    the manifest named only files.  Now `video = "frames"` is that folder; /hsc holds the video's frames as from
+    the .cihx, and a changed image makes ingest-hsc rerun, naming the image."""
+    import tifffile
+
+    raw, store0, _, _ = phantom
+    d = tmp_path / "lab"
+    d.mkdir()
+    for name in ("video_pressure.tdms", "scan.uff", "recording.toml"):
+        shutil.copy(raw / name, d / name)
+    frames = tifffile.imread(raw / "video.tif")
+    (d / "frames").mkdir()
+    for i, img in enumerate(frames):                       # one file per frame, as a camera's export writes them
+        tifffile.imwrite(d / "frames" / f"img_{i:05d}.tif", img)
+    (d / FILES_MANIFEST).write_text('video = "frames"\n')
+    with Store(store0).read() as r:
+        fps = r.attrs("hsc")["fps_hz"]
+    store = tmp_path / "rec.h5"
+    stages, _ = _run(store, d, "--until", "ingest-hsc", "--set", f"camera.fps_hz={fps}")
+    assert stages["ingest-hsc"]["action"] == "ran"
+    with Store(store).read() as r, Store(store0).read() as r0:
+        np.testing.assert_array_equal(r.read("hsc", "frames"), r0.read("hsc", "frames"))
+    stages, _ = _run(store, d, "--until", "ingest-hsc", "--set", f"camera.fps_hz={fps}", "--dry-run")
+    assert stages["ingest-hsc"]["action"] == "up to date", stages["ingest-hsc"]
+    tifffile.imwrite(d / "frames" / "img_00003.tif", frames[3] // 2)
+    stages, _ = _run(store, d, "--until", "ingest-hsc", "--set", f"camera.fps_hz={fps}", "--dry-run")
+    assert stages["ingest-hsc"]["action"] == "would run" and "input changed: img_00003.tif" in stages["ingest-hsc"]["reason"]
+    (d / FILES_MANIFEST).write_text('video = "nothere"\n')
+    with pytest.raises(InputDataError, match="'nothere', which is not a file or a folder of images"):
         find_raw_files(d)
 
 

@@ -30,6 +30,10 @@ def _details(info: dict[str, Any]) -> None:
         click.echo("  ~ a vfcli process is writing now (lock held)")
     for leftover in info["interrupted_writes"]:
         click.echo(f"  ! interrupted write left {leftover} (the store itself is intact; the next write removes it)")
+    for fit in info.get("stopped_fits", []):
+        at = "" if fit["iteration"] is None else f" at iteration {fit['iteration']}"
+        click.echo(f"  ! optimize run '{fit['run']}' was stopped{at}: `vfcli optimize {info['path']} --run {fit['run']} "
+                   f"--resume` continues it (checkpoint {fit['path']})")
     if not info["stages"]:
         click.echo("  no stages yet")
     for st in info["stages"]:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-RUN_COLUMNS = ["run", "setup", "loads", "method", "iterations", "E_start", "E_final", "wall_time_s", "converged",
+RUN_COLUMNS = ["run", "setup", "loads", "method", "iterations", "E_start", "E_final", "wall_time_s", "fit_time_s", "converged",
                "n_frames", "t_start_s", "t_end_s", "inferior_uncertainty_rel", "superior_uncertainty_rel"]
 
 

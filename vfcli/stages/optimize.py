@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
 from vfcli.inverse.setup import setup_summary
 from vfcli.report.plots import convergence_plot, uncertainty_map
 from vfcli.store import StageWriter, StoreReader
+from vfcli.store.checkpoint import checkpoint_path
 from vfcli.store.fit import problem_of_store
 from vfcli.inverse.sandwich import sandwich
 from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_split,
@@ -34,10 +36,6 @@ from vfcli.model.loads.pressure import PressureLoad
 from vfcli.stages.base import RunContext, StageResult, optimize_settings_json, run_stage
 
 log = logging.getLogger(__name__)
-
-
-def checkpoint_path(store_path: Path, run: str) -> Path:
-    return store_path.with_name(f"{store_path.name}.optimize-{run}.ckpt.npz")
 
 
 def _save_checkpoint(path: Path, state: FitState, settings_json: str) -> None:
@@ -74,7 +72,21 @@ def check_gap_term(problem: Problem, gap_history: np.ndarray) -> None:
                     "%d rays), so the fit ignores the glottal gap; %s", len(problem.rays), advice)
 
 
-def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None
+def check_convergence(result, method: str) -> bool:
+    """Warn when the fit stopped before a minimum: its line search found no lower E where its direction
+    promised one (the paper method's finite-difference gradient can point nowhere downhill).  Returns
+    whether it did (then the recording is not to blame for what the stated uncertainty says)."""
+    if result.converged or "before a minimum" not in result.message:
+        return False
+    total = result.history["total"]
+    advice = "; fit with --method gauss-newton (exact gradients)" if method != "gauss-newton" else ""
+    log.warning("optimize: the fit (%s) stopped before a minimum after %d iteration(s), E %.6g -> %.6g (%s): the "
+                "displacements and their stated uncertainty are not those of a fitted minimum%s",
+                method, len(total) - 1, total[0], total[-1], result.message, advice)
+    return True
+
+
+def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, minimum: bool = True
                                ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
     """Standard deviation of the displacements of a fit at ``x``, and its summary.
 
@@ -86,6 +98,8 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None
 
     field : the load model (a :class:`vfcli.model.loads.pressure.PressureLoad` adds how much
         of the static inferior shape the measured pressure carries).
+    minimum : x is a fitted minimum (False: no warning that the recording leaves the static shape open,
+        :func:`check_convergence` has said why the figures are what they are).
 
     Returns
     -------
@@ -131,7 +145,7 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None
         # the static shape the measured pressure carries (gains x mean pressure) against the free correction's mean
         carried = problem.displacements(np.where(field.free_mask(), 0.0, x))[:-1].mean(axis=0)
         summary["inferior_static_mean_z_from_pressure_mm"] = float(carried[inferior, 2].mean())
-    if summary["inferior_static_mean_z_std_mm"] > abs(summary["inferior_static_mean_z_mm"]):
+    if minimum and summary["inferior_static_mean_z_std_mm"] > abs(summary["inferior_static_mean_z_mm"]):
         log.warning("optimize: the recording does not determine the static shape: the inferior surface's mean "
                     "vertical displacement is %+.3f mm +- %.3f mm (1 sd); its oscillation is stated to %.0f %%",
                     summary["inferior_static_mean_z_mm"], summary["inferior_static_mean_z_std_mm"],
@@ -155,6 +169,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
     ckpt = checkpoint_path(ctx.store.path, run)
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        t_body = time.perf_counter()
         problem, setup = problem_of_store(reader, ctx.config, ctx.map)
         label = f"{'pressure loads' if cfg.loads == 'pressure' else f'{cfg.setup}, {cfg.loads}'} ({cfg.method})"
         opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease, xtol=cfg.stop_rel_change)
@@ -174,13 +189,15 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             result = fit(problem, None, cfg.method, cfg.max_iterations, checkpoint, options=opts)
         bar.close()
         h = result.history
+        stalled = check_convergence(result, cfg.method)
         check_gap_term(problem, np.asarray(h["gap"], float))
         s.put("sim_time", problem.sim_times)
         disp = problem.displacements(result.x)
         s.put("displacements", disp.astype(np.float32))
         unc: dict[str, float] = {}
         if cfg.uncertainty:
-            std, systematic, static_std, unc = reconstruction_uncertainty(problem, result.x, setup.field)
+            std, systematic, static_std, unc = reconstruction_uncertainty(problem, result.x, setup.field,
+                                                                          minimum=not stalled)
             s.put("displacement_std", std.astype(np.float32))
             s.put("displacement_std_instruments", systematic.astype(np.float32))
             s.put("displacement_std_static", static_std.astype(np.float32))
@@ -204,12 +221,16 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
                     message=str(result.message), px_per_mm=problem.camera.px_per_mm, **setup_summary(setup), **unc)
         if plot is not None:
             convergence_plot(h, plot, label)
+        # the whole stage: setup (the L-curve's fits), the fit, the stated uncertainty; the history's wall time is the fit's
+        stage_time = time.perf_counter() - t_body
+        s.set_attrs(stage_time_s=float(stage_time))
         return {
             "iterations": int(h["iteration"][-1]) if len(h["iteration"]) else 0,
             "E_final": float(h["total"][-1]),
             "E_start": float(h["total"][0]),
             "evaluations": int(h["n_evals"][-1]),
-            "wall_time_s": round(float(h["wall_time"][-1]), 1),
+            "wall_time_s": round(stage_time, 1),
+            "fit_time_s": round(float(h["wall_time"][-1]), 1),
             "window": f"frames {cfg.first_frame}-{cfg.first_frame + problem.n_frames - 1}",
             "converged": bool(result.converged),
             "pose": setup.pose_source,

@@ -157,7 +157,7 @@ def _runs_section(job: ExportJob, d: Path) -> str:
         rows.append([r.name, a.get("setup", ""), a.get("loads", ""), a.get("method", ""),
                      int(h["iteration"][-1]) if len(h.get("iteration", [])) else 0,
                      f"{float(h['total'][0]):.4g}", f"{float(h['total'][-1]):.4g}",
-                     f"{float(h['wall_time'][-1]):.1f}" if "wall_time" in h else "", a.get("converged", ""),
+                     "" if r.wall_time_s is None else f"{r.wall_time_s:.1f}", a.get("converged", ""),
                      f"{1e3 * r.sim_time[0]:.2f}-{1e3 * r.sim_time[-1]:.2f}",
                      fmt(a.get("inferior_uncertainty_rel", "not stated")), fmt(a.get("superior_uncertainty_rel", "not stated"))])
     parts = ["<h2>Optimisation runs</h2>",

@@ -75,8 +75,8 @@ def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> Optimi
     f0 = cfg.first_frame
     n = window_frames(reader, config, float(np.median(np.diff(times_all))) if len(times_all) > 1 else 0.0)
     if f0 + n > len(times_all):
-        raise ConfigError(f"optimize window: frames {f0}..{f0 + n} but the recording has {len(times_all)}; "
-                          "set optimize.first_frame / optimize.n_frames")
+        raise ConfigError(f"optimize window: frames {f0}-{f0 + n - 1} but the recording has {len(times_all)} frames "
+                          f"(0-{len(times_all) - 1}); set optimize.first_frame / optimize.n_frames")
     sl = slice(f0, f0 + n)
     flow_attrs = reader.attrs("flow")
     gap_counts = None
@@ -91,6 +91,7 @@ def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> Optimi
             raise InputDataError("optimize.loads='pressure' needs the subglottal pressure recorded with the video; "
                                  "ingest it with `vfcli ingest-hsc ... --pressure FILE`", reader.path)
         pressure_time, pressure = reader.read("hsc", "pressure_time"), reader.read("hsc", "pressure")
+        _check_pressure_covers(pressure_time, times_all, f0, n)
     return OptimizeInputs(
         mesh=stored.mesh, youngs_modulus_pa=stored.youngs_modulus_pa, poisson_ratio=stored.poisson_ratio,
         density_kg_m3=stored.density_kg_m3, length_mm=stored.length_mm, times=times_all[sl],
@@ -100,6 +101,27 @@ def read_optimize_inputs(reader: StoreReader, config: RecordingConfig) -> Optimi
         gap_counts=gap_counts, velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
         lateral_axis=int(flow_attrs.get("lateral_axis", 0)), pressure_time=pressure_time, pressure=pressure,
         f0_hz=video_f0_hz(reader))
+
+
+def _check_pressure_covers(pressure_time: np.ndarray, times_all: np.ndarray, first: int, n: int) -> None:
+    """The pressure load acts from the window's first frame to one frame interval past its last (the
+    simulation's last step, which gives the last frame its velocity): refuse a window the pressure record
+    does not cover, naming the frame it can start or end at (times in s)."""
+    dt = float(np.median(np.diff(times_all))) if len(times_all) > 1 else 0.0
+    tol = 0.5 * float(np.median(np.diff(pressure_time))) if len(pressure_time) > 1 else 0.0
+    window = f"optimize window: frames {first}-{first + n - 1}"
+    if times_all[first] < pressure_time[0] - tol:
+        start = int(np.searchsorted(times_all, pressure_time[0] - tol))
+        raise ConfigError(f"{window} start at {times_all[first]:.6f} s, before /hsc's pressure ({pressure_time[0]:.6f} s "
+                          f"on); start it at frame {start} or later (optimize.first_frame)")
+    need = times_all[first + n - 1] + dt
+    if need <= pressure_time[-1] + tol:
+        return
+    last = int(np.searchsorted(times_all + dt, pressure_time[-1] + tol, side="right")) - 1
+    fix = (f"end it at frame {last} or earlier (optimize.n_frames = {last - first + 1})" if last >= first + 1
+           else "move optimize.first_frame earlier")
+    raise ConfigError(f"{window} need the pressure up to {need:.6f} s (the simulation runs one frame past the last), "
+                      f"but /hsc's pressure ends at {pressure_time[-1]:.6f} s; {fix}")
 
 
 def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]] | None:

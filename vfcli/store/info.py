@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from vfcli.store import layout, parts
+from vfcli.store.checkpoint import stopped_fits
 from vfcli.store.transaction import Store
 
 _LOG_PREFIX = re.compile(r"^(?:WARNING|ERROR|INFO|DEBUG) [\w.]+: ")
@@ -50,6 +51,7 @@ def store_info(path: str | Path, expected_config: Callable[[str | None], Expecte
     linked = [p for p in parts.linked_files(store.real_path) if p.is_file()]
     folders = sorted({p.parent for p in linked})  # a hand copy not yet written to: the original's folder
     leftovers = [str(p) for p in store.interrupted_writes()]
+    stopped = [] if writing else stopped_fits(store.path)    # a writer at work keeps its checkpoint current
     return {
         "path": str(store.path),
         "size_bytes": os.path.getsize(store.path),
@@ -63,5 +65,6 @@ def store_info(path: str | Path, expected_config: Callable[[str | None], Expecte
         "writer_active": writing,
         "write_in_progress": leftovers if writing else [],
         "interrupted_writes": [] if writing else leftovers,
+        "stopped_fits": stopped,
         "recording_config": None if config_json is None else json.loads(config_json),
     }

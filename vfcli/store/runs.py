@@ -44,6 +44,15 @@ class OptimizeRun:
     config: dict[str, Any] = field(default_factory=dict)
     digest: str = ""
 
+    @property
+    def wall_time_s(self) -> float | None:
+        """s the whole optimize stage took (setup, fit, stated uncertainty); runs stored before that was
+        kept, and diagnose's refits, give their fit's wall time; None when neither is stored."""
+        if "stage_time_s" in self.attrs:
+            return float(self.attrs["stage_time_s"])
+        h = self.history.get("wall_time")
+        return float(h[-1]) if h is not None and len(h) else None
+
 
 def stage_runs(reader: StoreReader, name: str) -> list[str]:
     """Names of the complete runs of a stage with runs (``optimize``, ``diagnose``), sorted."""

@@ -201,8 +201,34 @@ class Method:
         return t
 
     def step(self, obj: Objective, st: FitState, opts: FitOptions) -> tuple[bool, float]:
-        """One iteration from ``st`` (updated in place): (moved, length of the step in x units)."""
+        """One iteration from ``st`` (updated in place): (moved, length of the step in x units).
+
+        A step that does not move sets ``st.converged`` when the point is a minimum by the
+        stopping rules (e.g. with :func:`no_decrease`); otherwise the fit stops unconverged."""
         raise NotImplementedError
+
+
+#: a promised decrease below this fraction of the start's E is lost in E's round-off
+ROUND_OFF = 1e-13
+
+
+def no_decrease(st: FitState, promised: float, opts: FitOptions) -> tuple[bool, float]:
+    """A line search that found no lower E along a direction whose first trial promised a decrease
+    of ``promised`` (first-order or the method's model, E units): a minimum when that promise is
+    below ``opts.ftol`` of E or lost in round-off (:data:`ROUND_OFF` of the start's E), else a stop
+    before a minimum (an inexact gradient, as the paper method's coarse finite differences).
+    Sets ``st.converged`` and ``st.message``; returns ``(False, 0.0)`` for :meth:`Method.step`."""
+    f0 = float(st.value[0])
+    start = float(st.history["total"][0]) if st.history["total"] else f0
+    rel = promised / max(abs(f0), 1e-300)
+    if promised <= max(opts.ftol * abs(f0), ROUND_OFF * abs(start)):
+        st.converged = True
+        st.message = (f"line search found no decrease where the direction promised {rel:.2g} of E, within ftol or "
+                      "round-off: a minimum")
+    else:
+        st.message = (f"line search found no decrease where the direction promised {rel:.2g} of E: "
+                      "stopped before a minimum")
+    return False, 0.0
 
 
 def get_method(name: str) -> Method:
@@ -285,7 +311,7 @@ def fit(problem, x0: np.ndarray | None = None, method: str = "lbfgs", max_iter: 
         f_before, x_before = state.value[0], state.x
         moved, step = algo.step(obj, state, opts)
         if not moved:
-            state.converged, state.message = True, state.message or "line search found no decrease"
+            state.message = state.message or "no step found: stopped before a minimum"
             break
         state.iteration += 1
         _record(state, step, opts, t_start)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vfcli.inverse.optimizers.base import FitOptions, FitState, Method, Objective, terms_array
+from vfcli.inverse.optimizers.base import FitOptions, FitState, Method, Objective, no_decrease, terms_array
 
 
 def _two_loop(g: np.ndarray, s: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -63,7 +63,7 @@ class LBFGS(Method):
                     break
                 best = (2.0 * best[0], t2, g2)
         if best is None:
-            return False, 0.0
+            return no_decrease(st, -slope, opts)
         alpha, terms, g = best
         s = alpha * d
         y = g - g0

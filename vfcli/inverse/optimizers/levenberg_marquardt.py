@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from vfcli.inverse.block_matrix import BlockMatrix
-from vfcli.inverse.optimizers.base import FitOptions, FitState, Method, Objective, terms_array
+from vfcli.inverse.optimizers.base import FitOptions, FitState, Method, Objective, no_decrease, terms_array
 from vfcli.inverse.terms import Terms
 from vfcli.inverse.workspace import Workspace
 
@@ -65,14 +65,16 @@ class LevenbergMarquardt(Method):
         f0, g, hess = st.value[0], model.grad, model.hessian
         mu = st.gamma if st.gamma > 0 else opts.lm_damping
         nu = 2.0
+        first = None
         for _ in range(opts.max_line_search):
             s = lm_solve(hess, g, mu, obj.workspace)
             predicted = -(g @ s + 0.5 * s @ (hess @ s))
             if predicted <= opts.ftol * abs(f0):
                 # even the model's own (damped) minimiser would not lower E by the stopping fraction, and more
                 # damping predicts less: converged
-                st.message = "predicted decrease below ftol"
+                st.converged, st.message = True, "predicted decrease below ftol"
                 return False, 0.0
+            first = predicted if first is None else first
             x_new = st.x + s
             terms, frozen = _linearize(obj, x_new)
             if terms.total < f0 and predicted > 0:
@@ -85,4 +87,4 @@ class LevenbergMarquardt(Method):
             mu *= nu
             nu *= 2.0
         st.gamma = mu
-        return False, 0.0
+        return no_decrease(st, first, opts)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vfcli.inverse.optimizers.base import FitOptions, FitState, Method, Objective, terms_array
+from vfcli.inverse.optimizers.base import FitOptions, FitState, Method, Objective, no_decrease, terms_array
 from vfcli.inverse.terms import Terms
 
 
@@ -37,6 +37,7 @@ class Paper(Method):
         """One gradient-descent iteration with the increasing-step line search."""
         f0, g = st.value[0], st.grad
         gamma = st.gamma if st.gamma > 0 else opts.initial_step / max(np.linalg.norm(g), 1e-300)
+        promised = gamma * float(g @ g)
         best = None
         for _ in range(opts.max_line_search):
             t = obj.value(st.x - gamma * g)
@@ -51,7 +52,7 @@ class Paper(Method):
                 break
             gamma *= 0.5
         if best is None:
-            return False, 0.0
+            return no_decrease(st, promised, opts)
         gamma, t = best
         st.x = st.x - gamma * g
         st.value = terms_array(t)
