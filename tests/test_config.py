@@ -77,7 +77,7 @@ def test_null_unsets_a_field_that_may_be_unset_and_is_refused_for_one_that_may_n
 @pytest.mark.parametrize(
     "text, needle",
     [
-        ("[mesh]\ntarget_edge_mm = -1\n", "mesh.target_edge_mm = -1: Input should be greater than or equal to 0.5"),
+        ("[mesh]\ntarget_edge_mm = -1\n", "mesh.target_edge_mm = -1: Input should be greater than or equal to 0.7"),
         ("[mesh]\ntarget_edge = 0.5\n", "mesh.target_edge: unknown setting"),
         ("[flow]\nmethod = 'farneback'\n", "flow.method = 'farneback'"),
         ("[camera\n", "not valid TOML"),

@@ -152,7 +152,7 @@ def test_preview_png_shows_every_tag_colour(mesh, tmp_path):
 
 @pytest.mark.parametrize("overrides, field, allowed", [
     (["mesh.min_dihedral_deg=18.5"], "mesh.min_dihedral_deg = 18.5", "less than or equal to 18"),
-    (["mesh.target_edge_mm=0.1"], "mesh.target_edge_mm = 0.1", "greater than or equal to 0.5"),   # tetgen ran 12 min
+    (["mesh.target_edge_mm=0.1"], "mesh.target_edge_mm = 0.1", "greater than or equal to 0.7"),   # tetgen ran 12 min
     (["mesh.inferior_angle_deg=60"], "mesh.inferior_angle_deg 60", "at most 40 deg"),
     (["mesh.entrance_sweep_deg=70"], "mesh.entrance_sweep_deg 70", "at most 20 deg"),
     (["mesh.entrance_sweep_deg=1", "mesh.inferior_angle_deg=89"], "mesh.inferior_angle_deg 89", "mm tall"),
@@ -198,8 +198,8 @@ def test_sigterm_while_tetgen_meshes_ends_the_process_at_once_and_leaves_the_sto
     assert run_vfcli("mesh", store, "--set", "mesh.target_edge_mm=3").returncode == 0
     before = (store.read_bytes(), store.stat().st_mtime_ns)
     proc = subprocess.Popen([sys.executable, "-m", "vfcli.cli.main", "mesh", str(store), "--force", "-v", "--set",
-                             "mesh.target_edge_mm=0.5"], cwd=ROOT, stderr=subprocess.PIPE, text=True)
-    for line in proc.stderr:                      # tetgen takes 4 s at 0.5 mm: the signal lands inside it
+                             "mesh.target_edge_mm=0.7"], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    for line in proc.stderr:                      # tetgen takes 1.2 s at 0.7 mm: the signal lands inside it
         if "tetgen meshes the folds" in line:
             proc.send_signal(signal.SIGTERM)
             break

@@ -252,8 +252,9 @@ class MeshConfig(_Section):
         (0.0, 0.0), description="Per-fold (left, right) mounting rotation about the x axis, degrees"
     )
     target_edge_mm: float = Field(
-        1.5, ge=0.5, le=5, description="Target tetrahedron edge length, mm; at least 0.5: there the P2 model has "
-        "469,000 unknowns per fold (28 times the default's) and tetgen takes 4 s; at 0.1 tetgen ran 12 min into 2.8 GB")
+        1.5, ge=0.7, le=5, description="Target tetrahedron edge length, mm; at least 0.7: there the P2 model has "
+        "167,000 unknowns per fold and assembling and factorising it took 12 min and 4 GB (cholespy; 4 s at the default "
+        "1.5 mm); at 0.1 tetgen alone ran 12 min into 2.8 GB")
     min_ratio: float = Field(1.5, gt=1, le=5, description="tetgen radius-edge ratio bound (1)")
     min_dihedral_deg: float = Field(
         15.0, ge=0, le=18, description="tetgen minimum dihedral angle target, degrees: a goal of tetgen's sliver removal, not a "
