@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 import signal
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, Callable
 
 import pytest
@@ -71,6 +72,17 @@ def per_case_deadline(seconds: float = CASE_DEADLINE_S):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+
+
+def fresh(path: Path) -> Path:
+    """``path`` with no file at it, so that a case writes its file anew instead of over the last case's.
+
+    Truncating a file that holds data to write it again (``write_bytes``, ``open(..., "wb")``) starts the
+    file's writeback on ext4 (``auto_da_alloc``): 2.2-2.6 ms per write on the suite's machine against
+    0.06 ms for a new file (session 37, scratch /tmp/s37/hT/iot), and the fuzzers write about 27,000 case files.
+    What the reader is given is the same bytes."""
+    path.unlink(missing_ok=True)
+    return path
 
 
 def user_error_or(fn: Callable[[], Any], check: Callable[[Any], Any] | None = None) -> None:

@@ -215,7 +215,7 @@ def test_too_few_cycles_advice_tells_a_missed_gap_from_a_short_recording():
 
 
 def test_floor_frames_keep_whole_cycles_around_the_window():
-    from vfcli.diagnose.run import floor_frames
+    from vfcli.diagnose.cycles import floor_frames
 
     cyc = glottal_cycles(area_waveform(), DT)
     window = np.arange(WINDOW.start, WINDOW.stop)

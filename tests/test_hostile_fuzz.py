@@ -21,7 +21,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests._fuzz import BACKSTOP, fuzz, user_error_or
+from tests._fuzz import BACKSTOP, fresh, fuzz, user_error_or
 from vfcli.config import RecordingConfig, load_config
 from vfcli.io.ldv.read import LdvScan, read_ldv
 from vfcli.io.ldv.write import write_ldv_csv, write_ldv_uff
@@ -112,7 +112,7 @@ def workdir(tmp_path_factory) -> Path:
 @fuzz(750)
 @given(doc=_config_doc())
 def test_config_files_with_hostile_values_load_or_give_a_config_error(workdir, doc):
-    path = workdir / "c.toml"
+    path = fresh(workdir / "c.toml")
     path.write_text(_toml(doc))
     user_error_or(lambda: load_config(path), lambda out: [_finite_everywhere(c) for c in out])
 
@@ -128,7 +128,7 @@ def test_set_overrides_with_hostile_values_load_or_give_a_config_error(key, valu
 @fuzz(300)
 @given(text=st.text(alphabet=st.sampled_from(list("[]{}=.\"' \nabc01-+e_,#")), max_size=200))
 def test_random_toml_text_loads_or_gives_a_config_error(workdir, text):
-    path = workdir / "r.toml"
+    path = fresh(workdir / "r.toml")
     path.write_text(text)
     user_error_or(lambda: load_config(path), lambda out: None)
 
@@ -172,8 +172,8 @@ def test_cihx_with_hostile_field_values(workdir, cihx_text, edits):
         text = re.sub(rb"<%s>[^<]*</%s>" % (field.encode(), field.encode()), lambda _m, new=new: new, text, count=1)
     d = workdir / "cx"
     d.mkdir(exist_ok=True)
-    (d / "v.mraw").write_bytes(mraw_bytes)
-    (d / "v.cihx").write_bytes(text)
+    fresh(d / "v.mraw").write_bytes(mraw_bytes)
+    fresh(d / "v.cihx").write_bytes(text)
     user_error_or(_video_ok(d / "v.cihx"), _plausible_meta)
 
 
@@ -184,7 +184,7 @@ def test_cihx_with_hostile_field_values(workdir, cihx_text, edits):
 def test_tiff_with_hostile_frame_rate_metadata(workdir, how, value, text, n, dtype):
     import tifffile
 
-    path = workdir / "t.tif"
+    path = fresh(workdir / "t.tif")
     frames = np.ones((n, 6, 7), dtype)
     if how == "json":
         tifffile.imwrite(path, frames, description=json.dumps({"fps": value}))
@@ -202,7 +202,7 @@ def test_tiff_with_hostile_frame_rate_metadata(workdir, how, value, text, n, dty
 @given(fs=_NUM_TEXT, header=st.sampled_from(["p_sub [Pa]", "time [s],p_sub [Pa]", "p [kPa]", "x,y", ""]),
        values=st.lists(st.one_of(_NUM, _NUM_TEXT), min_size=0, max_size=12))
 def test_pressure_csv_with_hostile_values(workdir, fs, header, values):
-    path = workdir / "p.csv"
+    path = fresh(workdir / "p.csv")
     rows = []
     for i, v in enumerate(values):
         rows.append(f"{i / 5e4!r},{v}" if header.startswith("time") or header == "x,y" else f"{v}")
@@ -236,7 +236,7 @@ def test_wav_with_hostile_header_fields(workdir, wav_bytes, riff_size, data_size
     b[34:36] = struct.pack("<H", bits)
     i = b.index(b"data")
     b[i + 4:i + 8] = struct.pack("<I", data_size)
-    path = workdir / "w.wav"
+    path = fresh(workdir / "w.wav")
     path.write_bytes(bytes(b[: 44 + keep]))
 
     def check(rec):
@@ -250,14 +250,14 @@ def test_wav_with_hostile_header_fields(workdir, wav_bytes, riff_size, data_size
 def test_tdms_with_hostile_properties_and_truncation(workdir, inc, offset, n, scale, cut, unit):
     from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
 
-    path = workdir / "p.tdms"
+    path = fresh(workdir / "p.tdms")
     with np.errstate(all="ignore"):
         data = np.sin(np.arange(n) / 3.0) * float(scale)
     props = {"wf_increment": float(inc), "wf_start_offset": float(offset), "unit_string": unit}
     with TdmsWriter(path) as w:
         w.write_segment([RootObject(), GroupObject("g"), ChannelObject("g", "p_sub", data, properties=props)])
     raw = path.read_bytes()
-    path.write_bytes(raw[: max(1, len(raw) - cut)])
+    fresh(path).write_bytes(raw[: max(1, len(raw) - cut)])
 
     def check(rec):
         assert np.isfinite(rec.samples).all() and np.abs(rec.samples).max() <= MAX_ABS_PRESSURE_PA
@@ -302,7 +302,7 @@ def test_ldv_csv_with_hostile_values(workdir, csv_lines, fs, length, cells):
         parts = lines[i].split(",")
         parts[col % len(parts)] = value.replace(",", "").replace("\n", "")
         lines[i] = ",".join(parts)
-    path = workdir / "l.csv"
+    path = fresh(workdir / "l.csv")
     path.write_text("\n".join(lines) + "\n")
     user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
 
@@ -322,7 +322,7 @@ def test_ldv_mat_with_hostile_variables(workdir, coords, vel, fs, node_ids, unit
          "fs": fs if not isinstance(fs, list) or fs else 0.0, "length_unit": unit}
     if node_ids is not None:
         m["node_ids"] = node_ids if not isinstance(node_ids, list) or node_ids else "x"
-    path = workdir / "l.mat"
+    path = fresh(workdir / "l.mat")
     try:
         savemat(path, m)
     except (ValueError, TypeError, OverflowError):
@@ -341,7 +341,7 @@ def test_ldv_uff_with_hostile_scales(workdir, coord_scale, vel_scale, fs, length
     if not units:   # drop dataset 164
         i = raw.index(b"   164")
         raw = raw[: raw.rindex(b"    -1", 0, i)] + raw[raw.index(b"    -1", i) + 7:]
-    path.write_bytes(raw[: len(raw) - cut])
+    fresh(path).write_bytes(raw[: len(raw) - cut])
     user_error_or(lambda: read_ldv(path, expected_grid=None), _plausible_scan)
     user_error_or(lambda: read_ldv(path, expected_grid=None, length_unit=length), _plausible_scan)
 

@@ -26,7 +26,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests._fuzz import BACKSTOP, fuzz, mutate, user_error_or
+from tests._fuzz import BACKSTOP, fresh, fuzz, mutate, user_error_or
 from vfcli.io.ldv.read import LdvScan, read_ldv
 from vfcli.io.ldv.write import write_ldv_csv, write_ldv_uff
 from vfcli.io.limits import (FPS_RANGE, LDV_EXTENT_MM, LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S,
@@ -182,7 +182,7 @@ def work(tmp_path_factory) -> Path:
 
 def _text_case(seed: bytes, path: Path, edits, cut: int, flips, read, check) -> None:
     """``seed`` with numbers edited, cut and flipped, written to ``path`` and read with ``read(path)``."""
-    path.write_bytes(mutate(edit_numbers(seed, edits), cut, flips))
+    fresh(path).write_bytes(mutate(edit_numbers(seed, edits), cut, flips))
     user_error_or(lambda: read(path), check)
 
 
@@ -191,8 +191,8 @@ def _text_case(seed: bytes, path: Path, edits, cut: int, flips, read, check) -> 
 def _photron_case(seeds, work: Path, meta: str, edits, cut: int, flips, mraw_cut: int, open_as: str) -> None:
     """The ``meta`` (cih/cihx) seed with numbers edited, cut and flipped, beside its MRAW cut by ``mraw_cut``;
     opened through the ``open_as`` file of the pair."""
-    (work / f"p.{meta}").write_bytes(mutate(edit_numbers(seeds[meta], edits), cut, flips))
-    (work / "p.mraw").write_bytes(mutate(seeds[f"{meta}.mraw"], mraw_cut, []))
+    fresh(work / f"p.{meta}").write_bytes(mutate(edit_numbers(seeds[meta], edits), cut, flips))
+    fresh(work / "p.mraw").write_bytes(mutate(seeds[f"{meta}.mraw"], mraw_cut, []))
     user_error_or(_read_video(work / f"p.{open_as}"), _plausible_video)
     (work / f"p.{meta}").unlink()
 
@@ -212,8 +212,8 @@ def test_cihx_numbers_sizes_and_bits(seeds, work, edits, cut, flips, mraw_cut):
 @fuzz(1000)
 @given(cut=st.integers(-300, 300), flips=FLIPS, which=st.sampled_from(["cih", "cihx"]))
 def test_mraw_truncated_extended_or_flipped(seeds, work, cut, flips, which):
-    (work / f"m.{which}").write_bytes(seeds[which])
-    (work / "m.mraw").write_bytes(mutate(seeds[f"{which}.mraw"], cut, flips))
+    fresh(work / f"m.{which}").write_bytes(seeds[which])
+    fresh(work / "m.mraw").write_bytes(mutate(seeds[f"{which}.mraw"], cut, flips))
     user_error_or(_read_video(work / "m.mraw"), _plausible_video)
     (work / f"m.{which}").unlink()
 
@@ -230,7 +230,7 @@ def test_tiff_ifd_values_sizes_and_bits(seeds, work, cut, flips, edits):
         if n:
             off = ifd + 2 + 12 * (k % n) + 8
             b[off:off + 4] = struct.pack("<I", v)
-    (work / "t.tif").write_bytes(mutate(bytes(b), cut, flips))
+    fresh(work / "t.tif").write_bytes(mutate(bytes(b), cut, flips))
     user_error_or(_read_video(work / "t.tif"), _plausible_video)
 
 
@@ -251,7 +251,7 @@ def test_avi_header_fields_sizes_and_bits(seeds, work, edits, cut, flips):
         i = b.find(tag)
         if i >= 0 and i + 8 + off + 4 <= len(b):
             b[i + 8 + off:i + 12 + off] = struct.pack("<I", v)
-    (work / "v.avi").write_bytes(mutate(bytes(b), cut, flips))
+    fresh(work / "v.avi").write_bytes(mutate(bytes(b), cut, flips))
     user_error_or(_read_video(work / "v.avi"), _plausible_video)
 
 
@@ -263,7 +263,7 @@ def test_uff_numbers_sizes_and_bits(seeds, work, which, edits, cut, flips):
     data = seeds[which]
     # binary 58 records: edit only their text headers (the first 2 kB hold 151, 164, 2411 and the first header)
     head = 2048 if which == "uff" else None
-    (work / "s.uff").write_bytes(mutate(edit_numbers(data, edits, head), cut, flips))
+    fresh(work / "s.uff").write_bytes(mutate(edit_numbers(data, edits, head), cut, flips))
     user_error_or(lambda: read_ldv(work / "s.uff", expected_grid=None), _plausible_scan)
 
 
@@ -272,7 +272,7 @@ def test_uff_numbers_sizes_and_bits(seeds, work, which, edits, cut, flips):
        edits=st.lists(st.tuples(st.integers(0, 10**6), HOSTILE_U32), max_size=2))
 def test_mat_tags_sizes_and_bits(seeds, work, which, cut, flips, edits):
     data = put_words(seeds[which], edits, 128)   # after the 128-byte header: element tags and sizes
-    (work / "s.mat").write_bytes(mutate(data, cut, flips))
+    fresh(work / "s.mat").write_bytes(mutate(data, cut, flips))
     user_error_or(lambda: read_ldv(work / "s.mat", expected_grid=None), _plausible_scan)
 
 
@@ -291,7 +291,7 @@ def test_ldv_csv_numbers_sizes_and_bits(seeds, work, edits, cut, flips):
 def test_tdms_words_sizes_and_bits(seeds, work, cut, flips, edits):
     # lead-in and metadata (before the 1,600 data bytes): table of contents, lengths, property types and values
     data = put_words(seeds["tdms"], edits, 0, len(seeds["tdms"]) - 1600)
-    (work / "p.tdms").write_bytes(mutate(data, cut, flips))
+    fresh(work / "p.tdms").write_bytes(mutate(data, cut, flips))
     user_error_or(lambda: read_pressure(work / "p.tdms"), _plausible_pressure)
 
 
@@ -303,7 +303,7 @@ def test_wav_header_words_sizes_and_bits(seeds, work, cut, flips, edits, channel
     b = bytearray(seeds["wav"])
     for off, v in edits:   # RIFF size, fmt size, format/channels, rate, byte rate, align/bits, data size
         b[off:off + 4] = struct.pack("<I", v)
-    (work / "p.wav").write_bytes(mutate(bytes(b), cut, flips))
+    fresh(work / "p.wav").write_bytes(mutate(bytes(b), cut, flips))
     user_error_or(lambda: read_pressure(work / "p.wav", channel=channel), _plausible_pressure)
 
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests._fuzz import fuzz
+from tests._fuzz import fresh, fuzz
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import LdvChannels, LdvScan, detect_dropouts, infer_grid, read_ldv
 from vfcli.io.ldv.write import write_ldv_csv, write_ldv_mat, write_ldv_uff
@@ -382,7 +382,7 @@ def test_fuzzed_ldv_files_raise_only_input_errors(tmp_path, small_files, which, 
     for pos, bit in flips:
         if b:
             b[pos % len(b)] ^= 1 << bit
-    path = tmp_path / ("f." + which.split("_")[0])
+    path = fresh(tmp_path / ("f." + which.split("_")[0]))
     path.write_bytes(bytes(b))
     try:
         scan = read_ldv(path, expected_grid=None)
@@ -394,7 +394,7 @@ def test_fuzzed_ldv_files_raise_only_input_errors(tmp_path, small_files, which, 
 @fuzz(300)
 @given(data=st.binary(max_size=500), ext=st.sampled_from(["uff", "unv", "csv", "mat"]))
 def test_random_bytes_raise_only_input_errors(tmp_path, data, ext):
-    path = tmp_path / f"r.{ext}"
+    path = fresh(tmp_path / f"r.{ext}")
     path.write_bytes(data)
     try:
         read_ldv(path)

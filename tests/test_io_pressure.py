@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests._fuzz import fuzz
+from tests._fuzz import fresh, fuzz
 from vfcli.errors import InputDataError
 from vfcli.io.pressure import (WAV_PA_PER_FULL_SCALE, read_pressure, write_pressure_csv,
                                write_pressure_tdms)
@@ -215,7 +215,7 @@ _SETTINGS = fuzz(400)
 def test_fuzzed_pressure_files_raise_only_input_errors(tmp_path, kind, cut, flips):
     from scipy.io import wavfile
 
-    path = tmp_path / f"f.{kind}"
+    path = fresh(tmp_path / f"f.{kind}")
     x = _signal(64)
     if kind == "tdms":
         write_pressure_tdms(path, x, FS)
@@ -227,7 +227,7 @@ def test_fuzzed_pressure_files_raise_only_input_errors(tmp_path, kind, cut, flip
     for pos, bit in flips:
         if b:
             b[pos % len(b)] ^= 1 << bit
-    path.write_bytes(bytes(b))
+    fresh(path).write_bytes(bytes(b))
     try:
         rec = read_pressure(path)
         assert np.isfinite(rec.samples).all() and rec.fs > 0
@@ -238,7 +238,7 @@ def test_fuzzed_pressure_files_raise_only_input_errors(tmp_path, kind, cut, flip
 @_SETTINGS
 @given(data=st.binary(max_size=400), ext=st.sampled_from(["tdms", "csv", "wav"]))
 def test_random_bytes_raise_only_input_errors(tmp_path, data, ext):
-    path = tmp_path / f"r.{ext}"
+    path = fresh(tmp_path / f"r.{ext}")
     path.write_bytes(data)
     try:
         read_pressure(path)

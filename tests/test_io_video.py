@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tests._fuzz import fuzz
+from tests._fuzz import fresh, fuzz
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.video.photron import pack_12bit, read_cih, unpack_12bit, write_mraw
 from vfcli.io.video.base import open_video, video_kinds
@@ -458,18 +458,21 @@ def test_fuzzed_photron_files_raise_only_input_errors(tmp_path, which, cut, flip
     meta = "cih" if which == "cih" else "cihx"
     d = tmp_path / f"f_{which}"
     d.mkdir(exist_ok=True)
+    fresh(d / "rec.mraw"), fresh(d / f"rec.{meta}")
     mraw, cih = write_mraw(d / "rec", [_frames(n=3)], fps=FPS, metadata=meta)
     target = mraw if which == "mraw" else cih
-    target.write_bytes(_mutate(target.read_bytes(), cut, flips))
+    data = _mutate(target.read_bytes(), cut, flips)
+    fresh(target).write_bytes(data)
     _read_all_or_input_error(mraw)
 
 
 @_FUZZ
 @given(cut=st.integers(-40, 400), flips=_FLIPS)
 def test_fuzzed_tiff_files_raise_only_input_errors(tmp_path, cut, flips):
-    path = tmp_path / "v.tif"
+    path = fresh(tmp_path / "v.tif")
     write_tiff(path, [_frames(n=3)], fps=FPS)
-    path.write_bytes(_mutate(path.read_bytes(), cut, flips))
+    data = _mutate(path.read_bytes(), cut, flips)
+    fresh(path).write_bytes(data)
     _read_all_or_input_error(path)
 
 
@@ -477,8 +480,8 @@ def test_fuzzed_tiff_files_raise_only_input_errors(tmp_path, cut, flips):
 @given(data=st.binary(max_size=600), ext=st.sampled_from([".mraw", ".cihx", ".cih", ".tif",
                                                           ".avi"]))
 def test_random_bytes_raise_only_input_errors(tmp_path, data, ext):
-    path = tmp_path / f"rand{ext}"
+    path = fresh(tmp_path / f"rand{ext}")
     path.write_bytes(data)
     if ext == ".mraw":
-        (tmp_path / "rand.cihx").write_bytes(data[::-1])
+        fresh(tmp_path / "rand.cihx").write_bytes(data[::-1])
     _read_all_or_input_error(path)

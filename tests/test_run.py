@@ -23,7 +23,7 @@ from vfcli.errors import ConfigError, InputDataError
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.io.raw_folder import FILES_MANIFEST, find_raw_files
-from vfcli.diagnose.run import uncalibrated_reason
+from vfcli.diagnose.calibrate_run import uncalibrated_reason
 from vfcli.stages.run import STEPS, run_recording
 from vfcli.store import Store
 

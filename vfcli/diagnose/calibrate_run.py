@@ -32,7 +32,7 @@ import numpy as np
 from vfcli.camera.pose import model_axes_velocity
 from vfcli.diagnose.calibrate import (DEFAULT_REPLICATES, Calibration, NullParts, ScoreBasis, calibrate,
                                       quadrature_scores)
-from vfcli.diagnose.cycles import Cycles
+from vfcli.diagnose.cycles import Cycles, TooFewCycles, floor_cycle_ids, floor_cycles, glottal_cycles
 from vfcli.inverse.stencil import stencil_scatter
 
 #: noise stretches used at most on each side of the window (time and memory stay bounded)
@@ -168,8 +168,6 @@ def calibration_shifts(cycles: Cycles, window: np.ndarray) -> list[int]:
     ------
     vfcli.diagnose.cycles.TooFewCycles
         Fewer than 3 whole-cycle stretches of the window's length inside the recording."""
-    from vfcli.diagnose.cycles import TooFewCycles
-
     shifts = pool_shifts(cycles, window)
     if len(shifts) < 3:
         raise TooFewCycles(f"{len(shifts)} stretch(es) of the window's length at whole cycles from it inside the "
@@ -256,3 +254,19 @@ def calibrate_run(candidates, baseline, rec, cycles: Cycles, window: np.ndarray,
     cal = calibrate(basis, r, parts, n_replicates, seed, map)
     return RunCalibration(cal, tuple(c.name for c in candidates), np.array([t.p_value for t in tests]),
                           tuple(basis.information))
+
+
+def uncalibrated_reason(area: np.ndarray, dt: float, f0_hz: float | None, first: int, n_frames: int) -> str | None:
+    """Why :func:`vfcli.diagnose.run.diagnose_run` cannot decide on the window ``first .. first + n_frames - 1`` of a recording
+    whose glottal area is ``area`` ((F,), frames ``dt`` s apart): its own checks, on the area alone (no whole
+    cycle; fewer than 2 for the noise floor; fewer than 3 stretches for the calibration), or None.
+    f0_hz : the subglottal pressure's f0 (``/sync``), Hz, or None."""
+    try:
+        cycles = glottal_cycles(np.asarray(area, float), dt, f0_hz)
+        window = np.arange(first, first + n_frames)
+        _, around, exclude = floor_cycles(cycles, window)
+        floor_cycle_ids(around, exclude)
+        calibration_shifts(cycles, window)
+    except TooFewCycles as exc:
+        return str(exc)
+    return None

@@ -10,7 +10,8 @@ are read from the area's level and slope:
 * ``opening`` / ``closing`` : between the two, A rising / falling.
 
 Whole cycles (between two consecutive crossings) are the units of replication of the noise
-floor (:mod:`vfcli.diagnose.noise`).
+floor (:mod:`vfcli.diagnose.noise`); :func:`floor_cycles` and :func:`floor_cycle_ids` pick the ones
+it is measured on around a fitted window.
 
 An area that opens twice in a cycle (a smaller second opening after a partial closure: folds with mass
 or in contact) rises through half its range twice, and its crossings alone give twice f0 (blind panel
@@ -156,3 +157,47 @@ def too_few_advice(area: np.ndarray, dt: float, f0_hz: float | None = None) -> s
         return (f"the subglottal pressure (f0 {f0_hz:.4g} Hz) spans {spans:.1f} cycles in these {a.size} frames "
                 f"and the glottal area shows {counted} whole one(s): {gap}")
     return longer
+
+
+#: whole glottal cycles on each side of the window the noise floor uses at most (bounds time and memory)
+MAX_FLOOR_CYCLES = 32
+
+
+def floor_frames(cycles: Cycles, window: np.ndarray, max_cycles: int = MAX_FLOOR_CYCLES) -> slice:
+    """The frames the noise floor uses: whole cycles from ``max_cycles`` before the window's to
+    ``max_cycles`` after it (cut at integer phases, so the cycles inside stay whole)."""
+    first = np.floor(cycles.phase[window[0]]) - max_cycles
+    last = np.floor(cycles.phase[window[-1]]) + max_cycles + 1
+    inside = np.flatnonzero((cycles.phase >= first) & (cycles.phase < last))
+    return slice(int(inside[0]), int(inside[-1]) + 1)
+
+
+def floor_cycles(cycles: Cycles, window: np.ndarray) -> tuple[slice, Cycles, np.ndarray]:
+    """(frames, their cycles, (frames,) bool the window's among them): what the noise floor is measured on
+    (:func:`floor_frames`) for the window's frames ``window``."""
+    if window[-1] >= len(cycles.phase):
+        raise ValueError(f"window frames {window[0]}..{window[-1]} run past the recording ({len(cycles.phase)})")
+    span = floor_frames(cycles, window)
+    around = Cycles(cycles.f0_hz, cycles.phase[span], cycles.cycle[span], cycles.phase_name[span])
+    exclude = np.zeros(span.stop - span.start, bool)
+    exclude[window - span.start] = True
+    return span, around, exclude
+
+
+def floor_cycle_ids(cycles: Cycles, exclude: np.ndarray | None = None) -> np.ndarray:
+    """(n,) the whole cycles the noise floor is measured on: those with no ``exclude`` frame while at
+    least 3 remain, else all of them (see :func:`cycle_floor`).
+
+    Raises
+    ------
+    TooFewCycles
+        Fewer than 2 whole cycles."""
+    ids = np.unique(cycles.cycle[cycles.cycle >= 0])
+    if exclude is not None:
+        hit = np.unique(cycles.cycle[np.asarray(exclude, bool) & (cycles.cycle >= 0)])
+        kept = np.setdiff1d(ids, hit)
+        if len(kept) >= 3:
+            ids = kept
+    if len(ids) < 2:
+        raise TooFewCycles(f"{len(ids)} whole glottal cycle(s) in the recording: the noise floor needs at least 2")
+    return ids

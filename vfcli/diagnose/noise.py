@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import welch
 
-from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles
+from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, floor_cycle_ids
 from vfcli.diagnose.harmonics import design, fit_harmonics
 
 
@@ -62,25 +62,6 @@ class NoiseFloor:
         return NoiseFloor(self.bin_var, self.bin_dof, self.frames_per_bin, self.harm_var, self.harm_dof,
                           self.harm_scale, self.known_bin_var + known_bin_var,
                           self.known_harm_var + known_harm_var, self.n_cycles)
-
-
-def floor_cycle_ids(cycles: Cycles, exclude: np.ndarray | None = None) -> np.ndarray:
-    """(n,) the whole cycles the noise floor is measured on: those with no ``exclude`` frame while at
-    least 3 remain, else all of them (see :func:`cycle_floor`).
-
-    Raises
-    ------
-    TooFewCycles
-        Fewer than 2 whole cycles."""
-    ids = np.unique(cycles.cycle[cycles.cycle >= 0])
-    if exclude is not None:
-        hit = np.unique(cycles.cycle[np.asarray(exclude, bool) & (cycles.cycle >= 0)])
-        kept = np.setdiff1d(ids, hit)
-        if len(kept) >= 3:
-            ids = kept
-    if len(ids) < 2:
-        raise TooFewCycles(f"{len(ids)} whole glottal cycle(s) in the recording: the noise floor needs at least 2")
-    return ids
 
 
 def cycle_floor(series: np.ndarray, cycles: Cycles, n_harmonics: int,

@@ -16,13 +16,13 @@ from typing import Any, Callable
 import numpy as np
 
 from vfcli.camera.pose import model_axes_velocity
-from vfcli.diagnose.calibrate_run import calibrate_run, calibration_shifts
+from vfcli.diagnose.calibrate_run import calibrate_run
 from vfcli.diagnose.candidate import available_candidates, screenings
 from vfcli.diagnose.candidates.blocks import screen_run_columns
 from vfcli.diagnose.profile import profile_screens
-from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles, glottal_cycles
+from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles, floor_cycles, glottal_cycles
 from vfcli.diagnose.locate import Located, decompose, rank_hotspots
-from vfcli.diagnose.noise import cycle_floor, floor_cycle_ids, ldv_known_variance, ldv_noise_density
+from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
 from vfcli.diagnose.regions import (COMPONENT_NAMES, GAP_COMPONENT_NAMES, N_GAP_REGIONS, N_REGIONS,
                                     gap_region_names, region_names)
 from vfcli.diagnose.residual import WindowResidual, medial_silhouettes, region_means, window_residual
@@ -33,8 +33,6 @@ from vfcli.flow.gap.opening import measured_silhouettes
 
 #: frames read at once from the per-frame arrays
 CHUNK_FRAMES = 64
-#: whole glottal cycles on each side of the window the noise floor uses at most (bounds time and memory)
-MAX_FLOOR_CYCLES = 32
 
 
 @dataclass(frozen=True)
@@ -96,43 +94,6 @@ class LocateResult:
     cycles: Cycles
     window: np.ndarray
     ldv_density: float
-
-
-def floor_frames(cycles: Cycles, window: np.ndarray, max_cycles: int = MAX_FLOOR_CYCLES) -> slice:
-    """The frames the noise floor uses: whole cycles from ``max_cycles`` before the window's to
-    ``max_cycles`` after it (cut at integer phases, so the cycles inside stay whole)."""
-    first = np.floor(cycles.phase[window[0]]) - max_cycles
-    last = np.floor(cycles.phase[window[-1]]) + max_cycles + 1
-    inside = np.flatnonzero((cycles.phase >= first) & (cycles.phase < last))
-    return slice(int(inside[0]), int(inside[-1]) + 1)
-
-
-def floor_cycles(cycles: Cycles, window: np.ndarray) -> tuple[slice, Cycles, np.ndarray]:
-    """(frames, their cycles, (frames,) bool the window's among them): what the noise floor is measured on
-    (:func:`floor_frames`) for the window's frames ``window``."""
-    if window[-1] >= len(cycles.phase):
-        raise ValueError(f"window frames {window[0]}..{window[-1]} run past the recording ({len(cycles.phase)})")
-    span = floor_frames(cycles, window)
-    around = Cycles(cycles.f0_hz, cycles.phase[span], cycles.cycle[span], cycles.phase_name[span])
-    exclude = np.zeros(span.stop - span.start, bool)
-    exclude[window - span.start] = True
-    return span, around, exclude
-
-
-def uncalibrated_reason(area: np.ndarray, dt: float, f0_hz: float | None, first: int, n_frames: int) -> str | None:
-    """Why :func:`diagnose_run` cannot decide on the window ``first .. first + n_frames - 1`` of a recording
-    whose glottal area is ``area`` ((F,), frames ``dt`` s apart): its own checks, on the area alone (no whole
-    cycle; fewer than 2 for the noise floor; fewer than 3 stretches for the calibration), or None.
-    f0_hz : the subglottal pressure's f0 (``/sync``), Hz, or None."""
-    try:
-        cycles = glottal_cycles(np.asarray(area, float), dt, f0_hz)
-        window = np.arange(first, first + n_frames)
-        _, around, exclude = floor_cycles(cycles, window)
-        floor_cycle_ids(around, exclude)
-        calibration_shifts(cycles, window)
-    except TooFewCycles as exc:
-        return str(exc)
-    return None
 
 
 def measured_motion_series(rec: Recording, camera_rotation_deg: float, pixel_region: np.ndarray,

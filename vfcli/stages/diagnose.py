@@ -28,7 +28,7 @@ from vfcli.model.refine import finer_model
 from vfcli.parallel import serial_map
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
-from vfcli.store.fit import problem_of_store, run_model
+from vfcli.store.fit import pressure_f0_hz, problem_of_store, run_model  # noqa: F401 (pressure_f0_hz: this module's name too)
 from vfcli.store.refit_run import write_refit_params, write_refit_run
 from vfcli.store.runs import read_run
 
@@ -72,18 +72,6 @@ def motion_stride(valid: np.ndarray, max_rows: int) -> int:
     while 3 * int(np.count_nonzero(v[:, ::s, ::s])) > max_rows and s < min(v.shape[1:]):
         s += 1
     return s
-
-
-def pressure_f0_hz(reader: StoreReader) -> float:
-    """f0 of the subglottal pressure, Hz: the median of ``/sync``'s f0 over the vibrometer points it aligned
-    (no dropout); NaN without /sync and /ldv.  The glottal cycles are counted with it
-    (:func:`vfcli.diagnose.cycles.glottal_cycles`)."""
-    if not (reader.has_stage("sync") and reader.has_stage("ldv")):
-        return float("nan")
-    used = np.asarray(reader.read("sync", "ok"), bool) & ~np.asarray(reader.read("ldv", "dropout"), bool)
-    f0 = np.asarray(reader.read("sync", "f0_hz"), float)[used]
-    f0 = f0[np.isfinite(f0) & (f0 > 0)]
-    return float(np.median(f0)) if f0.size else float("nan")
 
 
 def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> DiagnoseInputs:

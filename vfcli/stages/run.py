@@ -227,14 +227,13 @@ def _run_step(step: str, ctx: RunContext, raw: RawFiles | None) -> list[StageRes
 
 def diagnose_skip_reason(ctx: RunContext) -> str | None:
     """Why the diagnose step cannot decide on this recording's fitted window, by diagnose's own checks
-    (:func:`vfcli.diagnose.run.uncalibrated_reason`: a noise floor of 2 whole glottal cycles and 3
+    (:func:`vfcli.diagnose.calibrate_run.uncalibrated_reason`: a noise floor of 2 whole glottal cycles and 3
     stretches of the window's length at whole cycles from it), or None (also when /flow is not there
     yet: the stage then names what is missing)."""
     with ctx.store.read() as r:
         if not r.has_stage("flow"):
             return None
-        from vfcli.stages.diagnose import pressure_f0_hz
-        from vfcli.store.fit import window_frames
+        from vfcli.store.fit import pressure_f0_hz, window_frames
 
         area, times = r.read("flow", "glottal_area"), r.read("flow", "frame_time")
         f0 = pressure_f0_hz(r)
@@ -246,7 +245,7 @@ def diagnose_skip_reason(ctx: RunContext) -> str | None:
     if first + n > len(area):
         return None                   # optimize refuses the window, naming it
     from vfcli.diagnose.cycles import too_few_advice
-    from vfcli.diagnose.run import uncalibrated_reason
+    from vfcli.diagnose.calibrate_run import uncalibrated_reason
 
     reason = uncalibrated_reason(area, dt, f0, first, n)
     if reason is None:

@@ -24,6 +24,19 @@ def video_f0_hz(reader: StoreReader) -> float:
     return float(reader.attrs("sync").get("f0_video_hz", np.nan)) if reader.has_stage("sync") else float("nan")
 
 
+def pressure_f0_hz(reader: StoreReader) -> float:
+    """f0 of the subglottal pressure, Hz: the median of ``/sync``'s f0 over the vibrometer points it aligned
+    (no dropout); NaN without /sync and /ldv.  The glottal cycles are counted with it
+    (:func:`vfcli.diagnose.cycles.glottal_cycles`). Here, not in :mod:`vfcli.stages.diagnose`, so that `vfcli run`
+    judges whether diagnose can run without importing it (0.7-1 s of a fresh process's start)."""
+    if not (reader.has_stage("sync") and reader.has_stage("ldv")):
+        return float("nan")
+    used = np.asarray(reader.read("sync", "ok"), bool) & ~np.asarray(reader.read("ldv", "dropout"), bool)
+    f0 = np.asarray(reader.read("sync", "f0_hz"), float)[used]
+    f0 = f0[np.isfinite(f0) & (f0 > 0)]
+    return float(np.median(f0)) if f0.size else float("nan")
+
+
 def window_frames(reader: StoreReader, config: RecordingConfig, frame_interval_s: float) -> int:
     """Frames in the optimize window: ``optimize.n_frames`` when it is set, else one glottal cycle of the
     video, ``ceil(1 / (f0 dt))`` frames (84 at 120 Hz and 10 kHz), f0 the video's: /sync's

@@ -226,32 +226,43 @@ def fit_slit_profiles(
     aux = list(aux)
     damping = np.full(n, 1e-3)
     act = np.arange(n)  # rays still moving
+    k = 1 if closed else 2
+    # the Gauss-Newton system of each ray at its current edges; a ray whose trial step was refused keeps its
+    # edges, so only the damping changes and its system is reused (about a third of the ray-iterations of a
+    # flow run); each ray's arithmetic is its own, so the result is the same as recomputing it
+    jtj_all, grad_all, diag_all = np.empty((n, k, k)), np.empty((n, k)), np.empty((n, k))
+    stale = np.ones(n, bool)
+    eye = np.eye(k)
     for _ in range(iterations):
         if act.size == 0:
             break
-        fa, fb, pa, pb, bw, lhs = (v[act] for v in aux)
-        swa, xa = sw[act], x[act]
-        g_lvl, t0, s0, t1, s1 = xa.T
-        d0 = ((t0 - g_lvl)[:, None] * fa / sigma + s0[:, None] * pa) * swa
-        d1 = (-(t1 - g_lvl)[:, None] * fb / sigma - s1[:, None] * pb) * swa
-        jac = (d0 + d1)[..., None] if closed else np.stack([d0, d1], axis=-1)
-        # variable projection (Kaufman): the Jacobian of the residual with the levels re-solved
-        # is the edge derivative projected off the basis (the prior on G is one more row)
-        c = np.linalg.solve(lhs, bw.transpose(0, 2, 1) @ jac)          # (m, 5, k)
-        jac = jac - bw @ c
-        prior_row = -np.sqrt(gap_weight) * c[:, :1, :]                  # (m, 1, k)
-        prior_res = (np.sqrt(gap_weight) * (xa[:, 0] - gap_counts[act]))[:, None]
-        jt = jac.transpose(0, 2, 1)
-        jtj = jt @ jac + prior_row.transpose(0, 2, 1) @ prior_row
-        grad = (jt @ res[act][..., None])[..., 0] + (prior_row.transpose(0, 2, 1) @ prior_res[..., None])[..., 0]
-        diag = np.einsum("nii->ni", jtj) + 1e-12
-        eye = np.eye(jac.shape[-1])
+        need = act[stale[act]]
+        if need.size:
+            fa, fb, pa, pb, bw, lhs = (v[need] for v in aux)
+            swa, xa = sw[need], x[need]
+            g_lvl, t0, s0, t1, s1 = xa.T
+            d0 = ((t0 - g_lvl)[:, None] * fa / sigma + s0[:, None] * pa) * swa
+            d1 = (-(t1 - g_lvl)[:, None] * fb / sigma - s1[:, None] * pb) * swa
+            jac = (d0 + d1)[..., None] if closed else np.stack([d0, d1], axis=-1)
+            # variable projection (Kaufman): the Jacobian of the residual with the levels re-solved
+            # is the edge derivative projected off the basis (the prior on G is one more row)
+            c = np.linalg.solve(lhs, bw.transpose(0, 2, 1) @ jac)          # (m, 5, k)
+            jac = jac - bw @ c
+            prior_row = -np.sqrt(gap_weight) * c[:, :1, :]                  # (m, 1, k)
+            prior_res = (np.sqrt(gap_weight) * (xa[:, 0] - gap_counts[need]))[:, None]
+            jt = jac.transpose(0, 2, 1)
+            jtj = jt @ jac + prior_row.transpose(0, 2, 1) @ prior_row
+            jtj_all[need] = jtj
+            grad_all[need] = (jt @ res[need][..., None])[..., 0] + (prior_row.transpose(0, 2, 1) @ prior_res[..., None])[..., 0]
+            diag_all[need] = np.einsum("nii->ni", jtj) + 1e-12
+            stale[need] = False
+        jtj, grad, diag = jtj_all[act], grad_all[act], diag_all[act]
         damp = damping[act]
         step = -np.linalg.solve(jtj + damp[:, None, None] * (diag[:, :, None] * eye), grad[..., None])[..., 0]
         step = np.clip(step, -0.5, 0.5)
         a = np.clip(e0[act] + step[:, 0], lo[act], hi0[act])
         b = a if closed else np.clip(e1[act] + step[:, 1], lo1[act], hi[act])
-        sub = (r[act], y[act], w[act], swa, sigma, gap_counts[act], gap_weight, ridge)
+        sub = (r[act], y[act], w[act], sw[act], sigma, gap_counts[act], gap_weight, ridge)
         nx, nres, ncost, naux = _slit_levels(sub, a, b)
         better = ncost < cost[act]
         damping[act] = np.where(better, damp * 0.3, damp * 10.0)
@@ -259,6 +270,7 @@ def fit_slit_profiles(
         e0[upd], e1[upd], x[upd], res[upd], cost[upd] = a[better], b[better], nx[better], nres[better], ncost[better]
         for v, nv in zip(aux, naux):
             v[upd] = nv[better]
+        stale[upd] = True
         done = (better & (np.abs(step).max(axis=1) < 1e-3)) | (damping[act] > 1e6)
         act = act[~done]
     rms = np.sqrt((res**2).sum(axis=1) / np.maximum(ok.sum(axis=1), 1.0))
