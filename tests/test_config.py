@@ -159,6 +159,12 @@ def test_true_or_false_where_a_number_is_meant_is_a_config_error(item, field):
 def test_the_example_config_is_valid_and_spells_out_the_defaults():
     stored, _ = load_config(ROOT / "examples" / "recording.toml")
     assert stored == RecordingConfig()
+    # the settings a lab measures are left unset, so their warnings stay on for a lab that starts from it (written
+    # out, px_per_mm = 20.0 silenced the warning about the placeholder scale: hF, session 37)
+    from vfcli.calibration import default_calibration
+    from vfcli.config import MEASURED_SETTINGS
+
+    assert default_calibration(stored, stored, MEASURED_SETTINGS) == list(MEASURED_SETTINGS)
 
 
 def test_the_store_keeps_only_the_settings_the_file_gave(tmp_path, vfcli):
@@ -192,3 +198,14 @@ def test_a_calibrated_zero_pose_can_be_stated_and_a_pose_without_camera_pose_is_
     assert camera_pose(inputs, (cfg.rotation_deg, cfg.offset_px)) == (0.0, (-3.0, -7.0), "config")
     with pytest.raises(ValueError, match="gap_counts"):
         camera_pose(inputs, None)
+
+
+@pytest.mark.parametrize("value", ["lbfgs", "3x3x10-one-sided", "true", "null", "12", " padded", "a=b", None, 3, 1e-05,
+                                   True, [4, 3], ["a", "b"]])
+def test_a_settings_value_written_as_a_set_item_reads_back_as_itself(value):
+    """The --set items `vfcli info` prints to resume a stopped fit (vfcli.store.checkpoint.resume_flags) must
+    give back the checkpoint's settings: a string that would read as another value ("true", "12") is quoted."""
+    from vfcli.config import apply_overrides, override_item
+
+    item = override_item("optimize.k", value)
+    assert apply_overrides({}, [item])["optimize"]["k"] == value

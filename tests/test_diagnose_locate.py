@@ -88,15 +88,37 @@ def test_vibrometer_noise_density_above_the_band_of_motion():
     assert harm[0, 2, 0] == pytest.approx(dens / 0.025 / 4) and harm[1, 2, 0] == pytest.approx(dens / 0.025)
 
 
-def _decompose_window(rng, sigma, injected=None):
+def _decompose_window(rng, sigma, injected=None, window=WINDOW):
     cyc = glottal_cycles(area_waveform(), DT)
     exclude = np.zeros(N_FRAMES, bool)
-    exclude[WINDOW] = True
+    exclude[window] = True
     floor = cycle_floor(recording_series(rng, sigma), cyc, 5, exclude)
-    res = sigma * rng.normal(size=(WINDOW.stop - WINDOW.start, N_REGIONS, 3))
+    res = sigma * rng.normal(size=(window.stop - window.start, N_REGIONS, 3))
     if injected is not None:
-        res = res + injected(cyc.phase[WINDOW])
-    return decompose(res, cyc.phase[WINDOW], cyc.phase_name[WINDOW], floor, region_names(), COMPONENT_NAMES, "mm/s")
+        res = res + injected(cyc.phase[window])
+    return decompose(res, cyc.phase[window], cyc.phase_name[window], floor, region_names(), COMPONENT_NAMES, "mm/s")
+
+
+def test_a_window_shorter_than_a_cycle_tests_no_harmonic_and_says_so():
+    """A 12-frame window (0.14 of a cycle) reported a 2nd harmonic of 2.84e6 mm/s at 229 times its floor where the
+    measured speed peaked at 1218 mm/s (hF, session 37): over a part of a cycle the harmonics are nearly collinear.
+    Such a window tests the phase means only, and the first line says why; the 1.2-cycle window tests both."""
+    from vfcli.diagnose.locate import Located
+    from vfcli.diagnose.words import summary_lines
+
+    rng = np.random.default_rng(5)
+    drift = lambda phase: np.broadcast_to(30.0 * (phase - phase.mean())[:, None, None], (len(phase), N_REGIONS, 3))  # noqa: E731
+    short = _decompose_window(rng, 3.0, drift, slice(600, 612))
+    assert short.window_cycles == pytest.approx(12 * F0 * DT, abs=0.01)          # 0.14
+    assert np.all(np.isnan(short.harm_p)) and np.isfinite(short.bin_p).any()
+    spots = rank_hotspots({"motion": short}, 0.05)
+    assert spots and all(h.kind == "phase" for h in spots)
+    head = summary_lines(Located({"motion": short}, spots, 0.05, F0, 14))[0]
+    assert "harmonics of f0 not tested: the window spans 0.14 of a glottal cycle" in head, head
+    whole = _decompose_window(rng, 3.0, drift)
+    assert whole.window_cycles > 1 and np.isfinite(whole.harm_p).all()
+    assert "not tested" not in summary_lines(Located({"motion": whole}, rank_hotspots({"motion": whole}, 0.05), 0.05,
+                                                     F0, 14))[0]
 
 
 def test_injected_antisymmetric_second_harmonic_is_located_and_ranked_first():

@@ -2,6 +2,7 @@
 found from the gap, and --resume after SIGKILL ending where an uninterrupted run ends."""
 from __future__ import annotations
 
+import shlex
 import signal
 import subprocess
 import sys
@@ -112,13 +113,22 @@ def test_resume_after_sigkill_ends_where_an_uninterrupted_run_ends(store):
     proc.wait()
     with Store(path).read() as r:
         assert not r.has_stage("optimize", "killed")  # nothing half-written in the store
-    # info names the stopped fit and how to continue it (it said nothing of the checkpoint)
+    # info names the stopped fit and the command that continues it (it said nothing of the checkpoint; then it
+    # printed `--resume` alone, which the run's own --setup/--set settings made start afresh: hF, session 37)
     with np.load(ckpt) as z:
         stopped_at = int(z["iteration"])
     info = run_vfcli("info", path)
-    assert f"optimize run 'killed' was stopped at iteration {stopped_at}: `vfcli optimize {path} --run killed --resume`" \
-        in info.stdout, info.stdout
-    res = run_vfcli("optimize", path, *opts, "--run", "killed", "--resume")
+    line = next(ln for ln in info.stdout.splitlines() if "optimize run 'killed' was stopped" in ln)
+    assert f"was stopped at iteration {stopped_at}: `vfcli optimize {path} --run killed --resume --set" in line, line
+    command = shlex.split(line.split("`")[1])
+    # --resume with other settings is refused, naming them and the command; the checkpoint and the store stay
+    before = {p.name: p.stat().st_mtime_ns for p in [path, *sorted(path.parent.glob("rec.h5.parts/*"))]}
+    res = run_vfcli("optimize", path, "--run", "killed", "--resume")
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert f"--resume: run 'killed' was stopped at iteration {stopped_at} with other settings (" in res.stderr
+    assert "optimize.setup '3x3x10-one-sided' (now " in res.stderr and res.stderr.split("`")[1] == line.split("`")[1]
+    assert ckpt.exists() and {p.name: p.stat().st_mtime_ns for p in [path, *sorted(path.parent.glob("rec.h5.parts/*"))]} == before
+    res = run_vfcli(*command[1:])                       # the command info printed, as a user pastes it
     assert res.returncode == 0, res.stderr
     assert not ckpt.exists() and "was stopped" not in run_vfcli("info", path).stdout
     with Store(path).read() as r:

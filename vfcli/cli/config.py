@@ -36,3 +36,8 @@ def config_cmd(ctx, show: bool):  # type: ignore[no-untyped-def]
         summary = {"set": " ".join(overrides)}
     changed = save_recording_config(ctx)
     return StageResult("/ (recording config)", "written" if changed else "up-to-date", summary)
+
+
+for _param in config_cmd.params:        # the shared --set help says "for this run"; here the value is stored
+    if _param.name == "overrides":
+        _param.help = "Store one config value (repeatable; null unsets a field that may be unset)."

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 from typing import Any
 
 import click
@@ -32,8 +33,9 @@ def _details(info: dict[str, Any]) -> None:
         click.echo(f"  ! interrupted write left {leftover} (the store itself is intact; the next write removes it)")
     for fit in info.get("stopped_fits", []):
         at = "" if fit["iteration"] is None else f" at iteration {fit['iteration']}"
-        click.echo(f"  ! optimize run '{fit['run']}' was stopped{at}: `vfcli optimize {info['path']} --run {fit['run']} "
-                   f"--resume` continues it (checkpoint {fit['path']})")
+        flags = "".join(f" {f}" for f in fit.get("resume_flags", []))
+        click.echo(f"  ! optimize run '{fit['run']}' was stopped{at}: `vfcli optimize {shlex.quote(info['path'])} --run "
+                   f"{fit['run']} --resume{flags}` continues it (checkpoint {fit['path']})")
     if not info["stages"]:
         click.echo("  no stages yet")
     for st in info["stages"]:

@@ -84,8 +84,9 @@ def cli() -> None:
     """vfcli: 3D vocal-fold motion from high-speed video, vibrometry and subglottal pressure.
 
     Each command reads and writes one HDF5 store per recording (FILE). Run them in
-    order: ingest-hsc, ingest-ldv, sync, flow, mesh, optimize, export. Commands whose
-    inputs and config are unchanged do nothing (use --force to rerun).
+    order: ingest-hsc, ingest-ldv, sync, flow, mesh, optimize, then diagnose, export and
+    report (or all of them: vfcli run). Commands whose inputs and config are unchanged do
+    nothing (use --force to rerun).
     """
 
 

@@ -39,8 +39,9 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
             report_file: str | None, config_path: str | None, overrides: tuple[str, ...], force: bool,
             quiet: bool, as_json: bool, verbose: int) -> None:
     """Run every step of one recording in one process: ingest-hsc, ingest-ldv, sync, flow,
-    mesh, optimize (run 'default'), diagnose (of run 'default'; skipped, saying why, when the
-    recording holds fewer than 3 whole glottal cycles outside the fitted window), each only
+    mesh, optimize (run 'default'), diagnose (of run 'default'; skipped, saying why, when it
+    could not calibrate its decision: fewer than 3 stretches of the window's length at whole
+    glottal cycles from it in the recording), each only
     when it is not current (same rules as `vfcli info`: inputs by content, config, upstream
     stages), then --export / --report.
 

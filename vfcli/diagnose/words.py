@@ -1,8 +1,10 @@
 """Plain words for what Locate found: the lines `vfcli diagnose` prints."""
 from __future__ import annotations
 
+import numpy as np
+
 from vfcli.diagnose.cycles import PHASE_NAMES
-from vfcli.diagnose.locate import Hotspot, Located
+from vfcli.diagnose.locate import MIN_HARMONIC_CYCLES, Hotspot, Located
 
 
 def ordinal(k: int) -> str:
@@ -48,6 +50,10 @@ def summary_lines(located: Located, max_lines: int = 5) -> list[str]:
     n = len(located.hotspots)
     head = (f"f0 {located.f0_hz:.1f} Hz; noise floor from {located.n_cycles} whole glottal cycles; "
             f"{n} parts tested, family-wise false-alarm rate {located.alpha:g}")
+    spans = [d.window_cycles for d in located.families.values() if np.isfinite(d.window_cycles)]
+    if spans and min(spans) < MIN_HARMONIC_CYCLES:
+        head += (f"; harmonics of f0 not tested: the window spans {min(spans):.2f} of a glottal cycle (from "
+                 f"{MIN_HARMONIC_CYCLES:g} they are told apart; fit a longer window, optimize.n_frames)")
     sig = located.significant
     if not sig:
         best = located.hotspots[0] if located.hotspots else None

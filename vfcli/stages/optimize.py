@@ -11,14 +11,17 @@ One descent: :func:`vfcli.store.fit.read_optimize_inputs` (everything from the s
 """
 from __future__ import annotations
 
+import json
 import logging
 import os
+import shlex
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from vfcli.config import settings_changes
 from vfcli.errors import ConfigError
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
@@ -27,7 +30,7 @@ from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
 from vfcli.inverse.setup import setup_summary
 from vfcli.report.plots import convergence_plot, uncertainty_map
 from vfcli.store import StageWriter, StoreReader
-from vfcli.store.checkpoint import checkpoint_path
+from vfcli.store.checkpoint import checkpoint_path, resume_flags
 from vfcli.store.fit import problem_of_store
 from vfcli.inverse.sandwich import sandwich
 from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_split,
@@ -44,15 +47,27 @@ def _save_checkpoint(path: Path, state: FitState, settings_json: str) -> None:
     os.replace(tmp, path)
 
 
-def _load_checkpoint(path: Path, settings_json: str) -> FitState | None:
+def _load_checkpoint(path: Path, settings_json: str, store_path: Path, run: str) -> FitState | None:
+    """The fit state ``--resume`` continues from, or None (no checkpoint: the fit starts, with a warning).
+
+    Raises
+    ------
+    ConfigError
+        The checkpoint was written with other settings (a resumed fit must be the fit that was stopped): naming
+        them and the ``--set`` options that resume it.  It started afresh under the run's name, with a warning."""
     if not path.exists():
         # --resume without a checkpoint started afresh without a word
         log.warning("--resume: no checkpoint of this run (%s); fitting from the start", path.name)
         return None
     with np.load(path, allow_pickle=False) as z:
-        if str(z["settings_json"]) != settings_json:
-            log.warning("%s was written with other settings; starting afresh", path)
-            return None
+        saved = str(z["settings_json"])
+        if saved != settings_json:
+            changed = settings_changes(json.loads(saved), json.loads(settings_json))
+            words = "; ".join(f"{k} {v!r} (now {now!r})" for k, v, now in changed[:4])
+            flags = " ".join(resume_flags(saved, settings_json))
+            raise ConfigError(f"--resume: run {run!r} was stopped at iteration {int(z['iteration'])} with other settings "
+                              f"({words}); resume it with `vfcli optimize {shlex.quote(str(store_path))} --run {run} "
+                              f"--resume {flags}`, or leave out --resume to fit afresh")
         return FitState.from_arrays({k: z[k] for k in z.files if k != "settings_json"})
 
 
@@ -181,7 +196,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             bar.set_postfix(E=f"{state.value[0]:.4g}")
             bar.refresh()
 
-        state = _load_checkpoint(ckpt, settings_json) if resume_run else None
+        state = _load_checkpoint(ckpt, settings_json, ctx.store.path, run) if resume_run else None
         if state is not None:
             log.info("resuming run %s from iteration %d", run, state.iteration)
             result = resume(problem, state, cfg.max_iterations, checkpoint, opts)

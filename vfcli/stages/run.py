@@ -250,7 +250,11 @@ def diagnose_skip_reason(ctx: RunContext) -> str | None:
     reason = uncalibrated_reason(area, dt, f0, first, n)
     if reason is None:
         return None
-    shorter = ", or fit a shorter window (optimize.n_frames)" if "stretch(es)" in reason else ""
+    # a shorter window leaves room for more stretches, down to one glottal cycle (shorter, its harmonics are not
+    # told apart: vfcli.diagnose.locate.MIN_HARMONIC_CYCLES)
+    cycles = n * dt * f0 if np.isfinite(f0) else float("nan")
+    shorter = (f", or fit one glottal cycle (the window holds {cycles:.1f}; leave optimize.n_frames unset)"
+               if "stretch(es)" in reason and cycles > 1.05 else "")
     return (f"its decision on the fitted window (frames {first}-{first + n - 1}) could not be calibrated: {reason}; "
             f"{too_few_advice(area, dt, f0)}{shorter}")
 

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from vfcli.store import layout, parts
-from vfcli.store.checkpoint import stopped_fits
+from vfcli.store.checkpoint import resume_flags, stopped_fits
 from vfcli.store.transaction import Store
 
 _LOG_PREFIX = re.compile(r"^(?:WARNING|ERROR|INFO|DEBUG) [\w.]+: ")
@@ -52,6 +52,11 @@ def store_info(path: str | Path, expected_config: Callable[[str | None], Expecte
     folders = sorted({p.parent for p in linked})  # a hand copy not yet written to: the original's folder
     leftovers = [str(p) for p in store.interrupted_writes()]
     stopped = [] if writing else stopped_fits(store.path)    # a writer at work keeps its checkpoint current
+    for fit in stopped:
+        # the --set options that resume it: its settings against the run's under the recording config
+        # (the default run's settings are those every run starts from)
+        now = expected("optimize", "default") if expected is not None else None
+        fit["resume_flags"] = resume_flags(fit["settings"], now) if fit["settings"] is not None else []
     return {
         "path": str(store.path),
         "size_bytes": os.path.getsize(store.path),
