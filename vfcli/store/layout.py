@@ -292,7 +292,9 @@ STAGES: dict[str, Stage] = {
                 "history_ridge": D("1", "Ridge (Tikhonov) term of E", ("iteration",)),
                 "displacement_std": D("mm", "Standard deviation of each reconstructed displacement component: "
                                       "the fit's mean squared error (sandwich covariance and the ridge's expected bias, "
-                                      "vfcli/inverse/sandwich.py) and instrument disagreement in quadrature",
+                                      "vfcli/inverse/sandwich.py) and instrument disagreement in quadrature; absent "
+                                      "with optimize.uncertainty = false and in diagnose's refit runs (<run>+<term>), "
+                                      "which state their parameter's interval (refit_theta_sd)",
                                       ("sim_time", "node", "xyz"), True),
                 "displacement_std_instruments": D("mm", "Systematic part of displacement_std: RMS over time of the "
                                                   "difference between the camera-only and the vibrometer-only "
