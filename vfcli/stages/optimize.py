@@ -63,7 +63,7 @@ def _load_checkpoint(path: Path, settings_json: str, store_path: Path, run: str)
         saved = str(z["settings_json"])
         if saved != settings_json:
             changed = settings_changes(json.loads(saved), json.loads(settings_json))
-            words = "; ".join(f"{k} {v!r} (now {now!r})" for k, v, now in changed[:4])
+            words = "; ".join(f"{k} {v!r} (now {now!r})" for k, v, now in changed)
             flags = " ".join(resume_flags(saved, settings_json))
             raise ConfigError(f"--resume: run {run!r} was stopped at iteration {int(z['iteration'])} with other settings "
                               f"({words}); resume it with `vfcli optimize {shlex.quote(str(store_path))} --run {run} "
@@ -182,6 +182,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
     settings_json = optimize_settings_json(ctx.config)
     ckpt = checkpoint_path(ctx.store.path, run)
+    if resume_run and ckpt.exists():
+        _load_checkpoint(ckpt, settings_json, ctx.store.path, run)    # refused before the write opens: store untouched
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         t_body = time.perf_counter()
