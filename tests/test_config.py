@@ -162,7 +162,7 @@ def test_the_example_config_is_valid_and_spells_out_the_defaults():
     # the settings a lab measures are left unset, so their warnings stay on for a lab that starts from it (written
     # out, px_per_mm = 20.0 silenced the warning about the placeholder scale: hF, session 37)
     from vfcli.calibration import default_calibration
-    from vfcli.config import MEASURED_SETTINGS
+    from vfcli.calibration import MEASURED_SETTINGS
 
     assert default_calibration(stored, stored, MEASURED_SETTINGS) == list(MEASURED_SETTINGS)
 
@@ -205,7 +205,7 @@ def test_a_calibrated_zero_pose_can_be_stated_and_a_pose_without_camera_pose_is_
 def test_a_settings_value_written_as_a_set_item_reads_back_as_itself(value):
     """The --set items `vfcli info` prints to resume a stopped fit (vfcli.store.checkpoint.resume_flags) must
     give back the checkpoint's settings: a string that would read as another value ("true", "12") is quoted."""
-    from vfcli.config import apply_overrides, override_item
+    from vfcli.overrides import apply_overrides, override_item
 
     item = override_item("optimize.k", value)
     assert apply_overrides({}, [item])["optimize"]["k"] == value

@@ -12,6 +12,11 @@ from vfcli.config import RecordingConfig
 CALIBRATION: dict[str, tuple[str, str]] = {
     "camera.px_per_mm": ("px/mm", "measure it on a calibration target in the folds' plane"),
 }
+#: the full scale of a WAV pressure (a WAV states no unit): `ingest-hsc` warns while it is left at its default
+WAV_FULL_SCALE = "ingest_hsc.wav_full_scale_pa"
+#: every setting a lab measures for its own rig, warned about while a config leaves it at its default: the
+#: example config (vfcli/example_config.py) leaves them unset
+MEASURED_SETTINGS = (*CALIBRATION, WAV_FULL_SCALE)
 
 
 def default_calibration(stored: RecordingConfig, effective: RecordingConfig,

@@ -17,6 +17,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from vfcli.errors import ConfigError
+from vfcli.overrides import apply_overrides
 
 
 def _allows_bool(annotation: Any) -> bool:
@@ -469,68 +470,6 @@ def _validate(data: dict[str, Any], source: str) -> RecordingConfig:
         raise ConfigError(_one_line(exc, source)) from None
 
 
-def _parse_value(text: str) -> Any:
-    """A ``--set`` value: TOML/JSON literal when it parses as one, ``null`` for none (a field that may be
-    unset, e.g. ``optimize.n_frames=null``: one glottal cycle; TOML has no null), else the plain string
-    (``'"null"'`` for the string)."""
-    if text == "null":
-        return None
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-    except (RecursionError, ValueError, MemoryError) as exc:  # nested too deep, a 5000-digit integer
-        raise ConfigError(f"--set value {text[:40]!r}...: {_toml_limit(exc)}") from None
-
-
-def override_item(key: str, value: Any) -> str:
-    """The ``--set`` item ``key=value`` that :func:`apply_overrides` reads back as ``value`` (a JSON value:
-    None as ``null``, a string bare unless it would read as another value, then quoted)."""
-    if value is None:
-        return f"{key}=null"
-    if isinstance(value, str):
-        plain = value == value.strip() and value != "null" and _parse_value(value) == value
-        text = value if plain else json.dumps(value)
-        return f"{key}={text}"
-    return f"{key}={json.dumps(value)}"
-
-
-def settings_changes(saved: dict[str, Any], current: dict[str, Any], prefix: str = "") -> list[tuple[str, Any, Any]]:
-    """``(section.field, saved value, current value)`` for every field of the nested settings ``saved`` whose value
-    differs from ``current``'s (a field ``current`` lacks counts as None), in the order of ``saved``."""
-    out: list[tuple[str, Any, Any]] = []
-    for key, value in saved.items():
-        now = current.get(key) if isinstance(current, dict) else None
-        if isinstance(value, dict):
-            out += settings_changes(value, now if isinstance(now, dict) else {}, f"{prefix}{key}.")
-        elif value != now:
-            out.append((f"{prefix}{key}", value, now))
-    return out
-
-
-def _toml_limit(exc: BaseException) -> str:
-    if isinstance(exc, RecursionError):
-        return "nested too deep to be a config"
-    return f"not a config value ({str(exc)[:120]})"
-
-
-def apply_overrides(base: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """Apply ``section.field=value`` overrides to a config dict (returns a new dict)."""
-    out = json.loads(json.dumps(base))
-    for item in overrides:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(f"--set {item!r}: expected section.field=value")
-        node = out
-        *parents, leaf = key.strip().split(".")
-        for p in parents:
-            node = node.setdefault(p, {})
-            if not isinstance(node, dict):
-                raise ConfigError(f"--set {item!r}: {p} is not a section")
-        node[leaf] = _parse_value(value.strip())
-    return out
-
-
 def load_config(
     path: str | Path | None = None, stored_json: str | None = None, overrides: list[str] | None = None
 ) -> tuple[RecordingConfig, RecordingConfig]:
@@ -589,29 +528,3 @@ def export_schemas(out_dir: str | Path) -> list[Path]:
         p.write_text(json.dumps(model.model_json_schema(), indent=2, sort_keys=True) + "\n")
         written.append(p)
     return written
-
-
-#: settings a lab measures for its own rig, warned about while a config leaves them at their default
-#: (vfcli/calibration.py, the WAV check of `ingest-hsc`): the example config leaves them unset
-MEASURED_SETTINGS = ("camera.px_per_mm", "ingest_hsc.wav_full_scale_pa")
-
-
-def example_toml() -> str:
-    """``examples/recording.toml``: every setting with its default (written by `vfcli schemas`), those of
-    :data:`MEASURED_SETTINGS` commented out: a value written out counts as set, and their warnings would be
-    silenced in a lab that starts from the example (hF, session 37)."""
-    import tomli_w
-
-    data = RecordingConfig().model_dump(mode="json", exclude_none=True)
-    section, lines = "", []
-    for line in tomli_w.dumps(data).splitlines():
-        if line.startswith("["):
-            section = line.strip("[]")
-        key = line.split(" = ")[0]
-        if f"{section}.{key}" in MEASURED_SETTINGS:
-            line = f"# {line}    # your rig's value: measure it and set it (left unset, vfcli warns)"
-        lines.append(line)
-    return ("# A recording config with every default spelled out; see schemas/recording.schema.json.\n"
-            "# Values a lab measures, commented out until you set yours: camera.px_per_mm (calibration target),\n"
-            "# ingest_hsc.wav_full_scale_pa (a WAV pressure's amplifier); camera.fps_hz (else from the video).\n\n"
-            + "\n".join(lines) + "\n")

@@ -41,14 +41,14 @@ def require(module: str, extra: str = "batch") -> Any:
 def parse_options(items: list[str] | tuple[str, ...], where: str) -> dict[str, Any]:
     """``["queue=normal", "cores=2"]`` -> ``{"queue": "normal", "cores": 2}`` (values as TOML
     literals when they parse as one, else text)."""
-    from vfcli.config import _parse_value
+    from vfcli.overrides import parse_value
 
     out: dict[str, Any] = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise ConfigError(f"{where} {item!r}: expected KEY=VALUE (e.g. queue=normal, memory=4GB, jobs=8)")
-        out[key.strip()] = _parse_value(value.strip())
+        out[key.strip()] = parse_value(value.strip())
     return out
 
 

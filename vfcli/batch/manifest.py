@@ -108,14 +108,14 @@ def flatten_overrides(table: Mapping[str, Any], where: str, prefix: str = "") ->
 
 
 def _csv_overrides(text: str, where: str) -> dict[str, Any]:
-    from vfcli.config import _parse_value
+    from vfcli.overrides import parse_value
 
     out: dict[str, Any] = {}
     for item in filter(None, (s.strip() for s in text.split(";"))):
         key, sep, value = item.partition("=")
         if not sep or "." not in key:
             raise ConfigError(f"{where}: set item {item!r}: expected section.field=value")
-        out[key.strip()] = _parse_value(value.strip())
+        out[key.strip()] = parse_value(value.strip())
     return out
 
 

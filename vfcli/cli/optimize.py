@@ -29,7 +29,8 @@ def optimize_cmd(ctx, run_name, setup, loads, method, resume_run, plot, uncertai
     """
     from vfcli.cli.outputs import PICTURE_FORMATS, check_output_file
     from vfcli.errors import ConfigError
-    from vfcli.config import RecordingConfig, apply_overrides
+    from vfcli.config import RecordingConfig
+    from vfcli.overrides import apply_overrides
     from vfcli.stages.optimize import run_optimize
 
     check_output_file(plot, "--plot", PICTURE_FORMATS)

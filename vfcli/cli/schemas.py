@@ -17,7 +17,8 @@ def schemas_cmd(out_dir: str, layout_doc: str | None, example: str | None) -> No
     Reads nothing; writes OUT_DIR/*.schema.json, and only when given, the layout page
     (--layout-doc) and the example config (--example).
     """
-    from vfcli.config import example_toml, export_schemas
+    from vfcli.config import export_schemas
+    from vfcli.example_config import example_toml
     from vfcli.store import layout
 
     for p in export_schemas(out_dir):

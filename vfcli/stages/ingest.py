@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.calibration import calibration_warnings, default_calibration
+from vfcli.calibration import WAV_FULL_SCALE, calibration_warnings, default_calibration
 from vfcli.config import SyncConfig
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.flow.plausibility import points_on_image
@@ -123,7 +123,7 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             rec = read_pressure(pressure, cfg.pressure_group, cfg.pressure_channel,
                                 wav_pa_per_full_scale=cfg.wav_full_scale_pa)
             if Path(pressure).suffix.lower() == ".wav" and default_calibration(
-                    ctx.stored_config, ctx.config, ["ingest_hsc.wav_full_scale_pa"]):
+                    ctx.stored_config, ctx.config, [WAV_FULL_SCALE]):
                 log.warning("%s: a WAV states no unit; its samples were read as %g Pa at digital full scale, "
                             "ingest_hsc.wav_full_scale_pa's default: set your amplifier's calibration with `vfcli "
                             "config %s --set ingest_hsc.wav_full_scale_pa=VALUE` (or in recording.toml), then rerun",

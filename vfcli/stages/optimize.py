@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from vfcli.config import settings_changes
+from vfcli.overrides import settings_changes
 from vfcli.errors import ConfigError
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
@@ -48,16 +48,14 @@ def _save_checkpoint(path: Path, state: FitState, settings_json: str) -> None:
 
 
 def _load_checkpoint(path: Path, settings_json: str, store_path: Path, run: str) -> FitState | None:
-    """The fit state ``--resume`` continues from, or None (no checkpoint: the fit starts, with a warning).
+    """The fit state ``--resume`` continues from, or None when there is no checkpoint.
 
     Raises
     ------
     ConfigError
         The checkpoint was written with other settings (a resumed fit must be the fit that was stopped): naming
-        them and the ``--set`` options that resume it.  It started afresh under the run's name, with a warning."""
+        them and the ``--set`` options that resume it (it used to start afresh under the run's name)."""
     if not path.exists():
-        # --resume without a checkpoint started afresh without a word
-        log.warning("--resume: no checkpoint of this run (%s); fitting from the start", path.name)
         return None
     with np.load(path, allow_pickle=False) as z:
         saved = str(z["settings_json"])
@@ -182,8 +180,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         raise ConfigError(f"run name {run!r}: use letters, digits, '-' and '_'")
     settings_json = optimize_settings_json(ctx.config)
     ckpt = checkpoint_path(ctx.store.path, run)
-    if resume_run and ckpt.exists():
-        _load_checkpoint(ckpt, settings_json, ctx.store.path, run)    # refused before the write opens: store untouched
+    # read (and refused) before the write opens: a refusal leaves the store untouched
+    resumed = _load_checkpoint(ckpt, settings_json, ctx.store.path, run) if resume_run else None
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         t_body = time.perf_counter()
@@ -198,7 +196,9 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             bar.set_postfix(E=f"{state.value[0]:.4g}")
             bar.refresh()
 
-        state = _load_checkpoint(ckpt, settings_json, ctx.store.path, run) if resume_run else None
+        state = resumed
+        if resume_run and state is None:      # --resume without a checkpoint started afresh without a word
+            log.warning("--resume: no checkpoint of this run (%s); fitting from the start", ckpt.name)
         if state is not None:
             log.info("resuming run %s from iteration %d", run, state.iteration)
             result = resume(problem, state, cfg.max_iterations, checkpoint, opts)

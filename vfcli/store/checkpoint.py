@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vfcli.config import override_item, settings_changes
+from vfcli.overrides import override_item, settings_changes
 
 _SUFFIX = ".ckpt.npz"
 
