@@ -17,7 +17,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from vfcli.errors import ConfigError
-from vfcli.overrides import apply_overrides
+from vfcli.overrides import apply_overrides, toml_limit
 
 
 def _allows_bool(annotation: Any) -> bool:
@@ -500,7 +500,7 @@ def load_config(
         except OSError as exc:
             raise ConfigError(f"{path}: cannot read the config ({exc.strerror or exc})") from None
         except (RecursionError, ValueError, MemoryError) as exc:  # 100,000-deep nesting, 5,000-digit integers
-            raise ConfigError(f"{path}: {_toml_limit(exc)}") from None
+            raise ConfigError(f"{path}: {toml_limit(exc)}") from None
         stored = _validate(data, str(path))
     elif stored_json:
         stored = _validate(json.loads(stored_json), "stored recording config")

@@ -20,7 +20,7 @@ def parse_value(text: str) -> Any:
     except tomllib.TOMLDecodeError:
         return text
     except (RecursionError, ValueError, MemoryError) as exc:  # nested too deep, a 5000-digit integer
-        raise ConfigError(f"--set value {text[:40]!r}...: {_toml_limit(exc)}") from None
+        raise ConfigError(f"--set value {text[:40]!r}...: {toml_limit(exc)}") from None
 
 
 def override_item(key: str, value: Any) -> str:
@@ -48,7 +48,8 @@ def settings_changes(saved: dict[str, Any], current: dict[str, Any], prefix: str
     return out
 
 
-def _toml_limit(exc: BaseException) -> str:
+def toml_limit(exc: BaseException) -> str:
+    """Why a TOML text or a --set value is refused when parsing it hit a limit (nesting, a huge integer)."""
     if isinstance(exc, RecursionError):
         return "nested too deep to be a config"
     return f"not a config value ({str(exc)[:120]})"
