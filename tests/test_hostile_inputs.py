@@ -252,6 +252,58 @@ def test_finite_but_absurd_pressure_is_refused_at_ingest(tmp_path, hsc_store):
     assert store.read_bytes() == before
 
 
+def _bare_tdms(path: Path, samples: np.ndarray, fs: float = FS_P) -> Path:
+    """A DAQ channel written by npTDMS with its sample interval and no unit (many DAQ programs write none)."""
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    with TdmsWriter(path) as w:
+        w.write_segment([RootObject(), GroupObject("daq"),
+                         ChannelObject("daq", "ai0", samples, properties={"wf_increment": 1 / fs})])
+    return path
+
+
+def test_a_pressure_without_a_unit_is_a_stored_warning_and_pressure_unit_reads_it(tmp_path):
+    """A TDMS channel in kPa with no unit was stored 1000 times too small under unit_in_file "Pa", exit 0, no
+    word, and no setting could say otherwise (read_pressure's unit was never passed)."""
+    import tifffile
+
+    video = tmp_path / "v.tif"
+    tifffile.imwrite(video, _frames(), description='{"fps": 10000.0}')
+    p = _pressure_samples()
+    path = _bare_tdms(tmp_path / "kpa.tdms", p / 1000)
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "a.h5", video, "--pressure", path)
+    assert r.returncode == 0, r.stderr
+    stored, warnings = _stored_pressure(tmp_path / "a.h5")
+    np.testing.assert_allclose(stored, p / 1000, rtol=1e-12)
+    assert [w for w in warnings if "states no pressure unit: read as Pa" in w and "ingest_hsc.pressure_unit" in w]
+    assert [w for w in warnings if "no phonation pressure is that small" in w], warnings
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "b.h5", video, "--pressure", path,
+                  "--set", "ingest_hsc.pressure_unit=kPa")
+    assert r.returncode == 0, r.stderr
+    stored, warnings = _stored_pressure(tmp_path / "b.h5")
+    np.testing.assert_allclose(stored, p, rtol=1e-12)
+    assert not [w for w in warnings if "pressure" in w], warnings
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "c.h5", video, "--pressure", path,
+                  "--set", "ingest_hsc.pressure_unit=volt")
+    _assert_refused(r, 2, "ingest_hsc.pressure_unit", "'volt' is not a pressure unit")
+    assert not (tmp_path / "c.h5").exists()
+
+
+def test_a_pressure_sampled_too_slowly_for_the_f0_range_is_refused_at_ingest_hsc(tmp_path, hsc_store):
+    """A pressure sampled at 100 Hz (a CSV whose ms column was read as s, or a slow DAQ) was stored, and
+    ingest-ldv then crashed with a traceback in the f0 search (argmax of an empty sequence)."""
+    from vfcli.sync.f0 import coarse_f0
+
+    store, video, before = hsc_store
+    path = _bare_tdms(tmp_path / "slow.tdms", _pressure_samples(200), fs=100.0)
+    r = run_vfcli("ingest-hsc", "-q", "--force", store, video, "--pressure", path)
+    _assert_refused(r, 3, "slow.tdms", "sampled at 100 Hz", "up to 45 Hz", "sync.f0_max_hz = 500 Hz")
+    assert "states no pressure unit" not in r.stderr   # refused first: no warning about a record not stored
+    assert store.read_bytes() == before
+    f0, _ = coarse_f0(_pressure_samples(200), 100.0, (50.0, 500.0))   # no candidate below 0.45 fs: NaN, no crash
+    assert np.isnan(f0).all()
+
+
 # --------------------------------------------------------------------------- vibrometer
 
 def _scan(rows=3, cols=4, n_s=400, scale=1.0) -> LdvScan:

@@ -94,6 +94,33 @@ def test_tdms_without_wf_increment(tmp_path):
         read_pressure(path)
 
 
+
+def test_tdms_unit_in_ni_unit_description_is_read_and_a_file_without_a_unit_says_so(tmp_path):
+    """A DAQmx channel states its unit in NI_UnitDescription: it was read as Pa (1000 times too small for kPa).
+    A channel stating no unit is Pa by assumption, and the record says it was assumed (ingest-hsc warns)."""
+    x = _signal(100)
+    ni = _tdms_with(tmp_path, [("p_sub", x / 1000, {"wf_increment": 1 / FS, "NI_UnitDescription": "kPa"})], name="ni.tdms")
+    rec = read_pressure(ni)
+    assert np.allclose(rec.samples, x, rtol=1e-14) and (rec.unit, rec.unit_source) == ("kPa", "file")
+    bare = _tdms_with(tmp_path, [("p_sub", x / 1000, {"wf_increment": 1 / FS})], name="bare.tdms")
+    assert read_pressure(bare).unit_source == "assumed"
+    rec = read_pressure(bare, unit="kPa")
+    assert np.allclose(rec.samples, x, rtol=1e-14) and (rec.unit, rec.unit_source) == ("kPa", "config")
+
+
+def test_tdms_with_a_time_channel_in_place_of_waveform_properties(tmp_path):
+    """A DAQ that logs a time channel beside the pressure (no wf_increment): it was refused as "not a waveform";
+    the time channel's own unit counts (ms here)."""
+    x = _signal(200)
+    t_ms = (0.002 + np.arange(200) / FS) * 1e3
+    path = _tdms_with(tmp_path, [("Time", t_ms, {"unit_string": "ms"}), ("Dev1/ai0", x, {"unit_string": "Pa"})])
+    rec = read_pressure(path)
+    assert rec.fs == pytest.approx(FS, rel=1e-9) and rec.t0 == pytest.approx(0.002, abs=1e-12)
+    assert np.array_equal(rec.samples, x)
+    hours = _tdms_with(tmp_path, [("Time", t_ms, {"unit_string": "h"}), ("p", x, {})], name="h.tdms")
+    with pytest.raises(InputDataError, match="time channel daq/Time: unit 'h' is not a time unit"):
+        read_pressure(hours)
+
 # --------------------------------------------------------------------------- CSV
 
 def test_csv_round_trip_with_and_without_time_column(tmp_path):
@@ -114,6 +141,51 @@ def test_csv_time_column_in_ms_and_unit_in_header(tmp_path):
     rec = read_pressure(path)
     assert rec.fs == pytest.approx(FS, rel=1e-9) and rec.unit == "kPa"
     assert np.allclose(rec.samples, np.arange(50) * 10.0)
+
+
+@pytest.mark.parametrize("header, scale", [("Time (msec),p_sub (Pa)", 1e3), ("time [us],p_sub [Pa]", 1e6),
+                                           ("time [min],p_sub [Pa]", 1 / 60), ("t_ms,p_sub_kPa", 1e3)])
+def test_csv_time_units_in_the_header_are_read_or_refused_by_name(tmp_path, header, scale):
+    """'Time (msec)' and 'time [min]' were read as seconds (the record 1000 times too long or 60 times too short,
+    exit 0), 'time [us]' refused as an impossible rate; a unit after an underscore (t_ms, p_sub_kPa) was no time
+    column at all."""
+    x = _signal(100)
+    kpa = header.endswith("kPa")
+    rows = "\n".join(f"{float(t)!r},{float(p)!r}" for t, p in zip((0.5 + np.arange(100) / FS) * scale, x / 1000 if kpa else x))
+    path = tmp_path / "p.csv"
+    path.write_text(header + "\n" + rows + "\n")
+    rec = read_pressure(path)
+    assert rec.fs == pytest.approx(FS, rel=1e-6) and rec.t0 == pytest.approx(0.5, rel=1e-9)
+    assert np.allclose(rec.samples, x, rtol=1e-12) and rec.unit == ("kPa" if kpa else "Pa")
+    path.write_text(header.replace("[us]", "[h]").replace("(msec)", "(h)").replace("[min]", "[h]").replace("t_ms", "t [h]")
+                    + "\n" + rows + "\n")
+    with pytest.raises(InputDataError, match="time column .*unit 'h' is not a time unit vfcli knows"):
+        read_pressure(path)
+
+
+def test_csv_comment_values_with_units_and_a_byte_order_mark(tmp_path):
+    """'# sample_rate = 50 kHz' was read as 50 Hz and '# t0 = -1 ms' as -1 s (the unit dropped); Excel's
+    "CSV UTF-8" (a byte-order mark) hid the first line: 'no time column' for a file that has one."""
+    x = _signal(100)
+    body = "p_sub [Pa]\n" + "\n".join(repr(float(v)) for v in x) + "\n"
+    path = tmp_path / "p.csv"
+    path.write_text("# sample_rate = 50 kHz\n# t0 = -1 ms\n" + body)
+    rec = read_pressure(path)
+    assert (rec.fs, rec.t0) == (FS, pytest.approx(-1e-3, abs=1e-15)) and np.array_equal(rec.samples, x)
+    path.write_text("# sample_rate = 50 furlongs\n" + body)
+    with pytest.raises(InputDataError, match="'# sample_rate = 50 furlongs': 'furlongs' is not a frequency"):
+        read_pressure(path)
+    rows = "\n".join(f"{float(t)!r},{float(p)!r}" for t, p in zip(np.arange(100) / FS, x))
+    path.write_bytes(("time [s],p_sub [Pa]\n" + rows + "\n").encode("utf-8-sig"))
+    rec = read_pressure(path)
+    assert rec.fs == pytest.approx(FS, rel=1e-9) and np.array_equal(rec.samples, x)
+
+
+def test_csv_with_decimal_commas_says_so(tmp_path):
+    path = tmp_path / "p.csv"
+    path.write_text("Zeit [s];Druck [Pa]\n0,00000;812,5\n0,00002;815,0\n")
+    with pytest.raises(InputDataError, match="'0,00000' is not a number \\(a decimal comma: .*'\\.' as the decimal"):
+        read_pressure(path)
 
 
 def test_csv_whose_t0_comment_contradicts_its_time_column_is_refused(tmp_path):

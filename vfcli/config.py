@@ -105,6 +105,10 @@ class IngestHscConfig(_Section):
     pressure_channel: str | None = Field(
         None, description="Channel of the pressure: a TDMS/CSV channel name, or a WAV channel's index (0, 1, ...); "
         "null: the only one")
+    pressure_unit: str | None = Field(
+        None, description="Unit of the pressure values where the file states none (a TDMS channel without unit_string "
+        "or NI_UnitDescription, a CSV without a unit in its header or '# unit'): Pa, hPa, kPa, mbar, bar, psi, cmH2O, "
+        "mmH2O, inH2O, mmHg; where the file states one, it must agree; null: Pa, with a stored warning")
     compression: Literal["auto", "nbit", "gzip", "gzip4", "none"] = Field(
         "auto",
         description="Filter of the stored frames, all standard HDF5: auto (nbit for a 12-bit packed MRAW, else "
@@ -113,6 +117,15 @@ class IngestHscConfig(_Section):
     wav_full_scale_pa: float = Field(
         10_000.0, gt=0, le=1e7, description="WAV pressure: Pa at digital full scale (a WAV states no unit: set your "
         "amplifier's calibration; the default is vfcli.io.pressure.wav's, a 10 kPa transducer range)")
+
+    @field_validator("pressure_unit")
+    @classmethod
+    def _known_pressure_unit(cls, v: str | None) -> str | None:
+        from vfcli.io.pressure.record import PA_PER_UNIT   # numpy: only when a unit is set
+
+        if v is not None and v.replace(" ", "").replace("_", "").lower() not in PA_PER_UNIT:
+            raise ValueError(f"{v!r} is not a pressure unit vfcli knows ({', '.join(PA_PER_UNIT)})")
+        return v
 
     @field_validator("pressure_channel", mode="before")
     @classmethod

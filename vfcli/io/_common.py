@@ -191,6 +191,9 @@ def numeric_rows(rows: Sequence[tuple[int, str]], delimiter: str, path: str | Pa
                 (converters or {}).get(j, float)(value)
             except ValueError as exc:
                 said = str(exc) if j in (converters or {}) else f"{shorten(value.strip())!r} is not a number"
+                if re.fullmatch(r"\s*[-+]?\d+,\d*\s*", value):
+                    said += " (a decimal comma: vfcli reads decimal points; export the file with '.' as the decimal " \
+                            "separator)"
                 column = f"column {j + 1}" + (f" ({names[j]!r})" if names and j < len(names) else "")
                 raise InputDataError(f"line {number}, {column}: {said}", path) from None
     raise InputDataError(f"CSV data rows are not all numbers: {numpy_says}", path)

@@ -15,6 +15,7 @@ from vfcli.flow.plausibility import points_on_image
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
 from vfcli.io.ldv.read import LdvChannels, LdvScan, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
+from vfcli.io.pressure.plausibility import check_pressure_rate, pressure_unit_warnings
 from vfcli.io.video.base import VideoMeta, open_video
 from vfcli.store import StageWriter, StoreReader
 from vfcli.stages.base import RunContext, StageResult, run_stage, stage_config_json
@@ -120,8 +121,11 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
         summary: dict[str, Any] = {"frames": n, "height": h, "width": w, "fps_hz": fps, "bit_depth": meta.bit_depth,
                                    "compression": compression}
         if pressure is not None:
-            rec = read_pressure(pressure, cfg.pressure_group, cfg.pressure_channel,
+            rec = read_pressure(pressure, cfg.pressure_group, cfg.pressure_channel, unit=cfg.pressure_unit,
                                 wav_pa_per_full_scale=cfg.wav_full_scale_pa)
+            check_pressure_rate(rec.fs, ctx.config.sync.f0_max_hz, pressure)
+            for line in pressure_unit_warnings(rec):
+                log.warning("%s: %s", pressure, line)
             if Path(pressure).suffix.lower() == ".wav" and default_calibration(
                     ctx.stored_config, ctx.config, [WAV_FULL_SCALE]):
                 log.warning("%s: a WAV states no unit; its samples were read as %g Pa at digital full scale, "
@@ -132,7 +136,8 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             duration = n / fps
             if t[0] > 0 or t[-1] < duration - 1 / fps:
                 log.warning("%s: pressure covers %.4f..%.4f s, the video 0..%.4f s", pressure, t[0], t[-1], duration)
-            s.put("pressure", rec.samples, attrs={"fs_hz": rec.fs, "unit_in_file": rec.unit, "source": rec.source})
+            s.put("pressure", rec.samples, attrs={"fs_hz": rec.fs, "unit_in_file": rec.unit, "unit_source": rec.unit_source,
+                                                  "source": rec.source})
             s.put("pressure_time", t)
             s.set_attrs(pressure_fs_hz=rec.fs)
             summary["pressure_samples"] = int(rec.samples.size)

@@ -94,6 +94,8 @@ def coarse_f0(
         a = spec[:, i0] * (1.0 - w) + spec[:, i0 + 1] * w
         return a * inside
 
+    if f_cand.size == 0:  # no candidate below 0.45 fs: no fundamental to report (callers see NaN)
+        return np.full(n_rows, np.nan), np.zeros(n_rows)
     score = np.zeros((n_rows, f_cand.size))
     for h in range(1, N_SCORE_HARMONICS + 1):
         score += amp_at(h * f_cand) - amp_at((h - 0.5) * f_cand)

@@ -1,12 +1,14 @@
 """CSV pressure recordings: the reader and vfcli's own CSV writer.
 
-Optional comment lines starting with ``#``, which may set ``# fs = 50000`` (Hz; also
-``sampling_rate``/``sample_rate``), ``# t0 = 0.0`` (s) and ``# unit = Pa``. Delimiter ``,``,
-``;`` or tab. Then either
+Optional comment lines starting with ``#``, which may set ``# fs = 50000`` (Hz, or with a unit:
+``50 kHz``; also ``sampling_rate``/``sample_rate``), ``# t0 = 0.0`` (s, or with a unit: ``-1 ms``) and
+``# unit = Pa``. Delimiter ``,``, ``;`` or tab; a UTF-8 byte-order mark (Excel's "CSV UTF-8") is skipped.
+Then either
 
-* a header row and columns: a time column (``t``/``time``, in s, or in ms with ``[ms]``/``(ms)``
-  in its name) and a pressure column (``column=``, else the one named like ``p_sub``/``pressure``,
-  else the only other one); a unit in the header name (``p_sub [kPa]`` or ``pressure (Pa)``) is used;
+* a header row and columns: a time column (``t``/``time``, in s unless its name states a unit:
+  ``time [ms]``, ``Time (msec)``, ``t_us``, ``time [min]``; a unit that is not a time is refused) and a
+  pressure column (``column=``, else the one named like ``p_sub``/``pressure``, else the only other one);
+  a unit in the header name (``p_sub [kPa]``, ``pressure (Pa)`` or ``p_sub_kPa``) is used;
 * or a single column of samples (header optional) with ``# fs = ...``.
 
 Every row holds the same number of values and ends with a line break (a last row without one may be
@@ -25,16 +27,17 @@ import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import check_finite, check_last_row_complete, numeric_rows
-from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit
+from vfcli.io.pressure.record import PA_PER_UNIT, PRESSURE_NAME, PressureRecord, finish, resolve_unit, uniform_rate
+from vfcli.io.units import hz_per, seconds_per, time_units_text
 
-_TIME_NAME = re.compile(r"^\s*(t|time)\b", re.IGNORECASE)
+_TIME_NAME = re.compile(r"^\s*(t|time)(?=$|[\s_\[(])", re.IGNORECASE)
 _UNIT_IN_NAME = re.compile(r"[\[(]\s*([^\])]+?)\s*[\])]")
 _COMMENT_KEY = re.compile(r"^#\s*([A-Za-z_ 0-9]+?)\s*[=:]\s*(.+?)\s*$")
 
 
 def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRecord:
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise InputDataError("not a text CSV file (undecodable bytes)", p) from None
     check_last_row_complete(text, p)
@@ -83,25 +86,18 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
                                  "the column", p)
         p_col = pick[0]
     file_unit = meta.get("unit")
-    m = _UNIT_IN_NAME.search(names[p_col]) if header else None
-    if m:
-        file_unit = m.group(1)
+    if header:
+        file_unit = _pressure_unit_in_name(names[p_col]) or file_unit
     samples = table[:, p_col]
-    fs_meta = next((meta[k] for k in ("fs", "sampling_rate", "sample_rate", "fs_hz",
-                                      "sampling_rate_hz") if k in meta), None)
-    try:
-        fs_meta = None if fs_meta is None else float(fs_meta.split()[0])
-        t0_meta = None if "t0" not in meta else float(meta["t0"].split()[0])
-        t0 = 0.0 if t0_meta is None else t0_meta
-    except ValueError:
-        raise InputDataError("'# fs' or '# t0' comment is not a number", p) from None
+    fs_key = next((k for k in ("fs", "sampling_rate", "sample_rate", "fs_hz", "sampling_rate_hz") if k in meta), None)
+    fs_meta = None if fs_key is None else _comment_value(meta[fs_key], fs_key, hz_per, "Hz", "a frequency (Hz, kHz, MHz)", p)
+    t0_meta = None if "t0" not in meta else _comment_value(meta["t0"], "t0", seconds_per, "s",
+                                                         f"a time ({time_units_text()})", p)
+    t0 = 0.0 if t0_meta is None else t0_meta
     if t_col is not None:
-        t = table[:, t_col]
-        tm = _UNIT_IN_NAME.search(names[t_col]) if header else None
-        if tm and tm.group(1).lower() == "ms":
-            t = t * 1e-3
+        t = table[:, t_col] * _time_scale(names[t_col], p) if header else table[:, t_col]
         check_finite(t, p, "time column")
-        fs, t0 = _uniform_rate(t, p)
+        fs, t0 = uniform_rate(t, p)
         if fs_meta is not None:
             if abs(fs - fs_meta) > 1e-3 * fs_meta:
                 raise InputDataError(f"'# fs = {fs_meta:g}' disagrees with the time column "
@@ -113,8 +109,8 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
         fs = fs_meta
     else:
         raise InputDataError("CSV has neither a time column nor a '# fs = <Hz>' comment", p)
-    unit_used = resolve_unit(file_unit, unit, p)
-    return finish(samples, fs, t0, unit_used, f"CSV {p.name} column {names[p_col]!r}", p)
+    unit_used, source = resolve_unit(file_unit, unit, p)
+    return finish(samples, fs, t0, unit_used, f"CSV {p.name} column {names[p_col]!r}", p, source)
 
 
 def _is_number(s: str) -> bool:
@@ -125,20 +121,46 @@ def _is_number(s: str) -> bool:
         return False
 
 
-def _uniform_rate(t: np.ndarray, p: Path) -> tuple[float, float]:
-    """(fs, t0) of a time column; InputDataError unless uniform within 0.1 period."""
-    if t.size < 2:
-        raise InputDataError("time column needs at least 2 samples", p)
-    dt = (t[-1] - t[0]) / (t.size - 1)
-    if not dt > 0:
-        raise InputDataError("time column does not increase", p)
-    dev = np.abs(t - (t[0] + dt * np.arange(t.size))) / dt
-    k = int(np.argmax(dev))
-    if dev[k] > 0.1 or np.any(np.diff(t) <= 0):
-        raise InputDataError(
-            f"non-uniform time column: row {k} (t = {t[k]:g} s) is {dev[k]:.2f} sample periods "
-            "off a uniform grid (gaps or jitter)", p)
-    return 1.0 / dt, float(t[0])
+def _time_scale(name: str, p: Path) -> float:
+    """Seconds per value of the time column ``name``: the unit its name states (``time [ms]``, ``Time (msec)``,
+    ``t_us``), 1 when it states none; a unit in brackets that is not a time is refused."""
+    m = _UNIT_IN_NAME.search(name)
+    if not m:   # a unit after an underscore (t_ms, time_us) when it is one; else none stated
+        suffix = name.strip().split("_", 1)[1] if "_" in name else ""
+        return seconds_per(suffix) or 1.0
+    unit = m.group(1)
+    scale = seconds_per(unit)
+    if scale is None:
+        raise InputDataError(f"time column {name!r}: unit {unit!r} is not a time unit vfcli knows "
+                             f"({time_units_text()})", p)
+    return scale
+
+
+def _pressure_unit_in_name(name: str) -> str | None:
+    """The unit a pressure column's name states: in brackets (``p_sub [kPa]``, ``pressure (Pa)``) or as its last
+    ``_`` part when that is a pressure unit (``p_sub_kPa``); None when it states none."""
+    m = _UNIT_IN_NAME.search(name)
+    if m:
+        return m.group(1)
+    last = name.strip().rsplit("_", 1)[-1] if "_" in name else ""
+    return last if last.replace(" ", "").lower() in PA_PER_UNIT else None
+
+
+def _comment_value(text: str, key: str, per_unit, default_unit: str, what: str, p: Path) -> float:
+    """The number of a ``# key = value [unit]`` comment in ``default_unit`` (``per_unit(unit)``: that unit's size
+    in it, None for a unit of another kind); a value that is not a number, or a unit that is not ``what``, is
+    refused naming the comment."""
+    number, _, unit = text.strip().partition(" ")
+    try:
+        value = float(number)
+    except ValueError:
+        raise InputDataError(f"'# {key} = {text}': {number!r} is not a number", p) from None
+    if not unit.strip():
+        return value
+    scale = per_unit(unit.strip())
+    if scale is None:
+        raise InputDataError(f"'# {key} = {text}': {unit.strip()!r} is not {what}", p)
+    return value * scale
 
 
 def write_pressure_csv(path: str | Path, samples_pa: np.ndarray, fs: float, t0: float = 0.0,

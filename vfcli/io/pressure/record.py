@@ -27,13 +27,16 @@ PRESSURE_NAME = re.compile(r"p_?sub|subglottal|pressure|^p$", re.IGNORECASE)
 
 
 class PressureRecord(NamedTuple):
-    """A pressure signal: ``samples (N,) float64 Pa``, ``fs`` Hz, ``t0`` s, ``unit``, ``source``."""
+    """A pressure signal: ``samples (N,) float64 Pa``, ``fs`` Hz, ``t0`` s, ``unit`` (the samples' unit in the
+    file), ``source`` (one line), ``unit_source``: where ``unit`` came from, ``"file"`` (stated there),
+    ``"config"`` (the caller's, the file states none) or ``"assumed"`` (Pa: neither states one)."""
 
     samples: np.ndarray
     fs: float
     t0: float
     unit: str
     source: str
+    unit_source: str = "file"
 
 
 def pa_per_unit(unit: str, path: str | Path | None = None) -> float:
@@ -46,16 +49,35 @@ def pa_per_unit(unit: str, path: str | Path | None = None) -> float:
     return PA_PER_UNIT[key]
 
 
-def resolve_unit(file_unit: str | None, unit: str | None, path: Path) -> str:
-    """The unit to apply: the file's, checked against the configured one (default Pa)."""
+def resolve_unit(file_unit: str | None, unit: str | None, path: Path) -> tuple[str, str]:
+    """(unit, where it came from) to apply: the file's, checked against the configured one (``"file"``); the
+    configured one where the file states none (``"config"``); Pa where neither does (``"assumed"``)."""
     if file_unit and unit and pa_per_unit(file_unit, path) != pa_per_unit(unit, path):
-        raise InputDataError(f"unit mismatch: the file says {file_unit!r}, the config says "
-                             f"{unit!r}", path)
-    return file_unit or unit or "Pa"
+        raise InputDataError(f"unit mismatch: the file says {file_unit!r}, the config (ingest_hsc.pressure_unit) "
+                             f"says {unit!r}", path)
+    if file_unit:
+        return file_unit, "file"
+    return (unit, "config") if unit else ("Pa", "assumed")
+
+
+def uniform_rate(t: np.ndarray, p: Path) -> tuple[float, float]:
+    """(fs Hz, t0 s) of a time column or channel (N,) s; InputDataError unless uniform within 0.1 period."""
+    if t.size < 2:
+        raise InputDataError("time column needs at least 2 samples", p)
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    if not dt > 0:
+        raise InputDataError("time column does not increase", p)
+    dev = np.abs(t - (t[0] + dt * np.arange(t.size))) / dt
+    k = int(np.argmax(dev))
+    if dev[k] > 0.1 or np.any(np.diff(t) <= 0):
+        raise InputDataError(
+            f"non-uniform time column: row {k} (t = {t[k]:g} s) is {dev[k]:.2f} sample periods "
+            "off a uniform grid (gaps or jitter)", p)
+    return 1.0 / dt, float(t[0])
 
 
 def finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
-           path: Path) -> PressureRecord:
+           path: Path, unit_source: str = "file") -> PressureRecord:
     """Check a reader's samples and make the record.
 
     Parameters
@@ -65,6 +87,7 @@ def finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
     t0 : float, s
     unit : str
         A unit of :data:`PA_PER_UNIT`.
+    unit_source : ``"file"``, ``"config"`` or ``"assumed"`` (:func:`resolve_unit`).
 
     Raises
     ------
@@ -87,4 +110,4 @@ def finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
         pa = samples * scale
     check_finite(pa, path, "pressure signal (in Pa)")
     check_abs_max(pa, MAX_ABS_PRESSURE_PA, "pressure", "Pa", path)
-    return PressureRecord(pa, fs, float(t0), unit, source)
+    return PressureRecord(pa, fs, float(t0), unit, source, unit_source)

@@ -1,8 +1,10 @@
 """TDMS pressure recordings (npTDMS): the reader, with the truncation check npTDMS lacks, and the writer.
 
 A waveform channel with ``wf_increment`` (s) and optionally ``wf_start_offset`` (s),
-``wf_start_time`` and ``unit_string``. Channel choice: ``group``/``channel`` names if given;
-otherwise the only channel in the file, or the only one whose name looks like
+``wf_start_time`` and its unit in ``unit_string`` (or DAQmx's ``NI_UnitDescription``); or a channel
+without waveform properties beside a uniform time channel of its group (named ``time``/``t``, in s
+unless its own unit says otherwise). Channel choice: ``group``/``channel`` names if given;
+otherwise the only channel in the file (a time channel aside), or the only one whose name looks like
 ``p_sub``/``psub``/``pressure``/``subglottal``.
 """
 from __future__ import annotations
@@ -13,7 +15,20 @@ import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import LibraryOutput, library_output
-from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit
+from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit, uniform_rate
+from vfcli.io.units import seconds_per, time_units_text
+
+#: Names of a time channel beside a pressure channel without waveform properties.
+_TIME_CHANNEL = ("time", "t", "time_s", "zeit")
+
+
+def _unit_of(props) -> str | None:
+    """The unit a TDMS channel states: ``unit_string``, else DAQmx's ``NI_UnitDescription``; None when neither."""
+    for key in ("unit_string", "NI_UnitDescription"):
+        text = str(props.get(key, "")).strip()
+        if text:
+            return text
+    return None
 
 
 def read_tdms(p: Path, group: str | None, channel: str | int | None,
@@ -48,21 +63,26 @@ def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | No
     if channel is not None:
         chans = [gc for gc in chans if gc[1].name == str(channel)]
         if not chans:
-            raise InputDataError(f"no TDMS channel {channel!r}; channels: {names}", p)
+            raise InputDataError(f"no TDMS channel {channel!r} (ingest_hsc.pressure_channel); channels: {names}", p)
     elif len(chans) > 1:
-        chans = [gc for gc in chans if PRESSURE_NAME.search(gc[1].name)]
+        chans = [gc for gc in chans if PRESSURE_NAME.search(gc[1].name)] or \
+            [gc for gc in chans if gc[1].name.strip().lower() not in _TIME_CHANNEL]
     if len(chans) != 1:
-        raise InputDataError(
-            f"cannot choose the pressure channel among {names}: set group/channel", p)
+        raise InputDataError(f"cannot choose the pressure channel among {names}: set ingest_hsc.pressure_group and "
+                             "ingest_hsc.pressure_channel (`vfcli config STORE --set ingest_hsc.pressure_channel=NAME` "
+                             "or in recording.toml)", p)
     gname, ch = chans[0]
     props = ch.properties
     try:
         data = ch[:]
-        dt = float(props["wf_increment"])
-        t0 = float(props.get("wf_start_offset", 0.0))
-    except KeyError:
-        raise InputDataError(f"channel {gname}/{ch.name} has no wf_increment (sample "
-                             "interval): not a waveform", p) from None
+        if "wf_increment" in props:
+            dt = float(props["wf_increment"])
+            t0 = float(props.get("wf_start_offset", 0.0))
+        else:
+            fs, t0 = _time_channel_rate(p, tdms, gname, ch)
+            dt = 1.0 / fs
+    except InputDataError:
+        raise
     except Exception as exc:
         raise InputDataError(f"unreadable TDMS channel {gname}/{ch.name}: {exc}", p) from None
     if not (np.isfinite(dt) and dt > 0):
@@ -70,11 +90,29 @@ def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | No
     if not np.issubdtype(np.asarray(data).dtype, np.number):
         raise InputDataError(f"channel {gname}/{ch.name} is not numeric", p)
     _check_tdms_complete(p, tdms, gname, ch, len(data), said.messages)
-    file_unit = str(props.get("unit_string", "")).strip() or None
-    unit_used = resolve_unit(file_unit, unit, p)
+    unit_used, unit_source = resolve_unit(_unit_of(props), unit, p)
     start = props.get("wf_start_time")
     src = f"TDMS {p.name} {gname}/{ch.name}" + (f", wf_start_time {start}" if start else "")
-    return finish(data, 1.0 / dt, t0, unit_used, src, p)
+    return finish(data, 1.0 / dt, t0, unit_used, src, p, unit_source)
+
+
+def _time_channel_rate(p: Path, tdms, gname: str, ch) -> tuple[float, float]:
+    """(fs Hz, t0 s) of a channel without waveform properties from the time channel of its group
+    (:data:`_TIME_CHANNEL`, uniform, in s unless its unit says otherwise); refused when there is none."""
+    times = [c for c in tdms[gname].channels() if c.name.strip().lower() in _TIME_CHANNEL and c.name != ch.name]
+    if len(times) != 1:
+        raise InputDataError(f"channel {gname}/{ch.name} has no wf_increment (sample interval) and its group no "
+                             f"time channel (named {', '.join(_TIME_CHANNEL)}): not a waveform", p)
+    tc = times[0]
+    unit = _unit_of(tc.properties)
+    scale = 1.0 if unit is None else seconds_per(unit)
+    if scale is None:
+        raise InputDataError(f"time channel {gname}/{tc.name}: unit {unit!r} is not a time unit vfcli knows "
+                             f"({time_units_text()})", p)
+    t = np.asarray(tc[:], dtype=float) * scale
+    if t.shape != (len(ch),):
+        raise InputDataError(f"time channel {gname}/{tc.name} holds {t.size} samples, {gname}/{ch.name} {len(ch)}", p)
+    return uniform_rate(t, p)
 
 
 def _check_tdms_complete(p: Path, tdms, gname: str, ch, n: int, warned: list[str]) -> None:

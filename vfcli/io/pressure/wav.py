@@ -86,4 +86,4 @@ def read_wav(p: Path, channel: str | int | None, pa_per_fs: float) -> PressureRe
     else:
         raise InputDataError(f"unsupported WAV sample type {data.dtype}", p)
     return finish(x * pa_per_fs, float(fs), 0.0, "Pa",
-                   f"WAV {p.name} ({data.dtype}, {pa_per_fs:g} Pa full scale)", p)
+                   f"WAV {p.name} ({data.dtype}, {pa_per_fs:g} Pa full scale)", p, "config")
