@@ -317,11 +317,14 @@ def _scan(rows=3, cols=4, n_s=400, scale=1.0) -> LdvScan:
     return LdvScan(np.arange(rows * cols) + 1, coords, vel, FS_P, ref, "Pa", np.zeros(rows * cols))
 
 
-def _pyuff(path: Path, scan: LdvScan, length_m_per_unit: float | None = 1.0, fs: float = FS_P) -> Path:
+def _pyuff(path: Path, scan: LdvScan, length_m_per_unit: float | None = 1.0, fs: float = FS_P,
+           spacing: int = 1, velocity_label: str = "m/s", displacement: bool = False) -> Path:
     """A PSV-like UFF written with pyuff: 151, 164 (unless None), 2411, 58 records.
 
     Coordinates are written in file units of ``length_m_per_unit`` metres (mm: 1e-3); dataset
-    164's length factor says so (SI = file / factor).
+    164's length factor says so (SI = file / factor). ``spacing`` 0: the 58 records flagged uneven
+    (abscissa values written beside each sample, no interval); ``velocity_label``: the velocity
+    records' unit label ("" for none); ``displacement``: 'Vib  Displacement' records beside them.
     """
     import pyuff
 
@@ -338,16 +341,48 @@ def _pyuff(path: Path, scan: LdvScan, length_m_per_unit: float | None = 1.0, fs:
                                    color=np.ones(p, int), x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2],
                                    return_full_dict=True))
     t = np.arange(scan.n_samples) / fs
+    per_unit = {"m/s": 1e3, "": 1e3, "mm/s": 1.0}[velocity_label]
     for i in range(p):
-        for id1, id2, data, unit_lab in (("Response Time Trace", "Vib  Velocity", scan.velocity_mm_s[i] / 1e3, "m/s"),
-                                         ("Reference Time Trace", "Ref1  Pressure", scan.reference[i], "Pa")):
+        records = [("Response Time Trace", "Vib  Velocity", scan.velocity_mm_s[i] / per_unit, velocity_label, 11),
+                   ("Reference Time Trace", "Ref1  Pressure", scan.reference[i], "Pa", 0)]
+        if displacement:
+            records.append(("Response Time Trace", "Vib  Displacement", np.cumsum(scan.velocity_mm_s[i]) / fs / 1e3, "m",
+                            8))
+        for id1, id2, data, unit_lab, kind in records:
             sets.append(pyuff.prepare_58(
                 binary=1, id1=id1, id2=id2, id3="", id4="", id5="", func_type=1, rsp_node=int(scan.node_ids[i]),
-                rsp_dir=3, ref_node=0, ref_dir=0, abscissa_spacing=1, abscissa_inc=1 / fs, data=data, x=t,
-                ordinate_axis_units_lab=unit_lab, orddenom_spec_data_type=0, abscissa_spec_data_type=17,
-                ordinate_spec_data_type=11))
+                rsp_dir=3, ref_node=0, ref_dir=0, abscissa_spacing=spacing, abscissa_inc=1 / fs if spacing else 0.0,
+                data=data, x=t, ordinate_axis_units_lab=unit_lab, orddenom_spec_data_type=0,
+                abscissa_spec_data_type=17, ordinate_spec_data_type=kind))
     pyuff.UFF(str(path)).write_sets(sets, mode="add")
     return path
+
+
+def test_pyuff_scans_with_uneven_flagged_abscissae_displacement_records_or_no_velocity_unit(tmp_path):
+    """Legitimate PSV-style UFFs that were refused or misread (hH's walk-through, session 38): records flagged
+    uneven (abscissa_spacing 0, pyuff's default) with uniform abscissa values were refused ("abscissa_inc 0.0 is
+    not positive"); 'Vib  Displacement' records beside the velocity ones were "two velocity records for node 1";
+    velocity records in mm/s without a unit label were read as m/s and refused as 1000 times too fast, with no
+    word of the assumed unit and no setting to state it."""
+    scan = _scan()
+    ref = read_ldv(_pyuff(tmp_path / "ref.uff", scan), expected_grid=(3, 4))
+    for name, opts in (("uneven.uff", {"spacing": 0}), ("disp.uff", {"displacement": True})):
+        got = read_ldv(_pyuff(tmp_path / name, scan, **opts), expected_grid=(3, 4))
+        np.testing.assert_array_equal(got.velocity_mm_s, ref.velocity_mm_s)
+        assert got.fs == ref.fs and np.allclose(got.t0, ref.t0, atol=1e-12)
+    bare = _pyuff(tmp_path / "bare.uff", scan, velocity_label="")
+    quiet = read_ldv(bare, expected_grid=(3, 4))          # m/s assumed, and said
+    np.testing.assert_allclose(quiet.velocity_mm_s, ref.velocity_mm_s, rtol=1e-12)
+    assert [n for n in quiet.notes if "state no unit" in n and "ingest_ldv.velocity_unit" in n], quiet.notes
+    assert not [n for n in ref.notes if "state no unit" in n]
+    mm = _pyuff(tmp_path / "mm.uff", scan.__class__(**{**scan.__dict__, "velocity_mm_s": scan.velocity_mm_s * 1e3}),
+                velocity_label="")          # the mm/s values written without a label: 1000 times too fast as m/s
+    with pytest.raises(InputDataError, match="velocity reaches .* read as m/s: set ingest_ldv.velocity_unit"):
+        read_ldv(mm, expected_grid=(3, 4))
+    np.testing.assert_allclose(read_ldv(mm, expected_grid=(3, 4), velocity_unit="mm/s").velocity_mm_s,
+                               ref.velocity_mm_s, rtol=1e-12)
+    with pytest.raises(InputDataError, match="velocity unit mismatch: the records say 'm/s'"):
+        read_ldv(_pyuff(tmp_path / "ref2.uff", scan), expected_grid=(3, 4), velocity_unit="mm/s")
 
 
 def test_a_plausible_pyuff_scan_reads_in_mm(tmp_path):

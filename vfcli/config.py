@@ -140,7 +140,25 @@ class IngestLdvConfig(_Section):
     grid_rows: int = Field(17, ge=1, le=1000, description="Rows of the scan grid (points)")
     grid_cols: int = Field(22, ge=1, le=1000, description="Columns of the scan grid (points)")
     velocity_id1: str = Field("Response Time Trace", description="UFF id1 of the vibrometer channel")
+    velocity_id2: str = Field(r"^\s*Vib", description="UFF id2 of the vibrometer channel, a regular expression "
+                              "(case-insensitive; records stating a displacement or an acceleration are left out)")
     reference_id1: str = Field("Reference Time Trace", description="UFF id1 of the pressure reference channel")
+    reference_id2: str = Field(r"^\s*Ref1", description="UFF id2 of the pressure reference channel, a regular "
+                               "expression (case-insensitive)")
+    @field_validator("velocity_id2", "reference_id2")
+    @classmethod
+    def _a_regular_expression(cls, v: str) -> str:
+        import re
+
+        try:
+            re.compile(v)
+        except re.error as exc:
+            raise ValueError(f"{v!r} is not a regular expression: {exc}") from None
+        return v
+
+    velocity_unit: Literal["m/s", "mm/s", "um/s", "nm/s", "in/s"] | None = Field(
+        None, description="Unit of the UFF velocity records where they state none (no ordinate axis label); null: "
+        "m/s, as the vibrometer exports, with a warning; records that state one must agree")
     length_unit: Literal["m", "cm", "mm", "um", "in"] | None = Field(
         None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: the one of "
         "m and mm that gives a plausible scan extent, with a warning (refused when neither does); files with 164 "

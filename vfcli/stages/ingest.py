@@ -209,8 +209,10 @@ def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
     config_json = stage_config_json("ldv", ctx.config)
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
-        channels = LdvChannels(velocity_id1=cfg.velocity_id1, reference_id1=cfg.reference_id1)
-        scan = read_ldv(scan_path, channels, expected_grid=(cfg.grid_rows, cfg.grid_cols), length_unit=cfg.length_unit)
+        channels = LdvChannels(velocity_id1=cfg.velocity_id1, velocity_id2=cfg.velocity_id2,
+                               reference_id1=cfg.reference_id1, reference_id2=cfg.reference_id2)
+        scan = read_ldv(scan_path, channels, expected_grid=(cfg.grid_rows, cfg.grid_cols),
+                        velocity_unit=cfg.velocity_unit, length_unit=cfg.length_unit)
         if scan.reference is None:
             raise InputDataError("the scan has no reference (pressure) channel; sync needs it", scan_path)
         expected = cfg.grid_rows * cfg.grid_cols

@@ -53,6 +53,7 @@ from vfcli.io.ldv.grid import infer_grid
 from vfcli.io.limits import (LDV_EXTENT_MM, LDV_FS_RANGE, LDV_MAX_ABS_VELOCITY_MM_S, MAX_ABS_PRESSURE_PA,
                              MAX_ABS_REFERENCE, check_abs_max, check_ldv_extent, check_range)
 from vfcli.io.pressure import PA_PER_UNIT
+from vfcli.io.pressure.record import uniform_rate
 
 logger = logging.getLogger(__name__)
 
@@ -173,9 +174,10 @@ def node_numbers(values, path: Path, what: str = "node numbers") -> np.ndarray:
 
 def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_unit, t0,
                 source: str, path: Path, expected_grid: tuple[int, int] | None,
-                notes: list[str] | None = None, unit_hint: str = "") -> LdvScan:
+                notes: list[str] | None = None, unit_hint: str = "", velocity_hint: str = "") -> LdvScan:
     """Validate arrays (plausible ranges: vfcli/io/limits.py), sort by node number, infer
-    the grid and flag dropouts. ``unit_hint`` ends the message of an implausible extent."""
+    the grid and flag dropouts. ``unit_hint`` ends the message of an implausible extent,
+    ``velocity_hint`` that of an implausible velocity."""
     notes = list(notes or [])
     node_ids = node_numbers(node_ids, path)
     coords = np.asarray(coords_mm, dtype=np.float64)
@@ -195,7 +197,12 @@ def finish_scan(node_ids, coords_mm, velocity_mm_s, fs, reference, reference_uni
     check_finite(coords, path, "coordinates")
     check_finite(vel, path, "velocity")
     check_ldv_extent(coords, path, unit_hint)
-    check_abs_max(vel, LDV_MAX_ABS_VELOCITY_MM_S, "velocity", "mm/s", path)
+    try:
+        check_abs_max(vel, LDV_MAX_ABS_VELOCITY_MM_S, "velocity", "mm/s", path)
+    except InputDataError as exc:
+        if not velocity_hint:
+            raise
+        raise InputDataError(f"{exc.args[0]}{velocity_hint}") from None
     ref = None
     if reference is not None:
         ref = np.asarray(reference, dtype=np.float64)
@@ -337,7 +344,7 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
     for r in recs:
         id1 = str(r.get("id1", "")).strip().lower()
         id2 = str(r.get("id2", "")).strip()
-        if id1 == ch.velocity_id1.lower() and vel_re.search(id2):
+        if id1 == ch.velocity_id1.lower() and vel_re.search(id2) and not _other_quantity(r):
             target = vel
         elif id1 == ch.reference_id1.lower() and ref_re.search(id2):
             target = ref
@@ -345,8 +352,9 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
             continue
         node = int(r.get("rsp_node", -1))
         if node in target:
-            raise InputDataError(f"two {'velocity' if target is vel else 'reference'} records "
-                                 f"for node {node}", p)
+            what, key = ("velocity", "velocity_id2") if target is vel else ("reference", "reference_id2")
+            raise InputDataError(f"two {what} records for node {node} (id2 {str(target[node].get('id2', '')).strip()!r} "
+                                 f"and {id2!r}): set ingest_ldv.{key} to a pattern only one of them matches", p)
         if int(r.get("func_type", -1)) != 1:
             raise InputDataError(f"node {node}: dataset 58 func_type {r.get('func_type')} is "
                                  "not time data (export time signals, func_type 1)", p)
@@ -370,7 +378,7 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
                              f"(e.g. {diff})", p)
     first = vel[int(nodes[0])]
     n_s = np.asarray(first["data"]).size
-    inc = float(first.get("abscissa_inc") or 0.0)
+    inc = _abscissa(first, p)[0]
     rows = []
     for n in nodes:
         for tab in (vel, ref) if ref else (vel,):
@@ -378,7 +386,7 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
             if np.asarray(r["data"]).size != n_s:
                 raise InputDataError(f"node {n}: {np.asarray(r['data']).size} samples, node "
                                      f"{nodes[0]} has {n_s}", p)
-            r_inc = float(r.get("abscissa_inc") or 0.0)
+            r_inc = _abscissa(r, p)[0]
             if abs(r_inc - inc) > 1e-6 * abs(inc):
                 raise InputDataError(f"node {n}: sample interval {r_inc} s differs from {inc} s",
                                      p)
@@ -386,12 +394,19 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
     if not inc > 0:
         raise InputDataError(f"sample interval (abscissa_inc) {inc} is not positive", p)
     v_label = str(first.get("ordinate_axis_units_lab", "")).strip()
-    v_unit = velocity_unit or (v_label if v_label and v_label.upper() != "NONE" else "m/s")
+    v_label = "" if v_label.upper() == "NONE" else v_label
+    if velocity_unit and v_label and _unit_factor(MM_S_PER_UNIT, v_label, "velocity", p) != \
+            _unit_factor(MM_S_PER_UNIT, velocity_unit, "velocity", p):
+        raise InputDataError(f"velocity unit mismatch: the records say {v_label!r}, ingest_ldv.velocity_unit "
+                             f"{velocity_unit!r}", p)
+    v_unit = v_label or velocity_unit or "m/s"
     v_fac = _unit_factor(MM_S_PER_UNIT, v_unit, "velocity", p)
+    velocity_hint = "" if v_label or velocity_unit else \
+        "; the velocity records state no unit (ordinate axis label) and were read as m/s: set ingest_ldv.velocity_unit"
     g_index = {int(nd): i for i, nd in enumerate(g_nodes)}
     coords = g_xyz[[g_index[int(n)] for n in nodes]] * mm_per
     velocity = np.stack([np.asarray(r["data"], dtype=np.float64) for r in rows]) * v_fac
-    t0 = np.array([float(r.get("abscissa_min") or 0.0) for r in rows])
+    t0 = np.array([_abscissa(r, p)[1] for r in rows])
     reference, ref_unit = None, ""
     if ref:
         reference = np.stack([np.asarray(ref[int(n)]["data"], dtype=np.float64) for n in nodes])
@@ -403,9 +418,43 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
         notes.append(f"{extra.size} geometry node(s) without velocity records ignored")
     if not ref:
         notes.append("no reference records")
+    if not (v_label or velocity_unit):
+        notes.append("the velocity records state no unit (ordinate axis label): read as m/s, as the vibrometer "
+                     "exports; if it is another, set ingest_ldv.velocity_unit")
     src = f"UFF {p.name}: {nodes.size} points, {n_s} samples, velocity in {v_unit}"
     return finish_scan(nodes, coords, velocity, 1.0 / inc, reference, ref_unit, t0, src, p,
-                       expected_grid, notes, unit_hint)
+                       expected_grid, notes, unit_hint, velocity_hint)
+
+
+#: UFF 58 ordinate specific data types that are not a velocity (8 displacement, 12 acceleration), and id2 words
+#: of such records (Polytec's English and German labels), which the default id2 pattern ('^Vib') matches too.
+_NOT_VELOCITY_TYPES = (8, 12)
+_NOT_VELOCITY_ID2 = re.compile(r"displacement|acceleration|\bweg\b|beschleunigung", re.IGNORECASE)
+
+
+def _other_quantity(record: dict) -> bool:
+    """True for a 58 record that states another quantity than velocity (its type or its id2)."""
+    try:
+        kind = int(record.get("ordinate_spec_data_type", 0) or 0)
+    except (TypeError, ValueError):
+        kind = 0
+    return kind in _NOT_VELOCITY_TYPES or bool(_NOT_VELOCITY_ID2.search(str(record.get("id2", ""))))
+
+
+def _abscissa(record: dict, p: Path) -> tuple[float, float]:
+    """(sample interval s, start time s) of a 58 record: its ``abscissa_inc`` / ``abscissa_min``, or, for a record
+    flagged uneven (``abscissa_spacing`` 0, pyuff's default when a writer leaves it out) whose abscissa values
+    are uniform, those values' own (:func:`vfcli.io.pressure.record.uniform_rate`)."""
+    inc = float(record.get("abscissa_inc") or 0.0)
+    if inc > 0 or int(record.get("abscissa_spacing", 1) or 0) == 1 or record.get("x") is None:
+        return inc, float(record.get("abscissa_min") or 0.0)
+    x = np.asarray(record["x"], dtype=np.float64).ravel()
+    try:
+        fs, t0 = uniform_rate(x, p)
+    except InputDataError as exc:
+        raise InputDataError(f"{exc.args[0].split(': ', 1)[-1]} (UFF 58 abscissa values, abscissa_spacing 0)", p) \
+            from None
+    return 1.0 / fs, t0
 
 
 # --------------------------------------------------------------------------- CSV
