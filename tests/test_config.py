@@ -187,6 +187,11 @@ def test_a_calibrated_zero_pose_can_be_stated_and_a_pose_without_camera_pose_is_
     bad.write_text("[camera]\nrotation_deg = 2.0\noffset_px = [10.0, 20.0]\n")
     with pytest.raises(ConfigError, match="camera.pose"):
         load_config(bad)
+    # the same by --set: it was taken with the pose estimated, the rotation silently unused (the run's config
+    # was built from every default, camera.pose among them, so the check saw a pose stated)
+    with pytest.raises(ConfigError, match="--set: .*camera.pose is not"):
+        load_config(None, None, ["camera.rotation_deg=2.0"])
+    assert load_config(None, None, ["camera.rotation_deg=2.0", "camera.pose='config'"])[1].camera.rotation_deg == 2.0
     zero = tmp_path / "zero.toml"
     zero.write_text("[camera]\npose = 'config'\n")
     cfg = load_config(zero)[0].camera

@@ -225,6 +225,13 @@ def test_a_wav_pressure_is_read_at_the_readers_calibration_and_an_unset_one_is_a
     stored, warnings = _stored_pressure(tmp_path / "b.h5")
     np.testing.assert_allclose(stored, p / 5, rtol=1e-6)
     assert not [w for w in warnings if "WAV" in w], warnings
+    # the default's value, stated on the command line, is a stated calibration (it was warned as "the default")
+    r = run_vfcli("ingest-hsc", "-q", tmp_path / "c.h5", video, "--pressure", tmp_path / "p.wav",
+                  "--set", "ingest_hsc.wav_full_scale_pa=10000")
+    assert r.returncode == 0, r.stderr
+    stored, warnings = _stored_pressure(tmp_path / "c.h5")
+    np.testing.assert_allclose(stored, p, rtol=1e-6)
+    assert not [w for w in warnings if "WAV" in w], warnings
 
 
 def test_a_stereo_wav_needs_its_channel_and_takes_it_as_a_number(tmp_path, hsc_store):

@@ -22,14 +22,15 @@ MEASURED_SETTINGS = (*CALIBRATION, WAV_FULL_SCALE)
 def default_calibration(stored: RecordingConfig, effective: RecordingConfig,
                         keys: Iterable[str] = tuple(CALIBRATION)) -> list[str]:
     """The ``keys`` (``section.field``; default :data:`CALIBRATION`'s) that no config file or ``--set`` gave a
-    value: they are at their default (a value equal to the default counts as given when the stored config sets
-    it)."""
+    value: they are at their default (a value equal to the default counts as given when the stored config or this run's
+    ``--set`` sets it)."""
     out = []
     for key in keys:
         section, name = key.split(".")
         model = getattr(effective, section)
         default = type(model).model_fields[name].default
-        if getattr(model, name) == default and name not in getattr(stored, section).model_fields_set:
+        given = name in getattr(stored, section).model_fields_set or name in model.model_fields_set
+        if getattr(model, name) == default and not given:
             out.append(key)
     return out
 

@@ -539,7 +539,9 @@ def load_config(
         stored = RecordingConfig()
     effective = stored
     if overrides:
-        effective = _validate(apply_overrides(stored.model_dump(mode="json"), overrides), "--set")
+        # from the values set so far: what --set gives counts as set (a calibration stated at its default value
+        # is stated; camera.rotation_deg given without camera.pose is refused as in a config file)
+        effective = _validate(apply_overrides(stored.model_dump(mode="json", exclude_unset=True), overrides), "--set")
     return stored, effective
 
 
