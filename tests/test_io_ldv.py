@@ -257,6 +257,22 @@ def test_mat_missing_variable(tmp_path):
     _expect(path, "'velocity' missing")
 
 
+def test_mat_with_its_variables_in_a_struct_or_time_along_rows_says_how_to_save_it(tmp_path):
+    """MATLAB's save('scan.mat', 'scan') nests the variables in a struct, and a scan exported with time along
+    the rows has velocity (S, P): both were refused without a word of the cause ("variable 'coords' missing",
+    "velocity has shape (400, 6), expected (6, S >= 2))."""
+    from scipy.io import savemat
+
+    rng = np.random.default_rng(0)
+    coords, vel = rng.uniform(0, 10, (6, 3)), rng.normal(0, 100, (6, 400))
+    nested = tmp_path / "nested.mat"
+    savemat(nested, {"scan": {"coords": coords, "velocity": vel, "fs": 50_000.0}})
+    _expect(nested, "'coords' missing .* a field of the struct 'scan'")
+    along_rows = tmp_path / "rows.mat"
+    savemat(along_rows, {"coords": coords, "velocity": vel.T, "fs": 50_000.0})
+    _expect(along_rows, "velocity has shape \\(400, 6\\) and coords \\(6, 3\\).*save velocity transposed")
+
+
 # --------------------------------------------------------------------------- grid
 
 def test_infer_grid_on_a_rotated_jittered_grid_with_the_expected_shape():

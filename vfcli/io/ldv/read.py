@@ -550,7 +550,11 @@ def _read_mat(p: Path, expected_grid) -> LdvScan:
         raise InputDataError(f"unreadable .mat file: {type(exc).__name__}: {exc}", p) from None
     for key in ("coords", "velocity", "fs"):
         if key not in m:
-            raise InputDataError(f"variable {key!r} missing (need coords, velocity, fs)", p)
+            structs = [k for k, v in m.items() if not k.startswith("__") and getattr(v, "dtype", None) is not None
+                       and v.dtype.names and key in v.dtype.names]
+            inside = f"; it is a field of the struct {structs[0]!r}: save the fields as variables (save(f, '-struct', " \
+                     f"'{structs[0]}'))" if structs else ""
+            raise InputDataError(f"variable {key!r} missing (need coords, velocity, fs){inside}", p)
     try:
         vel = np.asarray(m["velocity"], dtype=np.float64)
         coords = np.asarray(m["coords"], dtype=np.float64)
@@ -561,6 +565,9 @@ def _read_mat(p: Path, expected_grid) -> LdvScan:
         t0 = np.asarray(m["t0"], dtype=np.float64).reshape(-1) if "t0" in m else None
     except (ValueError, TypeError, IndexError) as exc:
         raise InputDataError(f"variable of the wrong type: {exc}", p) from None
+    if vel.ndim == 2 and coords.ndim == 2 and vel.shape[0] != coords.shape[0] and vel.shape[1] == coords.shape[0]:
+        raise InputDataError(f"velocity has shape {vel.shape} and coords {coords.shape}: one row per point is "
+                             f"expected, ({coords.shape[0]}, samples); save velocity transposed (velocity.')", p)
     v_fac = _unit_factor(MM_S_PER_UNIT, _mat_str(m, "velocity_unit", "mm/s"), "velocity", p)
     l_fac = _unit_factor(MM_PER_UNIT, _mat_str(m, "length_unit", "mm"), "length", p)
     return finish_scan(nodes, coords * l_fac, vel * v_fac, fs, ref,
