@@ -325,13 +325,14 @@ def _scan(rows=3, cols=4, n_s=400, scale=1.0) -> LdvScan:
 
 
 def _pyuff(path: Path, scan: LdvScan, length_m_per_unit: float | None = 1.0, fs: float = FS_P,
-           spacing: int = 1, velocity_label: str = "m/s", displacement: bool = False) -> Path:
+           spacing: int = 1, velocity_label: str = "m/s", displacement: bool = False, rsp_dir: int = 3) -> Path:
     """A PSV-like UFF written with pyuff: 151, 164 (unless None), 2411, 58 records.
 
     Coordinates are written in file units of ``length_m_per_unit`` metres (mm: 1e-3); dataset
     164's length factor says so (SI = file / factor). ``spacing`` 0: the 58 records flagged uneven
     (abscissa values written beside each sample, no interval); ``velocity_label``: the velocity
-    records' unit label ("" for none); ``displacement``: 'Vib  Displacement' records beside them.
+    records' unit label ("" for none); ``displacement``: 'Vib  Displacement' records beside them;
+    ``rsp_dir``: the velocity records' response direction (3: +Z, -3: -Z, the samples' sign turned).
     """
     import pyuff
 
@@ -348,7 +349,7 @@ def _pyuff(path: Path, scan: LdvScan, length_m_per_unit: float | None = 1.0, fs:
                                    color=np.ones(p, int), x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2],
                                    return_full_dict=True))
     t = np.arange(scan.n_samples) / fs
-    per_unit = {"m/s": 1e3, "": 1e3, "mm/s": 1.0}[velocity_label]
+    per_unit = {"m/s": 1e3, "": 1e3, "mm/s": 1.0}[velocity_label] * (-1.0 if rsp_dir == -3 else 1.0)
     for i in range(p):
         records = [("Response Time Trace", "Vib  Velocity", scan.velocity_mm_s[i] / per_unit, velocity_label, 11),
                    ("Reference Time Trace", "Ref1  Pressure", scan.reference[i], "Pa", 0)]
@@ -358,7 +359,7 @@ def _pyuff(path: Path, scan: LdvScan, length_m_per_unit: float | None = 1.0, fs:
         for id1, id2, data, unit_lab, kind in records:
             sets.append(pyuff.prepare_58(
                 binary=1, id1=id1, id2=id2, id3="", id4="", id5="", func_type=1, rsp_node=int(scan.node_ids[i]),
-                rsp_dir=3, ref_node=0, ref_dir=0, abscissa_spacing=spacing, abscissa_inc=1 / fs if spacing else 0.0,
+                rsp_dir=rsp_dir if kind == 11 else 3, ref_node=0, ref_dir=0, abscissa_spacing=spacing, abscissa_inc=1 / fs if spacing else 0.0,
                 data=data, x=t, ordinate_axis_units_lab=unit_lab, orddenom_spec_data_type=0,
                 abscissa_spec_data_type=17, ordinate_spec_data_type=kind))
     pyuff.UFF(str(path)).write_sets(sets, mode="add")
@@ -370,13 +371,17 @@ def test_pyuff_scans_with_uneven_flagged_abscissae_displacement_records_or_no_ve
     uneven (abscissa_spacing 0, pyuff's default) with uniform abscissa values were refused ("abscissa_inc 0.0 is
     not positive"); 'Vib  Displacement' records beside the velocity ones were "two velocity records for node 1";
     velocity records in mm/s without a unit label were read as m/s and refused as 1000 times too fast, with no
-    word of the assumed unit and no setting to state it."""
+    word of the assumed unit and no setting to state it; records measured along -Z (response direction -3) were
+    read with the sign of +Z ones."""
     scan = _scan()
     ref = read_ldv(_pyuff(tmp_path / "ref.uff", scan), expected_grid=(3, 4))
     for name, opts in (("uneven.uff", {"spacing": 0}), ("disp.uff", {"displacement": True})):
         got = read_ldv(_pyuff(tmp_path / name, scan, **opts), expected_grid=(3, 4))
         np.testing.assert_array_equal(got.velocity_mm_s, ref.velocity_mm_s)
         assert got.fs == ref.fs and np.allclose(got.t0, ref.t0, atol=1e-12)
+    down = read_ldv(_pyuff(tmp_path / "down.uff", scan, rsp_dir=-3), expected_grid=(3, 4))
+    np.testing.assert_array_equal(down.velocity_mm_s, ref.velocity_mm_s)    # measured along -Z: turned to +Z
+    assert [n for n in down.notes if "12 of 12 velocity records measured along -Z" in n], down.notes
     bare = _pyuff(tmp_path / "bare.uff", scan, velocity_label="")
     quiet = read_ldv(bare, expected_grid=(3, 4))          # m/s assumed, and said
     np.testing.assert_allclose(quiet.velocity_mm_s, ref.velocity_mm_s, rtol=1e-12)

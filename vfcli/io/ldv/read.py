@@ -14,7 +14,9 @@ UFF (``.uff``/``.unv``, as PSV exports them; read with pyuff)
     ``id2`` matching ``^\\s*Vib`` ('Vib  Velocity', 'Vib  Geschwindigkeit'), the
     reference by ``id1`` = 'Reference Time Trace' and ``id2`` matching
     ``^\\s*Ref1`` ('Ref1  Voltage', 'Ref1  Pressure'); see :class:`LdvChannels`.
-    Records are matched to geometry by node number, never by order.
+    Records are matched to geometry by node number, never by order. A velocity record's
+    response direction -3 (-Z) turns its sign (vfcli's z points up, the standard's +Z);
+    records flagged uneven (abscissa_spacing 0) with uniform abscissa values are read.
     Units: velocity from the 58 ordinate units label (m/s, mm/s, um/s; without
     a label ``velocity_unit``, default m/s); coordinates from dataset 164
     (length factor, SI = file / factor), else ``length_unit``
@@ -405,7 +407,11 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
         "; the velocity records state no unit (ordinate axis label) and were read as m/s: set ingest_ldv.velocity_unit"
     g_index = {int(nd): i for i, nd in enumerate(g_nodes)}
     coords = g_xyz[[g_index[int(n)] for n in nodes]] * mm_per
+    # UFF 58 response direction: 3 is +Z (up, towards the camera), -3 -Z: a record measured along -Z holds the
+    # +Z velocity with its sign turned
+    turned = np.array([int(r.get("rsp_dir", 3) or 3) == -3 for r in rows])
     velocity = np.stack([np.asarray(r["data"], dtype=np.float64) for r in rows]) * v_fac
+    velocity[turned] *= -1.0
     t0 = np.array([_abscissa(r, p)[1] for r in rows])
     reference, ref_unit = None, ""
     if ref:
@@ -418,6 +424,9 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
         notes.append(f"{extra.size} geometry node(s) without velocity records ignored")
     if not ref:
         notes.append("no reference records")
+    if turned.any():
+        notes.append(f"{int(turned.sum())} of {turned.size} velocity records measured along -Z (response direction -3): "
+                     "their sign turned to +Z, vfcli's vertical axis")
     if not (v_label or velocity_unit):
         notes.append("the velocity records state no unit (ordinate axis label): read as m/s, as the vibrometer "
                      "exports; if it is another, set ingest_ldv.velocity_unit")
