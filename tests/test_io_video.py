@@ -391,6 +391,81 @@ def test_the_uncompressed_frame_size_counts_rows_padded_to_four_bytes(tmp_path):
         check_uncompressed_frames(_patch_strf(raw, width=17), path)
 
 
+def _ffmpeg_avi(path, frames, fps, pix_fmt, codec="ffv1"):
+    """``frames`` (uint16 or uint8) written as an AVI by FFmpeg itself (imageio-ffmpeg's binary), stored as ``pix_fmt``."""
+    import subprocess
+
+    ffmpeg = pytest.importorskip("imageio_ffmpeg").get_ffmpeg_exe()
+    k, h, w = frames.shape
+    src = "gray16le" if frames.dtype == np.uint16 else "gray"
+    subprocess.run([ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", src, "-s", f"{w}x{h}",
+                    "-r", f"{fps:g}", "-i", "-", "-c:v", codec, "-pix_fmt", pix_fmt, str(path)],
+                   input=frames.astype("<u2" if src == "gray16le" else np.uint8).tobytes(), check=True)
+    return path
+
+
+def test_a_16bit_grey_avi_is_read_at_16_bits(tmp_path):
+    """A 16-bit grey FFV1 AVI (gray16le) written by OpenCV's VideoWriter (VIDEOWRITER_PROP_DEPTH CV_16U) and
+    by FFmpeg: OpenCV's default conversion to 8-bit BGR gave 8-bit frames of values 0..15 (12-bit counts
+    >> 8) and bit_depth 8, without a word. Now the frames as written, uint16, bit depth 16."""
+    import cv2
+
+    frames = _frames(n=6, h=16, w=24, bits=12)
+    path = tmp_path / "cv16.avi"
+    w = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"FFV1"), 250.0, (24, 16),
+                        [cv2.VIDEOWRITER_PROP_DEPTH, cv2.CV_16U, cv2.VIDEOWRITER_PROP_IS_COLOR, 0])
+    assert w.isOpened()
+    for f in frames:
+        w.write(f)
+    w.release()
+    for avi in (path, _ffmpeg_avi(tmp_path / "ff16.avi", frames, 250.0, "gray16le")):
+        with open_video(avi) as v:
+            assert v.meta.dtype == np.uint16 and v.meta.bit_depth == 16
+            assert np.array_equal(v.read(), frames)
+            assert np.array_equal(v.read(2, 5), frames[2:5])
+
+
+@pytest.mark.parametrize("pix_fmt", ["gray12le", "gray10le", "yuv420p10le"])
+def test_an_avi_of_more_than_8_bits_opencv_cannot_return_whole_is_refused(tmp_path, pix_fmt):
+    """FFV1 AVIs of 10- or 12-bit grey or 10-bit YUV (FFmpeg): OpenCV returns them as 8 bits per pixel
+    (the rest dropped); refused in one line naming the pixel format."""
+    avi = _ffmpeg_avi(tmp_path / "v.avi", _frames(n=3, h=16, w=24, bits=12), 250.0, pix_fmt)
+    with pytest.raises(InputDataError, match=r"v\.avi: the decoded pixel format \(FFmpeg tag .*\) cannot be read at "
+                                             r"its real depth"):
+        open_video(avi)
+
+
+def test_8bit_grey_and_colour_avis_are_still_read(tmp_path):
+    frames = _frames(n=4, h=16, w=24, bits=8)
+    with open_video(_ffmpeg_avi(tmp_path / "g.avi", frames, 250.0, "gray")) as v:
+        assert v.meta.dtype == np.uint8 and v.meta.bit_depth == 8 and np.array_equal(v.read(), frames)
+    with open_video(_ffmpeg_avi(tmp_path / "c.avi", frames, 250.0, "bgr0")) as v:
+        assert v.meta.dtype == np.uint8 and np.abs(v.read().astype(int) - frames).max() <= 1
+
+
+def test_an_avi_whose_two_headers_state_different_rates_has_no_fps(tmp_path):
+    """FFmpeg writing a 10 kHz AVI states 100 us per frame in the main header (avih) and 600 frames/s in the
+    stream header (strh); OpenCV reports 600 and vfcli took it. Now no fps and a note of both rates."""
+    from vfcli.io.video.tiff_avi import avi_header_rates
+
+    avi = _ffmpeg_avi(tmp_path / "v.avi", _frames(n=3, h=16, w=24, bits=8), 10000.0, "gray")
+    assert avi_header_rates(avi.read_bytes()) == (100, 600.0)
+    with open_video(avi) as v:
+        assert v.meta.fps is None
+        assert v.meta.fps_conflict == ("the AVI's main header (avih) states 100 us per frame (10000 frames/s), "
+                                       "its video stream header (strh) 600 frames/s")
+
+
+def test_avi_rates_that_agree_to_a_microsecond_are_no_conflict():
+    from vfcli.io.video.tiff_avi import avi_rate_conflict
+
+    assert avi_rate_conflict(33367, 30000 / 1001) is None          # 33366.67 us rounded
+    assert avi_rate_conflict(33366, 30000 / 1001) is None          # ... or truncated
+    assert avi_rate_conflict(1000, 1000.0) is None
+    assert avi_rate_conflict(None, 600.0) is None and avi_rate_conflict(100, None) is None
+    assert "avih) states 99 us" in avi_rate_conflict(99, 10000.0)
+
+
 def test_registry_lists_every_kind():
     kinds = video_kinds()
     assert {".mraw", ".cihx", ".cih"} <= set(kinds["photron"])

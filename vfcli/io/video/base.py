@@ -71,6 +71,9 @@ class VideoMeta:
         Bits per pixel when the file stores its pixels bit-packed (12 for a 12-bit
         Photron MRAW: two pixels in three bytes), None when it stores whole bytes or
         compresses them. Said by the file's format, not guessed from the values.
+    fps_conflict : str or None
+        Why ``fps`` is None although the file states frame rates: they disagree (an AVI's main and
+        stream headers); the ingest stage refuses it unless ``camera.fps_hz`` is set.
     """
 
     path: str
@@ -85,6 +88,7 @@ class VideoMeta:
     trigger_index: int | None = None
     description: str = ""
     packed_bits: int | None = None
+    fps_conflict: str | None = None
 
     def __post_init__(self) -> None:
         """Refuse a frame rate or start frame no recording can have (vfcli/io/limits.py)."""

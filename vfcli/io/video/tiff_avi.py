@@ -301,11 +301,70 @@ def check_uncompressed_frames(head: bytes, path: Path) -> None:
                              "match the frames (corrupt file?)", path)
 
 
+#: FFmpeg codec tags of the decoded pixel format (OpenCV's ``CAP_PROP_CODEC_PIXEL_FORMAT``) read as decoded,
+#: without OpenCV's conversion to 8-bit BGR: 8-bit grey (``gray``) and 16-bit little-endian grey (``gray16le``).
+AVI_GREY_FORMATS: dict[bytes, np.dtype] = {b"Y800": np.dtype(np.uint8), b"Y1\x00\x10": np.dtype(np.uint16)}
+#: Tags of colour or YUV formats of 8 bits per component: OpenCV's 8-bit BGR conversion keeps every bit,
+#: then the frames are converted to grey.
+AVI_COLOUR_8BIT_FORMATS = frozenset({
+    b"I420", b"YV12", b"Y42B", b"444P", b"Y41B", b"YUV9", b"YVU9", b"YUY2", b"UYVY", b"YVYU", b"NV12", b"NV21",
+    b"BGR\x18", b"RGB\x18", b"BGRA", b"RGBA", b"ARGB", b"ABGR", b"BGR\x00", b"RGB\x00", b"\x00BGR", b"\x00RGB",
+    b"PAL\x08", b"Y2\x00\x08"})
+
+
+def avi_grey_dtype(tag: bytes, path: Path) -> np.dtype | None:
+    """How an AVI whose decoder gives pixel format ``tag`` (FFmpeg codec tag, 4 bytes) is read: the dtype of
+    a grey format read at its real depth (:data:`AVI_GREY_FORMATS`), or None for an 8-bit colour format
+    (:data:`AVI_COLOUR_8BIT_FORMATS`, converted to grey).
+
+    Raises
+    ------
+    InputDataError
+        Any other format (10-, 12-bit or big-endian grey, more than 8 bits per colour component, RGB 5:5:5,
+        unknown): OpenCV would return it as 8 bits and drop the rest.
+    """
+    if tag in AVI_GREY_FORMATS:
+        return AVI_GREY_FORMATS[tag]
+    if tag in AVI_COLOUR_8BIT_FORMATS:
+        return None
+    raise InputDataError(f"the decoded pixel format (FFmpeg tag {tag!r}) cannot be read at its real depth: vfcli "
+                         "reads AVIs of 8-bit grey, 16-bit grey (gray16le) or 8-bit colour; convert it, e.g. "
+                         "ffmpeg -i IN.avi -c:v ffv1 -pix_fmt gray16le OUT.avi", path)
+
+
+def avi_header_rates(head: bytes) -> tuple[int | None, float | None]:
+    """The frame rate an AVI's headers state: ``(avih dwMicroSecPerFrame, us; video strh dwRate/dwScale,
+    frames/s)``, each None when absent or 0. ``head``: the file's first bytes (:data:`AVI_HEAD_BYTES`)."""
+    us = rate = None
+    for tag, at, size in _riff_chunks(head, 12):
+        if tag == b"avih" and size >= 4 and us is None:
+            us = struct.unpack_from("<I", head, at)[0] or None
+        elif tag == b"strh" and size >= 28 and head[at:at + 4] == b"vids":
+            scale, rate_num = struct.unpack_from("<II", head, at + 20)
+            rate = rate_num / scale if scale and rate_num else None
+            break
+        elif tag in (b"movi", b"idx1"):
+            break
+    return us, rate
+
+
+def avi_rate_conflict(us: int | None, rate: float | None) -> str | None:
+    """The disagreement of an AVI's two stated rates (:func:`avi_header_rates`), or None when one is absent
+    or they agree to avih's round-off (a whole number of microseconds: within 1 us per frame)."""
+    if us is None or rate is None or abs(us - 1e6 / rate) < 1.0:
+        return None
+    return (f"the AVI's main header (avih) states {us} us per frame ({1e6 / us:g} frames/s), its video stream "
+            f"header (strh) {rate:g} frames/s")
+
+
 class AviSource(VideoSource):
-    """AVI decoded by OpenCV (FFmpeg backend); frames converted to grey uint8/uint16.
+    """AVI decoded by OpenCV (FFmpeg backend): 8- and 16-bit grey read as decoded (uint8, uint16 of
+    bit depth 8, 16), 8-bit colour converted to grey uint8; other pixel formats refused
+    (:func:`avi_grey_dtype`).
 
     An uncompressed stream whose first frame contradicts its header is refused first
-    (:func:`check_uncompressed_frames`)."""
+    (:func:`check_uncompressed_frames`). When the main and stream headers state different frame
+    rates, ``fps`` is None and ``fps_conflict`` says both (:func:`avi_rate_conflict`)."""
 
     def __init__(self, path: str | Path) -> None:
         import cv2
@@ -316,28 +375,43 @@ class AviSource(VideoSource):
         if head[:4] != b"RIFF" or head[8:12] != b"AVI ":
             raise InputDataError("not an AVI file (no RIFF/AVI header)", p)
         check_uncompressed_frames(head, p)
+        conflict = avi_rate_conflict(*avi_header_rates(head))
         cap = cv2.VideoCapture(str(p), cv2.CAP_FFMPEG)
         if not cap.isOpened():
             raise InputDataError("OpenCV cannot open this AVI (codec unsupported or corrupt)", p)
-        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
-        ok, frame = cap.read()
-        if not ok or n < 1:
-            cap.release()
-            raise InputDataError("AVI holds no decodable frames", p)
-        img = self._grey(frame)
         self.path, self._cap, self._next = p, cap, 1
-        self.meta = VideoMeta(
-            path=str(p), kind="avi", n_frames=n, height=img.shape[0], width=img.shape[1],
-            dtype=_check_dtype(img.dtype, p), bit_depth=_bits_of(img.dtype),
-            fps=fps if fps and np.isfinite(fps) and fps > 0 else None,
-            description=f"AVI ({n} frames, fourcc "
-                        f"{int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, 'little')!r})")
+        try:
+            tag = (int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) & 0xFFFFFFFF).to_bytes(4, "little")
+            self._native = avi_grey_dtype(tag, p)
+            if self._native is not None:  # before the first read: frames as decoded, not 8-bit BGR
+                cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
+            ok, frame = cap.read()
+            if not ok or n < 1:
+                raise InputDataError("AVI holds no decodable frames", p)
+            img = self._grey(frame)
+            dtype = _check_dtype(img.dtype, p)
+            self.meta = VideoMeta(
+                path=str(p), kind="avi", n_frames=n, height=img.shape[0], width=img.shape[1],
+                dtype=dtype, bit_depth=_bits_of(dtype),
+                fps=None if conflict else fps if fps and np.isfinite(fps) and fps > 0 else None,
+                fps_conflict=conflict,
+                description=f"AVI ({n} frames, fourcc "
+                            f"{int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, 'little')!r}, pixel format {tag!r})")
+        except BaseException:
+            cap.release()
+            raise
 
-    @staticmethod
-    def _grey(frame: np.ndarray) -> np.ndarray:
+    def _grey(self, frame: np.ndarray) -> np.ndarray:
+        """A decoded frame as (H, W) grey: as decoded for a grey format, else OpenCV's BGR -> grey."""
         import cv2
 
+        if self._native is not None:
+            if frame.ndim != 2 or frame.dtype != self._native:
+                raise InputDataError(f"a frame decoded as {frame.shape} {frame.dtype}, not (H, W) {self._native} "
+                                     "grey as its pixel format states", self.path)
+            return frame
         if frame.ndim == 3:
             return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         return frame
