@@ -287,6 +287,52 @@ def test_tifffile_reads_our_tiff_and_we_read_tifffiles(tmp_path):
         assert np.array_equal(v.read(1, 4, roi=(0, 3, 0, 5)), frames[1:4, :3, :5])
 
 
+@pytest.mark.parametrize("finterval, tunit", [(0.1, "ms"), (100, "us"), (1e-4, "sec"),
+                                              (1e-4, None), (0.1, "msec"), (1e-4 / 60, "min")])
+def test_an_imagej_frame_interval_is_read_in_its_time_unit(tmp_path, finterval, tunit):
+    """ImageJ's Image > Properties: "Frame interval" 0.1 with "Time unit" ms was read as 0.1 s (10 frames/s
+    for a 10 kHz recording). Now in its unit (ImageJ's default: s)."""
+    import tifffile
+
+    meta = {"axes": "TYX", "finterval": finterval, **({"tunit": tunit} if tunit else {})}
+    tifffile.imwrite(tmp_path / "ij.tif", _frames(n=3), imagej=True, metadata=meta)
+    with open_video(tmp_path / "ij.tif") as v:
+        assert v.meta.fps == pytest.approx(10000.0, rel=1e-9) and v.meta.fps_note is None
+
+
+def test_an_imagej_interval_in_an_unknown_unit_leaves_no_fps_and_says_why(tmp_path):
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "ij.tif", _frames(n=3), imagej=True,
+                     metadata={"axes": "TYX", "finterval": 2, "tunit": "frame"})
+    with open_video(tmp_path / "ij.tif") as v:
+        assert v.meta.fps is None
+        assert v.meta.fps_note == "the ImageJ time unit (tunit) is 'frame', not a time unit vfcli knows (s, ms, us, min)"
+
+
+def test_imagej_fps_key_and_ome_time_increment_give_the_frame_rate(tmp_path):
+    """ImageJ's own ``fps=`` key (no finterval) and an OME-TIFF's TimeIncrement (in its TimeIncrementUnit,
+    s by default) were not read: no frame rate."""
+    import tifffile
+
+    frames = _frames(n=3)
+    tifffile.imwrite(tmp_path / "ij.tif", frames, imagej=True, metadata={"axes": "TYX", "fps": 10000.0})
+    tifffile.imwrite(tmp_path / "s.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 1e-4,
+                                                                         "TimeIncrementUnit": "s"})
+    tifffile.imwrite(tmp_path / "ms.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 0.1,
+                                                                          "TimeIncrementUnit": "ms"})
+    tifffile.imwrite(tmp_path / "us.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 100,
+                                                                          "TimeIncrementUnit": "\u00b5s"})
+    tifffile.imwrite(tmp_path / "default.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 1e-4})
+    for name in ("ij.tif", "s.ome.tif", "ms.ome.tif", "us.ome.tif", "default.ome.tif"):
+        with open_video(tmp_path / name) as v:
+            assert v.meta.fps == pytest.approx(10000.0, rel=1e-9), name
+            assert np.array_equal(v.read(), frames)
+    tifffile.imwrite(tmp_path / "none.ome.tif", frames, ome=True, metadata={"axes": "TYX"})
+    with open_video(tmp_path / "none.ome.tif") as v:
+        assert v.meta.fps is None
+
+
 def test_folder_of_numbered_pngs_is_read_in_natural_order(tmp_path):
     import cv2
 
@@ -452,7 +498,7 @@ def test_an_avi_whose_two_headers_state_different_rates_has_no_fps(tmp_path):
     assert avi_header_rates(avi.read_bytes()) == (100, 600.0)
     with open_video(avi) as v:
         assert v.meta.fps is None
-        assert v.meta.fps_conflict == ("the AVI's main header (avih) states 100 us per frame (10000 frames/s), "
+        assert v.meta.fps_note == ("the AVI's main header (avih) states 100 us per frame (10000 frames/s), "
                                        "its video stream header (strh) 600 frames/s")
 
 

@@ -1,9 +1,11 @@
 """Streaming readers for multi-page TIFF, image folders and AVI; a TIFF writer.
 
 * Multi-page TIFF (tifffile): one greyscale page per frame, uint8 or uint16.
-  The frame rate is read from a JSON ImageDescription of the first page
-  (``{"fps": ...}``, written by :func:`write_tiff`), tifffile's "shaped"
-  metadata or an ImageJ ``finterval``; else None.
+  The frame rate is read from the first of: a JSON ImageDescription of the first page
+  (``{"fps": ...}``, written by :func:`write_tiff`), tifffile's "shaped" metadata, ImageJ's
+  ``finterval`` in its ``tunit`` (s when absent; s, ms, us/µs, min) or else ImageJ's ``fps``, an
+  OME-TIFF's ``TimeIncrement`` in its ``TimeIncrementUnit`` (s when absent); else None. In another
+  time unit: None, and ``fps_note`` names it (ingest then needs ``camera.fps_hz``).
 * Folder: every ``.png``, ``.tif``, ``.tiff``, ``.bmp`` file directly in the
   folder, sorted naturally (``img2`` before ``img10``); all frames must have the
   same size and dtype. No frame rate (None).
@@ -47,6 +49,61 @@ def _check_dtype(dtype: np.dtype, path: Path) -> np.dtype:
 
 # --------------------------------------------------------------------------- TIFF
 
+#: Time units of ImageJ's ``tunit`` and OME's ``TimeIncrementUnit`` (lower case), in seconds.
+TIME_UNITS_S: dict[str, float] = {
+    **dict.fromkeys(("s", "sec", "second", "seconds"), 1.0),
+    **dict.fromkeys(("ms", "msec", "millisecond", "milliseconds"), 1e-3),
+    **dict.fromkeys(("us", "\u00b5s", "\u03bcs", "usec", "microsecond", "microseconds"), 1e-6),
+    **dict.fromkeys(("min", "minute", "minutes"), 60.0),
+}
+
+
+class UnknownTimeUnit(ValueError):
+    """A frame interval in a time unit vfcli does not know; the message names the field and the unit."""
+
+
+def interval_fps(interval: float, unit: str, field: str) -> float | None:
+    """Frames/s of a frame ``interval`` given in ``unit`` (:data:`TIME_UNITS_S`); None for an interval of 0
+    (not set). ``field`` names the metadata for the error.
+
+    Raises
+    ------
+    UnknownTimeUnit
+        An unknown time unit.
+    """
+    scale = TIME_UNITS_S.get(str(unit).strip().lower())
+    if scale is None:
+        raise UnknownTimeUnit(f"{field} is {unit!r}, not a time unit vfcli knows (s, ms, us, min)")
+    interval = float(interval)
+    return None if interval == 0 else 1.0 / (interval * scale)
+
+
+def imagej_fps(ij: dict) -> float | None:
+    """Frames/s from ImageJ metadata: ``finterval`` in ``tunit`` (ImageJ's default unit: s), else ImageJ's
+    ``fps`` key (its animation rate); None when neither is set."""
+    if ij.get("finterval"):
+        return interval_fps(ij["finterval"], ij.get("tunit") or "s", "the ImageJ time unit (tunit)")
+    if ij.get("fps"):
+        return float(ij["fps"])
+    return None
+
+
+def ome_fps(xml: str) -> float | None:
+    """Frames/s from an OME-XML ``Pixels`` element's ``TimeIncrement`` in ``TimeIncrementUnit`` (OME's
+    default: s); None without a TimeIncrement or with unreadable XML."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return None
+    pixels = next((e for e in root.iter() if e.tag.rsplit("}", 1)[-1] == "Pixels"), None)
+    if pixels is None or not pixels.get("TimeIncrement"):
+        return None
+    return interval_fps(pixels.get("TimeIncrement"), pixels.get("TimeIncrementUnit") or "s",
+                        "the OME TimeIncrementUnit")
+
+
 class TiffSource(VideoSource):
     """Multi-page greyscale TIFF, read page by page."""
 
@@ -64,7 +121,10 @@ class TiffSource(VideoSource):
                 first = pages.first
                 n = len(pages)
                 shape, dtype = tuple(int(s) for s in first.shape), first.dtype
-                fps = self._fps_from_metadata()
+                try:
+                    fps, fps_note = self._fps_from_metadata(), None
+                except UnknownTimeUnit as exc:
+                    fps, fps_note = None, str(exc)
             except InputDataError:
                 raise
             except Exception as exc:  # tifffile raises many types on corrupt files
@@ -87,12 +147,19 @@ class TiffSource(VideoSource):
         try:
             self.meta = VideoMeta(
                 path=str(p), kind="tiff", n_frames=n, height=shape[0], width=shape[1], dtype=dtype,
-                bit_depth=_bits_of(dtype), fps=fps, description=f"multi-page TIFF, {n} pages")
+                bit_depth=_bits_of(dtype), fps=fps, fps_note=fps_note, description=f"multi-page TIFF, {n} pages")
         except InputDataError:
             self.close()
             raise
 
     def _fps_from_metadata(self) -> float | None:
+        """Frame rate, frames/s, from the first metadata that states one (see the module docstring).
+
+        Raises
+        ------
+        UnknownTimeUnit
+            A frame interval in a time unit vfcli does not know.
+        """
         tif = self._tif
         try:
             desc = tif.pages.first.description
@@ -104,8 +171,12 @@ class TiffSource(VideoSource):
             if meta and "fps" in meta[0]:
                 return float(meta[0]["fps"])
             ij = tif.imagej_metadata
-            if ij and ij.get("finterval"):
-                return 1.0 / float(ij["finterval"])
+            if ij:
+                return imagej_fps(ij)
+            if tif.is_ome:
+                return ome_fps(tif.ome_metadata)
+        except UnknownTimeUnit:
+            raise
         except (TypeError, ValueError, KeyError, ZeroDivisionError, AttributeError):
             return None
         return None
@@ -364,7 +435,7 @@ class AviSource(VideoSource):
 
     An uncompressed stream whose first frame contradicts its header is refused first
     (:func:`check_uncompressed_frames`). When the main and stream headers state different frame
-    rates, ``fps`` is None and ``fps_conflict`` says both (:func:`avi_rate_conflict`)."""
+    rates, ``fps`` is None and ``fps_note`` says both (:func:`avi_rate_conflict`)."""
 
     def __init__(self, path: str | Path) -> None:
         import cv2
@@ -396,7 +467,7 @@ class AviSource(VideoSource):
                 path=str(p), kind="avi", n_frames=n, height=img.shape[0], width=img.shape[1],
                 dtype=dtype, bit_depth=_bits_of(dtype),
                 fps=None if conflict else fps if fps and np.isfinite(fps) and fps > 0 else None,
-                fps_conflict=conflict,
+                fps_note=conflict,
                 description=f"AVI ({n} frames, fourcc "
                             f"{int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, 'little')!r}, pixel format {tag!r})")
         except BaseException:
