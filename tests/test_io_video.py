@@ -78,6 +78,51 @@ def test_we_read_mraw_files_written_by_pymraw(tmp_path, bits):
         assert np.array_equal(v.read(), frames)
 
 
+def _higher_side_pair(tmp_path, metadata, frames):
+    """A 16-bit MRAW of ``frames`` stored in the high 12 bits (x 16) with "EffectiveBit Side: Higher":
+    a legacy .cih written by pyMRAW, or vfcli's CIHX with its side element set to Higher."""
+    if metadata == "cih":
+        import pyMRAW
+
+        return pyMRAW.save_mraw(frames << 4, str(tmp_path / "hi.cih"), bit_depth=16,
+                                info_dict={"Record Rate(fps)": 7500, "EffectiveBit Depth": 12,
+                                           "EffectiveBit Side": "Higher"})
+    mraw, cihx = write_mraw(tmp_path / "hi", iter(frames), fps=7500, bit_depth=16)
+    cihx.write_bytes(cihx.read_bytes().replace(b"<side>Lower</side>", b"<side>Higher</side>"))
+    (frames.astype("<u2") << 4).tofile(mraw)
+    return mraw, cihx
+
+
+@pytest.mark.parametrize("metadata", ["cih", "cihx"])
+def test_a_16bit_mraw_with_its_effective_bits_on_the_higher_side_is_shifted_down(tmp_path, metadata):
+    """PFV's "EffectiveBit Side: Higher" puts the 12 effective bits of a 16-bit MRAW in the high bits; the
+    side was parsed and unused, and the counts came out 16 times too bright under bit depth 12."""
+    frames = _frames(n=5, bits=12)
+    _, cih = _higher_side_pair(tmp_path, metadata, frames)
+    with open_video(cih) as v:
+        assert v.meta.bit_depth == 12 and "in the high bits" in v.meta.description
+        assert np.array_equal(v.read(), frames)
+        assert np.array_equal(v.read(1, 4, roi=(1, 4, 2, 7)), frames[1:4, 1:4, 2:7])
+
+
+def test_a_higher_side_mraw_with_low_bits_set_is_refused(tmp_path):
+    frames = _frames(n=5, bits=12)
+    mraw, cihx = _higher_side_pair(tmp_path, "cihx", frames)
+    data = np.fromfile(mraw, "<u2")
+    data[3 * 60 + 7] |= 1                                     # frame 3 (6 x 10 pixels a frame)
+    data.tofile(mraw)
+    with pytest.raises(InputDataError, match=r"hi\.mraw: frame 3 has pixels with some of their 4 low bits set, but "
+                                             r"the metadata says the effective bits are the high ones"):
+        open_video(cihx).read()
+
+
+def test_an_unknown_effective_bit_side_is_refused(tmp_path):
+    _, cihx = write_mraw(tmp_path / "s", [_frames()], fps=FPS, bit_depth=16)
+    cihx.write_bytes(cihx.read_bytes().replace(b"<side>Lower</side>", b"<side>Middle</side>"))
+    with pytest.raises(InputDataError, match="EffectiveBit Side is 'middle'; must be Lower or Higher"):
+        open_video(cihx)
+
+
 def test_cihx_has_a_binary_prefix_before_the_xml(tmp_path):
     _, cihx = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
     raw = cihx.read_bytes()
