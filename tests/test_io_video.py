@@ -378,6 +378,52 @@ def test_imagej_fps_key_and_ome_time_increment_give_the_frame_rate(tmp_path):
         assert v.meta.fps is None
 
 
+NO_IMAGECODECS = pytest.mark.skipif(__import__("importlib.util").util.find_spec("imagecodecs") is not None,
+                                    reason="imagecodecs is installed: tifffile decodes LZW")
+
+
+@NO_IMAGECODECS
+def test_an_lzw_tiff_without_imagecodecs_says_which_package_to_install(tmp_path):
+    """A multi-page LZW TIFF written by Pillow (as many lab tools do) failed with "page 0 unreadable:
+    ValueError: <COMPRESSION.LZW: 5> requires the 'imagecodecs' package": a missing optional package, not a
+    bad file. Now one line at opening naming the compression and the install; the same for a folder of them."""
+    from PIL import Image
+
+    frames = _frames(n=3)
+    images = [Image.fromarray(f) for f in frames]
+    images[0].save(tmp_path / "lzw.tif", save_all=True, append_images=images[1:], compression="tiff_lzw")
+    want = (r"page 0 is compressed with LZW, which needs the optional package imagecodecs \(not installed\): "
+            r"pip install 'vfcli\[tiff\]' \(or pip install imagecodecs\)")
+    with pytest.raises(InputDataError, match=r"lzw\.tif: " + want):
+        open_video(tmp_path / "lzw.tif")
+    (tmp_path / "dir").mkdir()
+    for k, im in enumerate(images):
+        im.save(tmp_path / "dir" / f"f{k}.tif", compression="tiff_lzw")
+    with pytest.raises(InputDataError, match=r"f0\.tif: " + want):
+        open_video(tmp_path / "dir")
+
+
+@NO_IMAGECODECS
+def test_a_later_page_that_needs_imagecodecs_is_named(tmp_path):
+    """Page 1 of a tifffile TIFF restated as LZW (its Compression tag patched): refused when read, naming page 1."""
+    import struct
+
+    import tifffile
+
+    path = tmp_path / "v.tif"
+    with tifffile.TiffWriter(path) as tw:
+        for f in _frames(n=3):
+            tw.write(f, photometric="minisblack", metadata=None)
+    with tifffile.TiffFile(path) as tif:
+        at = tif.pages[1].tags["Compression"].valueoffset
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<H", data, at, 5)
+    path.write_bytes(bytes(data))
+    with open_video(path) as v:
+        with pytest.raises(InputDataError, match=r"page 1 is compressed with LZW, which needs the optional package"):
+            v.read()
+
+
 def test_folder_of_numbered_pngs_is_read_in_natural_order(tmp_path):
     import cv2
 

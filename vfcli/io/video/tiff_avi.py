@@ -1,6 +1,8 @@
 """Streaming readers for multi-page TIFF, image folders and AVI; a TIFF writer.
 
-* Multi-page TIFF (tifffile): one greyscale page per frame, uint8 or uint16.
+* Multi-page TIFF (tifffile): one greyscale page per frame, uint8 or uint16; uncompressed,
+  zlib/deflate or PackBits, and with the optional imagecodecs (``pip install 'vfcli[tiff]'``)
+  LZW, JPEG, ZStandard ... (without it: one line naming the compression and the install).
   The frame rate is read from the first of: a JSON ImageDescription of the first page
   (``{"fps": ...}``, written by :func:`write_tiff`), tifffile's "shaped" metadata, ImageJ's
   ``finterval`` in its ``tunit`` (s when absent; s, ms, us/µs, min) or else ImageJ's ``fps``, an
@@ -104,6 +106,38 @@ def ome_fps(xml: str) -> float | None:
                         "the OME TimeIncrementUnit")
 
 
+#: The extra that installs the optional codecs of compressed TIFF pages (imagecodecs).
+TIFF_CODECS_INSTALL = "pip install 'vfcli[tiff]' (or pip install imagecodecs)"
+
+
+def missing_codec(compression: int, predictor: int = 1) -> str | None:
+    """The name of a TIFF page's compression or predictor that tifffile decodes only with the optional
+    package imagecodecs (LZW, JPEG, ...), when it is not installed; None when tifffile can decode both."""
+    from tifffile import COMPRESSION, PREDICTOR, TIFF
+
+    for codecs, key, name in ((TIFF.DECOMPRESSORS, compression, lambda k: COMPRESSION(k).name),
+                              (TIFF.UNPREDICTORS, predictor, lambda k: f"predictor {PREDICTOR(k).name}")):
+        try:
+            codecs[key]
+        except KeyError as exc:
+            if "imagecodecs" in str(exc):
+                return name(key)
+    return None
+
+
+def check_codec(page, index: int, path: Path) -> None:
+    """InputDataError naming the page's compression and the install command when decoding it needs
+    imagecodecs and it is not installed (:func:`missing_codec`): a missing optional dependency, not bad data."""
+    try:
+        codes = int(page.compression), int(page.predictor)
+    except (TypeError, ValueError):  # a damaged tag: left to decoding, which reports it
+        return
+    name = missing_codec(*codes)
+    if name is not None:
+        raise InputDataError(f"page {index} is compressed with {name}, which needs the optional package imagecodecs "
+                             f"(not installed): {TIFF_CODECS_INSTALL}", path)
+
+
 class TiffSource(VideoSource):
     """Multi-page greyscale TIFF, read page by page."""
 
@@ -139,6 +173,11 @@ class TiffSource(VideoSource):
             raise InputDataError(
                 f"TIFF pages have shape {shape}; need greyscale (H, W) pages", p)
         dtype = _check_dtype(dtype, p)
+        try:
+            check_codec(first, 0, p)
+        except InputDataError:
+            self.close()
+            raise
         if min(shape) < 1 or shape[0] * shape[1] * dtype.itemsize > 1000 * p.stat().st_size:
             self.close()
             raise InputDataError(f"TIFF page size {shape} is implausible for a "
@@ -191,8 +230,11 @@ class TiffSource(VideoSource):
         with library_output(self.path, "tifffile"):
             for j, i in enumerate(range(start, stop)):
                 try:
-                    img = self._tif.pages[i].asarray()
+                    page = self._tif.pages[i]
+                    img = page.asarray()
                 except Exception as exc:
+                    if "imagecodecs" in str(exc):
+                        check_codec(page, i, self.path)
                     raise InputDataError(f"page {i} unreadable: {type(exc).__name__}: {exc}",
                                          self.path) from None
                 if img.shape != out.shape[1:] or img.dtype != m.dtype:
@@ -267,6 +309,9 @@ def _imread(path: Path) -> np.ndarray:
             with library_output(path, "tifffile"):
                 img = tifffile.imread(path, key=0)
         except Exception as exc:
+            if "imagecodecs" in str(exc):
+                with tifffile.TiffFile(path) as tif:
+                    check_codec(tif.pages.first, 0, path)
             raise InputDataError(f"unreadable image: {type(exc).__name__}: {exc}", path) from None
     else:
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
