@@ -10,9 +10,9 @@ Readers are registered per file extension (after pyvista's reader registry):
 kind             files                                               module
 ===============  ==================================================  ============
 ``photron``      ``.mraw`` with ``.cihx``/``.cih`` beside it          photron
-``tiff``         multi-page ``.tif``/``.tiff``                       video_formats
-``folder``       a directory of numbered ``.png``/``.tif`` images    video_formats
-``avi``          ``.avi`` (OpenCV / FFmpeg)                          video_formats
+``tiff``         multi-page ``.tif``/``.tiff``                       tiff_avi
+``folder``       a directory of numbered ``.png``/``.tif`` images    tiff_avi
+``avi``          ``.avi`` (OpenCV / FFmpeg)                          tiff_avi
 ===============  ==================================================  ============
 
 Examples

@@ -11,12 +11,20 @@
 * Folder: every ``.png``, ``.tif``, ``.tiff``, ``.bmp`` file directly in the
   folder, sorted naturally (``img2`` before ``img10``); all frames must have the
   same size and dtype. No frame rate (None).
-* AVI: decoded by OpenCV/FFmpeg; fps from the container. An uncompressed stream whose first frame
+* AVI: decoded by OpenCV/FFmpeg: 8-bit grey and 16-bit grey (``gray16le``, uint16 at bit depth 16)
+  as decoded, 8-bit colour converted to grey; any other pixel format (10/12-bit or big-endian grey,
+  more than 8 bits per colour component) refused, as OpenCV would return only 8 of its bits. fps from
+  the container; when the main header (``avih``) and the stream header (``strh``) disagree, None
+  with ``fps_note`` naming both (ingest then needs ``camera.fps_hz``). An uncompressed stream whose first frame
   does not hold the bytes its header's size and depth need is refused before FFmpeg sees it (FFmpeg
   corrupts memory on it and the process aborts or segfaults, which Python cannot catch).
 
 Colour frames (folder images, AVI) are converted to grey with OpenCV's
 BGR->grey weights; colour TIFF pages are rejected (ambiguous for a mono camera).
+
+``bit_depth`` is the dtype's (8 or 16) for TIFF, folders and AVI: the files written in the wild
+(tifffile, ImageJ, OME, Pillow, OpenCV's PNG) do not state fewer significant bits, so 12-bit counts
+in uint16 are stored with bit depth 16; it is never guessed from the values.
 """
 from __future__ import annotations
 
