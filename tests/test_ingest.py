@@ -159,3 +159,22 @@ def test_a_read_error_midway_leaves_the_store_untouched(tmp_path, monkeypatch):
         run_ingest_hsc(RunContext.open(store, None, ["ingest_hsc.compression='gzip4'"], force=True), cihx)
     assert store.read_bytes() == before
     assert Store(store).interrupted_writes() == []
+
+
+def test_an_avi_with_two_stated_rates_needs_camera_fps_hz(tmp_path):
+    """An AVI written by FFmpeg at 10 kHz (avih: 100 us per frame, strh: 600 frames/s) is refused naming both
+    rates and camera.fps_hz; with camera.fps_hz set, that rate is used."""
+    import subprocess
+
+    ffmpeg = pytest.importorskip("imageio_ffmpeg").get_ffmpeg_exe()
+    frames = (_video(tmp_path, n=5)[0] >> 4).astype(np.uint8)
+    avi = tmp_path / "v.avi"
+    subprocess.run([ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "gray", "-s", "30x24",
+                    "-r", "10000", "-i", "-", "-c:v", "ffv1", str(avi)], input=frames.tobytes(), check=True)
+    store = tmp_path / "r.h5"
+    with pytest.raises(ConfigError, match=r"v\.avi: the AVI's main header \(avih\) states 100 us per frame \(10000 "
+                                          r"frames/s\), its video stream header \(strh\) 600 frames/s; set "
+                                          r"camera.fps_hz in the config"):
+        _ingest(store, avi)
+    res = _ingest(store, avi, "camera.fps_hz=10000")
+    assert res.summary["fps_hz"] == 10000 and res.summary["frames"] == 5

@@ -78,6 +78,51 @@ def test_we_read_mraw_files_written_by_pymraw(tmp_path, bits):
         assert np.array_equal(v.read(), frames)
 
 
+def _higher_side_pair(tmp_path, metadata, frames):
+    """A 16-bit MRAW of ``frames`` stored in the high 12 bits (x 16) with "EffectiveBit Side: Higher":
+    a legacy .cih written by pyMRAW, or vfcli's CIHX with its side element set to Higher."""
+    if metadata == "cih":
+        import pyMRAW
+
+        return pyMRAW.save_mraw(frames << 4, str(tmp_path / "hi.cih"), bit_depth=16,
+                                info_dict={"Record Rate(fps)": 7500, "EffectiveBit Depth": 12,
+                                           "EffectiveBit Side": "Higher"})
+    mraw, cihx = write_mraw(tmp_path / "hi", iter(frames), fps=7500, bit_depth=16)
+    cihx.write_bytes(cihx.read_bytes().replace(b"<side>Lower</side>", b"<side>Higher</side>"))
+    (frames.astype("<u2") << 4).tofile(mraw)
+    return mraw, cihx
+
+
+@pytest.mark.parametrize("metadata", ["cih", "cihx"])
+def test_a_16bit_mraw_with_its_effective_bits_on_the_higher_side_is_shifted_down(tmp_path, metadata):
+    """PFV's "EffectiveBit Side: Higher" puts the 12 effective bits of a 16-bit MRAW in the high bits; the
+    side was parsed and unused, and the counts came out 16 times too bright under bit depth 12."""
+    frames = _frames(n=5, bits=12)
+    _, cih = _higher_side_pair(tmp_path, metadata, frames)
+    with open_video(cih) as v:
+        assert v.meta.bit_depth == 12 and "in the high bits" in v.meta.description
+        assert np.array_equal(v.read(), frames)
+        assert np.array_equal(v.read(1, 4, roi=(1, 4, 2, 7)), frames[1:4, 1:4, 2:7])
+
+
+def test_a_higher_side_mraw_with_low_bits_set_is_refused(tmp_path):
+    frames = _frames(n=5, bits=12)
+    mraw, cihx = _higher_side_pair(tmp_path, "cihx", frames)
+    data = np.fromfile(mraw, "<u2")
+    data[3 * 60 + 7] |= 1                                     # frame 3 (6 x 10 pixels a frame)
+    data.tofile(mraw)
+    with pytest.raises(InputDataError, match=r"hi\.mraw: frame 3 has pixels with some of their 4 low bits set, but "
+                                             r"the metadata says the effective bits are the high ones"):
+        open_video(cihx).read()
+
+
+def test_an_unknown_effective_bit_side_is_refused(tmp_path):
+    _, cihx = write_mraw(tmp_path / "s", [_frames()], fps=FPS, bit_depth=16)
+    cihx.write_bytes(cihx.read_bytes().replace(b"<side>Lower</side>", b"<side>Middle</side>"))
+    with pytest.raises(InputDataError, match="EffectiveBit Side is 'middle'; must be Lower or Higher"):
+        open_video(cihx)
+
+
 def test_cihx_has_a_binary_prefix_before_the_xml(tmp_path):
     _, cihx = write_mraw(tmp_path / "rec", [_frames()], fps=FPS)
     raw = cihx.read_bytes()
@@ -287,6 +332,98 @@ def test_tifffile_reads_our_tiff_and_we_read_tifffiles(tmp_path):
         assert np.array_equal(v.read(1, 4, roi=(0, 3, 0, 5)), frames[1:4, :3, :5])
 
 
+@pytest.mark.parametrize("finterval, tunit", [(0.1, "ms"), (100, "us"), (1e-4, "sec"),
+                                              (1e-4, None), (0.1, "msec"), (1e-4 / 60, "min")])
+def test_an_imagej_frame_interval_is_read_in_its_time_unit(tmp_path, finterval, tunit):
+    """ImageJ's Image > Properties: "Frame interval" 0.1 with "Time unit" ms was read as 0.1 s (10 frames/s
+    for a 10 kHz recording). Now in its unit (ImageJ's default: s)."""
+    import tifffile
+
+    meta = {"axes": "TYX", "finterval": finterval, **({"tunit": tunit} if tunit else {})}
+    tifffile.imwrite(tmp_path / "ij.tif", _frames(n=3), imagej=True, metadata=meta)
+    with open_video(tmp_path / "ij.tif") as v:
+        assert v.meta.fps == pytest.approx(10000.0, rel=1e-9) and v.meta.fps_note is None
+
+
+def test_an_imagej_interval_in_an_unknown_unit_leaves_no_fps_and_says_why(tmp_path):
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "ij.tif", _frames(n=3), imagej=True,
+                     metadata={"axes": "TYX", "finterval": 2, "tunit": "frame"})
+    with open_video(tmp_path / "ij.tif") as v:
+        assert v.meta.fps is None
+        assert v.meta.fps_note == "the ImageJ time unit (tunit) is 'frame', not a time unit vfcli knows (s, ms, us (µs), ns, min)"
+
+
+def test_imagej_fps_key_and_ome_time_increment_give_the_frame_rate(tmp_path):
+    """ImageJ's own ``fps=`` key (no finterval) and an OME-TIFF's TimeIncrement (in its TimeIncrementUnit,
+    s by default) were not read: no frame rate."""
+    import tifffile
+
+    frames = _frames(n=3)
+    tifffile.imwrite(tmp_path / "ij.tif", frames, imagej=True, metadata={"axes": "TYX", "fps": 10000.0})
+    tifffile.imwrite(tmp_path / "s.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 1e-4,
+                                                                         "TimeIncrementUnit": "s"})
+    tifffile.imwrite(tmp_path / "ms.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 0.1,
+                                                                          "TimeIncrementUnit": "ms"})
+    tifffile.imwrite(tmp_path / "us.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 100,
+                                                                          "TimeIncrementUnit": "\u00b5s"})
+    tifffile.imwrite(tmp_path / "default.ome.tif", frames, ome=True, metadata={"axes": "TYX", "TimeIncrement": 1e-4})
+    for name in ("ij.tif", "s.ome.tif", "ms.ome.tif", "us.ome.tif", "default.ome.tif"):
+        with open_video(tmp_path / name) as v:
+            assert v.meta.fps == pytest.approx(10000.0, rel=1e-9), name
+            assert np.array_equal(v.read(), frames)
+    tifffile.imwrite(tmp_path / "none.ome.tif", frames, ome=True, metadata={"axes": "TYX"})
+    with open_video(tmp_path / "none.ome.tif") as v:
+        assert v.meta.fps is None
+
+
+NO_IMAGECODECS = pytest.mark.skipif(__import__("importlib.util").util.find_spec("imagecodecs") is not None,
+                                    reason="imagecodecs is installed: tifffile decodes LZW")
+
+
+@NO_IMAGECODECS
+def test_an_lzw_tiff_without_imagecodecs_says_which_package_to_install(tmp_path):
+    """A multi-page LZW TIFF written by Pillow (as many lab tools do) failed with "page 0 unreadable:
+    ValueError: <COMPRESSION.LZW: 5> requires the 'imagecodecs' package": a missing optional package, not a
+    bad file. Now one line at opening naming the compression and the install; the same for a folder of them."""
+    from PIL import Image
+
+    frames = _frames(n=3)
+    images = [Image.fromarray(f) for f in frames]
+    images[0].save(tmp_path / "lzw.tif", save_all=True, append_images=images[1:], compression="tiff_lzw")
+    want = (r"page 0 is compressed with LZW, which needs the optional package imagecodecs \(not installed\): "
+            r"pip install 'vfcli\[tiff\]' \(or pip install imagecodecs\)")
+    with pytest.raises(ConfigError, match=r"lzw\.tif: " + want):   # exit 2, as `vfcli batch` without dask
+        open_video(tmp_path / "lzw.tif")
+    (tmp_path / "dir").mkdir()
+    for k, im in enumerate(images):
+        im.save(tmp_path / "dir" / f"f{k}.tif", compression="tiff_lzw")
+    with pytest.raises(ConfigError, match=r"f0\.tif: " + want):
+        open_video(tmp_path / "dir")
+
+
+@NO_IMAGECODECS
+def test_a_later_page_that_needs_imagecodecs_is_named(tmp_path):
+    """Page 1 of a tifffile TIFF restated as LZW (its Compression tag patched): refused when read, naming page 1."""
+    import struct
+
+    import tifffile
+
+    path = tmp_path / "v.tif"
+    with tifffile.TiffWriter(path) as tw:
+        for f in _frames(n=3):
+            tw.write(f, photometric="minisblack", metadata=None)
+    with tifffile.TiffFile(path) as tif:
+        at = tif.pages[1].tags["Compression"].valueoffset
+    data = bytearray(path.read_bytes())
+    struct.pack_into("<H", data, at, 5)
+    path.write_bytes(bytes(data))
+    with open_video(path) as v:
+        with pytest.raises(ConfigError, match=r"page 1 is compressed with LZW, which needs the optional package"):
+            v.read()
+
+
 def test_folder_of_numbered_pngs_is_read_in_natural_order(tmp_path):
     import cv2
 
@@ -389,6 +526,81 @@ def test_the_uncompressed_frame_size_counts_rows_padded_to_four_bytes(tmp_path):
         check_uncompressed_frames(_patch_strf(raw, **fields), path)
     with pytest.raises(InputDataError, match=r"17 x 8 frames of 8 bits \(160 bytes each\), its first frame holds 128"):
         check_uncompressed_frames(_patch_strf(raw, width=17), path)
+
+
+def _ffmpeg_avi(path, frames, fps, pix_fmt, codec="ffv1"):
+    """``frames`` (uint16 or uint8) written as an AVI by FFmpeg itself (imageio-ffmpeg's binary), stored as ``pix_fmt``."""
+    import subprocess
+
+    ffmpeg = pytest.importorskip("imageio_ffmpeg").get_ffmpeg_exe()
+    k, h, w = frames.shape
+    src = "gray16le" if frames.dtype == np.uint16 else "gray"
+    subprocess.run([ffmpeg, "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", src, "-s", f"{w}x{h}",
+                    "-r", f"{fps:g}", "-i", "-", "-c:v", codec, "-pix_fmt", pix_fmt, str(path)],
+                   input=frames.astype("<u2" if src == "gray16le" else np.uint8).tobytes(), check=True)
+    return path
+
+
+def test_a_16bit_grey_avi_is_read_at_16_bits(tmp_path):
+    """A 16-bit grey FFV1 AVI (gray16le) written by OpenCV's VideoWriter (VIDEOWRITER_PROP_DEPTH CV_16U) and
+    by FFmpeg: OpenCV's default conversion to 8-bit BGR gave 8-bit frames of values 0..15 (12-bit counts
+    >> 8) and bit_depth 8, without a word. Now the frames as written, uint16, bit depth 16."""
+    import cv2
+
+    frames = _frames(n=6, h=16, w=24, bits=12)
+    path = tmp_path / "cv16.avi"
+    w = cv2.VideoWriter(str(path), cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"FFV1"), 250.0, (24, 16),
+                        [cv2.VIDEOWRITER_PROP_DEPTH, cv2.CV_16U, cv2.VIDEOWRITER_PROP_IS_COLOR, 0])
+    assert w.isOpened()
+    for f in frames:
+        w.write(f)
+    w.release()
+    for avi in (path, _ffmpeg_avi(tmp_path / "ff16.avi", frames, 250.0, "gray16le")):
+        with open_video(avi) as v:
+            assert v.meta.dtype == np.uint16 and v.meta.bit_depth == 16
+            assert np.array_equal(v.read(), frames)
+            assert np.array_equal(v.read(2, 5), frames[2:5])
+
+
+@pytest.mark.parametrize("pix_fmt", ["gray12le", "gray10le", "yuv420p10le"])
+def test_an_avi_of_more_than_8_bits_opencv_cannot_return_whole_is_refused(tmp_path, pix_fmt):
+    """FFV1 AVIs of 10- or 12-bit grey or 10-bit YUV (FFmpeg): OpenCV returns them as 8 bits per pixel
+    (the rest dropped); refused in one line naming the pixel format."""
+    avi = _ffmpeg_avi(tmp_path / "v.avi", _frames(n=3, h=16, w=24, bits=12), 250.0, pix_fmt)
+    with pytest.raises(InputDataError, match=r"v\.avi: the decoded pixel format \(FFmpeg tag .*\) cannot be read at "
+                                             r"its real depth"):
+        open_video(avi)
+
+
+def test_8bit_grey_and_colour_avis_are_still_read(tmp_path):
+    frames = _frames(n=4, h=16, w=24, bits=8)
+    with open_video(_ffmpeg_avi(tmp_path / "g.avi", frames, 250.0, "gray")) as v:
+        assert v.meta.dtype == np.uint8 and v.meta.bit_depth == 8 and np.array_equal(v.read(), frames)
+    with open_video(_ffmpeg_avi(tmp_path / "c.avi", frames, 250.0, "bgr0")) as v:
+        assert v.meta.dtype == np.uint8 and np.abs(v.read().astype(int) - frames).max() <= 1
+
+
+def test_an_avi_whose_two_headers_state_different_rates_has_no_fps(tmp_path):
+    """FFmpeg writing a 10 kHz AVI states 100 us per frame in the main header (avih) and 600 frames/s in the
+    stream header (strh); OpenCV reports 600 and vfcli took it. Now no fps and a note of both rates."""
+    from vfcli.io.video.tiff_avi import avi_header_rates
+
+    avi = _ffmpeg_avi(tmp_path / "v.avi", _frames(n=3, h=16, w=24, bits=8), 10000.0, "gray")
+    assert avi_header_rates(avi.read_bytes()) == (100, 600.0)
+    with open_video(avi) as v:
+        assert v.meta.fps is None
+        assert v.meta.fps_note == ("the AVI's main header (avih) states 100 us per frame (10000 frames/s), "
+                                       "its video stream header (strh) 600 frames/s")
+
+
+def test_avi_rates_that_agree_to_a_microsecond_are_no_conflict():
+    from vfcli.io.video.tiff_avi import avi_rate_conflict
+
+    assert avi_rate_conflict(33367, 30000 / 1001) is None          # 33366.67 us rounded
+    assert avi_rate_conflict(33366, 30000 / 1001) is None          # ... or truncated
+    assert avi_rate_conflict(1000, 1000.0) is None
+    assert avi_rate_conflict(None, 600.0) is None and avi_rate_conflict(100, None) is None
+    assert "avih) states 99 us" in avi_rate_conflict(99, 10000.0)
 
 
 def test_registry_lists_every_kind():

@@ -81,7 +81,8 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             meta = src.meta
             fps = cam.fps_hz or meta.fps
             if fps is None:
-                raise ConfigError(f"{video}: the video does not record its frame rate; set camera.fps_hz in the config")
+                raise ConfigError(f"{video}: {meta.fps_note or 'the video does not record its frame rate'}; "
+                                  "set camera.fps_hz in the config")
             if cam.fps_hz and meta.fps and abs(cam.fps_hz - meta.fps) > 1e-6 * meta.fps:
                 log.warning("%s: camera.fps_hz = %g overrides the file's %g", video, cam.fps_hz, meta.fps)
             start = cfg.first_frame

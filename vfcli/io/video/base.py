@@ -10,9 +10,9 @@ Readers are registered per file extension (after pyvista's reader registry):
 kind             files                                               module
 ===============  ==================================================  ============
 ``photron``      ``.mraw`` with ``.cihx``/``.cih`` beside it          photron
-``tiff``         multi-page ``.tif``/``.tiff``                       video_formats
-``folder``       a directory of numbered ``.png``/``.tif`` images    video_formats
-``avi``          ``.avi`` (OpenCV / FFmpeg)                          video_formats
+``tiff``         multi-page ``.tif``/``.tiff``                       tiff_avi
+``folder``       a directory of numbered ``.png``/``.tif`` images    tiff_avi
+``avi``          ``.avi`` (OpenCV / FFmpeg)                          tiff_avi
 ===============  ==================================================  ============
 
 Examples
@@ -71,6 +71,10 @@ class VideoMeta:
         Bits per pixel when the file stores its pixels bit-packed (12 for a 12-bit
         Photron MRAW: two pixels in three bytes), None when it stores whole bytes or
         compresses them. Said by the file's format, not guessed from the values.
+    fps_note : str or None
+        Why ``fps`` is None although the file states a frame rate: rates that disagree (an AVI's main
+        and stream headers) or a time unit vfcli does not know (a TIFF's ImageJ ``tunit``); the ingest
+        stage refuses it, with this note, unless ``camera.fps_hz`` is set.
     """
 
     path: str
@@ -85,6 +89,7 @@ class VideoMeta:
     trigger_index: int | None = None
     description: str = ""
     packed_bits: int | None = None
+    fps_note: str | None = None
 
     def __post_init__(self) -> None:
         """Refuse a frame rate or start frame no recording can have (vfcli/io/limits.py)."""

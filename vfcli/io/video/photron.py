@@ -6,7 +6,9 @@ Format
 
 * 8 bit: one byte per pixel;
 * 16 bit: little-endian uint16 per pixel (the SA-X2 saves 12 significant bits,
-  "EffectiveBit Depth : 12", in the lower bits);
+  "EffectiveBit Depth : 12", in the lower bits; with "EffectiveBit Side : Higher"
+  (CIHX ``<effectiveBit><side>``) in the higher bits: read shifted down by
+  16 - 12 bits, so the values are 0..4095 either way; the same for 8 bit);
 * 12 bit packed: two pixels in three bytes, big-endian:
   ``p0 = b0 << 4 | b1 >> 4``, ``p1 = (b1 & 0x0F) << 8 | b2``.
 
@@ -109,6 +111,25 @@ def pack_12bit(values: np.ndarray) -> np.ndarray:
     return out.reshape(-1)
 
 
+def high_bits_down(frames: np.ndarray, shift: int, first: int, path: Path) -> np.ndarray:
+    """``frames`` (k, H, W) whose effective bits are the high ones (EffectiveBit Side Higher), shifted
+    down by ``shift`` bits in place: counts from 0. ``first``: index of frames[0] in the file.
+
+    Raises
+    ------
+    InputDataError
+        A pixel with any of the ``shift`` low bits set: the stated side does not fit the data.
+    """
+    low = (frames & np.asarray((1 << shift) - 1, frames.dtype)).reshape(len(frames), -1).any(axis=1)
+    if low.any():
+        i = int(np.argmax(low))
+        raise InputDataError(f"frame {first + i} has pixels with some of their {shift} low bits set, but the "
+                             "metadata says the effective bits are the high ones (EffectiveBit Side Higher): "
+                             "wrong side or bit depth in the .cih/.cihx", path)
+    frames >>= shift
+    return frames
+
+
 # --------------------------------------------------------------------------- metadata
 
 def find_mraw_pair(path: str | Path) -> tuple[Path, Path]:
@@ -182,11 +203,14 @@ class MrawSource(VideoSource):
             dtype=np.dtype(np.uint8 if bits == 8 else np.uint16),
             bit_depth=info["effective_bits"], fps=info["fps"], start_frame=sf,
             trigger_index=(-sf if 0 <= -sf < n else None),
-            description=(f"Photron MRAW {bits}-bit ({info['effective_bits']} effective), "
+            description=(f"Photron MRAW {bits}-bit ({info['effective_bits']} effective"
+                         f"{', in the high bits' if info['effective_side'] == 'higher' else ''}), "
                          f"{info['camera']}, {cih_path.name}; {info['comment']}").strip("; "),
             packed_bits=12 if bits == 12 else None,
         )
         self.stored_bits = bits
+        #: bits the effective bits lie above the low bit (EffectiveBit Side Higher), shifted out on reading
+        self.shift = bits - info["effective_bits"] if info["effective_side"] == "higher" and bits != 12 else 0
         self._raw = np.empty(0, np.uint8)
         self._fh = open(mraw, "rb")
 
@@ -216,7 +240,8 @@ class MrawSource(VideoSource):
                 self._raw = np.empty(k * self.frame_bytes, np.uint8)
             return unpack_12bit(self._read_raw(start, stop, self._raw)).reshape(k, h, w)
         raw = self._read_raw(start, stop).view("<u2" if self.stored_bits == 16 else np.uint8)
-        return raw.astype(self.meta.dtype, copy=False).reshape(k, h, w)
+        frames = raw.astype(self.meta.dtype, copy=False).reshape(k, h, w)
+        return frames if not self.shift else high_bits_down(frames, self.shift, start, self.mraw_path)
 
     def iter_lazy_frames(self, start: int = 0, stop: int | None = None,
                          roi: tuple[int, int, int, int] | None = None,

@@ -133,7 +133,9 @@ def read_cih(path: str | Path) -> dict:
     -------
     dict
         ``fps`` (frames/s), ``n_frames``, ``width``, ``height``, ``bit_depth``
-        (stored bits: 8, 12 or 16), ``effective_bits``, ``start_frame``,
+        (stored bits: 8, 12 or 16), ``effective_bits``, ``effective_side`` (``'lower'``:
+        the effective bits are the low bits of each stored pixel, the default; ``'higher'``:
+        the high bits), ``start_frame``,
         ``camera``, ``comment``, ``file_format`` and ``raw`` (every field read,
         under pyMRAW's ``get_cih`` keys).
 
@@ -161,6 +163,7 @@ def read_cih(path: str | Path) -> dict:
         height=_field(cih, "Image Height", int, p),
         bit_depth=color_bit,
         effective_bits=_field(cih, "EffectiveBit Depth", int, p, default=color_bit),
+        effective_side=_field(cih, "EffectiveBit Side", str, p, default="Lower").strip().lower(),
         file_format=_field(cih, "File Format", str, p),
         camera=str(cih.get("Camera Type", "") or ""),
         comment=str(cih.get("Comment Text", "") or ""),
@@ -181,6 +184,11 @@ def _check_cih(info: dict, p: Path) -> None:
     if not 1 <= info["effective_bits"] <= info["bit_depth"]:
         raise InputDataError(
             f"effective bit depth {info['effective_bits']} not in 1..{info['bit_depth']}", p)
+    if info["effective_side"] not in ("lower", "higher"):
+        raise InputDataError(f"EffectiveBit Side is {info['effective_side']!r}; must be Lower or Higher", p)
+    if info["effective_side"] == "higher" and info["bit_depth"] == 12 and info["effective_bits"] < 12:
+        raise InputDataError(f"EffectiveBit Side Higher with {info['effective_bits']} effective bits in packed 12-bit "
+                             "pixels: unsupported", p)
     if info["color_type"].lower() not in ("mono", ""):
         raise InputDataError(f"Color Type {info['color_type']!r}: only monochrome is supported", p)
     for key in ("width", "height", "n_frames"):

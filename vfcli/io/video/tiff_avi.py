@@ -1,18 +1,30 @@
 """Streaming readers for multi-page TIFF, image folders and AVI; a TIFF writer.
 
-* Multi-page TIFF (tifffile): one greyscale page per frame, uint8 or uint16.
-  The frame rate is read from a JSON ImageDescription of the first page
-  (``{"fps": ...}``, written by :func:`write_tiff`), tifffile's "shaped"
-  metadata or an ImageJ ``finterval``; else None.
+* Multi-page TIFF (tifffile): one greyscale page per frame, uint8 or uint16; uncompressed,
+  zlib/deflate or PackBits, and with the optional imagecodecs (``pip install 'vfcli[tiff]'``)
+  LZW, JPEG, ZStandard ... (without it: one line naming the compression and the install).
+  The frame rate is read from the first of: a JSON ImageDescription of the first page
+  (``{"fps": ...}``, written by :func:`write_tiff`), tifffile's "shaped" metadata, ImageJ's
+  ``finterval`` in its ``tunit`` (s when absent; s, ms, us/µs, min) or else ImageJ's ``fps``, an
+  OME-TIFF's ``TimeIncrement`` in its ``TimeIncrementUnit`` (s when absent); else None. In another
+  time unit: None, and ``fps_note`` names it (ingest then needs ``camera.fps_hz``).
 * Folder: every ``.png``, ``.tif``, ``.tiff``, ``.bmp`` file directly in the
   folder, sorted naturally (``img2`` before ``img10``); all frames must have the
   same size and dtype. No frame rate (None).
-* AVI: decoded by OpenCV/FFmpeg; fps from the container. An uncompressed stream whose first frame
+* AVI: decoded by OpenCV/FFmpeg: 8-bit grey and 16-bit grey (``gray16le``, uint16 at bit depth 16)
+  as decoded, 8-bit colour converted to grey; any other pixel format (10/12-bit or big-endian grey,
+  more than 8 bits per colour component) refused, as OpenCV would return only 8 of its bits. fps from
+  the container; when the main header (``avih``) and the stream header (``strh``) disagree, None
+  with ``fps_note`` naming both (ingest then needs ``camera.fps_hz``). An uncompressed stream whose first frame
   does not hold the bytes its header's size and depth need is refused before FFmpeg sees it (FFmpeg
   corrupts memory on it and the process aborts or segfaults, which Python cannot catch).
 
 Colour frames (folder images, AVI) are converted to grey with OpenCV's
 BGR->grey weights; colour TIFF pages are rejected (ambiguous for a mono camera).
+
+``bit_depth`` is the dtype's (8 or 16) for TIFF, folders and AVI: the files written in the wild
+(tifffile, ImageJ, OME, Pillow, OpenCV's PNG) do not state fewer significant bits, so 12-bit counts
+in uint16 are stored with bit depth 16; it is never guessed from the values.
 """
 from __future__ import annotations
 
@@ -26,6 +38,7 @@ import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import library_output, natural_key, require_file
+from vfcli.io.units import seconds_per, time_units_text
 from vfcli.io.video.base import VideoMeta, VideoSource, register_reader
 
 logger = logging.getLogger(__name__)
@@ -47,6 +60,85 @@ def _check_dtype(dtype: np.dtype, path: Path) -> np.dtype:
 
 # --------------------------------------------------------------------------- TIFF
 
+class UnknownTimeUnit(ValueError):
+    """A frame interval in a time unit vfcli does not know; the message names the field and the unit."""
+
+
+def interval_fps(interval: float, unit: str, field: str) -> float | None:
+    """Frames/s of a frame ``interval`` given in ``unit`` (:mod:`vfcli.io.units`); None for an interval of 0
+    (not set). ``field`` names the metadata for the error.
+
+    Raises
+    ------
+    UnknownTimeUnit
+        An unknown time unit.
+    """
+    scale = seconds_per(str(unit))
+    if scale is None:
+        raise UnknownTimeUnit(f"{field} is {unit!r}, not a time unit vfcli knows ({time_units_text()})")
+    interval = float(interval)
+    return None if interval == 0 else 1.0 / (interval * scale)
+
+
+def imagej_fps(ij: dict) -> float | None:
+    """Frames/s from ImageJ metadata: ``finterval`` in ``tunit`` (ImageJ's default unit: s), else ImageJ's
+    ``fps`` key (its animation rate); None when neither is set."""
+    if ij.get("finterval"):
+        return interval_fps(ij["finterval"], ij.get("tunit") or "s", "the ImageJ time unit (tunit)")
+    if ij.get("fps"):
+        return float(ij["fps"])
+    return None
+
+
+def ome_fps(xml: str) -> float | None:
+    """Frames/s from an OME-XML ``Pixels`` element's ``TimeIncrement`` in ``TimeIncrementUnit`` (OME's
+    default: s); None without a TimeIncrement or with unreadable XML."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(xml)
+    except ET.ParseError:
+        return None
+    pixels = next((e for e in root.iter() if e.tag.rsplit("}", 1)[-1] == "Pixels"), None)
+    if pixels is None or not pixels.get("TimeIncrement"):
+        return None
+    return interval_fps(pixels.get("TimeIncrement"), pixels.get("TimeIncrementUnit") or "s",
+                        "the OME TimeIncrementUnit")
+
+
+#: The extra that installs the optional codecs of compressed TIFF pages (imagecodecs).
+TIFF_CODECS_INSTALL = "pip install 'vfcli[tiff]' (or pip install imagecodecs)"
+
+
+def missing_codec(compression: int, predictor: int = 1) -> str | None:
+    """The name of a TIFF page's compression or predictor that tifffile decodes only with the optional
+    package imagecodecs (LZW, JPEG, ...), when it is not installed; None when tifffile can decode both."""
+    from tifffile import COMPRESSION, PREDICTOR, TIFF
+
+    for codecs, key, name in ((TIFF.DECOMPRESSORS, compression, lambda k: COMPRESSION(k).name),
+                              (TIFF.UNPREDICTORS, predictor, lambda k: f"predictor {PREDICTOR(k).name}")):
+        try:
+            codecs[key]
+        except KeyError as exc:
+            if "imagecodecs" in str(exc):
+                return name(key)
+    return None
+
+
+def check_codec(page, index: int, path: Path) -> None:
+    """ConfigError (exit 2, as for `vfcli batch` without dask) naming the page's compression and the install
+    command when decoding it needs imagecodecs and it is not installed (:func:`missing_codec`): a missing optional
+    dependency, not bad data."""
+    try:
+        codes = int(page.compression), int(page.predictor)
+    except (TypeError, ValueError):  # a damaged tag: left to decoding, which reports it
+        return
+    name = missing_codec(*codes)
+    if name is not None:
+        raise ConfigError(f"page {index} is compressed with {name}, which needs the optional package imagecodecs "
+                          f"(not installed): {TIFF_CODECS_INSTALL}", path)
+
+
 class TiffSource(VideoSource):
     """Multi-page greyscale TIFF, read page by page."""
 
@@ -64,7 +156,10 @@ class TiffSource(VideoSource):
                 first = pages.first
                 n = len(pages)
                 shape, dtype = tuple(int(s) for s in first.shape), first.dtype
-                fps = self._fps_from_metadata()
+                try:
+                    fps, fps_note = self._fps_from_metadata(), None
+                except UnknownTimeUnit as exc:
+                    fps, fps_note = None, str(exc)
             except InputDataError:
                 raise
             except Exception as exc:  # tifffile raises many types on corrupt files
@@ -79,6 +174,11 @@ class TiffSource(VideoSource):
             raise InputDataError(
                 f"TIFF pages have shape {shape}; need greyscale (H, W) pages", p)
         dtype = _check_dtype(dtype, p)
+        try:
+            check_codec(first, 0, p)
+        except ConfigError:
+            self.close()
+            raise
         if min(shape) < 1 or shape[0] * shape[1] * dtype.itemsize > 1000 * p.stat().st_size:
             self.close()
             raise InputDataError(f"TIFF page size {shape} is implausible for a "
@@ -87,12 +187,19 @@ class TiffSource(VideoSource):
         try:
             self.meta = VideoMeta(
                 path=str(p), kind="tiff", n_frames=n, height=shape[0], width=shape[1], dtype=dtype,
-                bit_depth=_bits_of(dtype), fps=fps, description=f"multi-page TIFF, {n} pages")
+                bit_depth=_bits_of(dtype), fps=fps, fps_note=fps_note, description=f"multi-page TIFF, {n} pages")
         except InputDataError:
             self.close()
             raise
 
     def _fps_from_metadata(self) -> float | None:
+        """Frame rate, frames/s, from the first metadata that states one (see the module docstring).
+
+        Raises
+        ------
+        UnknownTimeUnit
+            A frame interval in a time unit vfcli does not know.
+        """
         tif = self._tif
         try:
             desc = tif.pages.first.description
@@ -104,8 +211,12 @@ class TiffSource(VideoSource):
             if meta and "fps" in meta[0]:
                 return float(meta[0]["fps"])
             ij = tif.imagej_metadata
-            if ij and ij.get("finterval"):
-                return 1.0 / float(ij["finterval"])
+            if ij:
+                return imagej_fps(ij)
+            if tif.is_ome:
+                return ome_fps(tif.ome_metadata)
+        except UnknownTimeUnit:
+            raise
         except (TypeError, ValueError, KeyError, ZeroDivisionError, AttributeError):
             return None
         return None
@@ -120,8 +231,11 @@ class TiffSource(VideoSource):
         with library_output(self.path, "tifffile"):
             for j, i in enumerate(range(start, stop)):
                 try:
-                    img = self._tif.pages[i].asarray()
+                    page = self._tif.pages[i]
+                    img = page.asarray()
                 except Exception as exc:
+                    if "imagecodecs" in str(exc):
+                        check_codec(page, i, self.path)
                     raise InputDataError(f"page {i} unreadable: {type(exc).__name__}: {exc}",
                                          self.path) from None
                 if img.shape != out.shape[1:] or img.dtype != m.dtype:
@@ -196,6 +310,9 @@ def _imread(path: Path) -> np.ndarray:
             with library_output(path, "tifffile"):
                 img = tifffile.imread(path, key=0)
         except Exception as exc:
+            if "imagecodecs" in str(exc):
+                with tifffile.TiffFile(path) as tif:
+                    check_codec(tif.pages.first, 0, path)
             raise InputDataError(f"unreadable image: {type(exc).__name__}: {exc}", path) from None
     else:
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -301,11 +418,70 @@ def check_uncompressed_frames(head: bytes, path: Path) -> None:
                              "match the frames (corrupt file?)", path)
 
 
+#: FFmpeg codec tags of the decoded pixel format (OpenCV's ``CAP_PROP_CODEC_PIXEL_FORMAT``) read as decoded,
+#: without OpenCV's conversion to 8-bit BGR: 8-bit grey (``gray``) and 16-bit little-endian grey (``gray16le``).
+AVI_GREY_FORMATS: dict[bytes, np.dtype] = {b"Y800": np.dtype(np.uint8), b"Y1\x00\x10": np.dtype(np.uint16)}
+#: Tags of colour or YUV formats of 8 bits per component: OpenCV's 8-bit BGR conversion keeps every bit,
+#: then the frames are converted to grey.
+AVI_COLOUR_8BIT_FORMATS = frozenset({
+    b"I420", b"YV12", b"Y42B", b"444P", b"Y41B", b"YUV9", b"YVU9", b"YUY2", b"UYVY", b"YVYU", b"NV12", b"NV21",
+    b"BGR\x18", b"RGB\x18", b"BGRA", b"RGBA", b"ARGB", b"ABGR", b"BGR\x00", b"RGB\x00", b"\x00BGR", b"\x00RGB",
+    b"PAL\x08", b"Y2\x00\x08"})
+
+
+def avi_grey_dtype(tag: bytes, path: Path) -> np.dtype | None:
+    """How an AVI whose decoder gives pixel format ``tag`` (FFmpeg codec tag, 4 bytes) is read: the dtype of
+    a grey format read at its real depth (:data:`AVI_GREY_FORMATS`), or None for an 8-bit colour format
+    (:data:`AVI_COLOUR_8BIT_FORMATS`, converted to grey).
+
+    Raises
+    ------
+    InputDataError
+        Any other format (10-, 12-bit or big-endian grey, more than 8 bits per colour component, RGB 5:5:5,
+        unknown): OpenCV would return it as 8 bits and drop the rest.
+    """
+    if tag in AVI_GREY_FORMATS:
+        return AVI_GREY_FORMATS[tag]
+    if tag in AVI_COLOUR_8BIT_FORMATS:
+        return None
+    raise InputDataError(f"the decoded pixel format (FFmpeg tag {tag!r}) cannot be read at its real depth: vfcli "
+                         "reads AVIs of 8-bit grey, 16-bit grey (gray16le) or 8-bit colour; convert it, e.g. "
+                         "ffmpeg -i IN.avi -c:v ffv1 -pix_fmt gray16le OUT.avi", path)
+
+
+def avi_header_rates(head: bytes) -> tuple[int | None, float | None]:
+    """The frame rate an AVI's headers state: ``(avih dwMicroSecPerFrame, us; video strh dwRate/dwScale,
+    frames/s)``, each None when absent or 0. ``head``: the file's first bytes (:data:`AVI_HEAD_BYTES`)."""
+    us = rate = None
+    for tag, at, size in _riff_chunks(head, 12):
+        if tag == b"avih" and size >= 4 and us is None:
+            us = struct.unpack_from("<I", head, at)[0] or None
+        elif tag == b"strh" and size >= 28 and head[at:at + 4] == b"vids":
+            scale, rate_num = struct.unpack_from("<II", head, at + 20)
+            rate = rate_num / scale if scale and rate_num else None
+            break
+        elif tag in (b"movi", b"idx1"):
+            break
+    return us, rate
+
+
+def avi_rate_conflict(us: int | None, rate: float | None) -> str | None:
+    """The disagreement of an AVI's two stated rates (:func:`avi_header_rates`), or None when one is absent
+    or they agree to avih's round-off (a whole number of microseconds: within 1 us per frame)."""
+    if us is None or rate is None or abs(us - 1e6 / rate) < 1.0:
+        return None
+    return (f"the AVI's main header (avih) states {us} us per frame ({1e6 / us:g} frames/s), its video stream "
+            f"header (strh) {rate:g} frames/s")
+
+
 class AviSource(VideoSource):
-    """AVI decoded by OpenCV (FFmpeg backend); frames converted to grey uint8/uint16.
+    """AVI decoded by OpenCV (FFmpeg backend): 8- and 16-bit grey read as decoded (uint8, uint16 of
+    bit depth 8, 16), 8-bit colour converted to grey uint8; other pixel formats refused
+    (:func:`avi_grey_dtype`).
 
     An uncompressed stream whose first frame contradicts its header is refused first
-    (:func:`check_uncompressed_frames`)."""
+    (:func:`check_uncompressed_frames`). When the main and stream headers state different frame
+    rates, ``fps`` is None and ``fps_note`` says both (:func:`avi_rate_conflict`)."""
 
     def __init__(self, path: str | Path) -> None:
         import cv2
@@ -316,28 +492,43 @@ class AviSource(VideoSource):
         if head[:4] != b"RIFF" or head[8:12] != b"AVI ":
             raise InputDataError("not an AVI file (no RIFF/AVI header)", p)
         check_uncompressed_frames(head, p)
+        conflict = avi_rate_conflict(*avi_header_rates(head))
         cap = cv2.VideoCapture(str(p), cv2.CAP_FFMPEG)
         if not cap.isOpened():
             raise InputDataError("OpenCV cannot open this AVI (codec unsupported or corrupt)", p)
-        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
-        ok, frame = cap.read()
-        if not ok or n < 1:
-            cap.release()
-            raise InputDataError("AVI holds no decodable frames", p)
-        img = self._grey(frame)
         self.path, self._cap, self._next = p, cap, 1
-        self.meta = VideoMeta(
-            path=str(p), kind="avi", n_frames=n, height=img.shape[0], width=img.shape[1],
-            dtype=_check_dtype(img.dtype, p), bit_depth=_bits_of(img.dtype),
-            fps=fps if fps and np.isfinite(fps) and fps > 0 else None,
-            description=f"AVI ({n} frames, fourcc "
-                        f"{int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, 'little')!r})")
+        try:
+            tag = (int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) & 0xFFFFFFFF).to_bytes(4, "little")
+            self._native = avi_grey_dtype(tag, p)
+            if self._native is not None:  # before the first read: frames as decoded, not 8-bit BGR
+                cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            fps = float(cap.get(cv2.CAP_PROP_FPS)) or None
+            ok, frame = cap.read()
+            if not ok or n < 1:
+                raise InputDataError("AVI holds no decodable frames", p)
+            img = self._grey(frame)
+            dtype = _check_dtype(img.dtype, p)
+            self.meta = VideoMeta(
+                path=str(p), kind="avi", n_frames=n, height=img.shape[0], width=img.shape[1],
+                dtype=dtype, bit_depth=_bits_of(dtype),
+                fps=None if conflict else fps if fps and np.isfinite(fps) and fps > 0 else None,
+                fps_note=conflict,
+                description=f"AVI ({n} frames, fourcc "
+                            f"{int(cap.get(cv2.CAP_PROP_FOURCC)).to_bytes(4, 'little')!r}, pixel format {tag!r})")
+        except BaseException:
+            cap.release()
+            raise
 
-    @staticmethod
-    def _grey(frame: np.ndarray) -> np.ndarray:
+    def _grey(self, frame: np.ndarray) -> np.ndarray:
+        """A decoded frame as (H, W) grey: as decoded for a grey format, else OpenCV's BGR -> grey."""
         import cv2
 
+        if self._native is not None:
+            if frame.ndim != 2 or frame.dtype != self._native:
+                raise InputDataError(f"a frame decoded as {frame.shape} {frame.dtype}, not (H, W) {self._native} "
+                                     "grey as its pixel format states", self.path)
+            return frame
         if frame.ndim == 3:
             return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
         return frame
