@@ -355,7 +355,7 @@ def main() -> None:
               f"{_fmt(s.get('flow_err_model_axes'), True, 2)} / {_fmt(s.get('flow_err_image_axes'), True, 2)} | {_fmt(s.get('inf_osc_err'), True, 2)} | "
               f"{_fmt(s.get('inf_static_err_mm'), digits=3)} | {_fmt(s.get('inf_mean_z_true_mm'), digits=3)} / "
               f"{_fmt(s.get('inf_mean_z_est_mm'), digits=3)} | {_fmt(s.get('inf_total_err'), True, 2)} | "
-              f"{_fmt(s.get('coverage90'), True, 2)} ({_fmt(s.get('coverage90_static'), True, 2)}) | "
+              f"{_fmt(s.get('coverage90'), True, 3)} ({_fmt(s.get('coverage90_static'), True, 3)}) | "
               f"{_fmt(s.get('stated_std_rel'), True, 2)} | {_fmt(s.get('stated_static_mean_z_mm'), digits=3)} |")
     print("\n| seed | pose source | rotation error (deg) | model origin error (mm) | optimize's (x, y) motion data error "
           "| final gap term | inferior nodes scored |")

@@ -197,6 +197,37 @@ def test_ingest_warns_loudly_when_px_per_mm_is_left_at_its_default(tmp_path, vid
     assert res.returncode == 0 and "px_per_mm" not in res.stderr, res.stderr
 
 
+def test_a_stage_written_before_a_setting_existed_stays_current(tmp_path, video):
+    """A store written by a vfcli without a setting that a newer one has (session 38: ingest_hsc.pressure_unit,
+    null) was STALE in every stage ("config changed: " with nothing after it) and `vfcli run` redid ingest, sync
+    and flow (8.5 min on a 0.5 s recording) for a setting whose default does what the old vfcli did. A setting
+    since removed from vfcli counts as gone. A real change is still named."""
+    import h5py
+
+    store = tmp_path / "r.h5"
+    assert run_vfcli("config", store, "--set", "camera.fps_hz=1000", "--set", "camera.px_per_mm=12").returncode == 0
+    args = ["ingest-hsc", store, video]
+    assert run_vfcli(*args, "-q").returncode == 0
+    with Store(store).read() as r:
+        part, digest = r.dataset("hsc", "frames").file.filename, r.digest("hsc")
+    with h5py.File(part, "r+") as f:                    # as an older vfcli recorded it
+        g = f["hsc"]
+        had = json.loads(g.attrs["config_json"])
+        del had["ingest_hsc"]["pressure_unit"]
+        had["ingest_hsc"]["a_setting_since_removed"] = 3
+        g.attrs["config_json"] = json.dumps(had, sort_keys=True)
+    info = json.loads(run_vfcli("info", "--json", store).stdout)
+    assert {st["path"]: st["stale"] for st in info["stages"]} == {"/hsc": False}, info["stages"]
+    res = run_vfcli(*args)
+    assert res.returncode == 0 and "up to date" in res.stdout + res.stderr, res.stdout + res.stderr
+    with Store(store).read() as r:
+        assert r.digest("hsc") == digest
+    res = run_vfcli("config", store, "--set", "ingest_hsc.pressure_unit=kPa")
+    assert res.returncode == 0, res.stderr
+    info = json.loads(run_vfcli("info", "--json", store).stdout)
+    assert "config changed: ingest_hsc.pressure_unit None -> 'kPa'" in json.dumps(info["stages"]), info["stages"]
+
+
 def test_quiet_prints_nothing_but_errors(tmp_path, video):
     store = tmp_path / "q.h5"
     res = run_vfcli("ingest-hsc", store, video, "--set", "camera.fps_hz=1000", "-q")  # would warn: px_per_mm

@@ -94,10 +94,10 @@ def info_cmd(files: tuple[str, ...], as_json: bool, verify: bool) -> None:
     Reads every group; writes nothing. Exit 4 when a stage is damaged (its structure, or with
     --verify its data, differs from what vfcli wrote), after showing them all.
     """
-    from vfcli.stages.base import expected_configs
+    from vfcli.stages.base import default_settings, expected_configs
     from vfcli.store.info import store_info
 
-    infos = [store_info(f, expected_configs, verify=verify) for f in files]
+    infos = [store_info(f, expected_configs, verify=verify, defaults=default_settings) for f in files]
     if as_json:
         click.echo(json.dumps(infos[0] if len(infos) == 1 else infos, indent=2, default=str))
     elif len(infos) == 1:

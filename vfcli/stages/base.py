@@ -108,6 +108,15 @@ def expected_settings(name: str, run: str | None, config: RecordingConfig) -> st
     return stage_config_json(name, config)
 
 
+def default_settings(name: str, run: str | None) -> str | None:
+    """The settings JSON stage ``name`` records under the default config (every optimisation run's under
+    :func:`optimize_settings_json`): what a setting it lacks, added to vfcli since it was written, counts as
+    (:func:`vfcli.store.reader.settings_change`)."""
+    if name == "optimize":
+        return optimize_settings_json(RecordingConfig())
+    return stage_config_json(name, RecordingConfig())
+
+
 def _warn_stale_upstream(ctx: RunContext, path: str, upstream: list[tuple[str, str | None]]) -> None:
     """Warn when a stage found up to date with its own inputs uses a stage `vfcli info` calls STALE (a config
     change upstream that no command has applied yet): `vfcli diagnose` said "up to date" and printed the old verdict
@@ -117,7 +126,8 @@ def _warn_stale_upstream(ctx: RunContext, path: str, upstream: list[tuple[str, s
     if not upstream:
         return
     with ctx.store.read() as r:
-        status = {st.path: st for st in r.statuses(lambda n, run: expected_settings(n, run, ctx.config))}
+        status = {st.path: st for st in r.statuses(lambda n, run: expected_settings(n, run, ctx.config),
+                                                   default_settings)}
     for name, run in upstream:
         st = status.get(layout.stage(name).group_path(run))
         if st is not None and st.stale:
@@ -179,7 +189,7 @@ def run_stage(
             current = False
             if not ctx.force and r.has_stage(name, run):  # only then do the hashes decide
                 inputs = describe_inputs(input_paths, previous) if input_paths else {}
-                current = r.is_current(name, config_json, inputs, upstream, run)
+                current = r.is_current(name, config_json, inputs, upstream, run, default_settings(name, run))
             stored_summary = (r.summary(name, run) or {}) if current else {}
             config_changed = not ctx.config_is_stored(r, stored_json)
     elif upstream:
@@ -231,7 +241,7 @@ def run_stages(ctx: RunContext, specs: list[StageSpec]) -> list[StageResult]:
 
     def current(r: StoreReader, sp: StageSpec) -> bool:
         return (not ctx.force and r.has_stage(sp.name, sp.run)
-                and r.is_current(sp.name, sp.config_json, {}, sp.upstream, sp.run))
+                and r.is_current(sp.name, sp.config_json, {}, sp.upstream, sp.run, default_settings(sp.name, sp.run)))
 
     def up_to_date(r: StoreReader, sp: StageSpec) -> StageResult:
         log.info("%s is up to date (inputs and config unchanged); --force reruns", _group_path(sp))

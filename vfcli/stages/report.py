@@ -25,7 +25,7 @@ from vfcli.store.info import plain_warnings
 from vfcli.store.runs import read_run, run_names, stage_runs
 from vfcli.store.transaction import Store, StoreReader
 
-from vfcli.stages.base import expected_configs
+from vfcli.stages.base import default_settings, expected_configs
 from vfcli.stages.export_job import ExportJob, ExportResult
 
 log = logging.getLogger(__name__)
@@ -220,7 +220,7 @@ def build_report(reader: StoreReader, work: Path) -> str:
     glance: dict[str, list] = {"notes": [], "stale": [], "incomplete": []}
     # staleness as `vfcli info` says it: config changes and stale upstream stages count (transitively)
     config_json = reader.recording_config_json()
-    for st in reader.statuses(expected_configs(config_json) if config_json is not None else None):
+    for st in reader.statuses(expected_configs(config_json) if config_json is not None else None, default_settings):
         path = st.path
         plain, notes, summary = _stage_attrs(reader, path) if st.complete else ({}, [], {})
         glance["notes"] += [(path, n) for n in notes]

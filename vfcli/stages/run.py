@@ -27,7 +27,7 @@ from vfcli.errors import ConfigError, VfcliError
 from vfcli.io.raw_folder import RawFiles, find_raw_files
 from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
-from vfcli.stages.base import DEFAULT_RUN, RunContext, StageResult, expected_settings
+from vfcli.stages.base import DEFAULT_RUN, RunContext, StageResult, default_settings, expected_settings
 from vfcli.store import Store, layout
 from vfcli.store.provenance import describe_inputs, same_inputs, sha256_file
 from vfcli.store.reader import StageStatus
@@ -157,7 +157,8 @@ def plan(ctx: RunContext, raw: RawFiles | None, steps: list[str]) -> dict[str, s
     previous: dict[str, dict[str, Any]] = {}
     if ctx.store.exists():
         with ctx.store.read() as r:
-            statuses = {st.path: st for st in r.statuses(lambda n, run: expected_settings(n, run, ctx.config))}
+            statuses = {st.path: st for st in r.statuses(lambda n, run: expected_settings(n, run, ctx.config),
+                                                         default_settings)}
             for step in _RAW_STEPS:
                 if step in steps:
                     previous[step] = r.previous_inputs(*STEPS[step][0])

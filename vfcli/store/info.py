@@ -31,9 +31,10 @@ ExpectedConfig = Callable[[str, "str | None"], "str | None"]
 
 
 def store_info(path: str | Path, expected_config: Callable[[str | None], ExpectedConfig] | None = None,
-               verify: bool = False) -> dict[str, Any]:
+               verify: bool = False, defaults: ExpectedConfig | None = None) -> dict[str, Any]:
     """Stages with provenance, sizes, staleness (transitive; config changes count when
-    ``expected_config(recording config JSON)`` is given), damage (``verify``: every dataset's
+    ``expected_config(recording config JSON)`` is given, settings added since a stage was written as their
+    ``defaults(name, run)``: :func:`vfcli.store.reader.settings_change`), damage (``verify``: every dataset's
     SHA-256 too, reading the whole store), figures and warnings; whether a writer is at work
     now, or the leftovers of interrupted writes; the parts folder the store file links to (the
     stages' files) and the size of the files it links to."""
@@ -45,7 +46,7 @@ def store_info(path: str | Path, expected_config: Callable[[str | None], Expecte
         config_json = r.recording_config_json()
         # a store without a recording config was not written by the stages: nothing to compare
         expected = expected_config(config_json) if expected_config and config_json is not None else None
-        stages = [st.to_json() for st in r.statuses(expected)]
+        stages = [st.to_json() for st in r.statuses(expected, defaults)]
         present = {p.split("/")[1] for p in r.stage_paths()}
     writing = store.writer_active()
     linked = [p for p in parts.linked_files(store.real_path) if p.is_file()]

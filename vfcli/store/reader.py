@@ -130,6 +130,27 @@ def _method_changes(path: str, written: int) -> list[str]:
     return [f"method changed: {st.name} method {written} -> {st.method}" + (f" ({changes})" if changes else "")]
 
 
+def _fill_missing(had: Any, template: Any) -> Any:
+    """``had`` (recorded settings) read against ``template`` (the settings under the default config, every key):
+    a key ``had`` lacks takes the template's value (a setting added since the stage was written, whose default
+    keeps what the stage did), a key the template lacks is dropped (a setting since removed)."""
+    if isinstance(had, dict) and isinstance(template, dict):
+        return {k: _fill_missing(had[k], v) if k in had else v for k, v in template.items()}
+    return had
+
+
+def settings_change(had_json: str, want_json: str, defaults_json: str | None = None) -> str | None:
+    """The settings that differ between those a stage recorded (``had_json``) and those it would record now
+    (``want_json``), as ``key: old -> new``; None when they agree. With ``defaults_json`` (the stage's settings
+    under the default config) a setting the stage's vfcli did not have counts as its default: a store written
+    before a setting existed stays current (session 38: a new ingest_hsc.pressure_unit, null, made every stage
+    of every store STALE with the reason "config changed: " and nothing after it)."""
+    had, want = json.loads(had_json), json.loads(want_json)
+    if defaults_json is not None:
+        had = _fill_missing(had, json.loads(defaults_json))
+    return None if had == want else _config_diff(had, want)
+
+
 def _config_diff(had: Any, want: Any, prefix: str = "") -> str:
     """The settings that differ between two config dicts, as ``key: old -> new``."""
     if isinstance(had, dict) and isinstance(want, dict):
@@ -285,19 +306,23 @@ class StoreReader:
         summary = json.loads(str(g.attrs[layout.SUMMARY_ATTR])) if layout.SUMMARY_ATTR in g.attrs else None
         return StageStatus(path, bool(g.attrs.get("complete", False)), prov, _group_size(g), stale, summary)
 
-    def statuses(self, expected_config: Callable[[str, str | None], str | None] | None = None) -> list[StageStatus]:
+    def statuses(self, expected_config: Callable[[str, str | None], str | None] | None = None,
+                 defaults: Callable[[str, str | None], str | None] | None = None) -> list[StageStatus]:
         """:meth:`status` of every stage, with staleness made honest: a stage is also stale when
         the settings it would record under the stored recording config differ from those it
-        recorded (``expected_config(name, run)``, None: not compared), and when a stage it used
-        is stale (transitively; stages are listed upstream first)."""
+        recorded (``expected_config(name, run)``, None: not compared; ``defaults(name, run)``: its
+        settings under the default config, for settings added since it was written, :func:`settings_change`),
+        and when a stage it used is stale (transitively; stages are listed upstream first)."""
         out: dict[str, StageStatus] = {}
         for path in self.stage_paths():
             st = self.status(path)
             name, _, run = path[1:].partition("/")
             want = expected_config(name, run or None) if expected_config else None
             had = st.provenance.get("config_json")
-            if want is not None and had is not None and json.loads(want) != json.loads(had):
-                st.stale_because.append("config changed: " + _config_diff(json.loads(had), json.loads(want)))
+            change = None if want is None or had is None else \
+                settings_change(had, want, defaults(name, run or None) if defaults else None)
+            if change is not None:
+                st.stale_because.append("config changed: " + change)
             for up in json.loads(st.provenance.get("upstream_json", "{}")):
                 if up in out and out[up].stale and not any(r.startswith(up + " ") for r in st.stale_because):
                     st.stale_because.append(f"{up} is stale")
@@ -317,8 +342,10 @@ class StoreReader:
         inputs: Mapping[str, Mapping[str, Any]] | None = None,
         upstream: list[tuple[str, str | None]] | None = None,
         run: str | None = None,
+        defaults_json: str | None = None,
     ) -> bool:
-        """True when the stage exists, is complete, and its config, inputs and upstream are unchanged.
+        """True when the stage exists, is complete, and its config, inputs and upstream are unchanged
+        (``defaults_json``: its settings under the default config, :func:`settings_change`).
 
         :class:`StoreDamagedError` when another stage of the store is damaged: a command never
         reports "up to date" on a damaged store (its own damaged stage is rewritten)."""
@@ -326,7 +353,9 @@ class StoreReader:
         if not self.has_stage(name, run):
             return False
         st = self.status(layout.stage(name).group_path(run))
-        if st.stale or st.provenance.get("config_json") != config_json:
+        had = st.provenance.get("config_json")
+        if st.stale or (had != config_json if had is None or config_json is None
+                        else settings_change(had, config_json, defaults_json) is not None):
             return False
         if inputs is not None and not same_inputs(json.loads(st.provenance["inputs_json"]), inputs):
             return False
