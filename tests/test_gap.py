@@ -129,10 +129,11 @@ def test_columns_lateral_axis_is_the_transpose():
     np.testing.assert_array_equal(m, gap_mask(frame.T, 1000.0, lateral_axis=0).T)
 
 
-def test_threshold_warns_when_the_gap_never_opens(video, caplog):
+def test_threshold_says_when_the_gap_never_opens(video, caplog):
+    """Said at INFO level (`-v`): as a stored warning it fired on 7 of 8 fresh widened seeds, good gaps and bad."""
     ph, frames, _ = video
     closed = np.stack([f for f, k in zip(frames, CYCLE) if ph.gap_area_px2(ph.frame_time(k)) == 0])
-    with caplog.at_level(logging.WARNING, logger="vfcli.flow.gap.detect"):
+    with caplog.at_level(logging.INFO, logger="vfcli.flow.gap.detect"):
         gap_threshold(closed)
     assert "no distinct edge" in caplog.text or "no gap core" in caplog.text
 
