@@ -228,6 +228,22 @@ def test_a_stage_written_before_a_setting_existed_stays_current(tmp_path, video)
     assert "config changed: ingest_hsc.pressure_unit None -> 'kPa'" in json.dumps(info["stages"]), info["stages"]
 
 
+def test_settings_added_or_removed_since_a_stage_was_written_are_no_change_a_runs_own_key_stays():
+    """vfcli.store.reader.settings_change on the settings JSON of stages: a key the record lacks is its default, a
+    key since removed is gone, a key the template lacks but the stage records now too (a diagnose refit run's
+    "refit" beside the optimize settings) is compared, not dropped (dropped, every refit run was never current)."""
+    from vfcli.store.reader import settings_change
+
+    defaults = json.dumps({"optimize": {"a": 1, "new": None}})
+    want = {"optimize": {"a": 1, "new": None}, "refit": {"candidate": "inertia"}}
+    assert settings_change(json.dumps({"optimize": {"a": 1, "gone": 2}, "refit": {"candidate": "inertia"}}),
+                           json.dumps(want), defaults) is None
+    assert settings_change(json.dumps({"optimize": {"a": 1}, "refit": {"candidate": "damping"}}), json.dumps(want),
+                           defaults) == "refit.candidate 'damping' -> 'inertia'"
+    assert settings_change(json.dumps({"optimize": {"a": 2}}), json.dumps({"optimize": {"a": 1, "new": None}}),
+                           defaults) == "optimize.a 2 -> 1"
+
+
 def test_quiet_prints_nothing_but_errors(tmp_path, video):
     store = tmp_path / "q.h5"
     res = run_vfcli("ingest-hsc", store, video, "--set", "camera.fps_hz=1000", "-q")  # would warn: px_per_mm

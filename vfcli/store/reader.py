@@ -130,13 +130,18 @@ def _method_changes(path: str, written: int) -> list[str]:
     return [f"method changed: {st.name} method {written} -> {st.method}" + (f" ({changes})" if changes else "")]
 
 
-def _fill_missing(had: Any, template: Any) -> Any:
-    """``had`` (recorded settings) read against ``template`` (the settings under the default config, every key):
-    a key ``had`` lacks takes the template's value (a setting added since the stage was written, whose default
-    keeps what the stage did), a key the template lacks is dropped (a setting since removed)."""
-    if isinstance(had, dict) and isinstance(template, dict):
-        return {k: _fill_missing(had[k], v) if k in had else v for k, v in template.items()}
-    return had
+def _fill_missing(had: Any, template: Any, want: Any) -> Any:
+    """``had`` (recorded settings) read against ``template`` (the settings under the default config, every key)
+    and ``want`` (those the stage would record now): a key ``had`` lacks takes the template's value (a setting
+    added since the stage was written, whose default keeps what the stage did); a key neither the template nor
+    ``want`` has is dropped (a setting since removed); a key of ``had`` and ``want`` the template lacks stays (a
+    run's own, e.g. a refit run's ``refit``)."""
+    if not (isinstance(had, dict) and isinstance(template, dict)):
+        return had
+    want = want if isinstance(want, dict) else {}
+    out = {k: _fill_missing(had[k], v, want.get(k)) if k in had else v for k, v in template.items()}
+    out.update({k: v for k, v in had.items() if k not in template and k in want})
+    return out
 
 
 def settings_change(had_json: str, want_json: str, defaults_json: str | None = None) -> str | None:
@@ -147,7 +152,7 @@ def settings_change(had_json: str, want_json: str, defaults_json: str | None = N
     of every store STALE with the reason "config changed: " and nothing after it)."""
     had, want = json.loads(had_json), json.loads(want_json)
     if defaults_json is not None:
-        had = _fill_missing(had, json.loads(defaults_json))
+        had = _fill_missing(had, json.loads(defaults_json), want)
     return None if had == want else _config_diff(had, want)
 
 
