@@ -121,9 +121,9 @@ class IngestHscConfig(_Section):
     @field_validator("pressure_unit")
     @classmethod
     def _known_pressure_unit(cls, v: str | None) -> str | None:
-        from vfcli.io.pressure.record import PA_PER_UNIT   # numpy: only when a unit is set
+        from vfcli.io.pressure.record import PA_PER_UNIT, is_pressure_unit   # numpy: only when a unit is set
 
-        if v is not None and v.replace(" ", "").replace("_", "").lower() not in PA_PER_UNIT:
+        if v is not None and not is_pressure_unit(v):
             raise ValueError(f"{v!r} is not a pressure unit vfcli knows ({', '.join(PA_PER_UNIT)})")
         return v
 
@@ -145,6 +145,14 @@ class IngestLdvConfig(_Section):
     reference_id1: str = Field("Reference Time Trace", description="UFF id1 of the pressure reference channel")
     reference_id2: str = Field(r"^\s*Ref1", description="UFF id2 of the pressure reference channel, a regular "
                                "expression (case-insensitive)")
+    velocity_unit: Literal["m/s", "mm/s", "um/s", "nm/s", "in/s"] | None = Field(
+        None, description="Unit of the UFF velocity records where they state none (no ordinate axis label); null: "
+        "m/s, as the vibrometer exports, with a warning; records that state one must agree")
+    length_unit: Literal["m", "cm", "mm", "um", "in"] | None = Field(
+        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: the one of "
+        "m and mm that gives a plausible scan extent, with a warning (refused when neither does); files with 164 "
+        "and CSV/MAT state their own")
+
     @field_validator("velocity_id2", "reference_id2")
     @classmethod
     def _a_regular_expression(cls, v: str) -> str:
@@ -155,14 +163,6 @@ class IngestLdvConfig(_Section):
         except re.error as exc:
             raise ValueError(f"{v!r} is not a regular expression: {exc}") from None
         return v
-
-    velocity_unit: Literal["m/s", "mm/s", "um/s", "nm/s", "in/s"] | None = Field(
-        None, description="Unit of the UFF velocity records where they state none (no ordinate axis label); null: "
-        "m/s, as the vibrometer exports, with a warning; records that state one must agree")
-    length_unit: Literal["m", "cm", "mm", "um", "in"] | None = Field(
-        None, description="Unit of the scan point coordinates in a UFF without a units dataset (164); null: the one of "
-        "m and mm that gives a plausible scan extent, with a warning (refused when neither does); files with 164 "
-        "and CSV/MAT state their own")
 
 
 class SyncConfig(_Section):

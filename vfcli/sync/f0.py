@@ -28,6 +28,10 @@ import scipy.fft
 from vfcli.config import SyncConfig
 from vfcli.errors import InputDataError
 
+#: Highest fundamental the coarse search looks for, as a fraction of the sampling rate (below Nyquist, with room
+#: for the window's main lobe).
+F0_SEARCH_FRACTION = 0.45
+
 #: Defaults from the [sync] config (one source, vfcli/config.py).
 _D = SyncConfig()
 F_RANGE: tuple[float, float] = (_D.f0_min_hz, _D.f0_max_hz)
@@ -82,7 +86,7 @@ def coarse_f0(
     spec = np.abs(scipy.fft.rfft(y * win, n=n_fft, axis=-1, workers=-1))
     df = fs / n_fft
     n_bins = spec.shape[-1]
-    f_lo, f_hi = float(f_range[0]), min(float(f_range[1]), 0.45 * fs)
+    f_lo, f_hi = float(f_range[0]), min(float(f_range[1]), F0_SEARCH_FRACTION * fs)
     f_cand = np.arange(np.ceil(f_lo / df), np.floor(f_hi / df) + 1) * df
 
     def amp_at(freq: np.ndarray) -> np.ndarray:

@@ -381,17 +381,19 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
     first = vel[int(nodes[0])]
     n_s = np.asarray(first["data"]).size
     inc = _abscissa(first, p)[0]
-    rows = []
+    rows, starts = [], []
     for n in nodes:
         for tab in (vel, ref) if ref else (vel,):
             r = tab[int(n)]
             if np.asarray(r["data"]).size != n_s:
                 raise InputDataError(f"node {n}: {np.asarray(r['data']).size} samples, node "
                                      f"{nodes[0]} has {n_s}", p)
-            r_inc = _abscissa(r, p)[0]
+            r_inc, r_start = _abscissa(r, p)
             if abs(r_inc - inc) > 1e-6 * abs(inc):
                 raise InputDataError(f"node {n}: sample interval {r_inc} s differs from {inc} s",
                                      p)
+            if tab is vel:
+                starts.append(r_start)
         rows.append(vel[int(n)])
     if not inc > 0:
         raise InputDataError(f"sample interval (abscissa_inc) {inc} is not positive", p)
@@ -412,7 +414,7 @@ def _read_uff(p: Path, ch: LdvChannels, expected_grid, velocity_unit, length_uni
     turned = np.array([int(r.get("rsp_dir", 3) or 3) == -3 for r in rows])
     velocity = np.stack([np.asarray(r["data"], dtype=np.float64) for r in rows]) * v_fac
     velocity[turned] *= -1.0
-    t0 = np.array([_abscissa(r, p)[1] for r in rows])
+    t0 = np.array(starts)
     reference, ref_unit = None, ""
     if ref:
         reference = np.stack([np.asarray(ref[int(n)]["data"], dtype=np.float64) for n in nodes])

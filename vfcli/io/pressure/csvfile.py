@@ -27,7 +27,7 @@ import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import check_finite, check_last_row_complete, numeric_rows
-from vfcli.io.pressure.record import PA_PER_UNIT, PRESSURE_NAME, PressureRecord, finish, resolve_unit, uniform_rate
+from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, is_pressure_unit, resolve_unit, uniform_rate
 from vfcli.io.units import hz_per, seconds_per, time_units_text
 
 _TIME_NAME = re.compile(r"^\s*(t|time)(?=$|[\s_\[(])", re.IGNORECASE)
@@ -90,9 +90,8 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
         file_unit = _pressure_unit_in_name(names[p_col]) or file_unit
     samples = table[:, p_col]
     fs_key = next((k for k in ("fs", "sampling_rate", "sample_rate", "fs_hz", "sampling_rate_hz") if k in meta), None)
-    fs_meta = None if fs_key is None else _comment_value(meta[fs_key], fs_key, hz_per, "Hz", "a frequency (Hz, kHz, MHz)", p)
-    t0_meta = None if "t0" not in meta else _comment_value(meta["t0"], "t0", seconds_per, "s",
-                                                         f"a time ({time_units_text()})", p)
+    fs_meta = None if fs_key is None else _comment_value(meta[fs_key], fs_key, hz_per, "a frequency (Hz, kHz, MHz)", p)
+    t0_meta = None if "t0" not in meta else _comment_value(meta["t0"], "t0", seconds_per, f"a time ({time_units_text()})", p)
     t0 = 0.0 if t0_meta is None else t0_meta
     if t_col is not None:
         t = table[:, t_col] * _time_scale(names[t_col], p) if header else table[:, t_col]
@@ -143,13 +142,13 @@ def _pressure_unit_in_name(name: str) -> str | None:
     if m:
         return m.group(1)
     last = name.strip().rsplit("_", 1)[-1] if "_" in name else ""
-    return last if last.replace(" ", "").lower() in PA_PER_UNIT else None
+    return last if last and is_pressure_unit(last) else None
 
 
-def _comment_value(text: str, key: str, per_unit, default_unit: str, what: str, p: Path) -> float:
-    """The number of a ``# key = value [unit]`` comment in ``default_unit`` (``per_unit(unit)``: that unit's size
-    in it, None for a unit of another kind); a value that is not a number, or a unit that is not ``what``, is
-    refused naming the comment."""
+def _comment_value(text: str, key: str, per_unit, what: str, p: Path) -> float:
+    """The number of a ``# key = value [unit]`` comment in s or Hz (``per_unit(unit)``: that unit's size in them,
+    None for a unit of another kind); a value that is not a number, or a unit that is not ``what``, is refused
+    naming the comment."""
     number, _, unit = text.strip().partition(" ")
     try:
         value = float(number)

@@ -19,8 +19,6 @@ import numpy as np
 from vfcli.errors import InputDataError
 from vfcli.io.pressure.record import PressureRecord
 
-#: Highest fundamental the f0 search looks for, as a fraction of the sampling rate (vfcli.sync.f0.coarse_f0).
-F0_SEARCH_FRACTION = 0.45
 #: A record whose |mean| and swing (5th to 95th percentile) are both below this, Pa, is no phonation pressure
 #: in Pa (the folds need hundreds of Pa to oscillate): 20 Pa is 15 times below the lowest mean pressure of the
 #: physical set-up note and catches a kPa file read as Pa (a 0.3-3 kPa mean reads 0.3-3 "Pa").
@@ -28,7 +26,10 @@ MIN_PHONATION_PA = 20.0
 
 
 def check_pressure_rate(fs_hz: float, f0_max_hz: float, path: str | Path) -> None:
-    """Refuse a record sampled at ``fs_hz`` Hz too slowly to show a fundamental up to ``f0_max_hz`` Hz."""
+    """Refuse a record sampled at ``fs_hz`` Hz too slowly to show a fundamental up to ``f0_max_hz`` Hz (the f0
+    search's reach, :data:`vfcli.sync.f0.F0_SEARCH_FRACTION` of the rate)."""
+    from vfcli.sync.f0 import F0_SEARCH_FRACTION   # scipy: imported when a pressure is read
+
     if F0_SEARCH_FRACTION * fs_hz < f0_max_hz:
         raise InputDataError(
             f"the pressure is sampled at {fs_hz:g} Hz: its fundamental can be found up to {F0_SEARCH_FRACTION * fs_hz:g} Hz "

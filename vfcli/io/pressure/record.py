@@ -39,9 +39,18 @@ class PressureRecord(NamedTuple):
     unit_source: str = "file"
 
 
+def _unit_key(unit: str) -> str:
+    return re.sub(r"[\s_]", "", unit).lower()
+
+
+def is_pressure_unit(unit: str) -> bool:
+    """True for a unit string of :data:`PA_PER_UNIT` (spaces, underscores and case aside: ``'cm H2O'``, ``'KPA'``)."""
+    return _unit_key(unit) in PA_PER_UNIT
+
+
 def pa_per_unit(unit: str, path: str | Path | None = None) -> float:
     """Conversion factor to Pa for a unit string such as ``'kPa'`` or ``'cm H2O'``."""
-    key = re.sub(r"[\s_]", "", unit).lower()
+    key = _unit_key(unit)
     if key not in PA_PER_UNIT:
         raise InputDataError(
             f"pressure unit {unit!r} is not a pressure unit vfcli knows "
