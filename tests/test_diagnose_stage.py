@@ -59,6 +59,10 @@ def test_diagnose_writes_the_run_group_and_says_what_it_located(diagnosed):
     assert np.all(sd[np.isfinite(sd)] > 0)
     # the phantom's f0 is drawn near 120 Hz; the gap area's cycle gives it (no truth read here)
     assert 80 < f0_truthless < 250
+    # where the time went, phase by phase in the order run (the progress bar's steps)
+    phases = json.loads(attrs["phase_seconds_json"])
+    assert list(phases)[:3] == ["read", "locate", "screen"] and list(phases)[-1] == "write"
+    assert {"calibrate", "map"} <= set(phases) and all(v >= 0 for v in phases.values())
 
 
 def test_diagnose_json_parses_and_a_rerun_is_up_to_date(fitted):

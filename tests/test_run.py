@@ -398,6 +398,7 @@ def test_run_exports_and_reports_and_figures_redraw_without_refitting(phantom, t
     outs = ["--export", tmp_path / "export", "--report", tmp_path / "report.html"]
     _, out = _run(store, raw, *outs)
     assert [(o["name"], o["action"]) for o in out["outputs"]] == [("export", "ran"), ("report", "ran")]
+    assert all(o["seconds"] > 0 for o in out["outputs"])      # their time, as every stage's
     assert (tmp_path / "export/figures/fig7_convergence.png").stat().st_size > 1000
     assert (tmp_path / "report.html").read_text().startswith("<!DOCTYPE html>")
     _, out = _run(store, raw, *outs)

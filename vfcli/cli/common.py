@@ -15,14 +15,21 @@ if TYPE_CHECKING:  # imported when a command runs (`vfcli --help` stays light)
     from vfcli.stages.base import StageResult
 
 
-def setup_logging(verbose: int, quiet: bool) -> None:
-    """Log to stderr: warnings and errors (-v info, -vv debug); ``quiet``: errors only.
+#: libraries whose INFO lines ``-v`` leaves out (``-vv`` shows them): scikit-fem logs every assembly
+NOISY_LIBRARIES = ("skfem",)
 
-    ``quiet`` also silences Python warnings (numpy's, a library's deprecations), which
-    bypass logging.
+
+def setup_logging(verbose: int, quiet: bool) -> None:
+    """Log to stderr: warnings and errors (-v vfcli's info, -vv everyone's debug); ``quiet``: errors only.
+
+    At ``-v`` the INFO lines of :data:`NOISY_LIBRARIES` (scikit-fem logs every assembly: thousands of
+    lines in a diagnosis) stay out; ``-vv`` shows them.  ``quiet`` also silences Python warnings (numpy's, a
+    library's deprecations), which bypass logging.
     """
     level = logging.WARNING - 10 * verbose if not quiet else logging.ERROR
     logging.basicConfig(level=max(level, logging.DEBUG), format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    for name in NOISY_LIBRARIES:
+        logging.getLogger(name).setLevel(logging.NOTSET if verbose >= 2 else logging.WARNING)
     if quiet:
         warnings.simplefilter("ignore")
 

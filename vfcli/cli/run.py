@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -73,17 +74,20 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
     if export_dir and not dry_run:
         from vfcli.stages.export import export_store
 
+        t0 = time.perf_counter()
         res = export_store(store, export_dir, force=force)
         extra.append({"name": "export", "action": "ran" if res.status == "written" else "up to date",
-                      "path": str(export_dir)})
+                      "path": str(export_dir), "seconds": round(time.perf_counter() - t0, 3)})
     if report_file and not dry_run:
         if not force and _report_current(Path(store), Path(report_file)):
-            extra.append({"name": "report", "action": "up to date", "path": str(report_file)})
+            extra.append({"name": "report", "action": "up to date", "path": str(report_file), "seconds": 0.0})
         else:
             from vfcli.stages.report import write_report
 
+            t0 = time.perf_counter()
             write_report(store, report_file)
-            extra.append({"name": "report", "action": "ran", "path": str(report_file)})
+            extra.append({"name": "report", "action": "ran", "path": str(report_file),
+                          "seconds": round(time.perf_counter() - t0, 3)})
     _print(summary, extra, as_json, quiet)
 
 
@@ -100,4 +104,5 @@ def _print(summary, extra: list[dict[str, Any]], as_json: bool, quiet: bool) -> 
         took = f" [{st.seconds:.1f} s]" if st.seconds > 0 else ""
         click.echo(f"{st.name}: {st.action} ({st.reason}){took}")
     for out in extra:
-        click.echo(f"{out['name']}: {out['action']} ({out['path']})")
+        took = f" [{out['seconds']:.1f} s]" if out.get("seconds", 0) > 0 else ""
+        click.echo(f"{out['name']}: {out['action']} ({out['path']}){took}")

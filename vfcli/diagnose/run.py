@@ -30,6 +30,7 @@ from vfcli.diagnose.calibrate import smallest_detectable
 from vfcli.diagnose.decide import decide, detection_words
 from vfcli.diagnose.words import summary_lines
 from vfcli.flow.gap.opening import measured_silhouettes
+from vfcli.progress import no_phase
 
 #: frames read at once from the per-frame arrays
 CHUNK_FRAMES = 64
@@ -238,12 +239,15 @@ def detection_limits(cands, cal, alpha: float) -> dict[str, str]:
 
 
 def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None, map: Callable = builtins.map,
-                 confirmations: dict | None = None, profile: bool = True) -> Diagnosis:
+                 confirmations: dict | None = None, profile: bool = True,
+                 phase: Callable[[str], None] = no_phase) -> Diagnosis:
     """Locate the baseline's residual (:func:`locate_run`), screen the candidate physics terms, calibrate
     their null distribution by bootstrap (:mod:`vfcli.diagnose.calibrate_run`), profile the candidates the
     score test cannot reach (:mod:`vfcli.diagnose.profile`; ``profile=False`` skips it) and decide
-    (:mod:`vfcli.diagnose.decide`).  map : applied to the bootstrap's chunks of replicates."""
+    (:mod:`vfcli.diagnose.decide`).  map : applied to the bootstrap's chunks of replicates.  phase : called with
+    each step's name as it starts (locate, screen, calibrate, profile, decide; :class:`vfcli.progress.Phases`)."""
     settings = settings or LocateSettings()
+    phase("locate")
     loc = locate_run(baseline, rec, settings)
     cands = available_candidates()
     if not cands:
@@ -252,10 +256,12 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
     if not np.isfinite(baseline.f0_hz):
         # the window's f0 from the gap area's cycle: the steady-state candidates (inertia) work per harmonic of it
         baseline.f0_hz = float(loc.located.f0_hz)
+    phase("screen")
     tests, columns, model = screen_run_columns(cands, baseline)
     results = screenings(cands, tests, baseline)
     status = f"{len(results)} candidates screened"
     lines = summary_lines(loc.located) + [f"candidate screening: {status}"] + [r.words for r in results if r.words]
+    phase("calibrate")
     try:
         cal = calibrate_run(cands, baseline, rec, loc.cycles, loc.window, tests, columns, model,
                             settings.n_replicates, settings.seed, map)
@@ -266,7 +272,10 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
                                                         "run's window"])
     results = [dataclasses.replace(r, p_calibrated=float(pc), p_family=float(pf))
                for r, pc, pf in zip(results, cal.calibration.p_value, cal.calibration.p_family)]
+    if profile:
+        phase("profile")
     profiles = tuple(profile_screens(baseline, cands)) if profile else ()
+    phase("decide")
     lines += [p.words() for p in profiles]
     decision = decide([c.name for c in cands], cal.calibration.p_family, [r.identifiable for r in results],
                       cal.calibration.n_replicates, settings.alpha, confirmations,

@@ -26,6 +26,7 @@ from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_ru
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.model.refine import finer_model
 from vfcli.parallel import serial_map
+from vfcli.progress import Phases
 from vfcli.stages.base import RunContext, StageResult, run_stage
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.fit import pressure_f0_hz, problem_of_store, run_model  # noqa: F401 (pressure_f0_hz: this module's name too)
@@ -243,9 +244,12 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
     done: dict[str, Any] = {}
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
+        # read, locate, screen, calibrate, profile, decide, write; a refit adds its own
+        phases = Phases(ctx.progress, "diagnose", 7, log)
+        phases("read")
         inputs = read_inputs(reader, ctx.config, run)
         try:
-            d = diagnose_run(inputs.baseline, inputs.recording, settings, map=ctx.map or serial_map)
+            d = diagnose_run(inputs.baseline, inputs.recording, settings, map=ctx.map or serial_map, phase=phases)
         except TooFewCycles as exc:
             rec = inputs.recording
             advice = too_few_advice(rec.glottal_area, inputs.baseline.problem.dt, rec.pressure_f0_hz)
@@ -258,6 +262,8 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 
+            phases("map")
+            phases.expect(1)
             Path(map_path).parent.mkdir(parents=True, exist_ok=True)   # as the other outputs' folders (`--map`)
             residual_map(d.located, d.locate.residual, map_path, f"residual of run {run}")
         cands = available_candidates()
@@ -268,11 +274,14 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             # with auto, a profile lead is refitted too when the calibrated lead's refit is not confirmed
             tries = [cand] + [c for c in cands if refit == "auto" and c.name in profiled and c.name != cand.name][:1]
             extra, confs = confirm_and_write(s, inputs, d, tries, run, settings,
-                                             figure_paths(reader.path, run, map_path), done)
+                                             figure_paths(reader.path, run, map_path), done, phases)
             d = redecide(d, {c.candidate: c for c in confs})
+        phases("write")
         write_diagnosis(s, d, inputs.baseline.problem.meas.times)
+        seconds = phases.close()
+        s.set_attrs(phase_seconds_json=json.dumps({k: round(v, 3) for k, v in seconds.items()}))
         summary = d.summary()
-        summary.update(extra, lines=d.lines)
+        summary.update(extra, lines=d.lines, seconds={k: round(v, 1) for k, v in seconds.items()})
         return summary
 
     result = run_stage(ctx, "diagnose", config_json=config_json, body=body, run=run, upstream=upstream)
@@ -292,12 +301,13 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
 
 
 def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cands, run: str, settings, paths,
-                      done: dict) -> tuple[dict[str, Any], list]:
+                      done: dict, phases: Phases | None = None) -> tuple[dict[str, Any], list]:
     """Refit the candidates ``cands`` in turn until one is confirmed (:func:`vfcli.diagnose.confirm.confirm_run`;
     the first, then the next only when the first's refit does not predict held-out data better), write the
     confirmed one's figures and images (else the first's); fills ``done`` with what its extended model's
     /optimize run needs.  Returns the summary's additions and every
-    :class:`vfcli.diagnose.confirmation.Confirmation` made; their words are appended to ``d.lines``."""
+    :class:`vfcli.diagnose.confirmation.Confirmation` made; their words are appended to ``d.lines``.  phases : the
+    stage's bar (:class:`vfcli.progress.Phases`): each refit is a phase of its own, ``refit <candidate>``."""
     import dataclasses
 
     from vfcli.diagnose.confirm import confirm_run, words
@@ -310,6 +320,9 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
         b.f0_hz = float(d.located.f0_hz)             # the window's f0 from the gap area's cycle (Locate's)
     tried = []
     for cand in cands:
+        if phases is not None:
+            phases.expect(1)
+            phases(f"refit {cand.name}")
         tried.append((cand, confirm_run(b, cand, d.locate.cycles.phase[d.locate.window],
                                         lambda ext: locate_run(ext, inputs.recording, settings))))
         if tried[-1][1].confirmation.improves:

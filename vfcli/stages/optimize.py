@@ -36,6 +36,7 @@ from vfcli.inverse.sandwich import sandwich
 from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_split,
                                        instrument_std, relative_uncertainty, window_mean, window_oscillation)
 from vfcli.model.loads.pressure import PressureLoad
+from vfcli.progress import Phases
 from vfcli.stages.base import RunContext, StageResult, optimize_settings_json, run_stage
 
 log = logging.getLogger(__name__)
@@ -185,7 +186,10 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
 
     def body(reader: StoreReader, s: StageWriter) -> dict[str, Any]:
         t_body = time.perf_counter()
+        before = Phases(ctx.progress, f"optimize {run}", 1, log)
+        before("setup (model, measurement, ridge weight)")
         problem, setup = problem_of_store(reader, ctx.config, ctx.map)
+        setup_s = before.close()["setup (model, measurement, ridge weight)"]
         label = f"{'pressure loads' if cfg.loads == 'pressure' else f'{cfg.setup}, {cfg.loads}'} ({cfg.method})"
         opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease, xtol=cfg.stop_rel_change)
         bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")
@@ -213,11 +217,14 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         s.put("displacements", disp.astype(np.float32))
         unc: dict[str, float] = {}
         if cfg.uncertainty:
+            after = Phases(ctx.progress, f"optimize {run}", 1, log)
+            after("stated uncertainty")
             std, systematic, static_std, unc = reconstruction_uncertainty(problem, result.x, setup.field,
                                                                           minimum=not stalled)
             s.put("displacement_std", std.astype(np.float32))
             s.put("displacement_std_instruments", systematic.astype(np.float32))
             s.put("displacement_std_static", static_std.astype(np.float32))
+            s.set_attrs(uncertainty_time_s=float(after.close()["stated uncertainty"]))
             if uncertainty_plot is not None:
                 uncertainty_map(problem.mesh, std, disp, uncertainty_plot, f"run {run} ({label})")
         if setup.lcurve is not None:
@@ -240,7 +247,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             convergence_plot(h, plot, label)
         # the whole stage: setup (the L-curve's fits), the fit, the stated uncertainty; the history's wall time is the fit's
         stage_time = time.perf_counter() - t_body
-        s.set_attrs(stage_time_s=float(stage_time))
+        s.set_attrs(stage_time_s=float(stage_time), setup_time_s=float(setup_s))
         return {
             "iterations": int(h["iteration"][-1]) if len(h["iteration"]) else 0,
             "E_final": float(h["total"][-1]),
