@@ -147,6 +147,13 @@ def test_injected_antisymmetric_second_harmonic_is_located_and_ranked_first():
     assert abs(abs(dphi) - np.pi) < 0.3
     # nothing else stands above the noise floor at the family-wise level
     assert all(h.p_adjusted > 0.05 for h in spots[2:])
+    # the words: the two hotspots, then what a part above the noise floor means (not yet a missing term)
+    from vfcli.diagnose.locate import Located
+    from vfcli.diagnose.words import MEANING, summary_lines
+
+    lines = summary_lines(Located({"motion": d}, spots, 0.05, F0, 14))
+    assert len(lines) == 4 and "posterior third, vertical component, 2nd harmonic of f0" in lines[1]
+    assert lines[-1] == MEANING and "model's own error or missing physics" in MEANING
 
 
 def test_pure_noise_gives_uniform_p_values_at_the_nominal_false_alarm_rate():

@@ -20,6 +20,7 @@ def test_phases_are_timed_in_order_shown_on_the_bar_and_logged(capsys, caplog):
     assert list(seconds) == ["read", "calibrate", "refit asymmetry"]
     assert seconds == {"read": 1.5 + 0.25, "calibrate": 2.5, "refit asymmetry": 1.0}
     err = capsys.readouterr().err
+    assert "diagnose: 0 of 3 steps done" in err            # before the first phase ("diagnose0 of 3" before)
     assert "diagnose: calibrate: 1 of 3 steps done" in err
     assert "diagnose: refit asymmetry: 3 of 4 steps done" in err
     assert [r.getMessage() for r in caplog.records] == [

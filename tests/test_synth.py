@@ -100,8 +100,13 @@ def test_same_seed_same_bytes(phantom, tmp_path):
     from conftest import run_vfcli
 
     again = tmp_path / "again"
-    res = run_vfcli("synth", again, "--seed", "3", "--effect", "random", *sum((["--set", s] for s in SMALL), []))
+    res = run_vfcli("synth", again, "--seed", "3", "--effect", "random", *sum((["--set", s] for s in SMALL), []),
+                    "--json")
     assert res.returncode == 0, res.stderr
+    # where its time went, step by step (the true motion first, the instrument files last)
+    seconds = json.loads(res.stdout)["seconds"]
+    assert list(seconds) == ["true motion", "render and video files", "instrument files"], seconds
+    assert seconds["true motion"] > 0
     stamp = re.compile(rb"\d\d-[A-Za-z]{3}-\d\d \d\d:\d\d:\d\d|<date>.*?</date>|<time>.*?</time>")
     for name in ["video.mraw", "video.cihx", "video.tif", "scan.uff", "scan.csv", "video_pressure.csv",
                  "recording.toml", "phantom.json"]:

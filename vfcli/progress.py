@@ -52,7 +52,8 @@ class Phases:
         self._clock = clock or time.perf_counter
         self._desc = desc
         # the phases take unlike times: no rate or remaining time, which would be guesses
-        self._bar = progress(total=total, desc=desc, unit="step", bar_format="{desc}{n_fmt} of {total_fmt} steps done, "
+        # (tqdm's set_description adds ': ' to a description; the one given at the start has it written out)
+        self._bar = progress(total=total, desc=f"{desc}: ", unit="step", bar_format="{desc}{n_fmt} of {total_fmt} steps done, "
                                                                               "{elapsed}")
         self._log = log
         self._name: str | None = None

@@ -46,7 +46,8 @@ def hotspot_words(located: Located, h: Hotspot) -> str:
 
 
 def summary_lines(located: Located, max_lines: int = 5) -> list[str]:
-    """The lines the command prints: the significant hotspots (at most ``max_lines``), or that there are none."""
+    """The lines the command prints: the significant hotspots (at most ``max_lines``) and what they mean
+    (:data:`MEANING`), or that there are none."""
     n = len(located.hotspots)
     head = (f"f0 {located.f0_hz:.1f} Hz; noise floor from {located.n_cycles} whole glottal cycles; "
             f"{n} parts tested, family-wise false-alarm rate {located.alpha:g}")
@@ -63,4 +64,11 @@ def summary_lines(located: Located, max_lines: int = 5) -> list[str]:
     lines = [head] + [hotspot_words(located, h) for h in sig[:max_lines]]
     if len(sig) > max_lines:
         lines.append(f"... and {len(sig) - max_lines} more parts above the noise floor")
-    return lines
+    return lines + [MEANING]
+
+
+#: what a part above the noise floor means, said after the hotspots: a place where the fit and the recording
+#: differ beyond the recording's own cycle-to-cycle variation, which the fitted model's error (its geometry, its
+#: loads) makes as readily as a missing term; whether a candidate term explains it is the decision's to say
+MEANING = ("parts above the noise floor are where the fit and the recording differ beyond noise (the model's own "
+           "error or missing physics); the candidates below say whether a known term explains them")

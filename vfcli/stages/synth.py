@@ -37,7 +37,7 @@ from vfcli.io.video.photron import write_mraw
 from vfcli.io.pressure import write_pressure_csv, write_pressure_tdms
 from vfcli.io.video.base import open_video
 from vfcli.io.video.tiff_avi import write_tiff
-from vfcli.progress import Progress, no_progress
+from vfcli.progress import Phases, Progress, no_progress
 from vfcli.store import write_truth
 from vfcli.store.frames import FrameSink
 from vfcli.store.parts import is_no_room, no_room_error
@@ -156,10 +156,21 @@ def run_synth(out_dir: str | Path, cfg: RecordingConfig, *, force: bool = False,
     tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
+    seconds: dict[str, float] = {}
     try:
+        # the true motion (mesh, loads, FEM, the hidden effect) takes most of a widened phantom's time and has no
+        # steps of its own to count: a bar that names it and its time (-v logs it); the frames have their own bar
+        phases = Phases(progress, "synth", 1, log)
+        phases("true motion")
         rec = make_recording(cfg.synth, cfg.mesh)
+        seconds.update(phases.close())
+        phases = Phases(progress, "synth", 1, log)
+        phases("render and video files")
         _write_video(rec, tmp, progress)
+        phases("instrument files")
+        phases.expect(1)
         _write_instruments(rec, tmp)
+        seconds.update(phases.close())
         (tmp / "recording.toml").write_text(
             "# What the lab knows about this recording (written by vfcli synth).\n" + tomli_w.dumps(_lab_config(rec, cfg)))
         (tmp / MANIFEST).write_text(json.dumps(settings, indent=2, sort_keys=True) + "\n")
@@ -176,4 +187,5 @@ def run_synth(out_dir: str | Path, cfg: RecordingConfig, *, force: bool = False,
         "frames": int(rec.frame_times.size),
         "ldv_points": int(rec.ldv.velocity.shape[0]),
         "files": sorted(p.name for p in out.iterdir()),
+        "seconds": {k: round(v, 1) for k, v in seconds.items()},
     })
