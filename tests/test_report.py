@@ -142,6 +142,16 @@ def test_a_diagnosis_verdict_is_shown_at_a_glance_and_its_stored_json_is_folded_
     for key in ("manifest_json", "words_json", "summary_json"):
         assert key not in diagnosis[:folded], key
     assert "manifest_json" in diagnosis[folded:]
+    # where the diagnosis' time went, step by step, shown beside its figures (not folded away)
+    shown = diagnosis.index("time by step")
+    assert shown < folded and diagnosis[shown:folded].split("</tr>")[0].count(" s, ") >= 3
+
+
+def test_a_stages_time_by_step_reads_in_the_order_run_with_its_sum():
+    from vfcli.stages.report import phase_times
+
+    assert phase_times({"read": 6.5, "profile": 108.0, "write": 0.099}) == \
+        "read 6.5 s, profile 108 s, write 0.099 s; 115 s in all"
 
 
 def test_the_verdict_at_a_glance_names_the_unconfirmed_leads_as_the_terminal_does():

@@ -83,10 +83,18 @@ def _verdict(diag_attrs: dict[str, Any]) -> str:
     return verdict
 
 
+def phase_times(seconds: dict[str, float]) -> str:
+    """A stage's time step by step, in the order run, and in all: "read 6.5 s, profile 108 s; 123 s in all"."""
+    parts = [f"{name} {v:.2g} s" if v < 10 else f"{name} {v:.0f} s" for name, v in seconds.items()]
+    return f"{', '.join(parts)}; {sum(seconds.values()):.0f} s in all"
+
+
 def _diagnosis_fields(fields: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
     """(the short figures shown in the page, the long ones: JSON texts and nested records) of a diagnosis' attributes
     (its words and verdict are shown above them)."""
     short, long_ = {}, {}
+    if "phase_seconds_json" in fields:
+        short["time by step"] = phase_times(json.loads(fields["phase_seconds_json"]))
     for k, v in fields.items():
         if k in ("lines", "words_json", "decision"):
             continue
