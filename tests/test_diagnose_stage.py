@@ -75,6 +75,14 @@ def test_diagnose_json_parses_and_a_rerun_is_up_to_date(fitted):
     with Store(fitted).read() as r:      # the smallest of all (it was the first hotspot's, ranked by ratio)
         adjusted = r.read("diagnose", "hotspot_p_adjusted", "fit")
     assert out["smallest_p_adjusted"] == float(f"{adjusted.min():.4g}")
+    # the decision as a field of its own (a batch script read it off the last line): this short phantom's says
+    # why it could not be calibrated, as its printed line does; `vfcli info` shows it on a line of its own
+    said = next(x for x in out["lines"] if x.startswith("decision: "))
+    assert out["decision"] == said[len("decision: "):] and out["decision"].startswith("not calibrated")
+    assert out["findings"] == [] and out["leads"] == []
+    info = run_vfcli("info", fitted)
+    shown = info.stdout.split("/diagnose/fit", 1)[1]
+    assert f"\n      decision: {out['decision']}\n" in shown and "decision=" not in shown, info.stdout
     again = run_vfcli("diagnose", fitted, "--run", "fit")
     assert again.returncode == 0 and "up to date" in again.stdout
     assert "candidate screening: 5 candidates screened" in again.stdout

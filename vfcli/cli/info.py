@@ -50,7 +50,11 @@ def _details(info: dict[str, Any]) -> None:
         for path, digest in prov.get("upstream", {}).items():
             click.echo(f"      uses {path} @ {digest}")
         summary = st.get("summary") or {}
-        figures = ", ".join(f"{k}={v}" for k, v in summary.get("figures", {}).items() if not isinstance(v, (dict, list)))
+        decision = summary.get("figures", {}).get("decision")      # a diagnosis' verdict: a line of its own
+        if decision:
+            click.echo(f"      decision: {decision}")
+        figures = ", ".join(f"{k}={v}" for k, v in summary.get("figures", {}).items()
+                            if not isinstance(v, (dict, list)) and k != "decision")
         if figures:
             click.echo(f"      figures: {figures}")
         for warning in plain_warnings(summary.get("warnings", [])):

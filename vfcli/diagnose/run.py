@@ -183,8 +183,16 @@ class Diagnosis:
     def located(self) -> Located:
         return self.locate.located
 
+    def verdict(self) -> str:
+        """The decision in words ("missing physics: asymmetry", "no missing physics detected"), or, where it could
+        not be calibrated, the line that says why ("not calibrated: ...")."""
+        if self.decision is not None:
+            return self.decision.verdict
+        return next((x[len("decision: "):] for x in self.lines if x.startswith("decision: not ")), "not decided")
+
     def summary(self) -> dict[str, Any]:
-        """The figures the command prints and stores (JSON-ready)."""
+        """The figures the command prints and stores (JSON-ready): the decision first (``decision``, its
+        ``findings`` and the unconfirmed and confirmed ``leads``), then Locate's figures."""
         loc = self.located
         top = []
         for h in loc.hotspots[:10]:
@@ -195,7 +203,9 @@ class Diagnosis:
                             (h.index if h.kind == "harmonic" else PHASE_NAMES[h.index]),
                         "size": round(h.size, 6), "units": d.units, "ratio": round(h.ratio, 3),
                         "p": float(f"{h.p_value:.4g}"), "p_adjusted": float(f"{h.p_adjusted:.4g}")})
-        return {"f0_hz": round(loc.f0_hz, 2), "noise_cycles": loc.n_cycles, "parts_tested": len(loc.hotspots),
+        return {"decision": self.verdict(), "findings": list(self.decision.findings) if self.decision else [],
+                "leads": ([*self.decision.leads, *self.decision.profile_leads] if self.decision else []),
+                "f0_hz": round(loc.f0_hz, 2), "noise_cycles": loc.n_cycles, "parts_tested": len(loc.hotspots),
                 "above_noise": len(loc.significant), "alpha": loc.alpha,
                 # the hotspots are ranked by their ratio to the noise floor, not by p (hotspots[0] was reported)
                 "smallest_p_adjusted": (float(f"{min(h.p_adjusted for h in loc.hotspots):.4g}") if loc.hotspots
