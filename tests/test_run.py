@@ -230,19 +230,29 @@ def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
 
 def test_ctrl_c_during_a_run_lists_the_steps_it_committed(phantom, tmp_path):
     """Ctrl-C in flow printed only "interrupted (Ctrl-C)", where a failed run lists the steps it committed first:
-    SIGINT once flow's part file appears; the steps before it are listed as run, exit 130."""
+    SIGINT once flow's part file appears; the steps before it are listed as run, exit 130.
+
+    flow's part file stays once flow has committed, so a test process starved of CPU can see it only then and
+    interrupt a later step (mesh's tetgen ends at once, exit -2: session 40 saw one such failure in a loaded run).
+    Such a try, told by /flow committed in the store, says nothing of Ctrl-C in flow and is made again."""
     raw, _, _, _ = phantom
-    store = tmp_path / "rec.h5"
-    proc = subprocess.Popen([*VFCLI, "run", str(store), "--raw", str(raw), *_sets(SETS)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)},
-                            preexec_fn=sigint_default)
-    parts = store.parent / (store.name + ".parts")
-    deadline = time.monotonic() + 300
-    while not (parts.is_dir() and any(p.name.startswith("flow-") for p in parts.iterdir())):
-        assert proc.poll() is None and time.monotonic() < deadline, "flow never started"
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=120)
+    for attempt in range(3):
+        store = tmp_path / f"rec{attempt}.h5"
+        proc = subprocess.Popen([*VFCLI, "run", str(store), "--raw", str(raw), *_sets(SETS)], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                                preexec_fn=sigint_default)
+        parts = store.parent / (store.name + ".parts")
+        deadline = time.monotonic() + 300
+        while not (parts.is_dir() and any(p.name.startswith("flow-") for p in parts.iterdir())):
+            assert proc.poll() is None and time.monotonic() < deadline, "flow never started"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+        with Store(store).read() as r:
+            if not r.has_stage("flow"):
+                break
+    else:
+        pytest.fail("flow had committed before the SIGINT in 3 tries: Ctrl-C in flow was never tested")
     assert proc.returncode == 130, err
     assert err.strip().splitlines()[-1] == "vfcli run: interrupted (Ctrl-C)" and "Traceback" not in err
     lines = {line.split(":")[0]: line for line in out.splitlines() if ":" in line}
