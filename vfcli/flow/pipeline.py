@@ -285,7 +285,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                     minima = dip_minima(sample, ray_centre, search, lateral)
                     ray_levels = detection_levels(minima, model.gap_counts, model.psf_sigma_px)
                     ray_crease = crease_levels(minima)[0]
-                    ray_floor = closed_floor(minima)
+                    ray_floor = closed_floor(minima, gap_like_below=0.5 * (model.gap_counts + threshold))
             gap = SubpixelGap(threshold, model, cfg.median_px, line if line is not None else midline, lateral,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,

@@ -175,7 +175,7 @@ def closed_sample(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION) 
 
 
 def closed_floor(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION, z: float = Z_OPEN,
-                 smooth_rays: int = 5) -> np.ndarray:
+                 smooth_rays: int = 5, gap_like_below: float | np.ndarray | None = None) -> np.ndarray:
     """Per-ray floor of the closed crease, counts: a dip no darker than this cannot be told from the crease.
 
     On the frames where the whole glottis is closed (:func:`closed_sample`) each ray's dips are its crease
@@ -189,16 +189,24 @@ def closed_floor(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION, z
     half-way from the crease to the gap level (:func:`straddled_depth`). Smoothed along the glottis by a
     running median of ``smooth_rays`` rays, as the crease levels are.
 
+    A ray whose closed frames' median dip is gap-like (below ``gap_like_below``: the flow step passes
+    half-way from the recording's gap level to its threshold, rule (b) of
+    :func:`vfcli.flow.gap.subpixel.segment.raw_edges` without a crease) shows a gap that does not close
+    there (a posterior chink): its dips in those frames are that gap's, not a crease's, and it gets no
+    floor (a 3 px chink open in every frame was lost from all closed frames without this).
+
     Parameters
     ----------
     minima : (k, n_rays) float
         :func:`dip_minima` of the sampled frames; NaN on rays not searched.
     closed_fraction, z : float
     smooth_rays : int, odd.
+    gap_like_below : float or (n_rays,) float, counts, optional.
 
     Returns
     -------
-    (n_rays,) float, counts; NaN on rays not searched (or not searched in two closed frames).
+    (n_rays,) float, counts; NaN on rays not searched (or not searched in two closed frames) and on
+    gap-like rays.
     """
     m = np.asarray(minima, float)[closed_sample(minima, closed_fraction)]
     ok = np.isfinite(m).sum(axis=0) >= 2
@@ -206,6 +214,8 @@ def closed_floor(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION, z
         warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN rays
         med = np.nanmedian(m, axis=0)
         scatter = 1.4826 * np.nanmedian(np.abs(m - med[None, :]), axis=0)
+    if gap_like_below is not None:
+        ok &= ~(med < np.asarray(gap_like_below, float))
     return running_median(med - z * scatter, smooth_rays, ok)
 
 
