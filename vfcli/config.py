@@ -228,7 +228,8 @@ class FlowConfig(_Section):
     gap_detection: Literal["threshold", "crease"] = Field(
         "crease", json_schema_extra=_SHAPES_FLOW, description="How a ray across the glottis is found open (with subpixel_edges): "
         "'crease': darker than the ray's own closed crease (its lightest sampled dips) by 3 times their scatter, or than "
-        "flow.threshold where that is higher (vfcli.flow.gap.subpixel.crease; finds the narrow phases of the cycle); "
+        "flow.threshold where that is higher, and darker than the crease gets in the frames where the whole glottis is "
+        "closed (vfcli.flow.gap.subpixel.crease; finds the narrow phases of the cycle, not the closed line); "
         "'threshold': pixels darker than flow.threshold (the paper's)"
     )
     edge_window_mm: float = Field(

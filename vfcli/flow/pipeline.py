@@ -32,8 +32,8 @@ from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks, midline_line
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
-from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, closed_frames, crease_levels,
-                                             detection_levels, dip_minima, search_band)
+from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, closed_floor, closed_frames,
+                                             crease_levels, detection_levels, dip_minima, search_band)
 from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, ray_gap_levels,
                                                resolved_width_px)
 from vfcli.flow.gap.subpixel.segment import ray_fits
@@ -269,7 +269,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
             log.warning("flow: the %d sampled frames show no gap wide enough to measure the gap level and blur "
                         "on; using the binary gap mask (pixel edges)", len(sample))
         else:
-            ray_levels = ray_crease = None
+            ray_levels = ray_crease = ray_floor = None
             closed = closed_frames(masks, lateral)
             if cfg.gap_detection == "crease" and closed < CLOSED_FRACTION * len(sample):
                 # the crease levels are the lightest quarter of each ray's sampled dips: without a closed
@@ -285,10 +285,11 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                     minima = dip_minima(sample, ray_centre, search, lateral)
                     ray_levels = detection_levels(minima, model.gap_counts, model.psf_sigma_px)
                     ray_crease = crease_levels(minima)[0]
+                    ray_floor = closed_floor(minima, gap_like_below=0.5 * (model.gap_counts + threshold))
             gap = SubpixelGap(threshold, model, cfg.median_px, line if line is not None else midline, lateral,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
-                              ray_crease=ray_crease)
+                              ray_crease=ray_crease, ray_closed_floor=ray_floor)
             gap, resolved = _with_ray_gap_levels(sample, masks, gap)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
                            line, resolved, along)

@@ -223,6 +223,10 @@ STAGES: dict[str, Stage] = {
             "flow",
             "Gap mask, glottal area, opening function and horizontal optical flow per frame.",
             reads=("hsc",),
+            method=2,
+            method_changes={2: "a ray shows the gap only where it is darker than the closed crease gets there (the "
+                               "closed line of sharp optics was read as a slit; with it, the gap steps of sessions "
+                               "30-38: the blur beside dark walls, the taper limit)"},
             datasets={
                 "gap_mask": D("bool", "Glottal gap per frame", ("frame_time", "row", "col"), True),
                 "glottal_area": D("mm^2", "Glottal area waveform", ("frame_time",)),

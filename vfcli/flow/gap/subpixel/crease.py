@@ -137,6 +137,88 @@ def crease_levels(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION,
     return running_median(med, smooth_rays, ok), running_median(scatter, smooth_rays, ok)
 
 
+def closed_sample(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION) -> np.ndarray:
+    """(k,) bool: the sampled frames in which the whole glottis is surely closed.
+
+    A frame's darkness along the glottis is the mean over the searched rays of its dip minima
+    (:func:`dip_minima`): an open glottis darkens its rays at once, a closed one shows only its crease
+    (the mean, not the median: a glottis that opens over only part of the searched rays still darkens it,
+    while each ray's noise and texture average out). The lightest ``closed_fraction`` of the frames (at least two) are taken as closed: the same
+    assumption as :func:`crease_levels` (the folds close for a quarter of the cycle), but the frames
+    are chosen for the glottis as a whole, not ray by ray. Ray by ray, the lightest dips are the crease at
+    its lightest (widened seed 4106, closed for more than half the cycle: the lightest quarter of one ray's
+    dips 774 counts, its truly closed dips 445 in the median), since the crease darkens and lightens with the
+    phase; the frames the whole glottis calls closed sample each ray's crease as it comes.
+
+    Parameters
+    ----------
+    minima : (k, n_rays) float, counts; NaN on rays not searched.
+    closed_fraction : float, in (0, 1].
+
+    Returns
+    -------
+    (k,) bool; all False when no ray was searched.
+    """
+    m = np.asarray(minima, float)
+    if not 0 < closed_fraction <= 1:
+        raise ValueError(f"closed sample: closed_fraction must lie in (0, 1], got {closed_fraction}")
+    ok = np.isfinite(m).any(axis=0)
+    out = np.zeros(m.shape[0], bool)
+    if not ok.any():
+        return out
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # a frame with no finite dip
+        lightness = np.nan_to_num(np.nanmean(m[:, ok], axis=1), nan=-np.inf)   # (k,) counts, lighter: closed
+    n_closed = min(m.shape[0], max(2, int(np.ceil(closed_fraction * m.shape[0]))))
+    out[np.argsort(-lightness, kind="stable")[:n_closed]] = True
+    return out
+
+
+def closed_floor(minima: np.ndarray, closed_fraction: float = CLOSED_FRACTION, z: float = Z_OPEN,
+                 smooth_rays: int = 5, gap_like_below: float | np.ndarray | None = None) -> np.ndarray:
+    """Per-ray floor of the closed crease, counts: a dip no darker than this cannot be told from the crease.
+
+    On the frames where the whole glottis is closed (:func:`closed_sample`) each ray's dips are its crease
+    as the cycle brings it (the closed phase's own shading, texture and noise); their median less ``z``
+    times their scatter (1.4826 MAD) is the darkest the crease gets but for a one-sided tail (0.13 % at
+    3 sigma). A dip in another frame is distinguishable from the crease only below this floor: where the
+    crease is darker than the recording's threshold (a dark contact line under sharp optics; widened seed
+    4106: 410-480 counts on a stretch of the glottis against a threshold of 551, read as a slit in 72 of its
+    130 closed frames), the threshold cannot tell it from a slit, the floor can. A slit that is truly there
+    is darker than the crease beside it: a one-pixel slit straddling two pixels under a sharp PSF reaches
+    half-way from the crease to the gap level (:func:`straddled_depth`). Smoothed along the glottis by a
+    running median of ``smooth_rays`` rays, as the crease levels are.
+
+    A ray whose closed frames' median dip is gap-like (below ``gap_like_below``: the flow step passes
+    half-way from the recording's gap level to its threshold, rule (b) of
+    :func:`vfcli.flow.gap.subpixel.segment.raw_edges` without a crease) shows a gap that does not close
+    there (a posterior chink): its dips in those frames are that gap's, not a crease's, and it gets no
+    floor (a 3 px chink open in every frame was lost from all closed frames without this).
+
+    Parameters
+    ----------
+    minima : (k, n_rays) float
+        :func:`dip_minima` of the sampled frames; NaN on rays not searched.
+    closed_fraction, z : float
+    smooth_rays : int, odd.
+    gap_like_below : float or (n_rays,) float, counts, optional.
+
+    Returns
+    -------
+    (n_rays,) float, counts; NaN on rays not searched (or not searched in two closed frames) and on
+    gap-like rays.
+    """
+    m = np.asarray(minima, float)[closed_sample(minima, closed_fraction)]
+    ok = np.isfinite(m).sum(axis=0) >= 2
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN rays
+        med = np.nanmedian(m, axis=0)
+        scatter = 1.4826 * np.nanmedian(np.abs(m - med[None, :]), axis=0)
+    if gap_like_below is not None:
+        ok &= ~(med < np.asarray(gap_like_below, float))
+    return running_median(med - z * scatter, smooth_rays, ok)
+
+
 def running_median(x: np.ndarray, n: int, ok: np.ndarray) -> np.ndarray:
     """Running median of ``n`` (odd) entries of ``x`` along the rays, NaN ignored; NaN where not ``ok``."""
     if n <= 1:

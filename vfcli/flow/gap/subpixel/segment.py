@@ -50,6 +50,11 @@ class SubpixelGap:
         The widest gap each ray may show, px (:func:`vfcli.flow.gap.subpixel.taper.taper_limits`: toward the
         glottis' ends a gap widens only gradually from ray to ray); a ray fitted wider is closed (rule (c) of
         :func:`raw_edges`). None or inf: no limit.
+    ray_closed_floor : (n_rays,) float, optional
+        The darkest the closed crease gets on each ray, counts (:func:`vfcli.flow.gap.subpixel.crease.closed_floor`:
+        its median over the frames where the whole glottis is closed, less 3 times their scatter); a ray shows
+        the gap only where the detection's darkest pixel on it is darker than this (rule (d) of :func:`raw_edges`).
+        None or NaN: no such rule.
     """
 
     threshold: float
@@ -63,6 +68,7 @@ class SubpixelGap:
     ray_crease: np.ndarray | None = None
     ray_gap: np.ndarray | None = None
     ray_max_width: np.ndarray | None = None
+    ray_closed_floor: np.ndarray | None = None
 
     def gap_levels(self, n_rays: int) -> np.ndarray:
         """(n_rays,) the gap level of each ray, counts (``ray_gap``, else the model's one level)."""
@@ -104,7 +110,10 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        glottis), its width and level trade against each other; and (b) on the same ray, the
        fitted gap level is nearer the ray's gap level (``ray_gap``) than the threshold (than the ray's
        closed crease, with ``ray_crease``): a dark patch of tissue below the threshold is
-       fitted with its own, brighter level. This replaces the dark-core hysteresis of
+       fitted with its own, brighter level; and (d) the detection's darkest pixel on the ray is darker
+       than the closed crease gets there (``ray_closed_floor``): where the crease itself is darker than the
+       threshold, it passes the detection in closed frames, and its narrow dip fits as a one-pixel slit at
+       the prior's gap level, which (a) and (b) keep. This replaces the dark-core hysteresis of
        :func:`gap_mask`, whose core a narrow, blurred slit never reaches.
     4. Rule (c): a ray fitted wider than ``ray_max_width`` allows (outside the middle of the glottis, more
        than :data:`~vfcli.flow.gap.subpixel.taper.TAPER_FACTOR` times the widest of the rays between it and
@@ -138,20 +147,21 @@ def ray_fits_many(frames: list, gap: SubpixelGap) -> list[tuple[np.ndarray, np.n
                               gap_counts=[found[k][4] for k in todo]) if todo else []
     out = [(e0, e1, np.full(len(e0), np.nan)) for e0, e1, *_ in found]
     for k, fit in zip(todo, fits):
-        out[k] = _closed_rays(fit, found[k][2], gap)
+        out[k] = _closed_rays(fit, found[k][2], gap, found[k][5])
     return out
 
 
 def _detected(frame: np.ndarray, gap: SubpixelGap):
-    """Step 1 of :func:`raw_edges` for one frame: (e0, e1, component, inner, gap_counts) with inner None when
-    there is nothing to fit (no model, or no ray crossing the detection)."""
+    """Step 1 of :func:`raw_edges` for one frame: (e0, e1, component, inner, gap_counts, dip) with inner None when
+    there is nothing to fit (no model, or no ray crossing the detection); dip: the detection's darkest pixel on each
+    ray (:func:`run_minima`), counts."""
     level = _level_map(np.shape(frame), gap)
     rough = gap_mask(frame, level, gap.median_px, core_fraction=1.0, midline=gap.midline,
                      min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True)
     rough, component = _nearest_component(rough, gap.midline, gap.lateral_axis)
     e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
     if gap.model is None or not np.isfinite(e0).any():
-        return e0, e1, component, None, None
+        return e0, e1, component, None, None, None
     # the floor of the edges: the outermost pixel centres surely in the gap, more than half covered by it.
     # Half-way between the gap level and the darkest tissue beside the gap, the ray's closed crease (the
     # medial walls seen edge-on), or the threshold where no crease is measured; never above the detection
@@ -166,15 +176,25 @@ def _detected(frame: np.ndarray, gap: SubpixelGap):
     core, _ = _nearest_component(rough & (np.asarray(frame) < floor), gap.midline, gap.lateral_axis)
     c0, c1 = outermost_silhouette(core, gap.lateral_axis, border_is_edge=True)
     inner = (np.where(np.isfinite(c0), c0 + 0.5, np.inf), np.where(np.isfinite(c1), c1 - 0.5, -np.inf))
-    return e0, e1, component, inner, g
+    return e0, e1, component, inner, g, run_minima(frame, rough, gap.lateral_axis)
 
 
-def _closed_rays(fit, component: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Steps 2-4 of :func:`raw_edges` after the sub-pixel fit: (e0, e1, fitted gap level), NaN on closed rays."""
+def run_minima(frame: np.ndarray, mask: np.ndarray, lateral_axis: int) -> np.ndarray:
+    """(n_rays,) the darkest pixel of ``mask`` (H, W) bool on each ray of ``frame`` (H, W), counts; inf where
+    the mask does not cross the ray."""
+    vals = np.where(np.asarray(mask, bool), np.asarray(frame, float), np.inf)
+    return as_rays(vals, lateral_axis).min(axis=0)
+
+
+def _closed_rays(fit, component: np.ndarray, gap: SubpixelGap,
+                 dip: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 2-4 of :func:`raw_edges` after the sub-pixel fit: (e0, e1, fitted gap level), NaN on closed rays;
+    ``dip``: the detection's darkest pixel on each ray, counts (rule (d))."""
     e0, e1 = fit.e0.copy(), fit.e1.copy()
     closed = ~(e1 > e0)
     # step 3: whole components with enough rays that hold a pixel of the gap, at the gap's level
-    closed |= (component == 0) | (_held_rays(e0, e1, fit.levels[:, 0], component, gap)[component] < gap.median_px)
+    held = _held_rays(e0, e1, fit.levels[:, 0], component, gap, dip)
+    closed |= (component == 0) | (held[component] < gap.median_px)
     if gap.ray_max_width is not None:
         closed |= (e1 - e0) > gap.ray_max_width       # rule (c): a patch touching the gap's tip
     e0[closed] = np.nan
@@ -182,11 +202,14 @@ def _closed_rays(fit, component: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarr
     return e0, e1, np.where(closed, np.nan, fit.levels[:, 0])
 
 
-def _held_rays(e0: np.ndarray, e1: np.ndarray, level: np.ndarray, component: np.ndarray, gap: SubpixelGap) -> np.ndarray:
-    """Per detected component, the number of its rays that show the gap itself (rules (a), (b) of
+def _held_rays(e0: np.ndarray, e1: np.ndarray, level: np.ndarray, component: np.ndarray, gap: SubpixelGap,
+               dip: np.ndarray | None = None) -> np.ndarray:
+    """Per detected component, the number of its rays that show the gap itself (rules (a), (b), (d) of
     :func:`raw_edges`): the fitted slit covers a whole pixel (the pixel's area, not just its centre, lies
-    between the edges), and the ray's fitted gap level is nearer the ray's gap level (``gap.ray_gap``, else
-    the recording's) than the ray's closed crease (else the threshold).
+    between the edges), the ray's fitted gap level is nearer the ray's gap level (``gap.ray_gap``, else
+    the recording's) than the ray's closed crease (else the threshold), and the detection's darkest pixel on
+    the ray (``dip``) is darker than the closed crease gets there (``gap.ray_closed_floor``; no rule without
+    either).
 
     Both are judged per ray. A slit that covers no whole pixel only shares pixels with the tissue beside
     it; its width and level trade against each other, so the level is the prior's (the recording's gap
@@ -200,6 +223,7 @@ def _held_rays(e0: np.ndarray, e1: np.ndarray, level: np.ndarray, component: np.
     e0, e1 : (n_rays,) float, fitted edges, lateral px (NaN or ``e1 <= e0``: closed).
     level : (n_rays,) float, each ray's fitted gap level, counts.
     component : (n_rays,) int, the detected component on each ray (0: none).
+    dip : (n_rays,) float, optional, the detection's darkest pixel on each ray, counts (:func:`run_minima`).
 
     Returns
     -------
@@ -208,6 +232,9 @@ def _held_rays(e0: np.ndarray, e1: np.ndarray, level: np.ndarray, component: np.
     a, b = np.nan_to_num(e0, nan=np.inf), np.nan_to_num(e1, nan=-np.inf)
     whole = np.floor(b - 0.5) >= np.ceil(a + 0.5)     # a pixel [c - 1/2, c + 1/2] inside [e0, e1]
     dark = level < gap.gap_like_below(len(e0))
+    if dip is not None and gap.ray_closed_floor is not None:
+        floor = np.asarray(gap.ray_closed_floor, float)
+        dark &= ~np.isfinite(floor) | (np.asarray(dip, float) < floor)      # rule (d)
     return np.bincount(component, weights=whole & dark, minlength=int(component.max()) + 1).astype(int)
 
 
