@@ -56,6 +56,9 @@ def test_optimize_stores_a_decreasing_history_and_the_motion(store, tmp_path):
     # the time printed and stored is the stage's (setup, fit, stated uncertainty), not only the fit loop's (hE: a
     # run printed 5.4 s and took 7 min 22 s); the history keeps the loop's
     assert fit_time < attrs["stage_time_s"] < elapsed
+    # its parts: the setup before the fit and the stated uncertainty after it, each within the stage's time
+    parts = attrs["setup_time_s"] + fit_time + attrs.get("uncertainty_time_s", 0.0)
+    assert attrs["setup_time_s"] > 0 and parts <= attrs["stage_time_s"]
     assert f"wall_time_s={attrs['stage_time_s']:.1f}" in res.stdout and f"fit_time_s={fit_time:.1f}" in res.stdout
     assert disp.shape == (13, n_nodes, 3) and np.abs(disp).max() > 0.01
     assert (attrs["window_first_frame"], attrs["window_frames"]) == (20, 12)

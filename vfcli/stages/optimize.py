@@ -189,7 +189,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         before = Phases(ctx.progress, f"optimize {run}", 1, log)
         before("setup (model, measurement, ridge weight)")
         problem, setup = problem_of_store(reader, ctx.config, ctx.map)
-        setup_s = before.close()["setup (model, measurement, ridge weight)"]
+        (setup_s,) = before.close().values()
         label = f"{'pressure loads' if cfg.loads == 'pressure' else f'{cfg.setup}, {cfg.loads}'} ({cfg.method})"
         opts = FitOptions(keep_every=cfg.keep_every, ftol=cfg.stop_rel_decrease, xtol=cfg.stop_rel_change)
         bar = ctx.progress(total=cfg.max_iterations, desc=f"optimize {run}", unit="it")
@@ -224,7 +224,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             s.put("displacement_std", std.astype(np.float32))
             s.put("displacement_std_instruments", systematic.astype(np.float32))
             s.put("displacement_std_static", static_std.astype(np.float32))
-            s.set_attrs(uncertainty_time_s=float(after.close()["stated uncertainty"]))
+            (uncertainty_s,) = after.close().values()
+            s.set_attrs(uncertainty_time_s=float(uncertainty_s))
             if uncertainty_plot is not None:
                 uncertainty_map(problem.mesh, std, disp, uncertainty_plot, f"run {run} ({label})")
         if setup.lcurve is not None:
