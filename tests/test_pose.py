@@ -269,7 +269,7 @@ def _skewed_contact(x):
 @pytest.mark.parametrize("rotation", [0.0, -61.8, 125.0])
 def test_a_glottis_in_view_opening_unevenly_is_placed_by_the_symmetry_of_its_motion(rotation):
     """Both ends of the gap in view, its opening wider toward one end (1.45 times as wide 2 mm from x = L as 2 mm
-    from x = 0; on widened seed 4114 the folds' lateral swing there differs by 1.44 times): the gap ends 3.0 mm short
+    from x = 0; on widened seed 4114 the folds' lateral swing 2-3 mm from the ends differs by 1.44 times): the gap ends 3.0 mm short
     of x = 0 and 2.1 mm short of x = L, so the midpoint of its extent (the rule before, still used without the
     motion) is 4.0-4.3 px off (measured; 0.46 mm in the continuum; 1.30 mm on 4114). The motion's mirror symmetry
     places it within 0.75 px (measured 0.00-0.12 px)."""
