@@ -13,7 +13,7 @@ import logging
 import numpy as np
 import pytest
 
-from vfcli.camera.pose import locate, motion_amplitude
+from vfcli.camera.pose import GapAxis, locate, motion_amplitude, symmetry_window
 
 PX_PER_MM, LENGTH_MM, HALF_WIDTH_MM = 8.0, 15.0, 0.6
 
@@ -277,3 +277,17 @@ def test_a_glottis_in_view_opening_unevenly_is_placed_by_the_symmetry_of_its_mot
     print(f"uneven opening in view, {rotation:+.0f} deg: extent {d_before:.2f} px, motion {d_after:.2f} px")
     assert before.mid_length == "extent of the gap" and d_before > 3
     assert after.mid_length == "symmetry of the motion" and d_after < 0.75
+
+
+def test_the_symmetry_window_is_where_a_glottis_of_length_l_covers_the_visible_gap():
+    """Both ends in view: mid-length within L/2 of both ends of the visible gap (a gap of 100 px on a 120 px
+    glottis leaves 20 px); none when the visible gap is longer than the glottis; one end cut: from the visible
+    gap's centre to L/2 from its visible end; both cut: the whole visible gap."""
+    def window(cut, extent=(-40.0, 60.0)):
+        return symmetry_window(GapAxis(0.0, np.zeros(2), extent, cut), 60.0)
+
+    assert window((False, False)) == (0.0, 20.0)
+    assert window((False, False), extent=(-70.0, 60.0)) is None
+    assert window((False, True)) == (10.0, 20.0)
+    assert window((True, False)) == (0.0, 10.0)
+    assert window((True, True)) == (-40.0, 60.0)
