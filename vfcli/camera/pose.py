@@ -4,14 +4,16 @@ The camera's scale (px/mm) comes from a calibration target, but its in-plane rot
 the position of the model origin are usually unknown. The glottal midline (model y = 0) is
 the principal axis of the gap pixels over the recording (any in-plane angle; the sign of the
 axis is the one nearest a prior rotation). Along it, the folds are clamped at both ends
-(x = 0 and x = L), so they move symmetrically about mid-length. When both ends of the gap are in
-view, the midpoint of the visible gap's extent along the axis is x = L/2 (however often each part of it
-was found open). When the image cuts an end, the gap's extent no longer says where mid-length is, but
-the measured motion does: the amplitude of the surface velocity along the glottis is mirror-symmetric
-about mid-length (:func:`motion_amplitude`, :func:`symmetry_mid`), and the part in view holds
-mid-length and enough of either side. Without the motion (or too little of it in view), one visible end
-places the glottis by the opening's sine envelope (:func:`envelope_start`) and two cut ends leave the
-position along the glottis unmeasured: the visible centre is used and a warning says so.
+(x = 0 and x = L), so they move symmetrically about mid-length: the amplitude of the surface velocity along
+the glottis is mirror-symmetric about it (:func:`motion_amplitude`, :func:`symmetry_mid`), over the whole
+superior surface in view. Mid-length is placed there, within what the gap's extent allows: with both ends of
+the gap in view, the glottis covers the visible gap; with one end cut, between the visible gap's centre and
+half a glottis from its visible end; with both cut, anywhere along the visible gap. The gap's extent itself is
+not taken as symmetric: its ends are where the opening first exceeds the folds' contact, where the opening
+grows slowly along the glottis, so one a little wider toward one end moves them by millimetres. Without the
+motion (or when it cannot say): with both ends in view, the midpoint of the visible gap's extent (however often
+each part of it was found open); with one end cut, the opening's sine envelope (:func:`envelope_start`); with
+both cut, the position along the glottis is unmeasured: the visible centre is used and a warning says so.
 """
 from __future__ import annotations
 
@@ -242,6 +244,26 @@ def symmetry_mid(amplitude: np.ndarray, ax: GapAxis, length_px: float, lo: float
     return float(candidates[best])
 
 
+def symmetry_window(ax: GapAxis, half_px: float) -> tuple[float, float] | None:
+    """(low, high) positions (px along the axis from ``ax.centre_px``) mid-length can lie between, from the
+    visible gap's extent and which ends the border cuts, or None when the extent allows none.
+
+    half_px : half the glottis length L/2, px. The gap opens only inside the glottis, so with both ends in view
+    the glottis covers the visible gap: mid-length lies within L/2 of both of its ends. With one end cut, it lies
+    between the visible gap's centre (the rest of the gap is beyond the border) and L/2 from the visible end; with
+    both cut, anywhere along the visible gap. None (both ends in view) when the visible gap is longer than L.
+    """
+    lo, hi = ax.extent_px
+    if not ax.cut[0] and not ax.cut[1]:
+        low, high = max(hi - half_px, lo), min(lo + half_px, hi)
+        return (low, high) if low <= high else None
+    if not ax.cut[0]:
+        return 0.5 * (lo + hi), min(lo + half_px, hi)
+    if not ax.cut[1]:
+        return max(hi - half_px, lo), 0.5 * (lo + hi)
+    return lo, hi
+
+
 @dataclass(frozen=True)
 class Pose:
     """rotation_deg : in-plane angle of the model x axis, degrees.  offset_px : (col, row) of the model
@@ -266,47 +288,35 @@ def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg
     prior_deg : rotation the principal axis's direction is chosen nearest to, degrees (the
         gap fixes the axis, not which way along it x grows).
     amplitude : (H, W, k) RMS amplitude of the measured velocity per pixel (:func:`motion_amplitude`),
-        NaN where not measured, or a function returning it (called only when the image cuts an end);
-        None: the gap only.
+        NaN where not measured, or a function returning it (called once); None: the gap only.
 
-    With both ends of the gap in view, mid-length is the midpoint of its extent. With an end cut,
-    it is where the motion is mirror-symmetric (:func:`symmetry_mid`): with one end in view, between
-    the visible gap's centre (the other end is beyond the border) and half a glottis from its visible
-    end (the gap ends inside the glottis); with both cut, anywhere in the visible gap's extent.
-    Without the motion, or when it cannot say: one visible end places the opening's sine envelope
-    (:func:`envelope_start`); two cut ends leave the position unmeasured (the visible centre, and a
-    warning).
+    Mid-length is where the motion is mirror-symmetric (:func:`symmetry_mid`), searched over
+    :func:`symmetry_window`. Without the motion, or when it cannot say: with both ends of the gap in
+    view, the midpoint of its extent; with one, the opening's sine envelope (:func:`envelope_start`);
+    with none, the position is unmeasured (the visible centre, and a warning).
     """
     ax = gap_axis(gap_counts, prior_deg)
     th = np.radians(ax.rotation_deg)
     e = np.array([np.cos(th), np.sin(th)])
     half = px_per_mm * length_mm / 2
     lo, hi = ax.extent_px
-    mid, how = None, "extent of the gap"
-    if not ax.cut[0] and not ax.cut[1]:
-        # both ends in view: the folds are clamped at both and the opening is symmetric about mid-length, so the
-        # visible gap ends equally short of each end; the midpoint of its extent is mid-length. (The count-weighted
-        # centre was taken before: where the gap is found in more frames along one part of the glottis, its narrow
-        # phases missed elsewhere, it moved toward that part; widened seed 1139: 1.94 mm off, 0.16 now.)
-        mid = 0.5 * (lo + hi)
-    else:
-        if amplitude is not None:
-            if not ax.cut[0]:
-                window = (0.5 * (lo + hi), min(lo + half, hi))
-            elif not ax.cut[1]:
-                window = (max(hi - half, lo), 0.5 * (lo + hi))
-            else:
-                window = (lo, hi)
-            mid = symmetry_mid(amplitude() if callable(amplitude) else amplitude, ax, 2 * half, *window)
-            how = "symmetry of the motion"
-        if mid is None and (not ax.cut[0] or not ax.cut[1]):
-            # one end in view, no motion to go by: the opening's envelope, A sin(pi (s - s0) / L), on the visible gap
-            mid, how = envelope_start(gap_counts, ax, 2 * half) + half, "envelope of the gap"
-        elif mid is None:
-            mid, how = 0.0, "not measured"
-            log.warning("pose: the image cuts the glottal gap at both ends, so its position along the glottis is not "
-                        "measured; mid-length is taken at the visible gap's centre. Set camera.pose = 'config' with "
-                        "camera.offset_px (and camera.rotation_deg) if the model origin is known")
+    mid, how = None, "symmetry of the motion"
+    window = symmetry_window(ax, half)
+    if amplitude is not None and window is not None:
+        mid = symmetry_mid(amplitude() if callable(amplitude) else amplitude, ax, 2 * half, *window)
+    if mid is None and not ax.cut[0] and not ax.cut[1]:
+        # both ends in view, no motion to go by: the midpoint of the extent (the count-weighted centre was taken
+        # before: where the gap is found in more frames along one part of the glottis, its narrow phases missed
+        # elsewhere, it moved toward that part; widened seed 1139: 1.94 mm off, 0.16 with the extent)
+        mid, how = 0.5 * (lo + hi), "extent of the gap"
+    elif mid is None and (not ax.cut[0] or not ax.cut[1]):
+        # one end in view, no motion to go by: the opening's envelope, A sin(pi (s - s0) / L), on the visible gap
+        mid, how = envelope_start(gap_counts, ax, 2 * half) + half, "envelope of the gap"
+    elif mid is None:
+        mid, how = 0.0, "not measured"
+        log.warning("pose: the image cuts the glottal gap at both ends, so its position along the glottis is not "
+                    "measured; mid-length is taken at the visible gap's centre. Set camera.pose = 'config' with "
+                    "camera.offset_px (and camera.rotation_deg) if the model origin is known")
     origin = ax.centre_px + (mid - half) * e
     return Pose(float(ax.rotation_deg), (float(origin[0]), float(origin[1])), how)
 

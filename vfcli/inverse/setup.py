@@ -135,7 +135,7 @@ def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] 
     if inputs.gap_counts is None:
         raise ValueError("estimating the camera pose needs inputs.gap_counts")
     found = locate(inputs.gap_counts, inputs.px_per_mm, inputs.length_mm, prior_deg=inputs.velocity_rotation_deg,
-                   amplitude=lambda: motion_amplitude(inputs.velocity, inputs.valid))   # only where an end is cut
+                   amplitude=motion_amplitude(inputs.velocity, inputs.valid))
     return found.rotation_deg, found.offset_px, f"estimated from the glottal gap (mid-length: {found.mid_length})"
 
 

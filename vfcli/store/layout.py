@@ -271,14 +271,17 @@ STAGES: dict[str, Stage] = {
             "One optimisation run: force-field control values, history and the reconstructed motion.",
             reads=("mesh", "fields", "flow", "hsc"),
             has_runs=True,
-            method=4,
+            method=5,
             method_changes={2: "the model's velocity at the frame times (central differences), no longer half a "
                                "frame later (vfcli 2c4c8b6)",
                             3: "the L-curve scans 16 decades of ridge weight, to its real corner (it stopped on "
                                "the curve's vertical branch, where the corner is round-off)",
                             4: "the stated uncertainty's instrument part compares single-instrument fits with the "
                                "ridge centred on the joint fit (centred on 0, the ridge's own bias pulled them apart "
-                               "and the stated uncertainty was several times too wide)"},
+                               "and the stated uncertainty was several times too wide)",
+                            5: "the estimated pose places mid-length by the motion's symmetry with both ends of the "
+                               "gap in view too (the midpoint of the gap's extent was off where the opening is "
+                               "wider toward one end)"},
             datasets={
                 "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),
                 "displacements": D("mm", "Reconstructed vertex displacements", ("sim_time", "node", "xyz"), True),
