@@ -22,7 +22,7 @@ PSF_SIGMA_RANGE_PX = (0.2, 3.0)
 #: whose standard deviation is 1 / sqrt(12) pixel; the optics' blur only adds to it (variances add), so the PSF of
 #: optics and pixel together, which the edge model's Gaussian stands for, is never narrower. An edge that fits
 #: sharper is the scene's, not the optics': tissue that brightens toward the gap's edge (a lit rim) steepens the
-#: step, and the PSF search read 0.22-0.25 px on widened phantoms whose optics and pixels blur by 0.42-0.50 px
+#: step, and the PSF search read 0.22-0.25 px on widened phantoms whose optics and pixels blur by 0.39-0.48 px
 #: (seeds 3001, 3009, 4103, 4107, 4109; docs/benchmarks.md, "The blur of the pixel itself").
 PIXEL_APERTURE_SIGMA_PX = 12 ** -0.5
 
