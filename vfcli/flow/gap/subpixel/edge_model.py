@@ -18,6 +18,14 @@ PSF_WINDOW_SIGMAS = 3.0
 #: Range and resolution of the PSF search (:func:`estimate_edge_model`), px.
 PSF_SIGMA_RANGE_PX = (0.2, 3.0)
 
+#: The least blur an image can have, px: a camera pixel integrates the light over its area, a box one pixel wide,
+#: whose standard deviation is 1 / sqrt(12) pixel; the optics' blur only adds to it (variances add), so the PSF of
+#: optics and pixel together, which the edge model's Gaussian stands for, is never narrower. An edge that fits
+#: sharper is the scene's, not the optics': tissue that brightens toward the gap's edge (a lit rim) steepens the
+#: step, and the PSF search read 0.22-0.25 px on widened phantoms whose optics and pixels blur by 0.39-0.48 px
+#: (seeds 3001, 3009, 4103, 4107, 4109; docs/benchmarks.md, "The blur of the pixel itself").
+PIXEL_APERTURE_SIGMA_PX = 12 ** -0.5
+
 
 def estimate_edge_model(
     frames_sample: np.ndarray, masks: np.ndarray, lateral_axis: int = 0, *, min_width_px: float = 3.0, max_rays: int = 1000,
@@ -37,7 +45,8 @@ def estimate_edge_model(
       but free to move inside them (the run may hold dark wall pixels); a log-spaced search over
       ``sigma_range_px`` (default :data:`PSF_SIGMA_RANGE_PX`) refined by a parabola, with a
       window of 3 px beyond each edge, widened to :data:`PSF_WINDOW_SIGMAS` sigmas if the PSF
-      turns out wider.
+      turns out wider; never below the pixel's own blur, :data:`PIXEL_APERTURE_SIGMA_PX` (the search's
+      cost is then least at that bound, the nearest the optics allow).
 
     Parameters
     ----------
@@ -125,4 +134,8 @@ def estimate_edge_model(
     sigma = search(3)
     if np.ceil(PSF_WINDOW_SIGMAS * sigma) > 3:
         sigma = search(int(np.ceil(PSF_WINDOW_SIGMAS * sigma)))
+    if sigma < PIXEL_APERTURE_SIGMA_PX:
+        log.debug("edge model: the PSF search reads %.2f px, sharper than a pixel blurs (%.2f px); taking the pixel's",
+                  sigma, PIXEL_APERTURE_SIGMA_PX)
+        sigma = PIXEL_APERTURE_SIGMA_PX
     return EdgeModel(gap_counts, sigma)
