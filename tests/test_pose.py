@@ -155,7 +155,6 @@ def test_a_dark_streak_beyond_the_glottis_end_does_not_turn_the_axis():
     assert abs(rot - rotation) < 1.5 and lateral < 2.0
 
 
-
 def _gap_alone_and_with_motion(rotation_deg: float, mid_px, along):
     """((pose, error px), (pose, error px)) along the glottis of :func:`locate` from the gap alone and from the gap
     and the motion, for a glottis with mid-length at ``mid_px`` (col, row) opening as ``along(x)``."""
@@ -166,6 +165,7 @@ def _gap_alone_and_with_motion(rotation_deg: float, mid_px, along):
     poses = (locate(counts, PX_PER_MM, LENGTH_MM, prior_deg=rotation_deg),
              locate(counts, PX_PER_MM, LENGTH_MM, prior_deg=rotation_deg, amplitude=_amplitude(rotation_deg, offset)))
     return tuple((pose, abs((np.asarray(pose.offset_px) - offset) @ axis)) for pose in poses)
+
 
 @pytest.mark.parametrize("rotation", [0.0, -90.0, 30.0])
 def test_an_hourglass_glottis_cut_at_one_end_is_placed_by_the_symmetry_of_its_motion(rotation):
