@@ -223,12 +223,15 @@ STAGES: dict[str, Stage] = {
             "flow",
             "Gap mask, glottal area, opening function and horizontal optical flow per frame.",
             reads=("hsc",),
-            method=3,
+            method=4,
             method_changes={2: "a ray shows the gap only where it is darker than the closed crease gets there (the "
                                "closed line of sharp optics was read as a slit; with it, the gap steps of sessions "
                                "30-38: the blur beside dark walls, the taper limit)",
                             3: "the gap's blur is never read sharper than a pixel blurs (1 / sqrt(12) px): a lit rim at "
-                               "the gap's edge had read 0.2 px under sharp optics, the slit a few per cent narrow"},
+                               "the gap's edge had read 0.2 px under sharp optics, the slit a few per cent narrow",
+                            4: "dark surroundings cut into pieces are fixture, not gap: a piece reaching a lateral image "
+                               "border on more than half of its own rays (each piece "
+                               "shorter than half a border had passed as gap and set the glottal midline)"},
             datasets={
                 "gap_mask": D("bool", "Glottal gap per frame", ("frame_time", "row", "col"), True),
                 "glottal_area": D("mm^2", "Glottal area waveform", ("frame_time",)),

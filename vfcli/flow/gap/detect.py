@@ -200,8 +200,9 @@ def gap_mask(
        one pixel (a square window erases the glottis just after it opens and just before it
        closes).
     3. Keep the gap component(s), rejecting the fixture (:func:`fixture_components`: a dark
-       region that runs along a lateral image border or is far thicker than a glottis; a gap
-       that runs off the image at its ends is kept), the dark specks of the
+       region that runs along a lateral image border, reaches one on most of its own rays or is
+       far thicker than a glottis; a gap that runs off the image at its ends is kept), the dark
+       specks of the
        texture and of a closed glottis's contact line: an 8-connected dark component is kept when
 
        * it holds at least ``median_px`` *core* pixels, darker than
@@ -310,6 +311,9 @@ def dark_core_level(frames_sample: np.ndarray, threshold: float, core_fraction: 
 MAX_GAP_LATERAL_FRACTION = 0.4
 #: A dark component running along a lateral image border for more than this fraction of it is the fixture.
 MAX_BORDER_RUN_FRACTION = 0.5
+#: A dark component reaching a lateral image border on more than this fraction of its own rays (its longitudinal
+#: extent) is the fixture: the fixture's dark surroundings cut into pieces, each shorter than half a border.
+MAX_OWN_BORDER_FRACTION = 0.5
 
 
 def fixture_components(labels: np.ndarray, stats: np.ndarray, lateral_axis: int = 0) -> np.ndarray:
@@ -318,10 +322,16 @@ def fixture_components(labels: np.ndarray, stats: np.ndarray, lateral_axis: int 
     The glottis is a slit along the longitudinal image axis at any angle up to 45 deg from it;
     it may run past the image at either end (a field of view shorter than the glottis), through
     the longitudinal borders or, turned, through the lateral ones, where it crosses the border
-    over a short run. A component is the fixture, a channel wall or a shadow when it runs along
-    a lateral image border (the first or last row when rows are lateral) for more than
-    :data:`MAX_BORDER_RUN_FRACTION` of it, or when its mean lateral thickness (area over its
-    longitudinal extent) is more than :data:`MAX_GAP_LATERAL_FRACTION` of the lateral image size.
+    over a short run of its rays. A component is the fixture, a channel wall or a shadow when
+
+    * it runs along a lateral image border (the first or last row when rows are lateral) for more
+      than :data:`MAX_BORDER_RUN_FRACTION` of it,
+    * it reaches one lateral image border on more than :data:`MAX_OWN_BORDER_FRACTION` of its own rays
+      (its longitudinal extent): the fixture's dark surroundings broken by brighter spots into pieces,
+      each shorter than half a border (widened seed 4206, blur 2.89 px, passed as gap, and the largest
+      piece set the glottal midline far from the slit),
+    * or its mean lateral thickness (area over its longitudinal extent) is more than
+      :data:`MAX_GAP_LATERAL_FRACTION` of the lateral image size.
 
     Parameters
     ----------
@@ -343,10 +353,12 @@ def fixture_components(labels: np.ndarray, stats: np.ndarray, lateral_axis: int 
     n = len(st)
     lab = np.asarray(labels) if lateral_axis == 0 else np.asarray(labels).T   # rows lateral
     n_lat, n_long = lab.shape
+    # rays (longitudinal positions, px) on which each component reaches the first and the last lateral row
     run = np.maximum(np.bincount(lab[0], minlength=n + 1)[1:], np.bincount(lab[-1], minlength=n + 1)[1:])
-    extent = st[:, cv2.CC_STAT_WIDTH] if lateral_axis == 0 else st[:, cv2.CC_STAT_HEIGHT]
+    extent = st[:, cv2.CC_STAT_WIDTH] if lateral_axis == 0 else st[:, cv2.CC_STAT_HEIGHT]   # longitudinal, px
     thickness = st[:, cv2.CC_STAT_AREA] / np.maximum(extent, 1)
-    return (run > MAX_BORDER_RUN_FRACTION * n_long) | (thickness > MAX_GAP_LATERAL_FRACTION * n_lat)
+    return ((run > MAX_BORDER_RUN_FRACTION * n_long) | (run > MAX_OWN_BORDER_FRACTION * extent)
+            | (thickness > MAX_GAP_LATERAL_FRACTION * n_lat))
 
 
 def midline_slope(midline: np.ndarray) -> float:
