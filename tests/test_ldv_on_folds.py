@@ -128,8 +128,12 @@ def test_a_scan_shifted_half_past_the_folds_end_is_a_stored_warning(flowed, tmp_
     res, _ = _pipeline(store, _shifted(raw, tmp_path, 7.0))
     assert res.returncode == 0, res.stderr
     with Store(store).read() as r:
-        hit = [w for w in r.summary("fields")["warnings"] if OFF in w]
+        warnings = r.summary("fields")["warnings"]
+    hit = [w for w in warnings if OFF in w]
     assert len(hit) == 1 and "ldv_frame.affine" in hit[0], hit
+    # the grid's last columns (up to x = 21.5 mm) pass the image's edge too: said with both sizes
+    beyond = [w for w in warnings if "LDV points the spline uses lie outside the frames" in w]
+    assert len(beyond) == 1 and "the scan spans" in beyond[0] and "cannot show that they are on the folds" in beyond[0]
     off, used = (int(v) for v in re.search(r"(\d+) of the (\d+) LDV points", hit[0]).groups())
     # the grid spans x = 0.5..14.5 mm of folds 15 mm long: shifted by 7 mm, the points past x = 15 mm
     # on the image (up to its edge at about 20.8 mm) are off the folds: about 40-50 % of those on the image

@@ -12,7 +12,7 @@ import pytest
 from _small_phantom import SMALL, shared_phantom_with_hsc
 from conftest import run_vfcli
 from vfcli.flow.plausibility import (area_f0, gap_length_share, image_chord_px, points_on_image,
-                                    pressure_velocity_bound)
+                                    pressure_velocity_bound, scan_beyond_frames)
 from vfcli.io.ldv.read import read_ldv
 from vfcli.io.ldv.write import write_ldv_uff
 from vfcli.store import Store, copy_store
@@ -57,9 +57,29 @@ def test_some_scan_points_off_the_video_are_a_stored_warning(video, tmp_path):
     with Store(store).read() as r:
         warnings = r.summary("ldv")["warnings"]
     hit = [w for w in warnings if "scan points lie outside the video's frames" in w]
-    assert len(hit) == 1 and "ldv_frame.affine" in hit[0]
+    assert len(hit) == 1 and "ldv_frame.affine" in hit[0] and "ingest_ldv.length_unit" in hit[0]
+    # where the scan lies against the frames, in mm: the scan's own size (the synth's 17 x 22 grid) and the frames'
+    spans = re.search(r"the scan spans ([\d.]+) x ([\d.]+) mm .*, the frames ([\d.]+) x ([\d.]+) mm", hit[0])
+    scan = read_ldv(raw / "scan.uff")
+    assert spans, hit[0]
+    np.testing.assert_allclose([float(spans.group(1)), float(spans.group(2))], np.ptp(scan.coords_mm[:, :2], axis=0),
+                               rtol=0.01)
+    assert "expected where the camera sees only part of the scanned folds" in hit[0]
     info = run_vfcli("info", store)
     assert info.returncode == 0 and "outside the video's frames" in info.stdout
+
+
+def test_the_words_for_a_scan_partly_off_the_frames_give_both_sizes_by_hand():
+    """A zoomed camera (frames 10 x 8 mm at 20 px/mm) inside a 16 x 12 mm scan, and a scan in metres read as
+    millimetres' thousandth (0.016 x 0.012 mm): the sizes side by side tell the two apart; no verdict either way."""
+    grid = np.stack(np.meshgrid(np.linspace(-3.0, 13.0, 17), np.linspace(-2.0, 10.0, 22)), -1).reshape(-1, 2)
+    words = scan_beyond_frames(grid * 20.0, (160, 200), 20.0)
+    assert words.startswith("the scan spans 16 x 12 mm (columns -60..260, rows -40..200 px), "
+                            "the frames 10.0 x 8.0 mm (200 x 160 px): expected where the camera sees only part")
+    assert "ingest_ldv.length_unit" in words and "ldv_frame.affine" in words
+    tiny = scan_beyond_frames(grid * 0.02 + 100.0, (160, 200), 20.0)
+    assert tiny.startswith("the scan spans 0.016 x 0.012 mm")
+    assert scan_beyond_frames(np.full((3, 2), np.nan), (160, 200), 20.0).startswith("the frames 10.0 x 8.0 mm")
 
 
 def test_velocities_beyond_what_the_pressure_drives_are_a_stored_warning(video, tmp_path):

@@ -91,6 +91,45 @@ def points_on_image(points_px: np.ndarray, shape: tuple[int, int], margin_px: fl
             & (p[:, 1] >= -margin_px) & (p[:, 1] <= h - 1 + margin_px))
 
 
+#: What a scan partly off the frames asks of the user (ingest-ldv and fields say it alike).
+SCAN_FRAME_ADVICE = ("check ingest_ldv.length_unit (the unit of the file's coordinates), ldv_frame.affine (scan to camera "
+                     "mm) and camera.px_per_mm")
+
+
+def scan_beyond_frames(points_px: np.ndarray, shape: tuple[int, int], px_per_mm: float) -> str:
+    """The words for scan points partly off the frames: where the scan lies against the frames, in mm and px.
+
+    A camera zoomed in closer than the vibrometer scanned sees only part of the scan (the widened phantoms'
+    fields of view are 0.65-1.3 glottis lengths, the scan covers both folds): points off the frames are then
+    expected, and advice to check the length unit would mislead. A scan in the wrong unit, or moved by a wrong
+    affine, lies far off or shrunk to a few pixels. The sizes side by side tell the two apart at a glance, so
+    the words give them and the advice for the second case; they decide nothing (no threshold).
+
+    Parameters
+    ----------
+    points_px : (P, 2) (col, row) px of the scan points on the stored frames (NaN: none).
+    shape : (H, W) of the frames, px.
+    px_per_mm : image scale, px/mm.
+
+    Returns
+    -------
+    str, e.g. "the scan spans 16.2 x 11.0 mm (columns -89..308, rows -114..325 px), the frames 12.9 x 12.9 mm
+    (256 x 256 px): expected where the camera sees only part of the scanned folds; otherwise check ..."
+    """
+    p = np.asarray(points_px, float).reshape(-1, 2)
+    p = p[np.isfinite(p).all(axis=1)]
+    h, w = shape
+    s = float(px_per_mm)
+    frames = f"the frames {w / s:.1f} x {h / s:.1f} mm ({w} x {h} px)"
+    if len(p) == 0:
+        return f"{frames}; {SCAN_FRAME_ADVICE}"
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    span = (hi - lo) / s
+    return (f"the scan spans {span[0]:.3g} x {span[1]:.3g} mm (columns {lo[0]:.0f}..{hi[0]:.0f}, rows "
+            f"{lo[1]:.0f}..{hi[1]:.0f} px), {frames}: expected where the camera sees only part of the scanned "
+            f"folds; otherwise {SCAN_FRAME_ADVICE}")
+
+
 def pressure_velocity_bound(pressure_pa: np.ndarray) -> float:
     """The largest surface velocity the pressure can drive, mm/s: ``max |p| / (rho c)`` (module doc).
 

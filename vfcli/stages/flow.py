@@ -21,8 +21,8 @@ import numpy as np
 from vfcli.config import FlowConfig, SyncConfig
 from vfcli.errors import ConfigError, InputDataError, MissingStageError
 from vfcli.flow.plausibility import (FAR_BEYOND, FOLD_MARGIN_MM, OFF_FOLD_FAIL, OFF_FOLD_WARN, VELOCITY_ORDER,
-                                    area_f0, contrast_block,
-                                    points_on_folds_of_video, points_on_image, pressure_velocity_bound)
+                                    SCAN_FRAME_ADVICE, area_f0, contrast_block, points_on_folds_of_video,
+                                    points_on_image, pressure_velocity_bound, scan_beyond_frames)
 from vfcli.flow.pipeline import CHUNK_FRAMES, check_flow_product, flow_pipeline, good_ldv_points, velocity_fields
 from vfcli.store import StageWriter, StoreReader, layout
 from vfcli.store.frames import FrameSink
@@ -157,18 +157,19 @@ def _ldv_points(reader: StoreReader, n_frames: int) -> tuple[np.ndarray, np.ndar
 
 
 def _check_fields(reader: StoreReader, points_px: np.ndarray, good: np.ndarray, shape: tuple[int, int],
-                  speed_p99: float, rms_vertical: float = np.nan, rms_horizontal: float = np.nan) -> None:
+                  px_per_mm: float, speed_p99: float, rms_vertical: float = np.nan, rms_horizontal: float = np.nan) -> None:
     """The LDV points the spline uses lie on the frames (none: exit 3), the field's speeds (largest chunk's 99th
     percentile, mm/s) are within what the recorded pressure can drive, and its vertical velocity (the
     vibrometer's, RMS mm/s) is of the order of its horizontal one (the video's): VELOCITY_ORDER."""
     on = points_on_image(points_px[good], shape)
-    advice = "check ingest_ldv.length_unit, ldv_frame.affine and camera.px_per_mm, then rerun ingest-ldv"
     if not on.any():
         raise InputDataError(f"fields: none of the {int(good.sum())} LDV points the spline uses lies on the "
-                             f"{shape[1]} x {shape[0]} px frames; {advice}", reader.path)
+                             f"{shape[1]} x {shape[0]} px frames; {SCAN_FRAME_ADVICE}, then rerun ingest-ldv",
+                             reader.path)
     if not on.all():
-        log.warning("fields: %d of %d LDV points the spline uses lie outside the frames (the vertical velocity "
-                    "there is extrapolated); %s", int((~on).sum()), len(on), advice)
+        log.warning("fields: %d of %d LDV points the spline uses lie outside the frames, where the video cannot show "
+                    "that they are on the folds (the spline uses them for the field inside): %s",
+                    int((~on).sum()), len(on), scan_beyond_frames(points_px[good], shape, px_per_mm))
     _check_on_folds(reader, points_px[good][on], shape)
     if reader.has_stage("hsc") and "pressure" in reader.group("hsc"):
         bound = pressure_velocity_bound(reader.read("hsc", "pressure"))
@@ -258,7 +259,7 @@ def _write_fields(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: Stag
         i = j
     bar.close()
     rms = np.sqrt(sum_sq / max(n_valid, 1))
-    _check_fields(reader, points_px, good, (h, w), speed_p99, float(rms[0]), float(rms[1]))
+    _check_fields(reader, points_px, good, (h, w), float(fl["px_per_mm"]), speed_p99, float(rms[0]), float(rms[1]))
     s.put("frame_time", frame_time)
     s.put("ldv_px", points_px)
     s.put("ldv_used", good)

@@ -11,7 +11,7 @@ import numpy as np
 from vfcli.calibration import WAV_FULL_SCALE, calibration_warnings, default_calibration
 from vfcli.config import SyncConfig
 from vfcli.errors import ConfigError, InputDataError
-from vfcli.flow.plausibility import points_on_image
+from vfcli.flow.plausibility import SCAN_FRAME_ADVICE, points_on_image, scan_beyond_frames
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
 from vfcli.io.ldv.read import LdvChannels, LdvScan, read_ldv
 from vfcli.io.pressure import PA_PER_UNIT, read_pressure
@@ -167,15 +167,13 @@ def _check_on_image(reader: StoreReader, coords_mm: np.ndarray, scan_path: str |
     on = points_on_image(px, shape)
     if on.any() and on.all():
         return
-    where = (f"(col, row) {np.nanmin(px[:, 0]):.0f}..{np.nanmax(px[:, 0]):.0f}, "
-             f"{np.nanmin(px[:, 1]):.0f}..{np.nanmax(px[:, 1]):.0f} px on {shape[1]} x {shape[0]} px frames")
-    advice = ("check ingest_ldv.length_unit (the unit of the file's coordinates), ldv_frame.affine (scan to camera "
-              "mm) and camera.px_per_mm")
     if not on.any():
-        raise InputDataError(f"none of the {len(on)} scan points lies on the video's frames, {where}; {advice}",
-                             scan_path)
-    log.warning("ingest-ldv: %d of %d scan points lie outside the video's frames, %s; %s",
-                int((~on).sum()), len(on), where, advice)
+        where = (f"(col, row) {np.nanmin(px[:, 0]):.0f}..{np.nanmax(px[:, 0]):.0f}, "
+                 f"{np.nanmin(px[:, 1]):.0f}..{np.nanmax(px[:, 1]):.0f} px on {shape[1]} x {shape[0]} px frames")
+        raise InputDataError(f"none of the {len(on)} scan points lies on the video's frames, {where}; "
+                             f"{SCAN_FRAME_ADVICE}", scan_path)
+    log.warning("ingest-ldv: %d of %d scan points lie outside the video's frames: %s", int((~on).sum()), len(on),
+                scan_beyond_frames(px, shape, float(hsc["px_per_mm"])))
 
 
 def _check_rate_against_video(reader: StoreReader, scan: LdvScan, sync_cfg: SyncConfig,
