@@ -70,8 +70,8 @@ def test_some_scan_points_off_the_video_are_a_stored_warning(video, tmp_path):
 
 
 def test_the_words_for_a_scan_partly_off_the_frames_give_both_sizes_by_hand():
-    """A zoomed camera (frames 10 x 8 mm at 20 px/mm) inside a 16 x 12 mm scan, and a scan in metres read as
-    millimetres' thousandth (0.016 x 0.012 mm): the sizes side by side tell the two apart; no verdict either way."""
+    """A zoomed camera (frames 10 x 8 mm at 20 px/mm) inside a 16 x 12 mm scan, and the same scan in metres read as
+    millimetres (0.016 x 0.012 mm): the sizes side by side tell the two apart; no verdict either way."""
     grid = np.stack(np.meshgrid(np.linspace(-3.0, 13.0, 17), np.linspace(-2.0, 10.0, 22)), -1).reshape(-1, 2)
     words = scan_beyond_frames(grid * 20.0, (160, 200), 20.0)
     assert words.startswith("the scan spans 16 x 12 mm (columns -60..260, rows -40..200 px), "

@@ -113,8 +113,9 @@ def scan_beyond_frames(points_px: np.ndarray, shape: tuple[int, int], px_per_mm:
 
     Returns
     -------
-    str, e.g. "the scan spans 16.2 x 11.0 mm (columns -89..308, rows -114..325 px), the frames 12.9 x 12.9 mm
-    (256 x 256 px): expected where the camera sees only part of the scanned folds; otherwise check ..."
+    str, e.g. (widened panel seed 2002) "the scan spans 16.8 x 18.6 mm (columns -89..308, rows -114..325 px), the
+    frames 10.8 x 10.8 mm (256 x 256 px): expected where the camera sees only part of the scanned folds; otherwise
+    check ..."
     """
     p = np.asarray(points_px, float).reshape(-1, 2)
     p = p[np.isfinite(p).all(axis=1)]
