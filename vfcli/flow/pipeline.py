@@ -34,8 +34,9 @@ from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midl
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
 from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, closed_floor, closed_frames,
                                              crease_levels, detection_levels, dip_minima, search_band)
-from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, ray_gap_levels,
-                                               resolved_width_px)
+from vfcli.flow.gap.rays import as_rays
+from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, flat_floor,
+                                               ray_gap_levels, resolved_width_px)
 from vfcli.flow.gap.subpixel.segment import ray_fits
 from vfcli.flow.gap.subpixel.taper import taper_limits
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
@@ -335,18 +336,24 @@ def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap
     detection levels keep the recording's one level (set from the rays' own, in a trial with an earlier form of
     these levels, the 52 widened seeds of docs/benchmarks.md moved by at most 0.006 in IoU).
 
-    Returns (gap, resolved). Where the slit is never resolved (wide enough to show the gap's own level in two of
-    those frames on fewer than :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level),
+    Returns (gap, resolved). Where the slit is never resolved (wide enough to show the gap's own level, with a flat
+    floor at it (:func:`flat_floor`, against the fits' median misfit), in two of those frames on fewer than
+    :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level),
     ``gap`` has no per-ray levels (its widths' limits only), ``resolved`` is False and it warns
     (:func:`warn_unresolved_gap`)."""
-    widest = np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES]
-    fits = [ray_fits(sample[i], gap) for i in np.sort(widest)]
-    widths = np.stack([e1 - e0 for e0, e1, _ in fits])
-    levels = ray_gap_levels(widths, np.stack([g for *_, g in fits]), gap.model.psf_sigma_px,
-                            gap.gap_like_below(len(fits[0][0])))
+    widest = np.sort(np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES])
+    fits = [ray_fits(sample[i], gap) for i in widest]
+    widths = np.stack([f.e1 - f.e0 for f in fits])
+    rms = np.concatenate([f.rms for f in fits])
+    noise = float(np.nanmedian(rms)) if np.isfinite(rms).any() else 0.0
+    sigma = gap.model.psf_sigma_px
+    flat = np.stack([flat_floor(as_rays(sample[i], gap.lateral_axis), f.e0, f.e1, f.level, sigma, noise)
+                     for i, f in zip(widest, fits)])
+    levels = ray_gap_levels(widths, np.stack([f.level for f in fits]), sigma, gap.gap_like_below(len(fits[0].e0)),
+                            flat=flat)
     gap = replace(gap, ray_max_width=taper_limits(widths))
     if levels is None:
-        warn_unresolved_gap(widths, gap.model, len(fits))
+        warn_unresolved_gap(np.where(flat, widths, np.nan), gap.model, len(fits))
         return gap, False
     return replace(gap, ray_gap=levels), True
 
@@ -362,17 +369,18 @@ def warn_unresolved_gap(widths: np.ndarray, model: EdgeModel, n_frames: int) -> 
     (docs/benchmarks.md, "A gap never resolved"); the analytic slit of tests/test_gap_blur.py under a 3 px
     blur reads -77 %.
 
-    widths : (k, n_rays) fitted slit widths of the sampled frames with the widest gaps, px (NaN: closed).
+    widths : (k, n_rays) fitted slit widths of the sampled frames with the widest gaps, px (NaN: closed, or a fit
+        without a flat floor at its level, :func:`flat_floor`).
     """
     need = resolved_width_px(model.psf_sigma_px)
     w = np.asarray(widths, float)
     widest = float(np.nanmax(w)) if np.isfinite(w).any() else 0.0
     log.warning("flow: the glottal gap is never resolved: in the %d sampled frames with the widest gap it opens "
                 "wider than %.1f px (%g blur widths of %.2f px, at least %g px), where a slit shows its own "
-                "darkness, in two frames at fewer than %d places along the glottis (widest fit %.1f px); its edges "
-                "are fitted to the blurred dip, whose floor (%.0f counts) is brighter than the gap, so the gap "
-                "masks, the glottal area and the gap term are not determined by this video (they can be off by a "
-                "large factor either way). For a new recording zoom in or sharpen the focus",
+                "darkness, in two frames at fewer than %d places along the glottis (widest fit with a flat floor "
+                "%.1f px); its edges are fitted to the blurred dip, whose floor (%.0f counts) is brighter than the "
+                "gap, so the gap masks, the glottal area and the gap term are not determined by this video (they "
+                "can be off by a large factor either way). For a new recording zoom in or sharpen the focus",
                 n_frames, need, RESOLVED_SIGMAS, model.psf_sigma_px, RESOLVED_MIN_PX, MIN_RAYS, widest,
                 model.gap_counts)
 

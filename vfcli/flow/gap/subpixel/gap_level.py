@@ -7,8 +7,9 @@ since on a narrow slit width and depth trade against each other ((tissue - gap) 
 image holds). The channel seen through the gap is fixed in the image (far below the folds, lit by
 the same light), so each ray's level is measured where the gap shows it: on the sampled frames in
 which the ray's fitted slit is wide enough for the fit's level to come from the data rather than
-the prior (:data:`RESOLVED_SIGMAS` PSF widths, at least :data:`RESOLVED_MIN_PX`), then smoothed
-along the glottis; a ray never seen that wide keeps the recording's level.
+the prior (:data:`RESOLVED_SIGMAS` PSF widths, at least :data:`RESOLVED_MIN_PX`) and its floor is flat
+at the fitted level (:func:`flat_floor`), then smoothed along the glottis; a ray never seen that wide keeps
+the recording's level.
 
 Units: counts; rays along the glottis (:mod:`vfcli.flow.gap.rays`).
 """
@@ -30,6 +31,8 @@ RESOLVED_MIN_PX = 3.0
 SMOOTH_RAYS = 9
 #: Fewest rays with a measured level for a per-ray level at all (else the recording's one level)
 MIN_RAYS = 5
+#: Significance of :func:`flat_floor`'s test: a floor as flat as the fits' noise fails it with this probability
+FLAT_FLOOR_ALPHA = 0.01
 
 
 def resolved_width_px(sigma: float) -> float:
@@ -38,8 +41,50 @@ def resolved_width_px(sigma: float) -> float:
     return max(RESOLVED_MIN_PX, RESOLVED_SIGMAS * float(sigma))
 
 
+def flat_floor(rays: np.ndarray, e0: np.ndarray, e1: np.ndarray, level: np.ndarray, sigma: float,
+               noise: float) -> np.ndarray:
+    """Whether each ray's fitted slit shows a flat floor at its fitted level: the slit a resolved width stands for.
+
+    A slit :data:`RESOLVED_SIGMAS` PSF widths wide or wider reaches the gap level over its middle, the pixel
+    centres at least half of those widths from both edges (where none is, the one or two nearest its middle):
+    there the image is the fitted level and noise. A fit that took a wide stretch of dark tissue for the gap,
+    with a narrower, darker dip inside it, has no such floor (widened seeds 4121 and 3006: "slits" 16-36 px wide
+    at one end of the glottis at 700-1075 counts, fitted over tissue and a 3-5 px gap whose dip reached 300-500
+    counts below them; they passed the width test and set those rays' levels, and 4121's video, whose gap is
+    never resolved, said nothing). The test: the RMS of those pixels about the level is within what ``noise``
+    allows at :data:`FLAT_FLOOR_ALPHA` (the chi-square bound of their number, pixels independent).
+
+    Parameters
+    ----------
+    rays : (n_lateral, n_rays) counts, one frame as rays (:func:`vfcli.flow.gap.rays.as_rays`).
+    e0, e1 : (n_rays,) float, fitted edges, lateral px (pixel centres at integers); NaN: closed.
+    level : (n_rays,) float, fitted gap levels, counts.
+    sigma : float, PSF standard deviation, px.
+    noise : float, the noise of one pixel about the fitted model, counts (the flow step: the median RMS
+        residual of the frames' fits).
+
+    Returns
+    -------
+    (n_rays,) bool, False on closed rays.
+    """
+    from scipy.stats import chi2
+
+    a = np.asarray(rays, float)
+    e0, e1, g = (np.asarray(v, float) for v in (e0, e1, level))
+    half = 0.5 * RESOLVED_SIGMAS * float(sigma)
+    centres = np.arange(a.shape[0], dtype=float)[:, None]
+    inner = (centres >= e0[None, :] + half) & (centres <= e1[None, :] - half)
+    middle = np.abs(centres - 0.5 * (e0 + e1)[None, :]) <= 0.5
+    with np.errstate(invalid="ignore"):
+        inner = np.where(inner.any(axis=0)[None, :], inner, middle)
+        n = inner.sum(axis=0)
+        msq = np.where(inner, (a - g[None, :]) ** 2, 0.0).sum(axis=0) / np.maximum(n, 1)
+        bound = float(noise) ** 2 * chi2.ppf(1.0 - FLAT_FLOOR_ALPHA, np.maximum(n, 1)) / np.maximum(n, 1)
+        return np.isfinite(e0) & np.isfinite(e1) & np.isfinite(g) & (n > 0) & (msq <= bound)
+
+
 def ray_gap_levels(widths: np.ndarray, levels: np.ndarray, sigma: float,
-                   upper: np.ndarray | None = None) -> np.ndarray | None:
+                   upper: np.ndarray | None = None, flat: np.ndarray | None = None) -> np.ndarray | None:
     """Each ray's gap level from the edge fits of sampled frames, counts.
 
     Parameters
@@ -56,6 +101,8 @@ def ray_gap_levels(widths: np.ndarray, levels: np.ndarray, sigma: float,
         ray's closed crease), so a dark patch of tissue fitted as a wide slit with its own, brighter level
         does not set the ray's gap level (widened seed 293, 2.7 px blur: fitted "gap" levels up to 810
         counts where the gap reads 315).
+    flat : (k, n_rays) bool, optional
+        A fit counts only where its floor is flat at its level (:func:`flat_floor`).
 
     Returns
     -------
@@ -70,6 +117,8 @@ def ray_gap_levels(widths: np.ndarray, levels: np.ndarray, sigma: float,
     resolved = np.isfinite(w) & (w >= resolved_width_px(sigma)) & np.isfinite(g)
     if upper is not None:
         resolved &= g < np.asarray(upper, float)[None, :]
+    if flat is not None:
+        resolved &= np.asarray(flat, bool)
     n = resolved.sum(axis=0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)   # rays never resolved

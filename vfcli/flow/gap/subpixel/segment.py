@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from typing import Iterable, Iterator
+from typing import Iterable, Iterator, NamedTuple
 
 import numpy as np
 
@@ -129,25 +129,40 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
     e0, e1 : (n_rays,) float
         Lateral px; NaN on closed rays.
     """
-    e0, e1, _ = ray_fits(frame, gap)
-    return e0, e1
+    fit = ray_fits(frame, gap)
+    return fit.e0, fit.e1
 
 
-def ray_fits(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`raw_edges` and each open ray's fitted gap level, counts ((n_rays,), NaN on closed rays)."""
+class RayFit(NamedTuple):
+    """One frame's edges as :func:`raw_edges` gives them, with the sub-pixel fit's level and misfit on each ray.
+
+    e0, e1 : (n_rays,) float, lateral px, NaN on closed rays.
+    level : (n_rays,) float, the fitted gap level, counts, NaN on closed rays.
+    rms : (n_rays,) float, the fit's RMS residual on the ray, counts, NaN on closed rays.
+    """
+
+    e0: np.ndarray
+    e1: np.ndarray
+    level: np.ndarray
+    rms: np.ndarray
+
+
+def ray_fits(frame: np.ndarray, gap: SubpixelGap) -> RayFit:
+    """:func:`raw_edges` with each open ray's fitted gap level and misfit (:class:`RayFit`)."""
     return ray_fits_many([frame], gap)[0]
 
 
-def ray_fits_many(frames: list, gap: SubpixelGap) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def ray_fits_many(frames: list, gap: SubpixelGap) -> list[RayFit]:
     """:func:`ray_fits` of several frames, their sub-pixel fits in one call (:func:`fit_ray_edges_many`)."""
     found = [_detected(frame, gap) for frame in frames]
     todo = [k for k, d in enumerate(found) if d[3] is not None]
     fits = fit_ray_edges_many([frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo],
                               gap.model, gap.lateral_axis, inners=[found[k][3] for k in todo],
                               gap_counts=[found[k][4] for k in todo]) if todo else []
-    out = [(e0, e1, np.full(len(e0), np.nan)) for e0, e1, *_ in found]
+    out = [RayFit(e0, e1, np.full(len(e0), np.nan), np.full(len(e0), np.nan)) for e0, e1, *_ in found]
     for k, fit in zip(todo, fits):
-        out[k] = _closed_rays(fit, found[k][2], gap, found[k][5])
+        e0, e1, level = _closed_rays(fit, found[k][2], gap, found[k][5])
+        out[k] = RayFit(e0, e1, level, np.where(np.isfinite(e0), fit.rms, np.nan))
     return out
 
 
@@ -374,7 +389,7 @@ def segment_stream(frames: Iterable[np.ndarray], gap: SubpixelGap) -> Iterator[t
 
     pending = 0  # frames read but not yet yielded (the last `pending` entries of the window)
     for batch in _batches(frames, FIT_BATCH_FRAMES):
-        for frame, (e0, e1, _) in zip(batch, ray_fits_many(batch, gap)):
+        for frame, (e0, e1, *_) in zip(batch, ray_fits_many(batch, gap)):
             w0 = robustness_weights(e0, h) if gap.model is not None else None
             w1 = robustness_weights(e1, h) if gap.model is not None else None
             window.append((frame, e0, e1, w0, w1))
