@@ -67,5 +67,6 @@ def test_a_gap_never_wide_enough_to_show_its_own_level_is_stated_unresolved_and_
             floor = float(words.split("whose floor (")[1].split(" counts")[0])
             assert floor > 2 * ph.gap_counts                                       # the dip's floor, not the gap
             assert "zoom in or sharpen the focus" in words and "glottal area" in words
+            assert "with a flat floor" in words                                    # the widest fit that counts
     assert abs(errors[0.5]) < 0.05 and abs(errors[1.0]) < 0.05, errors
     assert abs(errors[3.0]) > 0.3, errors                                       # what the warning is about

@@ -374,13 +374,13 @@ def warn_unresolved_gap(widths: np.ndarray, model: EdgeModel, n_frames: int) -> 
     """
     need = resolved_width_px(model.psf_sigma_px)
     w = np.asarray(widths, float)
-    widest = float(np.nanmax(w)) if np.isfinite(w).any() else 0.0
+    widest = f"widest fit with a flat floor {np.nanmax(w):.1f} px" if np.isfinite(w).any() else "no fit with a flat floor"
     log.warning("flow: the glottal gap is never resolved: in the %d sampled frames with the widest gap it opens "
                 "wider than %.1f px (%g blur widths of %.2f px, at least %g px), where a slit shows its own "
-                "darkness, in two frames at fewer than %d places along the glottis (widest fit with a flat floor "
-                "%.1f px); its edges are fitted to the blurred dip, whose floor (%.0f counts) is brighter than the "
-                "gap, so the gap masks, the glottal area and the gap term are not determined by this video (they "
-                "can be off by a large factor either way). For a new recording zoom in or sharpen the focus",
+                "darkness, in two frames at fewer than %d places along the glottis (%s); its edges are fitted to "
+                "the blurred dip, whose floor (%.0f counts) is brighter than the gap, so the gap masks, the glottal "
+                "area and the gap term are not determined by this video (they can be off by a large factor either "
+                "way). For a new recording zoom in or sharpen the focus",
                 n_frames, need, RESOLVED_SIGMAS, model.psf_sigma_px, RESOLVED_MIN_PX, MIN_RAYS, widest,
                 model.gap_counts)
 
