@@ -250,6 +250,11 @@ def build_report(reader: StoreReader, work: Path) -> str:
     job = ExportJob(reader, runs, work, None, 10.0)
     d = work / "figures"
     d.mkdir(parents=True, exist_ok=True)
+    picture = None
+    if job.mesh is not None:
+        from vfcli.model.preview import MeshPicture
+
+        picture = MeshPicture(job.mesh, d / "mesh.png")   # pyvista draws it in its own process meanwhile
     # -- sync
     parts.append("<h2>Synchronisation of the vibrometer</h2>")
     if reader.has_stage("sync") and reader.has_stage("ldv"):
@@ -279,16 +284,14 @@ def build_report(reader: StoreReader, work: Path) -> str:
         parts.append('<p class="muted">No /flow yet (`vfcli flow`).</p>')
     # -- mesh
     parts.append("<h2>Model mesh</h2>")
-    if job.mesh is not None:
-        from vfcli.model.preview import render_mesh_png
-
+    if picture is not None:
         m = job.mesh
         parts.append(f"<p>{m.n_nodes} nodes, {len(m.tets)} tetrahedra, volume left {m.fold_volume(0):.1f} mm³, "
                      f"right {m.fold_volume(1):.1f} mm³.</p>")
         try:
             import cv2
 
-            render_mesh_png(m, d / "mesh.png")
+            picture.result()
             video.write_jpeg(d / "mesh.jpg", cv2.imread(str(d / "mesh.png"))[..., ::-1], 88)
             parts.append(figure(d / "mesh.jpg", "The M5 model of both folds, boundary tags in colour", 800))
         except (OSError, RuntimeError) as exc:
