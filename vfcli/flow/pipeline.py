@@ -374,7 +374,8 @@ def warn_unresolved_gap(widths: np.ndarray, model: EdgeModel, n_frames: int) -> 
     """
     need = resolved_width_px(model.psf_sigma_px)
     w = np.asarray(widths, float)
-    widest = f"widest fit with a flat floor {np.nanmax(w):.1f} px" if np.isfinite(w).any() else "no fit with a flat floor"
+    widest = (f"widest fit with a flat floor {np.nanmax(w):.1f} px" if np.isfinite(w).any()
+              else "no fit with a flat floor")
     log.warning("flow: the glottal gap is never resolved: in the %d sampled frames with the widest gap it opens "
                 "wider than %.1f px (%g blur widths of %.2f px, at least %g px), where a slit shows its own "
                 "darkness, in two frames at fewer than %d places along the glottis (%s); its edges are fitted to "

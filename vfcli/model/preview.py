@@ -76,13 +76,12 @@ class _PyvistaJob:
     """The pyvista subprocess drawing one mesh picture, started at once (:meth:`start`) and waited for by
     :meth:`done`, so that the caller can do other work meanwhile (the report draws its figures)."""
 
-    def __init__(self, proc: subprocess.Popen | None, tmp: tempfile.TemporaryDirectory | None, path: Path,
-                 error: str | None = None):
-        self.proc, self.tmp, self.path, self.error = proc, tmp, path, error
+    def __init__(self, proc: subprocess.Popen, tmp: tempfile.TemporaryDirectory, path: Path):
+        self.proc, self.tmp, self.path = proc, tmp, path
 
     @classmethod
     def start(cls, mesh: FoldMesh, path: Path) -> "_PyvistaJob | None":
-        """The job, or None when pyvista is not installed (a warning says so)."""
+        """The job, or None when pyvista is not installed or its process cannot start (a warning says which)."""
         if importlib.util.find_spec("pyvista") is None:  # an optional dependency (extra `viz`)
             log.warning("mesh preview: pyvista is not installed (pip install 'vfcli[viz]'); drawing it with matplotlib")
             return None
@@ -100,14 +99,12 @@ class _PyvistaJob:
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         except OSError as exc:
             tmp.cleanup()
-            return cls(None, None, path, str(exc))
+            log.warning("pyvista preview failed (%s); falling back to matplotlib", exc)
+            return None
         return cls(proc, tmp, path)
 
     def done(self, timeout_s: float) -> bool:
         """Wait for the picture (at most ``timeout_s`` s from now); True when pyvista drew it."""
-        if self.proc is None:
-            log.warning("pyvista preview failed (%s); falling back to matplotlib", self.error)
-            return False
         try:
             _, err = self.proc.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired as exc:

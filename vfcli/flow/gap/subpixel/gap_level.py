@@ -80,8 +80,8 @@ def flat_floor(rays: np.ndarray, e0: np.ndarray, e1: np.ndarray, level: np.ndarr
     with np.errstate(invalid="ignore"):
         inner = np.where(inner.any(axis=0)[None, :], inner, middle)
         n = inner.sum(axis=0)
-        msq = np.where(inner, (a - g[None, :]) ** 2, 0.0).sum(axis=0) / np.maximum(n, 1)
         dof = np.maximum(n, 1)
+        msq = np.where(inner, (a - g[None, :]) ** 2, 0.0).sum(axis=0) / dof
         bound = float(noise) ** 2 * 2.0 * gammaincinv(0.5 * dof, 1.0 - FLAT_FLOOR_ALPHA) / dof
         return np.isfinite(e0) & np.isfinite(e1) & np.isfinite(g) & (n > 0) & (msq <= bound)
 
