@@ -1,5 +1,6 @@
 """M5 tetrahedral mesh: volume, tags, orientation, (u, v) maps, mirror symmetry."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -161,6 +162,22 @@ def test_the_pyvista_picture_is_drawn_while_the_caller_goes_on(mesh, tmp_path):
     picture = MeshPicture(mesh, out)
     assert picture.job.proc.poll() is None and not out.exists()
     assert picture.result() in ("pyvista", "matplotlib") and out.stat().st_size > 10_000
+
+
+def test_a_caller_that_fails_before_the_picture_leaves_no_pyvista_process_behind(mesh, tmp_path):
+    """`vfcli report` failing between starting the mesh picture and waiting for it (a bug, exit 1): leaving the
+    picture's context ends its pyvista process and removes its temporary folder (before, the process went on
+    drawing into the report's deleted folder)."""
+    pytest.importorskip("pyvista")
+    from vfcli.model.preview import MeshPicture
+
+    with pytest.raises(ZeroDivisionError):
+        with MeshPicture(mesh, tmp_path / "m.png") as picture:
+            job = picture.job
+            assert job.proc.poll() is None
+            1 / 0
+    assert job.proc.returncode is not None and not Path(job.tmp.name).exists()
+    assert picture.job is None
 
 
 @pytest.mark.parametrize("overrides, field, allowed", [

@@ -6,6 +6,7 @@ temporary folder, then inlined).
 """
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import logging
@@ -203,6 +204,11 @@ def _runs_section(job: ExportJob, d: Path) -> str:
 
 def build_report(reader: StoreReader, work: Path) -> str:
     """The report page (HTML text) of an open store; pictures are rendered into ``work``."""
+    with contextlib.ExitStack() as stack:     # the mesh picture's process ends with the report, whole or failed
+        return _build_report(reader, work, stack)
+
+
+def _build_report(reader: StoreReader, work: Path, stack: contextlib.ExitStack) -> str:
     names = run_names(reader)
     runs = [read_run(reader, n) for n in names]
     title = reader.path.name
@@ -254,7 +260,7 @@ def build_report(reader: StoreReader, work: Path) -> str:
     if job.mesh is not None:
         from vfcli.model.preview import MeshPicture
 
-        picture = MeshPicture(job.mesh, d / "mesh.png")   # pyvista draws it in its own process meanwhile
+        picture = stack.enter_context(MeshPicture(job.mesh, d / "mesh.png"))   # pyvista draws it meanwhile
     # -- sync
     parts.append("<h2>Synchronisation of the vibrometer</h2>")
     if reader.has_stage("sync") and reader.has_stage("ldv"):
