@@ -1,0 +1,94 @@
+"""## The gap term's weight against the inferior surface: kept stores refitted at other weights (issue 15, item 5).
+
+For each kept store (``bench/bench_unseen.py --keep DIR`` or ``bench/bench_diagnose.py --keep DIR``, with the
+phantom's truth in ``DIR/raw/truth.h5`` or ``DIR/truth/truth.h5``), ``vfcli optimize`` is run again at each
+``--weights`` value of ``optimize.gap_weight`` as the run ``gw<k>`` (the store's ``default`` run is the weight 1 it
+was made with), then every run is scored against the truth (read after the fits, to score only): the inferior
+surface's oscillating error (relative to the RMS true oscillation), its static error (mm RMS of each node's time
+mean), its total error (relative to the RMS true displacement), the mean vertical displacement of the inferior
+surface true / estimated (mm) and the coverage of the stated 90 % intervals (clamped nodes left out, as
+:func:`vfcli.synth.scoring.interval_coverage` and ``bench_unseen.py`` score them).
+
+Reproduce (prints a markdown table)::
+
+    .venv/bin/python bench/bench_unseen.py 4125 4126 --duration 0.025 --keep DIR
+    .venv/bin/python bench/bench_gap_weight.py DIR/seed4125 DIR/seed4126 --weights 0 0.3
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_unseen import read_truth  # noqa: E402
+
+from vfcli.model.mesh import FoldMesh  # noqa: E402
+from vfcli.store import Store  # noqa: E402
+from vfcli.store.mesh import read_mesh  # noqa: E402
+from vfcli.synth.scoring import interval_coverage, rms, side_truth  # noqa: E402
+
+MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
+
+
+def run_name(weight: float) -> str:
+    """The run a weight is stored as: ``gw`` and its digits (0.3 -> gw03, 10 -> gw10)."""
+    return "gw" + f"{weight:g}".replace(".", "").replace("-", "m")
+
+
+def score(work: Path, run: str) -> dict[str, float | str]:
+    """The inferior surface of the run ``run`` of ``work``'s store against its phantom's truth (module docstring)."""
+    truth = work / "raw" / "truth.h5"
+    t, _ = read_truth(truth if truth.is_file() else work / "truth" / "truth.h5",
+                      ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in MESH_KEYS])
+    with Store(work / "recording.h5").read() as r:
+        mesh = read_mesh(r)
+        disp = np.asarray(r.read("optimize", "displacements", run), float)[:-1]
+        std = np.asarray(r.read("optimize", "displacement_std", run), float)[:-1]
+        sim_time = np.asarray(r.read("optimize", "sim_time", run), float)[:-1]
+    truth_mesh = FoldMesh(**{k: t[f"mesh/{k}"] for k in MESH_KEYS})
+    true = t["frames/displacement"][np.searchsorted(t["frames/time"], sim_time - 1e-9)].astype(float)
+    nodes, ref = side_truth(mesh.uv, mesh.node_side, truth_mesh.uv, truth_mesh.node_side, true, 1)
+    est = disp[:, nodes]
+    est_mean, ref_mean = est.mean(axis=0), ref.mean(axis=0)
+    osc = ref - ref_mean
+    return {"oscillating": rms((est - est_mean) - osc) / rms(osc), "static (mm)": rms(est_mean - ref_mean),
+            "total": rms(est - ref) / rms(ref),
+            "mean z true / est (mm)": f"{ref_mean[:, 2].mean():.3f} / {est_mean[:, 2].mean():.3f}",
+            "coverage": interval_coverage(est, std[:, nodes], ref)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("stores", type=Path, nargs="+", help="kept store folders (holding recording.h5)")
+    ap.add_argument("--weights", type=float, nargs="+", default=[0.0, 0.3])
+    args = ap.parse_args()
+    vfcli = str(Path(sys.executable).with_name("vfcli"))
+    print("| store | optimize.gap_weight | inferior oscillating | static (mm) | total | mean z true / est (mm) | "
+          "90 % coverage |")
+    print("| --- | ---: | ---: | ---: | ---: | --- | ---: |")
+    for work in args.stores:
+        runs = [(1.0, "default")]
+        for w in args.weights:
+            name = run_name(w)
+            res = subprocess.run([vfcli, "optimize", str(work / "recording.h5"), "--set", f"optimize.gap_weight={w}",
+                                  "--run", name, "-q"], capture_output=True, text=True)
+            if res.returncode != 0:
+                print(f"{work.name}: optimize at gap_weight {w} exited {res.returncode}: {res.stderr.strip()[-300:]}",
+                      file=sys.stderr)
+                continue
+            runs.append((w, name))
+        for w, name in runs:
+            s = score(work, name)
+            print(f"| {work.name} | {w:g} | {100 * s['oscillating']:.1f} % | {s['static (mm)']:.4f} | "
+                  f"{100 * s['total']:.2f} % | {s['mean z true / est (mm)']} | {100 * s['coverage']:.1f} % |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
