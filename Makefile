@@ -42,8 +42,11 @@ browser:
 test: venv browser
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 $(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=15
 
+# a benchmark that needs inputs (kept stores, seeds, the demo's store) exits 2 with its usage and is passed over;
+# its docstring and docs/benchmarks.md say how to run it
 bench: venv
-	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+	@for b in bench/bench_*.py; do echo "== $$b"; $(BIN)/python $$b; rc=$$?; \
+	  if [ $$rc -eq 2 ]; then echo "   (needs inputs: passed over)"; elif [ $$rc -ne 0 ]; then exit 1; fi; done
 
 schemas: venv
 	$(BIN)/vfcli schemas --out schemas --layout-doc docs/store-layout.md --example examples/recording.toml

@@ -104,6 +104,9 @@ def split(work: Path) -> dict[str, float]:
 
 
 def main() -> None:
+    if len(sys.argv) < 2:
+        print("usage: bench_instrument_split.py DIR [DIR ...] (stores kept by bench_unseen.py --keep)", file=sys.stderr)
+        sys.exit(2)
     rows = {Path(w).name: split(Path(w)) for w in sys.argv[1:]}
     keys = list(next(iter(rows.values())))
     print("| store | " + " | ".join(keys) + " |")

@@ -93,6 +93,8 @@ def main() -> None:
                     help="skip the L-BFGS comparison row of the 5x5x15 two-sided setup")
     args = ap.parse_args()
     store, raw = Path(args.store), Path(args.raw)
+    if not store.is_file() or not (raw / "truth.h5").is_file():
+        ap.error(f"no store at {store} or no phantom truth in {raw}: run `make demo` first, or give --store and --raw")
     rows, hist = [], {}
     runs = [(s, s.replace("x", "_"), ["--setup", s]) for s in SETUPS] if args.loads != "pressure" else []
     if args.loads != "pressure" and args.compare_lbfgs:

@@ -82,6 +82,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--workdir", default="/tmp")
     args = ap.parse_args()
+    if not Path(args.store).is_file():
+        ap.error(f"no store at {args.store}: run `make demo` first, or give --store")
     print("| factor | value | control values | mesh DOF | build (s) | evaluate E (s) | exact gradient (s) "
           "| Gauss-Newton model (s) | LM solve (s) | gradient vs first | GN model vs first |")
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")

@@ -53,6 +53,9 @@ def cli(path: Path, k: int) -> None:
 
 if __name__ == "__main__":
     args = sys.argv[1:]
+    if not args:
+        print("usage: bench_store_index.py STORE [N] [--cli K] (e.g. demo/recording.h5 50 --cli 10)", file=sys.stderr)
+        sys.exit(2)
     k = int(args[args.index("--cli") + 1]) if "--cli" in args else 0
     if "--cli" in args:
         del args[args.index("--cli"):args.index("--cli") + 2]

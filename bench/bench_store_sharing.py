@@ -100,6 +100,9 @@ def digest_cost(store: Path) -> None:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        print("usage: bench_store_sharing.py STORE (e.g. demo/recording.h5)", file=sys.stderr)
+        sys.exit(2)
     store = Path(sys.argv[1])
     groups_xarray_opens(store)
     nbit_vs_gzip_reads()
