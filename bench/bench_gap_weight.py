@@ -27,12 +27,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_unseen import read_truth  # noqa: E402
+from bench_unseen import read_truth, score_inferior  # noqa: E402
 
-from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.store import Store  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
-from vfcli.synth.scoring import interval_coverage, rms, side_truth  # noqa: E402
 
 MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
 
@@ -42,8 +40,9 @@ def run_name(weight: float) -> str:
     return "gw" + f"{weight:g}".replace(".", "").replace("-", "m")
 
 
-def score(work: Path, run: str) -> dict[str, float | str]:
-    """The inferior surface of the run ``run`` of ``work``'s store against its phantom's truth (module docstring)."""
+def score(work: Path, run: str) -> dict:
+    """The inferior surface of the run ``run`` of ``work``'s store against its phantom's truth
+    (:func:`bench_unseen.score_inferior`, as ``bench_unseen.py`` scores its runs)."""
     truth = work / "raw" / "truth.h5"
     t, _ = read_truth(truth if truth.is_file() else work / "truth" / "truth.h5",
                       ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in MESH_KEYS])
@@ -52,16 +51,7 @@ def score(work: Path, run: str) -> dict[str, float | str]:
         disp = np.asarray(r.read("optimize", "displacements", run), float)[:-1]
         std = np.asarray(r.read("optimize", "displacement_std", run), float)[:-1]
         sim_time = np.asarray(r.read("optimize", "sim_time", run), float)[:-1]
-    truth_mesh = FoldMesh(**{k: t[f"mesh/{k}"] for k in MESH_KEYS})
-    true = t["frames/displacement"][np.searchsorted(t["frames/time"], sim_time - 1e-9)].astype(float)
-    nodes, ref = side_truth(mesh.uv, mesh.node_side, truth_mesh.uv, truth_mesh.node_side, true, 1)
-    est = disp[:, nodes]
-    est_mean, ref_mean = est.mean(axis=0), ref.mean(axis=0)
-    osc = ref - ref_mean
-    return {"oscillating": rms((est - est_mean) - osc) / rms(osc), "static (mm)": rms(est_mean - ref_mean),
-            "total": rms(est - ref) / rms(ref),
-            "mean z true / est (mm)": f"{ref_mean[:, 2].mean():.3f} / {est_mean[:, 2].mean():.3f}",
-            "coverage": interval_coverage(est, std[:, nodes], ref)}
+    return score_inferior(t, mesh, disp, std, None, sim_time)
 
 
 def main() -> None:
@@ -86,8 +76,9 @@ def main() -> None:
             runs.append((w, name))
         for w, name in runs:
             s = score(work, name)
-            print(f"| {work.name} | {w:g} | {100 * s['oscillating']:.1f} % | {s['static (mm)']:.4f} | "
-                  f"{100 * s['total']:.2f} % | {s['mean z true / est (mm)']} | {100 * s['coverage']:.1f} % |", flush=True)
+            print(f"| {work.name} | {w:g} | {100 * s['inf_osc_err']:.1f} % | {s['inf_static_err_mm']:.4f} | "
+                  f"{100 * s['inf_total_err']:.2f} % | {s['inf_mean_z_true_mm']:.3f} / {s['inf_mean_z_est_mm']:.3f} | "
+                  f"{100 * s['coverage90']:.1f} % |", flush=True)
 
 
 if __name__ == "__main__":

@@ -108,8 +108,7 @@ class _PyvistaJob:
         try:
             _, err = self.proc.communicate(timeout=timeout_s)
         except subprocess.TimeoutExpired as exc:
-            self.proc.kill()
-            self.proc.communicate()
+            self.cancel()
             log.warning("pyvista preview failed (%s); falling back to matplotlib", exc)
             return False
         finally:
