@@ -131,6 +131,23 @@ def test_a_run_stored_before_the_pressure_band_is_rebuilt_with_the_pressure_as_r
     assert config.optimize.pressure_band_harmonics == 10.0                          # today's default, unchanged
 
 
+def test_a_run_stored_before_the_closed_rays_rule_is_diagnosed_with_the_rule_it_was_fitted_under():
+    """Before session 47 every closed ray asked the simulated edges to meet (optimize.gap_closed_rays = 'meet');
+    such a run's residual is rebuilt with that rule, a run that states its rule keeps it."""
+    from vfcli.config import RecordingConfig
+    from vfcli.stages.diagnose import run_recording_config
+
+    attrs = {"ridge_weight": 13.5, "camera_offset_px": [120.0, 130.0], "camera_rotation_deg": 30.0}
+    config = RecordingConfig()
+    old = config.model_dump(mode="json")["optimize"]
+    del old["gap_closed_rays"]
+    assert run_recording_config(config, {"optimize": old}, attrs, np.zeros(2)).optimize.gap_closed_rays == "meet"
+    new = {**old, "gap_closed_rays": "overlap-allowed"}
+    assert run_recording_config(config, {"optimize": new}, attrs, np.zeros(2)).optimize.gap_closed_rays == \
+        "overlap-allowed"
+    assert config.optimize.gap_closed_rays == "overlap-allowed"                     # today's default
+
+
 def test_a_window_over_the_row_budget_is_diagnosed_on_a_coarser_grid_with_the_same_verdict(diagnosed, fitted):
     """diagnose.max_motion_rows below the window's rows: the motion is compared on every 2nd pixel of every 2nd row
     (a quarter of the rows), the diagnosis says so on its second line and stores the stride, the RMS map is whole

@@ -229,7 +229,8 @@ def test_motion_residuals_reproduce_the_motion_term(case):
 
 def test_out_of_range_objective_settings_are_bugs_not_config_errors():
     """The config bounds these fields (OptimizeConfig); a bad value reaching the core is a caller's bug."""
-    for bad in ({"outside": "both"}, {"gap_weight": -1.0}, {"gap_length_mm": 0.0}, {"lateral_axis": 2}):
+    for bad in ({"outside": "both"}, {"gap_weight": -1.0}, {"gap_length_mm": 0.0}, {"lateral_axis": 2},
+                {"closed_rays": "touch"}):
         with pytest.raises(ValueError) as err:
             ObjectiveSettings(**bad)
         assert not isinstance(err.value, ConfigError)

@@ -55,8 +55,13 @@ over the crossings of the fold's surface-mesh edges with the ray, where an edge
 (a, b) crosses at ``s = lat_a + (c - ray_a) / (ray_b - ray_a) (lat_b - lat_a)``.
 The measured silhouettes are the outermost gap-mask transitions of the ray
 (:func:`measured_silhouettes`); on a closed ray both are the last known opening
-location (the paper's fallback), so a closed measured gap asks the folds to meet
-there.  With ``d = (s_sim - s_meas) / px_per_mm`` (mm) and the length scale l::
+location (the paper's fallback), so a closed measured gap asks a simulated gap to
+close there.  A closed ray where the simulated folds overlap is left out
+(``closed_rays = "overlap-allowed"``, the default since session 47): the camera
+cannot see one fold pass behind the other, and the model has no contact, so its
+folds overlap in the closed phase (:func:`vfcli.inverse.terms.gap.closed_rays_kept`;
+``"meet"`` asks them to meet exactly, overlap or not).  With
+``d = (s_sim - s_meas) / px_per_mm`` (mm) and the length scale l::
 
     E_gap = mean over frames of  (1 / (2 n_rays)) sum_rays sum_folds arctan((d / l)^2)
 
@@ -90,6 +95,7 @@ from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, surface_edg
 from vfcli.flow.gap.opening import measured_silhouettes
 from vfcli.inverse.stencil import frame_velocity_stencil, stencil_apply
 from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
+from vfcli.inverse.terms.gap import CLOSED_RAYS, closed_rays_kept
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
 from vfcli.model.response.base import Response
 
@@ -179,10 +185,16 @@ class ObjectiveSettings:
     #: "paper": a pixel only the simulation sees costs nothing (the paper's one-sided E);
     #: "symmetric": it costs |v_bar|^2 where the recording sees the gap (module docstring)
     outside: str = "paper"
+    #: a ray the camera sees closed: "overlap-allowed" leaves it out where the simulated folds overlap
+    #: (:func:`vfcli.inverse.terms.gap.closed_rays_kept`); "meet" asks both silhouettes to meet at the last known
+    #: opening location whatever the simulation shows (before session 47)
+    closed_rays: str = "overlap-allowed"
 
     def __post_init__(self) -> None:
         if self.outside not in OUTSIDE:
             raise ValueError(f"outside must be one of {OUTSIDE}, got {self.outside!r}")
+        if self.closed_rays not in CLOSED_RAYS:
+            raise ValueError(f"closed_rays must be one of {CLOSED_RAYS}, got {self.closed_rays!r}")
         if not (self.motion_weight >= 0 and self.gap_weight >= 0 and self.ridge_weight >= 0
                 and len(self.component_weights) == 3 and min(self.component_weights) >= 0):
             raise ValueError("objective weights must be >= 0")
@@ -354,7 +366,10 @@ class Problem:
             v_only = np.take(vel, pix_only, axis=0).astype(float, copy=False)
             sil = []
             targets = (self.meas.gap_lo[f], self.meas.gap_hi[f])
-            for side, (rays, edge, _) in enumerate(self.silhouettes(pos)):
+            simulated = self.silhouettes(pos)
+            if self.settings.closed_rays == "overlap-allowed" and len(simulated) == 2:
+                simulated = closed_rays_kept(simulated, *targets)
+            for side, (rays, edge, _) in enumerate(simulated):
                 tgt = targets[side][rays]
                 ok = np.isfinite(tgt)
                 sil.append((rays[ok], edge[ok], tgt[ok]))

@@ -59,6 +59,8 @@ def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], at
     # a run stored before optimize band-limited the recorded pressure (optimize.pressure_band_harmonics) used it as
     # recorded: rebuilt with today's default its model would differ from its stored displacements
     data["optimize"].setdefault("pressure_band_harmonics", None)
+    # a run stored before session 47 asked the simulated edges to meet on every closed ray
+    data["optimize"].setdefault("gap_closed_rays", "meet")
     offset = np.asarray(attrs["camera_offset_px"], float) + np.asarray(roi_origin_px, float)
     data["camera"] = {**run_config.get("camera", data["camera"]), "pose": "config",
                       "rotation_deg": float(attrs["camera_rotation_deg"]), "offset_px": [float(v) for v in offset]}

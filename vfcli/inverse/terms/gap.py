@@ -22,6 +22,39 @@ import numpy as np
 from vfcli.camera.silhouette import crossing_with_gradient
 from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, pair_outers, term_pairs
 
+#: what a ray the camera sees closed asks of the simulated silhouettes (``optimize.gap_closed_rays``)
+CLOSED_RAYS = ("overlap-allowed", "meet")
+
+
+def closed_rays_kept(simulated: list, lo: np.ndarray, hi: np.ndarray) -> list:
+    """The simulated silhouettes of one frame without the rays the camera sees closed where the folds overlap.
+
+    A superior view cannot see one fold pass behind the other: a ray it sees closed says only that the folds meet
+    or overlap there. The linear-elastic model has no contact, so its folds overlap in the closed phase as the
+    recorded folds do when pressed together (their closed phase is a contact, the model's an overlap). Where the
+    simulated folds overlap on a closed ray, the ray says nothing more and is left out; where they leave a gap it
+    keeps the last known opening location as both targets (the paper's fallback), so the simulated gap is asked to
+    close. Open rays are all kept.
+
+    Parameters
+    ----------
+    simulated : [(rays, edge, s), (rays, edge, s)] of :meth:`vfcli.inverse.problem.Problem.silhouettes` for the
+        fold at smaller lateral px (s its medial-most crossing, px) and the one at larger.
+    lo, hi : (n_rays,) measured silhouettes of the frame, lateral px (equal on a closed ray, NaN where none).
+
+    Returns
+    -------
+    The same list with the closed, overlapping rays removed from both folds.
+    """
+    (r0, e0, s0), (r1, e1, s1) = simulated
+    common, i0, i1 = np.intersect1d(r0, r1, assume_unique=True, return_indices=True)
+    closed = hi[common] == lo[common]                      # NaN (no target) compares unequal
+    drop = common[closed & (s0[i0] >= s1[i1])]
+    if not drop.size:
+        return simulated
+    k0, k1 = ~np.isin(r0, drop), ~np.isin(r1, drop)
+    return [(r0[k0], e0[k0], s0[k0]), (r1[k1], e1[k1], s1[k1])]
+
 
 def gap_rows(problem, positions: np.ndarray, sil: list, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Linearised silhouette residuals of one frame.

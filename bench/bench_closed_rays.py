@@ -1,0 +1,82 @@
+"""## The gap term on rays the camera sees closed: kept stores refitted under both rules (issue 15, items 5 and 6).
+
+``optimize.gap_closed_rays``: ``meet`` (before session 47) asks both simulated silhouettes to meet at the last known
+opening location on every ray the camera sees closed, so the model's overlapping folds (it has no contact) are pulled
+apart to touch; ``overlap-allowed`` (the default since) leaves such a ray out where the simulated folds overlap. For
+each kept store (``bench/bench_unseen.py --keep DIR`` or ``bench/bench_diagnose.py --keep DIR``), ``vfcli optimize``
+is run under each rule as the runs ``closedmeet`` and ``closedoverlap``, in the same process of this script, then
+each run is scored against the phantom's truth (read after the fits, to score only) as ``bench_gap_weight.py`` scores:
+the inferior surface's oscillating, static (mm) and total error, its mean vertical displacement true / estimated and
+the coverage of the stated 90 % intervals; and the gap term's final value.
+
+Reproduce (prints a markdown table and the means)::
+
+    .venv/bin/python bench/bench_unseen.py 4125 4126 --duration 0.025 --keep DIR
+    .venv/bin/python bench/bench_closed_rays.py DIR/seed4125 DIR/seed4126
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from bench_gap_weight import score  # noqa: E402
+
+from vfcli.store import Store  # noqa: E402
+
+RULES = {"meet": "closedmeet", "overlap-allowed": "closedoverlap"}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("stores", type=Path, nargs="+", help="kept store folders (holding recording.h5)")
+    args = ap.parse_args()
+    vfcli = str(Path(sys.executable).with_name("vfcli"))
+    print("| store | rule | inferior oscillating | static (mm) | total | mean z true / est (mm) | 90 % coverage | "
+          "E_gap final |")
+    print("| --- | --- | ---: | ---: | ---: | --- | ---: | ---: |")
+    table: dict[str, list[dict]] = {rule: [] for rule in RULES}
+    for work in args.stores:
+        got = {}
+        for rule, name in RULES.items():
+            res = subprocess.run([vfcli, "optimize", str(work / "recording.h5"), "--set",
+                                  f"optimize.gap_closed_rays={rule}", "--run", name, "--force", "-q"],
+                                 capture_output=True, text=True)
+            if res.returncode != 0:
+                print(f"{work.name}: optimize under {rule} exited {res.returncode}: {res.stderr.strip()[-300:]}",
+                      file=sys.stderr)
+                continue
+            s = score(work, name)
+            with Store(work / "recording.h5").read() as r:
+                s["gap_final"] = float(r.read("optimize", "history_gap", name)[-1])
+            got[rule] = s
+            print(f"| {work.name} | {rule} | {100 * s['inf_osc_err']:.1f} % | {s['inf_static_err_mm']:.4f} | "
+                  f"{100 * s['inf_total_err']:.2f} % | {s['inf_mean_z_true_mm']:.3f} / {s['inf_mean_z_est_mm']:.3f} | "
+                  f"{100 * s['coverage90']:.1f} % | {s['gap_final']:.3f} |", flush=True)
+        if len(got) == len(RULES):
+            for rule in RULES:
+                table[rule].append(got[rule])
+    n = len(table["meet"])
+    if not n:
+        return
+    print(f"\nOver the {n} stores fitted under both rules:")
+    for rule, rows in table.items():
+        bias = np.array([100 * (s["inf_mean_z_est_mm"] / s["inf_mean_z_true_mm"] - 1) for s in rows])
+        cov = np.array([s["coverage90"] for s in rows])
+        print(f"- {rule}: total error mean {100 * np.mean([s['inf_total_err'] for s in rows]):.2f} %, static mean "
+              f"{np.mean([s['inf_static_err_mm'] for s in rows]):.4f} mm, mean z bias {bias.mean():+.2f} % "
+              f"({bias.min():+.1f} .. {bias.max():+.1f} %, low on {int((bias < 0).sum())} of {n}), coverage within "
+              f"85-95 % on {int(((cov >= 0.85) & (cov <= 0.95)).sum())} of {n}")
+    lower = sum(b["inf_total_err"] < a["inf_total_err"] for a, b in zip(table["meet"], table["overlap-allowed"]))
+    print(f"- overlap-allowed's total error lower than meet's on {lower} of {n}")
+
+
+if __name__ == "__main__":
+    main()
