@@ -6,6 +6,10 @@ the crossing s (lateral px) of the edge with the ray, its target m, ``d = (s - m
 
     E_gap = gap_weight / F * sum_f (1 / (2 n_rays)) sum_rays sum_folds arctan((d / l)^2)
 
+The sum runs over the frozen rays: a ray the camera sees closed is left out of a frame where the simulated folds
+overlap on it (:func:`closed_rays_kept`, ``optimize.gap_closed_rays = "overlap-allowed"``), as the frozen raster is
+chosen at the linearisation point.
+
 Gauss-Newton
 ------------
 ``arctan(q)``, ``q = (d / l)^2``, is concave in q, so
