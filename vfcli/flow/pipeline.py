@@ -130,15 +130,20 @@ _LATERAL = {0: "rows", 1: "columns"}
 
 def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_counts: np.ndarray | None = None,
                        length_px: float | None = None) -> None:
-    """Check the glottal area of every frame (n,) mm^2: fail on no gap at all, warn on a gap in every frame,
-    and (given the gap counts (H, W) over the frames and the folds' length in px) warn when the gap was found
+    """Check the glottal area of every frame (n,) mm^2: fail on no gap at all and on a gap in every frame that is
+    longer than the folds, warn on a gap in every frame, and (given the gap counts (H, W) over the frames and the
+    folds' length in px) warn when the gap was found
     over less than :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN` of the glottis in view, or over more than the
     folds' length (:data:`vfcli.flow.plausibility.GAP_LONGER_WARN`: the scale or the length is wrong).
 
     Raises
     ------
     InputDataError
-        No gap in any frame: the opening, the gap term and the pose have nothing to work on.
+        No gap in any frame: the opening, the gap term and the pose have nothing to work on. A gap in every frame
+        that also spans more than the folds' length: each alone is a doubt (a stretch of open phase; a wrong scale),
+        together the dark region is not the glottis of these folds, or the scale is wrong as well, and a fit to it
+        is a fit to something else (widened null 2042: dark texture spots taken as gap, gap IoU 0.00, the inferior
+        surface 23-33 % off with exit 0).
     """
     n = len(area_mm2)
     open_frames = int((np.asarray(area_mm2) > 0).sum())
@@ -151,13 +156,26 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_count
             "+-90 deg) and flow.threshold (counts between the gap's and the folds' brightness); a glottis that "
             "never opens wider than about a pixel (a dark line in every frame) cannot be measured at this zoom: "
             "film it closer")
-    if n >= 8 and open_frames == n:
+    every_frame = n >= 8 and open_frames == n
+    longer = None
+    if gap_counts is not None and length_px and (np.asarray(gap_counts) > 0).sum() >= 3:
+        found, in_view = gap_length_share(gap_counts, length_px)
+        if found > GAP_LONGER_WARN * length_px + 2 * GAP_END_PX:
+            longer = found
+    if every_frame and longer is not None:
+        raise InputDataError(
+            f"flow: the region taken as the glottal gap is dark in all {n} frames and spans {longer:.0f} px along the "
+            f"glottis, {longer / length_px:.1f} times the folds' length (mesh.length_mm times camera.px_per_mm: "
+            f"{length_px:.0f} px), so it is not the glottis of these folds: check flow.threshold (counts between the "
+            f"gap's and the folds' brightness; the {how} one was {calib.threshold:.1f}, which may segment a dark "
+            "fixture, shadow or texture), camera.px_per_mm (measured in the folds' plane, at this zoom) and "
+            "mesh.length_mm")
+    if every_frame:
         log.warning("flow: a glottal gap in all %d frames; the folds close every cycle, so either they never close "
                     "in this recording or the %s threshold %.1f counts segments a dark fixture or shadow: check "
                     "flow.threshold (counts)", n, how, calib.threshold)
     if gap_counts is not None and length_px and (np.asarray(gap_counts) > 0).sum() >= 3:
-        found, in_view = gap_length_share(gap_counts, length_px)
-        if found > GAP_LONGER_WARN * length_px + 2 * GAP_END_PX:
+        if longer is not None:
             log.warning("flow: the glottal gap spans %.0f px along the glottis, %.1f times the folds' length "
                         "(mesh.length_mm times camera.px_per_mm: %.0f px), which folds clamped at both ends cannot "
                         "open over: check camera.px_per_mm (measured in the folds' plane, at this zoom) and "
