@@ -17,7 +17,6 @@ Reproduce (prints a markdown table and the means)::
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 from pathlib import Path
 
@@ -27,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_gap_weight import score  # noqa: E402
+from bench_gap_weight import refit, row, score  # noqa: E402
 
 from vfcli.store import Store  # noqa: E402
 
@@ -38,7 +37,6 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("stores", type=Path, nargs="+", help="kept store folders (holding recording.h5)")
     args = ap.parse_args()
-    vfcli = str(Path(sys.executable).with_name("vfcli"))
     print("| store | rule | inferior oscillating | static (mm) | total | mean z true / est (mm) | 90 % coverage | "
           "E_gap final |")
     print("| --- | --- | ---: | ---: | ---: | --- | ---: | ---: |")
@@ -46,20 +44,13 @@ def main() -> None:
     for work in args.stores:
         got = {}
         for rule, name in RULES.items():
-            res = subprocess.run([vfcli, "optimize", str(work / "recording.h5"), "--set",
-                                  f"optimize.gap_closed_rays={rule}", "--run", name, "--force", "-q"],
-                                 capture_output=True, text=True)
-            if res.returncode != 0:
-                print(f"{work.name}: optimize under {rule} exited {res.returncode}: {res.stderr.strip()[-300:]}",
-                      file=sys.stderr)
+            if not refit(work, f"optimize.gap_closed_rays={rule}", name, force=True):
                 continue
             s = score(work, name)
             with Store(work / "recording.h5").read() as r:
                 s["gap_final"] = float(r.read("optimize", "history_gap", name)[-1])
             got[rule] = s
-            print(f"| {work.name} | {rule} | {100 * s['inf_osc_err']:.1f} % | {s['inf_static_err_mm']:.4f} | "
-                  f"{100 * s['inf_total_err']:.2f} % | {s['inf_mean_z_true_mm']:.3f} / {s['inf_mean_z_est_mm']:.3f} | "
-                  f"{100 * s['coverage90']:.1f} % | {s['gap_final']:.3f} |", flush=True)
+            print(f"{row(f'{work.name} | {rule}', s)} {s['gap_final']:.3f} |", flush=True)
         if len(got) == len(RULES):
             for rule in RULES:
                 table[rule].append(got[rule])

@@ -54,31 +54,40 @@ def score(work: Path, run: str) -> dict:
     return score_inferior(t, mesh, disp, std, None, sim_time)
 
 
+def refit(work: Path, setting: str, run: str, force: bool = False) -> bool:
+    """``vfcli optimize`` on ``work``'s store with one ``--set`` (``optimize.X=Y``) as the run ``run``; False (and the
+    command's last words on stderr) when it did not exit 0."""
+    vfcli = str(Path(sys.executable).with_name("vfcli"))
+    res = subprocess.run([vfcli, "optimize", str(work / "recording.h5"), "--set", setting, "--run", run, "-q"]
+                         + (["--force"] if force else []), capture_output=True, text=True)
+    if res.returncode != 0:
+        print(f"{work.name}: optimize --set {setting} exited {res.returncode}: {res.stderr.strip()[-300:]}",
+              file=sys.stderr)
+    return res.returncode == 0
+
+
+def row(label: str, s: dict) -> str:
+    """The table's columns of a :func:`score` (label: the store and the setting)."""
+    return (f"| {label} | {100 * s['inf_osc_err']:.1f} % | {s['inf_static_err_mm']:.4f} | "
+            f"{100 * s['inf_total_err']:.2f} % | {s['inf_mean_z_true_mm']:.3f} / {s['inf_mean_z_est_mm']:.3f} | "
+            f"{100 * s['coverage90']:.1f} % |")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("stores", type=Path, nargs="+", help="kept store folders (holding recording.h5)")
     ap.add_argument("--weights", type=float, nargs="+", default=[0.0, 0.3])
     args = ap.parse_args()
-    vfcli = str(Path(sys.executable).with_name("vfcli"))
     print("| store | optimize.gap_weight | inferior oscillating | static (mm) | total | mean z true / est (mm) | "
           "90 % coverage |")
     print("| --- | ---: | ---: | ---: | ---: | --- | ---: |")
     for work in args.stores:
         runs = [(1.0, "default")]
         for w in args.weights:
-            name = run_name(w)
-            res = subprocess.run([vfcli, "optimize", str(work / "recording.h5"), "--set", f"optimize.gap_weight={w}",
-                                  "--run", name, "-q"], capture_output=True, text=True)
-            if res.returncode != 0:
-                print(f"{work.name}: optimize at gap_weight {w} exited {res.returncode}: {res.stderr.strip()[-300:]}",
-                      file=sys.stderr)
-                continue
-            runs.append((w, name))
+            if refit(work, f"optimize.gap_weight={w}", run_name(w)):
+                runs.append((w, run_name(w)))
         for w, name in runs:
-            s = score(work, name)
-            print(f"| {work.name} | {w:g} | {100 * s['inf_osc_err']:.1f} % | {s['inf_static_err_mm']:.4f} | "
-                  f"{100 * s['inf_total_err']:.2f} % | {s['inf_mean_z_true_mm']:.3f} / {s['inf_mean_z_est_mm']:.3f} | "
-                  f"{100 * s['coverage90']:.1f} % |", flush=True)
+            print(row(f"{work.name} | {w:g}", score(work, name)), flush=True)
 
 
 if __name__ == "__main__":

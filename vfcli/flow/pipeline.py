@@ -157,15 +157,13 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_count
             "never opens wider than about a pixel (a dark line in every frame) cannot be measured at this zoom: "
             "film it closer")
     every_frame = n >= 8 and open_frames == n
-    longer = None
-    if gap_counts is not None and length_px and (np.asarray(gap_counts) > 0).sum() >= 3:
-        found, in_view = gap_length_share(gap_counts, length_px)
-        if found > GAP_LONGER_WARN * length_px + 2 * GAP_END_PX:
-            longer = found
-    if every_frame and longer is not None:
+    measured = gap_counts is not None and length_px and (np.asarray(gap_counts) > 0).sum() >= 3
+    found, in_view = gap_length_share(gap_counts, length_px) if measured else (0.0, 0.0)
+    longer = measured and found > GAP_LONGER_WARN * length_px + 2 * GAP_END_PX
+    if every_frame and longer:
         raise InputDataError(
-            f"flow: the region taken as the glottal gap is dark in all {n} frames and spans {longer:.0f} px along the "
-            f"glottis, {longer / length_px:.1f} times the folds' length (mesh.length_mm times camera.px_per_mm: "
+            f"flow: the region taken as the glottal gap is dark in all {n} frames and spans {found:.0f} px along the "
+            f"glottis, {found / length_px:.1f} times the folds' length (mesh.length_mm times camera.px_per_mm: "
             f"{length_px:.0f} px), so it is not the glottis of these folds: check flow.threshold (counts between the "
             f"gap's and the folds' brightness; the {how} one was {calib.threshold:.1f}, which may segment a dark "
             "fixture, shadow or texture), camera.px_per_mm (measured in the folds' plane, at this zoom) and "
@@ -174,19 +172,18 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_count
         log.warning("flow: a glottal gap in all %d frames; the folds close every cycle, so either they never close "
                     "in this recording or the %s threshold %.1f counts segments a dark fixture or shadow: check "
                     "flow.threshold (counts)", n, how, calib.threshold)
-    if gap_counts is not None and length_px and (np.asarray(gap_counts) > 0).sum() >= 3:
-        if longer is not None:
-            log.warning("flow: the glottal gap spans %.0f px along the glottis, %.1f times the folds' length "
-                        "(mesh.length_mm times camera.px_per_mm: %.0f px), which folds clamped at both ends cannot "
-                        "open over: check camera.px_per_mm (measured in the folds' plane, at this zoom) and "
-                        "mesh.length_mm, then rerun ingest-hsc and flow", found, found / length_px, length_px)
-        if in_view > 0 and found < GAP_LENGTH_WARN * in_view:
-            log.warning("flow: the glottal gap was found over %.0f px of the %.0f px of glottis in view (%.0f %%; folds "
-                        "clamped at both ends open over about three quarters of it): its narrow parts are not "
-                        "resolved (a slit one or two pixels wide stays above the %s threshold %.1f counts), or only "
-                        "part of the glottis opens. The glottal area, the gap term and the pose use the part found; "
-                        "check mesh.length_mm and camera.px_per_mm, and for a new recording zoom in or sharpen the "
-                        "focus", found, in_view, 100 * found / in_view, how, calib.threshold)
+    if longer:
+        log.warning("flow: the glottal gap spans %.0f px along the glottis, %.1f times the folds' length "
+                    "(mesh.length_mm times camera.px_per_mm: %.0f px), which folds clamped at both ends cannot "
+                    "open over: check camera.px_per_mm (measured in the folds' plane, at this zoom) and "
+                    "mesh.length_mm, then rerun ingest-hsc and flow", found, found / length_px, length_px)
+    if measured and in_view > 0 and found < GAP_LENGTH_WARN * in_view:
+        log.warning("flow: the glottal gap was found over %.0f px of the %.0f px of glottis in view (%.0f %%; folds "
+                    "clamped at both ends open over about three quarters of it): its narrow parts are not "
+                    "resolved (a slit one or two pixels wide stays above the %s threshold %.1f counts), or only "
+                    "part of the glottis opens. The glottal area, the gap term and the pose use the part found; "
+                    "check mesh.length_mm and camera.px_per_mm, and for a new recording zoom in or sharpen the "
+                    "focus", found, in_view, 100 * found / in_view, how, calib.threshold)
 
 
 @dataclass(frozen=True)

@@ -367,7 +367,7 @@ class Problem:
             sil = []
             targets = (self.meas.gap_lo[f], self.meas.gap_hi[f])
             simulated = self.silhouettes(pos)
-            if self.settings.closed_rays == "overlap-allowed" and len(simulated) == 2:
+            if self.settings.closed_rays == "overlap-allowed":
                 simulated = closed_rays_kept(simulated, *targets)
             for side, (rays, edge, _) in enumerate(simulated):
                 tgt = targets[side][rays]
