@@ -98,7 +98,7 @@ def flow_gap(v: dict, cfg: FlowConfig) -> tuple[np.ndarray, np.ndarray, object]:
     if calib.gap is None:
         midline = calib.midline if calib.midline_line is None else calib.midline_line
         masks = np.stack([gap_mask(f, calib.threshold, cfg.median_px, midline=midline,
-                                   lateral_axis=calib.lateral_axis) for f in frames])
+                                   lateral_axis=calib.lateral_axis, exclude=calib.surround) for f in frames])
         return masks, glottal_area(masks, px), calib
     masks, areas = [], []
     for _, seg in segment_stream(iter(frames), calib.gap):

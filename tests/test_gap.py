@@ -46,12 +46,12 @@ def test_threshold_lies_between_gap_and_fold_surface(video):
 
 
 def test_plain_otsu_would_split_the_texture_but_ours_finds_the_gap(video):
-    from vfcli.flow.gap.detect import _otsu
+    from vfcli.flow.gap.detect import otsu_split
 
     ph, frames, threshold = video
     x = frames.astype(float).ravel()
     hist, edges = np.histogram(x, 1024, (x.min(), x.max()))
-    naive = edges[_otsu(hist)[0]]
+    naive = edges[otsu_split(hist)[0]]
     open_frames = [i for i, k in enumerate(CYCLE) if ph.gap_area_px2(ph.frame_time(k)) > 1000]
     iou = lambda th: np.mean([_iou(gap_mask(frames[i], th), ph.gap_mask(ph.frame_time(CYCLE[i]))) for i in open_frames])
     assert iou(threshold) > 0.9

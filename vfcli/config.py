@@ -221,6 +221,11 @@ class FlowConfig(_Section):
         json_schema_extra=_SHAPES_FLOW, description="Gap intensity threshold in counts; null: automatic (minimum-error + Otsu near the gap, vfcli.flow.gap.detect)",
     )
     median_px: int = Field(5, ge=1, le=31, json_schema_extra=_SHAPES_FLOW, description="Median filter size of the gap mask, px (odd)")
+    exclude_surround: bool = Field(
+        True, json_schema_extra=_SHAPES_FLOW, description="Leave the folds' dark surroundings (dark in every sampled frame, "
+        "thick, touching the image border: vfcli.flow.gap.surround) out of the gap masks, and out of the automatic "
+        "threshold where they are as dark as the gap; false: every pixel may be gap"
+    )
     subpixel_edges: bool = Field(
         True, json_schema_extra=_SHAPES_FLOW, description="Gap edges to a fraction of a pixel: a blurred-slit fit across the glottis on every ray, "
         "smoothed along the glottis and in time (vfcli.flow.gap.detect); false: the paper's binary mask (threshold + median filter)"

@@ -321,6 +321,7 @@ def flow_stream(
     split_folds: bool = False,
     gap: SubpixelGap | None = None,
     median_along_slit: bool = False,
+    exclude: np.ndarray | None = None,
 ) -> Iterator[FlowFrame]:
     """The whole flow step, streamed: one :class:`FlowFrame` per input frame.
 
@@ -368,6 +369,9 @@ def flow_stream(
     median_along_slit : bool
         The binary mask's median along the glottis instead of the square one (``gap_mask``'s option; a slit the
         square median erases, :attr:`vfcli.flow.pipeline.FlowCalibration.median_along_slit`).
+    exclude : (H, W) bool, optional
+        Never gap in the binary mask: the folds' dark surroundings (:attr:`vfcli.flow.pipeline.FlowCalibration.surround`;
+        with ``gap`` its own ``exclude`` is used).
 
     Yields
     ------
@@ -387,7 +391,7 @@ def flow_stream(
         frame, seg = item
         if seg is None:
             m = gap_mask(frame, threshold, median_px, midline=midline, lateral_axis=lateral_axis,
-                         median_along_slit=median_along_slit)
+                         median_along_slit=median_along_slit, exclude=exclude)
             area = float(glottal_area(m, px_per_mm))
         else:
             m, area = seg.mask, seg.area_mm2(px_per_mm)

@@ -31,6 +31,7 @@ from vfcli.camera.pose import gap_axis, lateral_axis_for
 from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks, midline_line
+from vfcli.flow.gap.surround import dark_surround
 from vfcli.flow.gap.subpixel import EdgeModel, SubpixelGap, estimate_edge_model
 from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, closed_floor, closed_frames,
                                              crease_levels, detection_levels, dip_minima, search_band)
@@ -218,6 +219,9 @@ class FlowCalibration:
     median_along_slit : bool
         The gap was found only with the median along the glottis (:func:`vfcli.flow.gap.detect.gap_mask`): a slit the
         square median erases in every sampled frame; the binary masks use it too.
+    surround : (H, W) bool or None
+        The folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`), left out of the threshold's
+        statistics and never gap; None: none found, or ``flow.exclude_surround`` off.
     """
 
     threshold: float
@@ -231,6 +235,7 @@ class FlowCalibration:
     midline_line: np.ndarray | None = None
     gap_resolved: bool = False
     median_along_slit: bool = False
+    surround: np.ndarray | None = None
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
@@ -248,21 +253,27 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
     segmented along it runs across it and the rotation's does not. Where the square median of the paper's
     segmentation erases the gap in every sampled frame (a slit never wider than about half its window), the gap is
     searched again with the median along the glottis (``median_along_slit``).
+    The folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`, with ``flow.exclude_surround``) are
+    never gap, and are left out of the automatic threshold where they are as dark as the gap.
     Logs a warning when the sampled gap does not look like a glottis (:func:`check_sampled_gap`)
     or when sub-pixel edges are asked for but no gap is wide enough to measure them on.
     """
     auto = cfg.threshold is None
-    threshold = float(gap_threshold(sample)) if auto else float(cfg.threshold)
+    surround = dark_surround(sample) if cfg.exclude_surround else None
+    if surround is not None:
+        log.info("flow: %.0f%% of the image stays dark in every sampled frame around the folds; never gap, and left "
+                 "out of the automatic threshold where as dark as the gap (flow.exclude_surround)", 100 * surround.mean())
+    threshold = float(gap_threshold(sample, exclude=surround)) if auto else float(cfg.threshold)
     counts_range = intensity_range(sample)
     along = False
     masks, lateral, core = _sampled_masks(sample, threshold, cfg.median_px, lateral_axis_for(rotation_deg),
-                                          axis_from_gap, along)
+                                          axis_from_gap, along, surround)
     if not masks.any():
         # a slit never wider than about half the median window: the paper's square median erases all of it
         # (widened seed 1138: a 1-3 px slit under sharp optics, no gap in any frame and `flow` exit 3)
         along = True
         masks, lateral, core = _sampled_masks(sample, threshold, cfg.median_px, lateral_axis_for(rotation_deg),
-                                              axis_from_gap, along)
+                                              axis_from_gap, along, surround)
         if masks.any():
             log.info("flow: the gap is a slit the %d px square median erases in every sampled frame; detected with "
                      "the median along the glottis", cfg.median_px)
@@ -273,7 +284,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
         # again against the midline on each ray: a glottis at an angle to the image axis drifts laterally,
         # and the parts of its gap near the image's ends lie far from the largest part's centre
         masks = np.stack([gap_mask(f, threshold, cfg.median_px, lateral_axis=lateral, core_level=core, midline=line,
-                                   median_along_slit=along) for f in sample])
+                                   median_along_slit=along, exclude=surround) for f in sample])
         centre = midline_from_masks(masks, lateral)
         line = midline_line(centre)
     seen = np.isfinite(centre)
@@ -305,33 +316,34 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
             gap = SubpixelGap(threshold, model, cfg.median_px, line if line is not None else midline, lateral,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
-                              ray_crease=ray_crease, ray_closed_floor=ray_floor)
+                              ray_crease=ray_crease, ray_closed_floor=ray_floor, exclude=surround)
             gap, resolved = _with_ray_gap_levels(sample, masks, gap)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
-                           line, resolved, along)
+                           line, resolved, along, surround)
 
 
 def _sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral: int, axis_from_gap: bool,
-                   along: bool) -> tuple[np.ndarray, int, float | None]:
+                   along: bool, surround: np.ndarray | None = None) -> tuple[np.ndarray, int, float | None]:
     """The sampled frames' gap masks (k, H, W) at ``threshold`` counts, the lateral axis and the core level
     (None: half the threshold) they were found with; ``along``: the median along the glottis
-    (:func:`gap_mask`'s ``median_along_slit``) in place of the square one.
+    (:func:`gap_mask`'s ``median_along_slit``) in place of the square one; ``surround`` (H, W) bool: never gap.
 
     A gap with no dark core anywhere (a blurred gap never gets near black) is searched again with its core measured
     from the darkest pixels; with ``axis_from_gap`` (the pose is estimated, the rotation only a prior) the other axis
     is taken when the gap segmented along it runs across it and the rotation's does not."""
     core = None
-    masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral, median_along_slit=along) for f in sample])
+    masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral, median_along_slit=along,
+                               exclude=surround) for f in sample])
     if not masks.any():
-        core = dark_core_level(sample, threshold)
+        core = dark_core_level(sample, threshold, exclude=surround)
         masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral, core_level=core,
-                                   median_along_slit=along) for f in sample])
+                                   median_along_slit=along, exclude=surround) for f in sample])
         if masks.any():
             log.info("flow: no sampled gap reaches %.1f counts (half the threshold); gap cores taken below %.1f "
                      "counts, half-way from the darkest pixels to the threshold", 0.5 * threshold, core)
     if axis_from_gap and not _gap_agrees(masks, lateral):
         other = np.stack([gap_mask(f, threshold, median_px, lateral_axis=1 - lateral, core_level=core,
-                                   median_along_slit=along) for f in sample])
+                                   median_along_slit=along, exclude=surround) for f in sample])
         if _gap_agrees(other, 1 - lateral):
             log.info("flow: the gap runs along image %s; taking image %s as lateral (camera.pose = 'estimate')",
                      _ALONG[1 - lateral], _LATERAL[1 - lateral])
@@ -438,6 +450,7 @@ def flow_pipeline(frames: Frames, cfg: FlowConfig, *, fps: float, px_per_mm: flo
         initial_center=calib.centre, midline=calib.midline if calib.midline_line is None else calib.midline_line,
         t0_s=t0_s,
         estimator=estimator, split_folds=cfg.split_folds, gap=calib.gap, median_along_slit=calib.median_along_slit,
+        exclude=calib.surround,
     )
     return calib, stream
 

@@ -223,7 +223,7 @@ STAGES: dict[str, Stage] = {
             "flow",
             "Gap mask, glottal area, opening function and horizontal optical flow per frame.",
             reads=("hsc",),
-            method=4,
+            method=5,
             method_changes={2: "a ray shows the gap only where it is darker than the closed crease gets there (the "
                                "closed line of sharp optics was read as a slit; with it, the gap steps of sessions "
                                "30-38: the blur beside dark walls, the taper limit)",
@@ -231,7 +231,10 @@ STAGES: dict[str, Stage] = {
                                "the gap's edge had read 0.2 px under sharp optics, the slit a few per cent narrow",
                             4: "dark surroundings cut into pieces are fixture, not gap: a piece reaching a lateral image "
                                "border on more than half of its own rays (each piece "
-                               "shorter than half a border had passed as gap and set the glottal midline)"},
+                               "shorter than half a border had passed as gap and set the glottal midline)",
+                            5: "the folds' dark surroundings (dark in every sampled frame) are left out of the gap "
+                               "threshold and masks (flow.exclude_surround): the threshold had been read from a "
+                               "surround as dark as a blurred slit, and the mask took the silicone's texture for gap"},
             datasets={
                 "gap_mask": D("bool", "Glottal gap per frame", ("frame_time", "row", "col"), True),
                 "glottal_area": D("mm^2", "Glottal area waveform", ("frame_time",)),

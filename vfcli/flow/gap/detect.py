@@ -46,7 +46,7 @@ def _class_stats(hist: np.ndarray):
     return w0, w1, mu0, mu1, var0, var1
 
 
-def _otsu(hist: np.ndarray) -> tuple[int, float]:
+def otsu_split(hist: np.ndarray) -> tuple[int, float]:
     """Otsu's split of a histogram: (first bin of the bright class, separation).
 
     The separation is the distance of the two class means over the pooled within-class
@@ -73,6 +73,10 @@ def _min_error(hist: np.ndarray, min_fraction: float = 1e-3) -> int:
 
 #: level of the gap core between the darkest pixels and the surface median (see gap_threshold)
 CORE_LEVEL = 0.15
+#: The darkest this many percent of an open frame's pixels are the gap's and the dark pixels right beside it (the true
+#: gap covers 0.3-7 % of the image in the widest frame of the 29 cached widened renders of bench/bench_gap_optics.py);
+#: surroundings whose darkest pixels reach below them compete with the gap in :func:`gap_threshold`, %.
+GAP_PERCENT = 1.0
 
 
 def gap_threshold(
@@ -82,6 +86,7 @@ def gap_threshold(
     dark_percentile: float = 1.0,
     band_px: int = 4,
     n_bins: int = 1024,
+    exclude: np.ndarray | None = None,
 ) -> float:
     """Automatic gap threshold of one recording, counts.
 
@@ -123,6 +128,15 @@ def gap_threshold(
         Width of the band around the gap core used in step 3, px.
     n_bins : int
         Histogram bins over the pooled intensity range.
+    exclude : (H, W) bool, optional
+        The folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`), left out of every step
+        where they are as dark as the gap: their darkest pixels (the 0.05th percentile over the open frames)
+        below the darkest :data:`GAP_PERCENT` % of the rest of the image, the gap's and its edges'. (Under a blur
+        of 2.75 px a slit is no darker than the surroundings: widened null 2042, threshold 745 from the surround,
+        the mask on the texture. Where the slit is far darker, the darkest pixels are the slit's anyway, and
+        leaving the surroundings out only raised the median the gap core is measured against: the threshold of
+        widened seed 4127, sharp optics beside textured silicone, went from 346 to 519 counts and took dark
+        texture beside the slit, area +6 -> +42 %.)
 
     Returns
     -------
@@ -138,21 +152,32 @@ def gap_threshold(
         raise ValueError(f"gap threshold: expected (k, H, W) frames, got shape {frames.shape}")
     if not 0 < open_fraction <= 1:
         raise ValueError(f"gap threshold: open_fraction must lie in (0, 1], got {open_fraction}")
-    flat = frames.reshape(len(frames), -1)
+    inside = np.ones(frames.shape[1:], dtype=bool) if exclude is None else ~np.asarray(exclude, dtype=bool)
+    if not inside.any():
+        raise ValueError("gap threshold: every pixel is excluded")
+    flat = frames[:, inside]
     score = np.percentile(flat, dark_percentile, axis=1)
     n_open = max(1, int(round(open_fraction * len(frames))))
-    chosen = frames[np.argsort(score, kind="stable")[:n_open]].astype(np.float32)
-    lo, hi = float(chosen.min()), float(chosen.max())
+    order = np.argsort(score, kind="stable")[:n_open]
+    if not inside.all() and (np.percentile(frames[order][:, ~inside], 0.05)
+                             >= np.percentile(flat[order], GAP_PERCENT)):
+        # the surroundings are lighter than the gap: as if nothing were excluded
+        inside = np.ones(frames.shape[1:], dtype=bool)
+        flat = frames.reshape(len(frames), -1)
+        score = np.percentile(flat, dark_percentile, axis=1)
+        order = np.argsort(score, kind="stable")[:n_open]
+    chosen, pixels = frames[order].astype(np.float32), flat[order].astype(np.float32)
+    lo, hi = float(pixels.min()), float(pixels.max())
     if hi <= lo:
         return hi + 0.5
     # the gap is the darkest object in an open frame: its core lies well below the surface
-    darkest = float(np.percentile(chosen, 0.05))
-    core_threshold = darkest + CORE_LEVEL * (float(np.median(chosen)) - darkest)
+    darkest = float(np.percentile(pixels, 0.05))
+    core_threshold = darkest + CORE_LEVEL * (float(np.median(pixels)) - darkest)
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
     band = []
     for f in chosen:
-        core = cv2.medianBlur((f < core_threshold).astype(np.uint8) * 255, 5)
-        near = cv2.dilate(core, kernel) > 0
+        core = cv2.medianBlur(((f < core_threshold) & inside).astype(np.uint8) * 255, 5)
+        near = (cv2.dilate(core, kernel) > 0) & inside
         band.append(f[near])
     pooled = np.concatenate(band) if band else np.empty(0)
     if pooled.size < 16:
@@ -160,7 +185,7 @@ def gap_threshold(
                     "minimum-error threshold %.1f counts", core_threshold)
         return core_threshold
     hist, edges = np.histogram(pooled, bins=n_bins, range=(float(pooled.min()), float(pooled.max()) + 1e-3))
-    k, separation = _otsu(hist)
+    k, separation = otsu_split(hist)
     threshold = float(edges[k])
     if separation < MIN_SEPARATION:
         log.info(
@@ -186,6 +211,7 @@ def gap_mask(
     lateral_axis: int = 0,
     median_along_slit: bool = False,
     core_level: float | None = None,
+    exclude: np.ndarray | None = None,
 ) -> np.ndarray:
     """Segment the glottal gap of one frame.
 
@@ -246,6 +272,9 @@ def gap_mask(
         Core pixels are darker than this (counts) instead of ``core_fraction * threshold``
         (:func:`dark_core_level`: under a blur of a few pixels the gap's interior never gets
         that dark).
+    exclude : (H, W) bool, optional
+        Never gap: the folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`); a slit
+        that reaches them is cut there rather than joined to them (and then rejected as the fixture).
 
     Returns
     -------
@@ -260,7 +289,10 @@ def gap_mask(
         raise ValueError(f"gap mask: core_fraction must lie in (0, 1], got {core_fraction}")
     if lateral_axis not in (0, 1):
         raise ValueError(f"gap mask: lateral_axis must be 0 (rows) or 1 (columns), got {lateral_axis}")
-    dark = (np.asarray(frame) < threshold).astype(np.uint8) * 255
+    dark = np.asarray(frame) < threshold
+    if exclude is not None:
+        dark &= ~np.asarray(exclude, dtype=bool)
+    dark = dark.astype(np.uint8) * 255
     if median_px > 1 and median_along_slit:
         slope = midline_slope(midline) if np.ndim(midline) == 1 else 0.0
         dark = binary_median_line(dark > 0, median_px, 1 - lateral_axis, slope).astype(np.uint8) * 255
@@ -293,7 +325,7 @@ def gap_mask(
 
 
 def dark_core_level(frames_sample: np.ndarray, threshold: float, core_fraction: float = 0.5,
-                    dark_percentile: float = 0.05) -> float:
+                    dark_percentile: float = 0.05, exclude: np.ndarray | None = None) -> float:
     """Core level of :func:`gap_mask` measured from the recording's own darkest pixels, counts.
 
     ``darkest + core_fraction * (threshold - darkest)``, darkest = the ``dark_percentile``-th
@@ -301,9 +333,12 @@ def dark_core_level(frames_sample: np.ndarray, threshold: float, core_fraction: 
     range between the gap and the threshold nearer the gap. ``core_fraction * threshold`` measures
     that range from zero counts instead, which only a sharp, black gap reaches: under a blur of 3 px
     (widened seed 174) the widest gap's darkest pixels stay at 380-420 counts against a core level
-    of 297, so no gap was found in any frame.
+    of 297, so no gap was found in any frame. Pixels in ``exclude`` (H, W) bool, the folds' dark surroundings,
+    are left out.
     """
-    darkest = float(np.percentile(np.asarray(frames_sample), dark_percentile))
+    frames = np.asarray(frames_sample)
+    darkest = float(np.percentile(frames if exclude is None else frames[..., ~np.asarray(exclude, dtype=bool)],
+                                  dark_percentile))
     return darkest + core_fraction * (float(threshold) - darkest)
 
 

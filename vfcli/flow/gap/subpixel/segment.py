@@ -55,6 +55,8 @@ class SubpixelGap:
         its median over the frames where the whole glottis is closed, less 3 times their scatter); a ray shows
         the gap only where the detection's darkest pixel on it is darker than this (rule (d) of :func:`raw_edges`).
         None or NaN: no such rule.
+    exclude : (H, W) bool, optional
+        Never gap: the folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`).
     """
 
     threshold: float
@@ -69,6 +71,7 @@ class SubpixelGap:
     ray_gap: np.ndarray | None = None
     ray_max_width: np.ndarray | None = None
     ray_closed_floor: np.ndarray | None = None
+    exclude: np.ndarray | None = None
 
     def gap_levels(self, n_rays: int) -> np.ndarray:
         """(n_rays,) the gap level of each ray, counts (``ray_gap``, else the model's one level)."""
@@ -172,7 +175,8 @@ def _detected(frame: np.ndarray, gap: SubpixelGap):
     ray (:func:`run_minima`), counts."""
     level = _level_map(np.shape(frame), gap)
     rough = gap_mask(frame, level, gap.median_px, core_fraction=1.0, midline=gap.midline,
-                     min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True)
+                     min_area_px=gap.median_px, lateral_axis=gap.lateral_axis, median_along_slit=True,
+                     exclude=gap.exclude)
     rough, component = _nearest_component(rough, gap.midline, gap.lateral_axis)
     e0, e1 = outermost_silhouette(rough, gap.lateral_axis, border_is_edge=True)
     if gap.model is None or not np.isfinite(e0).any():
