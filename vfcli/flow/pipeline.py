@@ -220,8 +220,8 @@ class FlowCalibration:
         The gap was found only with the median along the glottis (:func:`vfcli.flow.gap.detect.gap_mask`): a slit the
         square median erases in every sampled frame; the binary masks use it too.
     surround : (H, W) bool or None
-        The folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`), left out of the threshold's
-        statistics and never gap; None: none found, or ``flow.exclude_surround`` off.
+        The folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`): never gap, and left out of the
+        automatic threshold where they are as dark as the gap; None: none found, or ``flow.exclude_surround`` off.
     """
 
     threshold: float

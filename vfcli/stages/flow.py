@@ -99,6 +99,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
     s.put("glottal_area", area)
     s.put("frame_time", frame_time)
     model, gap = calib.edge_model, calib.gap
+    surround = 0.0 if calib.surround is None else float(calib.surround.mean())
     s.set_attrs(
         threshold_counts=calib.threshold,
         threshold_auto=calib.auto,
@@ -117,7 +118,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         psf_sigma_px=np.nan if model is None else model.psf_sigma_px,
         gap_level_resolved=calib.gap_resolved,
         median_along_slit=calib.median_along_slit,
-        surround_fraction=0.0 if calib.surround is None else float(calib.surround.mean()),
+        surround_fraction=surround,
         edge_window_px=np.nan if gap is None else float(gap.half_window_px),
         edge_window_frames=-1 if gap is None else int(gap.half_window_frames),
     )
@@ -128,7 +129,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         "method": cfg.method,
         "psf_sigma_px": None if model is None else round(model.psf_sigma_px, 3),
         "gap_resolved": calib.gap_resolved,
-        "surround_fraction": 0.0 if calib.surround is None else round(float(calib.surround.mean()), 3),
+        "surround_fraction": round(surround, 3),
         "open_frames": int((area > 0).sum()),
         "max_area_mm2": round(float(area.max()), 3),
     }

@@ -152,20 +152,25 @@ def gap_threshold(
         raise ValueError(f"gap threshold: expected (k, H, W) frames, got shape {frames.shape}")
     if not 0 < open_fraction <= 1:
         raise ValueError(f"gap threshold: open_fraction must lie in (0, 1], got {open_fraction}")
-    inside = np.ones(frames.shape[1:], dtype=bool) if exclude is None else ~np.asarray(exclude, dtype=bool)
-    if not inside.any():
-        raise ValueError("gap threshold: every pixel is excluded")
-    flat = frames[:, inside]
-    score = np.percentile(flat, dark_percentile, axis=1)
-    n_open = max(1, int(round(open_fraction * len(frames))))
-    order = np.argsort(score, kind="stable")[:n_open]
-    if not inside.all() and (np.percentile(frames[order][:, ~inside], 0.05)
-                             >= np.percentile(flat[order], GAP_PERCENT)):
-        # the surroundings are lighter than the gap: as if nothing were excluded
-        inside = np.ones(frames.shape[1:], dtype=bool)
-        flat = frames.reshape(len(frames), -1)
-        score = np.percentile(flat, dark_percentile, axis=1)
-        order = np.argsort(score, kind="stable")[:n_open]
+
+    def darkest_frames(pixels: np.ndarray) -> np.ndarray:
+        """The ``open_fraction`` of frames (k, n_pixels) whose ``dark_percentile``-th percentile is lowest."""
+        score = np.percentile(pixels, dark_percentile, axis=1)
+        return np.argsort(score, kind="stable")[:max(1, int(round(open_fraction * len(frames))))]
+
+    flat, order = frames.reshape(len(frames), -1), None
+    inside = None if exclude is None else ~np.asarray(exclude, dtype=bool)
+    if inside is not None:
+        if not inside.any():
+            raise ValueError("gap threshold: every pixel is excluded")
+        rest = frames[:, inside]
+        order = darkest_frames(rest)
+        if np.percentile(frames[order][:, ~inside], 0.05) < np.percentile(rest[order], GAP_PERCENT):
+            flat = rest                   # as dark as the gap: left out
+        else:
+            inside, order = None, None    # lighter than the gap: as if nothing were excluded
+    if order is None:
+        order = darkest_frames(flat)
     chosen, pixels = frames[order].astype(np.float32), flat[order].astype(np.float32)
     lo, hi = float(pixels.min()), float(pixels.max())
     if hi <= lo:
@@ -176,9 +181,9 @@ def gap_threshold(
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_px + 1, 2 * band_px + 1))
     band = []
     for f in chosen:
-        core = cv2.medianBlur(((f < core_threshold) & inside).astype(np.uint8) * 255, 5)
-        near = (cv2.dilate(core, kernel) > 0) & inside
-        band.append(f[near])
+        dark = f < core_threshold if inside is None else (f < core_threshold) & inside
+        near = cv2.dilate(cv2.medianBlur(dark.astype(np.uint8) * 255, 5), kernel) > 0
+        band.append(f[near if inside is None else near & inside])
     pooled = np.concatenate(band) if band else np.empty(0)
     if pooled.size < 16:
         log.warning("gap threshold: no gap core found in the sampled frames; using the "

@@ -78,7 +78,7 @@ def dark_surround(frames_sample: np.ndarray, *, n_bins: int = 512) -> np.ndarray
     h, w = dark.shape
     r = max(1, int(round(OPENING_RADIUS_FRACTION * min(h, w))))
     dark = cv2.morphologyEx(dark, cv2.MORPH_OPEN, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1,) * 2))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    _, labels, stats, _ = cv2.connectedComponentsWithStats(dark, connectivity=8)
     x, y, cw, ch, area = (stats[1:, i] for i in range(5))
     border = (x == 0) | (y == 0) | (x + cw == w) | (y + ch == h)
     keep = border & (area >= MIN_AREA_FRACTION * h * w)
