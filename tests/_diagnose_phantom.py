@@ -10,13 +10,12 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
+from _small_phantom import SMALL_160
 from conftest import run_vfcli, shared_product
 
-#: a short, small phantom (0.02 s, 160 x 160 px)
-PHANTOM = [
-    "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-    "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
-]
+#: a short, small phantom (0.02 s, 160 x 160 px): tests/_small_phantom.py's SMALL_160, so that a raw
+#: folder :func:`_small_phantom.shared_raw` makes of it serves here too
+PHANTOM = SMALL_160
 
 #: the paper's free force field, short (60 frames, 3 iterations) on a coarse mesh, stored as the run "fit"
 #: (tests/test_diagnose_stage.py and tests/test_contact_phantom.py share the fitted seed 41 with contact)
@@ -26,12 +25,16 @@ ONE_SIDED_FIT = ["--setup", "3x3x10-one-sided", "--set", "optimize.n_frames=60",
 CONTACT_PHANTOM = (41, ("--effect", "contact"))
 
 
-def fitted_phantom(d: Path, seed: int, fit: list[str], synth: tuple[str, ...] = ()) -> Path:
+def fitted_phantom(d: Path, seed: int, fit: list[str], synth: tuple[str, ...] = (), raw: Path | None = None) -> Path:
     """The store d / "rec.h5" of the phantom ``seed`` (raw files in d / "raw"), fitted by
-    `vfcli optimize` with the options ``fit``; ``synth``: extra `vfcli synth` options (--effect ...)."""
-    raw, store = d / "raw", d / "rec.h5"
-    steps = [
-        ["synth", raw, "--seed", str(seed), *synth, *sum((["--set", s] for s in PHANTOM), [])],
+    `vfcli optimize` with the options ``fit``; ``synth``: extra `vfcli synth` options (--effect ...).
+    ``raw``: the phantom's raw folder made already (:func:`_small_phantom.shared_raw` of ``seed`` with
+    :data:`PHANTOM`, read-only), read from there instead of synthesised into d / "raw"."""
+    store = d / "rec.h5"
+    steps = [] if raw is not None else [
+        ["synth", d / "raw", "--seed", str(seed), *synth, *sum((["--set", s] for s in PHANTOM), [])]]
+    raw = raw if raw is not None else d / "raw"
+    steps += [
         ["ingest-hsc", store, raw / "video.cihx", "--pressure", raw / "video_pressure.tdms", "--config", raw / "recording.toml"],
         ["ingest-ldv", store, raw / "scan.uff"],
         ["sync", store],

@@ -76,3 +76,25 @@ def optimised_store(tmp_path_factory) -> Path:
         _add_runs(d, d / "meshed" / "rec.h5")
         (d / "done").touch()
     return d / "rec.h5"
+
+
+def _write_report(d: Path, store: Path) -> None:
+    """`vfcli report` of a copy of ``store`` at d / "rec.h5" into d / "report.html"; the copy's bytes and
+    time stamp must be what they were (the report writes nothing into the store)."""
+    import hashlib
+
+    copy = d / "rec.h5"
+    copy_store(store, copy)
+    before = hashlib.sha256(copy.read_bytes()).hexdigest(), copy.stat().st_mtime_ns
+    res = run_vfcli("report", copy, "--out", d / "report.html")
+    assert res.returncode == 0, res.stderr
+    assert (hashlib.sha256(copy.read_bytes()).hexdigest(), copy.stat().st_mtime_ns) == before
+
+
+def optimised_report(tmp_path_factory) -> Path:
+    """The page `vfcli report` writes of (a copy of) :func:`optimised_store`, report.html beside that copy
+    (rec.h5), checked to leave the store as it was. Built once per test run for tests/test_report.py and
+    tests/test_report_browser.py (the same command on the same store: a report takes seconds of figures);
+    read-only: tests copy the store or the page before changing either."""
+    store = optimised_store(tmp_path_factory)
+    return shared_product(tmp_path_factory, "export_report", lambda d: _write_report(d, store)) / "report.html"

@@ -11,7 +11,7 @@ SMALL = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_m
          "synth.width_px=112", "synth.height_px=112", "synth.px_per_mm=6", "synth.supersample=1"]
 #: A small phantom of 200 frames of 160 x 160 px at 9 px/mm on SMALL's coarse mesh and phase sampling
 #: (5 s to make; 14 s at the synth's default ones): tests/test_store_integrity.py's and
-#: tests/test_hostile_rate.py's (seed 2, shared_raw).
+#: tests/test_hostile_rate.py's and tests/test_diagnose_refit_phantom.py's null (seed 34, shared_raw).
 SMALL_160 = ["synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
              "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1"]
 

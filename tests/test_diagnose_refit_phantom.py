@@ -15,7 +15,8 @@ import h5py
 import numpy as np
 import pytest
 
-from _diagnose_phantom import fitted_phantom
+from _diagnose_phantom import PHANTOM, fitted_phantom
+from _small_phantom import shared_raw
 from conftest import run_vfcli
 from vfcli.store import Store
 
@@ -27,11 +28,12 @@ FIT = ["--set", "optimize.loads=pressure", "--set", "optimize.n_frames=40", "--s
        "--set", "mesh.target_edge_mm=2.5", "--set", "optimize.max_iterations=4", "--run", "fit"]
 
 
-def _pipeline(d, seed: int, effect: str, strength: float, maps: bool = True):
+def _pipeline(d, seed: int, effect: str, strength: float, maps: bool = True, raw=None):
     """The phantom's store fitted, diagnosed with the asymmetry refit (with its residual maps and velocity
-    plots when ``maps``: 7 of the diagnosis' 27 s on this phantom, session 33)."""
-    raw = d / "raw"
-    store = fitted_phantom(d, seed, FIT, ("--effect", effect, "--strength", str(strength)))
+    plots when ``maps``: 7 of the diagnosis' 27 s on this phantom, session 33); ``raw``: its raw folder made
+    already (read-only), else `vfcli synth` writes it into d / "raw"."""
+    store = fitted_phantom(d, seed, FIT, ("--effect", effect, "--strength", str(strength)), raw=raw)
+    raw = raw if raw is not None else d / "raw"
     res = run_vfcli("diagnose", store, "--run", "fit", "--refit", "asymmetry", "--json",
                     *(("--map", d / "map.png") if maps else ()), timeout=1800)
     assert res.returncode == 0, res.stderr
@@ -47,7 +49,11 @@ def effect(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def null(tmp_path_factory):
-    return _pipeline(tmp_path_factory.mktemp("none"), 34, "none", 0.0, maps=False)  # no test looks at its maps
+    """Seed 34 with no effect: the raw folder `vfcli synth --seed 34` writes with PHANTOM (shared with
+    tests/test_store_integrity.py and tests/test_hostile_rate.py; the same files as with `--effect none
+    --strength 0` but for phantom.json's "strength": null, and the scan's time stamp)."""
+    raw = shared_raw(tmp_path_factory, 34, PHANTOM)
+    return _pipeline(tmp_path_factory.mktemp("none"), 34, "none", 0.0, maps=False, raw=raw)  # no test looks at its maps
 
 
 def test_refit_recovers_the_hidden_softening_and_predicts_better(effect):

@@ -66,8 +66,9 @@ def test_epochs_too_short_or_without_a_common_f0_are_left_to_sync():
 
 # --------------------------------------------------------------------------- a phantom, real subprocesses
 
-#: tests/test_store_integrity.py's phantom: its raw folder is made once per run and shared
-SEED = 2
+#: tests/test_store_integrity.py's phantom (and tests/test_diagnose_refit_phantom.py's null): its raw folder is
+#: made once per run and shared
+SEED = 34
 
 
 @pytest.fixture(scope="module")

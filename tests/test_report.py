@@ -3,7 +3,6 @@ no network), the store untouched, and `--index` linking the reports of many reco
 from __future__ import annotations
 
 import base64
-import hashlib
 import html
 import json
 import re
@@ -14,7 +13,7 @@ import numpy as np
 import pytest
 
 from _diagnose_phantom import CONTACT_PHANTOM, ONE_SIDED_FIT, shared_diagnosed_phantom
-from _export_store import optimised_store
+from _export_store import optimised_report
 from conftest import run_vfcli
 from vfcli.store import Store
 from vfcli.store.parts import copy_store
@@ -35,15 +34,9 @@ class _Refs(HTMLParser):
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    store = optimised_store(tmp_path_factory)
-    d = tmp_path_factory.mktemp("report")
-    copy = d / "rec.h5"
-    copy_store(store, copy)
-    before = hashlib.sha256(copy.read_bytes()).hexdigest(), copy.stat().st_mtime_ns
-    res = run_vfcli("report", copy, "--out", d / "report.html")
-    assert res.returncode == 0, res.stderr
-    assert (hashlib.sha256(copy.read_bytes()).hexdigest(), copy.stat().st_mtime_ns) == before
-    return d / "report.html"
+    """report.html of the shared optimised store's copy rec.h5 beside it, the copy checked unchanged by the
+    report (:func:`_export_store.optimised_report`, shared with tests/test_report_browser.py; read-only)."""
+    return optimised_report(tmp_path_factory)
 
 
 def test_report_is_self_contained_and_every_picture_decodes(report):

@@ -28,7 +28,8 @@ from vfcli.store.parts import copy_store, parts_dir
 @pytest.fixture(scope="module")
 def built(tmp_path_factory) -> tuple[Path, Path]:
     """(raw folder, store with /hsc /ldv /sync /mesh) written by the real commands."""
-    raw = shared_raw(tmp_path_factory, 2, SMALL_160)  # `vfcli synth`'s, shared with tests/test_hostile_rate.py
+    # `vfcli synth`'s, shared with tests/test_hostile_rate.py and test_diagnose_refit_phantom.py's null
+    raw = shared_raw(tmp_path_factory, 34, SMALL_160)
     store = tmp_path_factory.mktemp("integrity") / "rec.h5"
     steps = [
         ["ingest-hsc", "-q", store, raw / "video.cihx", "--pressure", raw / "video_pressure.csv", "--config", raw / "recording.toml"],
