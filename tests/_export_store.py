@@ -2,17 +2,17 @@
 grows from (shared by tests/test_optimize_stage.py): each built once per test run."""
 from __future__ import annotations
 
+import hashlib
 import os
 import shutil
 from pathlib import Path
 
+from _small_phantom import SMALL_160
 from conftest import run_vfcli, shared_product
 from vfcli.store.parts import copy_store
 
-PHANTOM = [
-    "synth.duration_s=0.02", "synth.ldv_epoch_s=0.03", "synth.target_edge_mm=2.0", "synth.n_phase=64",
-    "synth.width_px=160", "synth.height_px=160", "synth.px_per_mm=9", "synth.supersample=1",
-]
+#: the small phantom's synth settings (tests/_small_phantom.py's SMALL_160, as tests/_diagnose_phantom.py's)
+PHANTOM = SMALL_160
 WINDOW = ["--set", "optimize.n_frames=6", "--set", "optimize.first_frame=20"]
 
 
@@ -81,8 +81,6 @@ def optimised_store(tmp_path_factory) -> Path:
 def _write_report(d: Path, store: Path) -> None:
     """`vfcli report` of a copy of ``store`` at d / "rec.h5" into d / "report.html"; the copy's bytes and
     time stamp must be what they were (the report writes nothing into the store)."""
-    import hashlib
-
     copy = d / "rec.h5"
     copy_store(store, copy)
     before = hashlib.sha256(copy.read_bytes()).hexdigest(), copy.stat().st_mtime_ns
