@@ -331,11 +331,13 @@ class OptimizeConfig(_Section):
     motion_weight: float = Field(1e-4, ge=0, le=1e6, description="Weight of the motion term, 1/(mm/s)^2")
     gap_weight: float = Field(1.0, ge=0, le=1e6, description="Weight of the arctan gap term (1)")
     gap_length_mm: float = Field(0.25, gt=0, le=10, description="Length scale of the gap term's arctan((d/l)^2), mm")
-    gap_closed_rays: Literal["overlap-allowed", "meet"] = Field(
+    gap_closed_rays: Literal["overlap-allowed", "meet", "overlap-bounded"] = Field(
         "overlap-allowed", description="Gap term on an image line the camera sees closed: 'overlap-allowed' (default): "
         "left out where the simulated folds overlap (a superior view cannot see one fold pass behind the other, and "
         "the model has no contact), a simulated gap there is asked to close; 'meet': both simulated edges are asked to "
-        "meet at the last known opening location, overlap or not (before session 47)")
+        "meet at the last known opening location, overlap or not (before session 47); 'overlap-bounded': left out while "
+        "the overlap is within the widest opening the camera measured in the window, the excess beyond it charged as "
+        "(d/l)^2 without the arctan's saturation (vfcli/inverse/terms/gap.py)")
     motion_outside: Literal["paper", "symmetric"] = Field(
         "paper", description="Motion term where only one of simulation and recording sees tissue: 'paper': only the "
         "recording's side costs |v|^2 (the paper's one-sided E); 'symmetric': the simulation's side in the measured gap "

@@ -131,7 +131,8 @@ def blank_frame(frame):
     """The frozen frame with no rows: it contributes nothing to E (a held-out frame)."""
     return dataclasses.replace(frame, m_both=frame.m_both[:0], v_both=frame.v_both[:0], const=0.0,
                                pix_both=frame.pix_both[:0], pix_only=frame.pix_only[:0],
-                               sil=[tuple(a[:0] for a in side) for side in frame.sil])
+                               sil=[tuple(a[:0] for a in side) for side in frame.sil],
+                               excess=[tuple(a[:0] for a in side) for side in frame.excess])
 
 
 def masked(frames: list, keep: np.ndarray | None) -> list:

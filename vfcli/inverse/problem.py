@@ -60,7 +60,9 @@ close there.  A closed ray where the simulated folds overlap is left out
 (``closed_rays = "overlap-allowed"``, the default since session 47): the camera
 cannot see one fold pass behind the other, and the model has no contact, so its
 folds overlap in the closed phase (:func:`vfcli.inverse.terms.gap.closed_rays_kept`;
-``"meet"`` asks them to meet exactly, overlap or not).  With
+``"meet"`` asks them to meet exactly, overlap or not; ``"overlap-bounded"`` leaves the ray out while the overlap is
+within the widest opening measured in the window and charges the excess as ``(d / l)^2``, without the arctan's
+saturation: :func:`vfcli.inverse.terms.gap.closed_rays_excess`).  With
 ``d = (s_sim - s_meas) / px_per_mm`` (mm) and the length scale l::
 
     E_gap = mean over frames of  (1 / (2 n_rays)) sum_rays sum_folds arctan((d / l)^2)
@@ -95,7 +97,7 @@ from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, surface_edg
 from vfcli.flow.gap.opening import measured_silhouettes
 from vfcli.inverse.stencil import frame_velocity_stencil, stencil_apply
 from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
-from vfcli.inverse.terms.gap import CLOSED_RAYS, closed_rays_kept
+from vfcli.inverse.terms.gap import CLOSED_RAYS, closed_rays_excess, closed_rays_kept, widest_opening
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
 from vfcli.model.response.base import Response
 
@@ -187,7 +189,9 @@ class ObjectiveSettings:
     outside: str = "paper"
     #: a ray the camera sees closed: "overlap-allowed" leaves it out where the simulated folds overlap
     #: (:func:`vfcli.inverse.terms.gap.closed_rays_kept`); "meet" asks both silhouettes to meet at the last known
-    #: opening location whatever the simulation shows (before session 47)
+    #: opening location whatever the simulation shows (before session 47); "overlap-bounded" leaves it out while the
+    #: overlap is within the widest measured opening and charges the excess quadratically
+    #: (:func:`vfcli.inverse.terms.gap.closed_rays_excess`)
     closed_rays: str = "overlap-allowed"
 
     def __post_init__(self) -> None:
@@ -216,6 +220,8 @@ class _Frame:
     sil: list               # per fold side (lo, hi): (ray coordinate, edge, target px)
     pix_both: np.ndarray    # (n_both,) flat pixel indices of the rows of m_both
     pix_only: np.ndarray    # flat pixel indices valid only in the measurement
+    excess: list = ()       # per fold side: closed rays overlapping beyond the widest opening, as ``sil``
+    #                         (closed_rays = "overlap-bounded"; :func:`vfcli.inverse.terms.gap.closed_rays_excess`)
 
 
 class Problem:
@@ -281,6 +287,8 @@ class Problem:
         self.rays = rays[m:len(rays) - m] if len(rays) > 2 * m else rays[:0]
         self._in_rays = np.zeros(self.n_rays_img, bool)
         self._in_rays[self.rays] = True
+        #: the widest opening the camera measured on the rays in the window, px (closed_rays = "overlap-bounded")
+        self.widest_opening_px = widest_opening(measurement.gap_lo, measurement.gap_hi, self.rays)
 
     @property
     def n_params(self) -> int:
@@ -367,14 +375,17 @@ class Problem:
             sil = []
             targets = (self.meas.gap_lo[f], self.meas.gap_hi[f])
             simulated = self.silhouettes(pos)
+            excess = []
             if self.settings.closed_rays == "overlap-allowed":
                 simulated = closed_rays_kept(simulated, *targets)
+            elif self.settings.closed_rays == "overlap-bounded":
+                simulated, excess = closed_rays_excess(simulated, *targets, self.widest_opening_px)
             for side, (rays, edge, _) in enumerate(simulated):
                 tgt = targets[side][rays]
                 ok = np.isfinite(tgt)
                 sil.append((rays[ok], edge[ok], tgt[ok]))
             frames.append(_Frame(raster.interpolation_rows(rows), v_both, float(np.sum(v_only ** 2 @ cw)),
-                                 float(max(1, np.count_nonzero(valid))), sil, pix_both, pix_only))
+                                 float(max(1, np.count_nonzero(valid))), sil, pix_both, pix_only, excess))
         return frames
 
     # ------------------------------------------------------------ value and gradient

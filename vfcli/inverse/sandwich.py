@@ -70,7 +70,8 @@ def _only_frame(frames: list, f: int) -> list:
             out.append(fr)
             continue
         out.append(replace(fr, m_both=fr.m_both[:0], v_both=fr.v_both[:0], const=0.0,
-                           sil=[tuple(a[:0] for a in s) for s in fr.sil]))
+                           sil=[tuple(a[:0] for a in s) for s in fr.sil],
+                           excess=[tuple(a[:0] for a in s) for s in fr.excess]))
     return out
 
 

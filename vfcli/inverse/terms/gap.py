@@ -10,6 +10,14 @@ The sum runs over the frozen rays: a ray the camera sees closed is left out of a
 overlap on it (:func:`closed_rays_kept`, ``optimize.gap_closed_rays = "overlap-allowed"``), as the frozen raster is
 chosen at the linearisation point.
 
+``"overlap-bounded"`` leaves such a ray out only while the overlap o (px) is within the widest opening the camera
+measured in the window, B (:func:`widest_opening`): a fold that oscillates linearly about a mean opening w0 >= 0 with
+amplitude A overlaps the other by at most A - w0 <= w0 + A, the widest opening it reaches. Beyond B the excess is
+the model's own state, not a noisy silhouette, and is charged without saturation (:func:`closed_rays_excess`): each
+fold's target is its own silhouette moved back by half the excess, and the row costs ``(d / l)^2`` instead of
+``arctan((d / l)^2)``, so a frame's excess rows sum to ``(o - B)^2 / (2 (k l)^2)`` (k px per mm) at the
+linearisation point, and the frozen form majorises that function of the folds' positions elsewhere.
+
 Gauss-Newton
 ------------
 ``arctan(q)``, ``q = (d / l)^2``, is concave in q, so
@@ -27,7 +35,39 @@ from vfcli.camera.silhouette import crossing_with_gradient
 from vfcli.inverse.terms.base import Evaluation, FrameTerm, GroupedLinearization, KronBlocks, pair_outers, term_pairs
 
 #: what a ray the camera sees closed asks of the simulated silhouettes (``optimize.gap_closed_rays``)
-CLOSED_RAYS = ("overlap-allowed", "meet")
+CLOSED_RAYS = ("overlap-allowed", "meet", "overlap-bounded")
+
+
+def widest_opening(lo: np.ndarray, hi: np.ndarray, rays: np.ndarray) -> float:
+    """The widest opening the camera measured, px: the largest ``hi - lo`` over the frames and ``rays``.
+
+    lo, hi : (F, n_rays_img) measured silhouettes, lateral px (NaN where none).  rays : (n,) ray indices.
+    Returns 0.0 when no ray of any frame has both silhouettes.
+    """
+    w = np.asarray(hi, float)[:, rays] - np.asarray(lo, float)[:, rays]
+    w = w[np.isfinite(w)]
+    return float(w.max()) if w.size else 0.0
+
+
+def closed_rays_excess(simulated: list, lo: np.ndarray, hi: np.ndarray, bound_px: float) -> tuple[list, list]:
+    """:func:`closed_rays_kept`, and the closed rays where the simulated folds overlap by more than ``bound_px``.
+
+    Returns
+    -------
+    kept : ``simulated`` without the closed rays where the folds overlap (as :func:`closed_rays_kept`).
+    excess : [(rays, edge, target px), (rays, edge, target px)] per fold side: the closed rays where the overlap o
+        exceeds ``bound_px``, each fold's target its own silhouette moved back by (o - bound_px) / 2 (the rows the
+        gap term charges quadratically, module docstring).
+    """
+    (r0, e0, s0), (r1, e1, s1) = simulated
+    common, i0, i1 = np.intersect1d(r0, r1, assume_unique=True, return_indices=True)
+    closed = hi[common] == lo[common]                      # NaN (no target) compares unequal
+    over = s0[i0] - s1[i1]
+    beyond = closed & (over > bound_px)
+    half = 0.5 * (over[beyond] - bound_px)
+    excess = [(r0[i0][beyond], e0[i0][beyond], s0[i0][beyond] - half),
+              (r1[i1][beyond], e1[i1][beyond], s1[i1][beyond] + half)]
+    return closed_rays_kept(simulated, lo, hi), excess
 
 
 def closed_rays_kept(simulated: list, lo: np.ndarray, hi: np.ndarray) -> list:
@@ -110,18 +150,23 @@ class GapTerm(FrameTerm):
             return 0.0
         n_f, n_sil, ell = p.n_frames, self._n_sil(p), st.gap_length_mm
         gap = 0.0
+        scale = p.camera.px_per_mm * ell
         for f, fr in enumerate(ev.frames):
             scr = p.camera.project(p.mesh.nodes + ev.disp[f])
-            for side, (rays, edge, tgt) in enumerate(fr.sil):
+            rows = [(side, row, False) for side, row in enumerate(fr.sil)]
+            rows += [(side, row, True) for side, row in enumerate(fr.excess)]
+            for side, (rays, edge, tgt), quadratic in rows:
                 if rays.size == 0:
                     continue
                 ee = p.fold_edges[p.fold_order[side]][edge]
                 s, d0, d1 = crossing_with_gradient(scr, ee, rays, p.ray_comp)
-                q = ((s - tgt) / (p.camera.px_per_mm * ell)) ** 2
-                gap += np.sum(np.arctan(q)) / n_sil
+                q = ((s - tgt) / scale) ** 2
+                gap += np.sum(q if quadratic else np.arctan(q)) / n_sil
                 if ev.wants_grad:
-                    # d arctan(q)/ds, q = ((s - m) / (k l))^2
-                    dphi = (2.0 * (s - tgt) / (p.camera.px_per_mm * ell) ** 2) / (1.0 + q * q)
+                    # d arctan(q)/ds (or dq/ds), q = ((s - m) / (k l))^2
+                    dphi = 2.0 * (s - tgt) / scale ** 2
+                    if not quadratic:
+                        dphi /= 1.0 + q * q
                     dphi *= weight / (n_f * n_sil)
                     gs = np.zeros((len(scr), 2))
                     np.add.at(gs, ee[:, 0], dphi[:, None] * d0)
@@ -143,11 +188,14 @@ class GapTerm(FrameTerm):
             q_rows = []
             for r in lin.full:
                 q_r, dist = gap_rows(p, pos, fr.sil, r)
-                q_rows.append(q_r)
-            if not len(dist):
+                q_x, dist_x = gap_rows(p, pos, fr.excess, r)
+                q_rows.append(np.concatenate([q_r, q_x]))
+            if not len(dist) + len(dist_x):
                 continue
             q = (dist / scale_px) ** 2
-            curv = (weight / (p.n_frames * self._n_sil(p))) * 2.0 / ((1.0 + q * q) * scale_px ** 2)
+            # the arctan's majoriser on the silhouette rows, the quadratic's own curvature on the excess rows
+            curv = (weight / (p.n_frames * self._n_sil(p))) * 2.0 / (np.append(1.0 + q * q, np.ones(len(dist_x)))
+                                                                       * scale_px ** 2)
             for stack, g in zip(out.blocks, groups):
                 qg = [qr[:, g] for qr in q_rows]
                 # the silhouettes of the group's folds
