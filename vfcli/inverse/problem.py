@@ -80,8 +80,16 @@ the vertex positions, hence of the control values.  :meth:`Problem.value_and_gra
 returns E with the raster of the current iterate and the exact gradient of that
 frozen function (chain rule through the interpolation matrices, the edge
 crossings and the linear response, accumulated in one pass over the frames).
-It is the true gradient wherever the raster and the chosen edges do not change
-under a small perturbation, i.e. almost everywhere.
+It is the gradient of the frozen function, whose barycentrics follow the
+material: E evaluated with a fresh raster (as a line search does) compares each
+pixel with the surface point under it now, and a step that moves the surface in
+the image plane slides the surface under the pixels, a change of first order in
+the step that this gradient and the Gauss-Newton model leave out (the velocity
+field's image gradient times the slide; session 50 measured it ten times the
+frozen change on an inertia refit, 97 % of it on pixels whose visible triangle
+stayed the same: docs/benchmarks.md, "A bound on the closed rays' overlap that
+does not saturate").  Where the slide is small against the velocity field's scale
+the two agree.
 """
 from __future__ import annotations
 
