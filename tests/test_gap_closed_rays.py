@@ -107,11 +107,11 @@ def test_within_the_widest_opening_the_bounded_rule_fits_as_overlap_allowed(with
     res = fit(p, method="gauss-newton", max_iter=30, options=FitOptions(ftol=1e-8))
     err = _superior_velocity_error(case, p, res.x, x_true)
     print(f"superior velocity error {err:.3g}")
-    assert err < 5e-3
+    assert err < 1e-6                       # measured 7e-10: the truth, as overlap-allowed finds it
 
 
 def test_the_excess_beyond_the_widest_opening_costs_its_square_without_saturating(within_bound):
-    """Loads pressing the folds millimetres past each other: overlap-allowed's gap term is blind to the depth; the
+    """Loads pressing the folds far past each other: overlap-allowed's gap term is blind to the depth; the
     bounded rule adds (o - B)^2 / (2 (k l)^2) per closed ray and fold pair (module docstring of
     vfcli/inverse/terms/gap.py), computed here from the simulated silhouettes; its frozen gradient is exact, and the
     Gauss-Newton model majorises it."""
@@ -136,7 +136,8 @@ def test_the_excess_beyond_the_widest_opening_costs_its_square_without_saturatin
         assert expected > 0
         assert got == pytest.approx(norm * expected, rel=1e-9)
         extra.append(got)
-    assert extra[1] > 4 * extra[0]        # quadratic in a depth that is mostly excess, where the arctan saturates
+    assert extra[1] > 4 * extra[0]        # measured 4.9: quadratic in a depth that is mostly excess, where the arctan
+    #                                       would saturate
     frames = p.freeze(x)
     assert sum(len(side[0]) for fr in frames for side in fr.excess) > 20
     g = p.frozen_value_and_grad(x, frames)[1]
