@@ -60,14 +60,29 @@ def closed_rays_excess(simulated: list, lo: np.ndarray, hi: np.ndarray, bound_px
         gap term charges quadratically, module docstring).
     """
     (r0, e0, s0), (r1, e1, s1) = simulated
-    common, i0, i1 = np.intersect1d(r0, r1, assume_unique=True, return_indices=True)
-    closed = hi[common] == lo[common]                      # NaN (no target) compares unequal
-    over = s0[i0] - s1[i1]
-    beyond = closed & (over > bound_px)
+    i0, i1, over = _closed_overlap(simulated, lo, hi)
+    beyond = over > bound_px                               # NaN (not closed) compares unequal
     half = 0.5 * (over[beyond] - bound_px)
     excess = [(r0[i0][beyond], e0[i0][beyond], s0[i0][beyond] - half),
               (r1[i1][beyond], e1[i1][beyond], s1[i1][beyond] + half)]
-    return closed_rays_kept(simulated, lo, hi), excess
+    return _without(simulated, r0[i0][over >= 0]), excess
+
+
+def _closed_overlap(simulated: list, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(i0, i1, o): indices into each fold's rays of the rays both folds cross, and the overlap o (px) of the
+    simulated folds there, NaN where the camera does not see the ray closed (NaN targets compare unequal)."""
+    (r0, _, s0), (r1, _, s1) = simulated
+    common, i0, i1 = np.intersect1d(r0, r1, assume_unique=True, return_indices=True)
+    return i0, i1, np.where(hi[common] == lo[common], s0[i0] - s1[i1], np.nan)
+
+
+def _without(simulated: list, drop: np.ndarray) -> list:
+    """``simulated`` with the rays ``drop`` removed from both folds (the same list when there are none)."""
+    if not drop.size:
+        return simulated
+    (r0, e0, s0), (r1, e1, s1) = simulated
+    k0, k1 = ~np.isin(r0, drop), ~np.isin(r1, drop)
+    return [(r0[k0], e0[k0], s0[k0]), (r1[k1], e1[k1], s1[k1])]
 
 
 def closed_rays_kept(simulated: list, lo: np.ndarray, hi: np.ndarray) -> list:
@@ -90,14 +105,8 @@ def closed_rays_kept(simulated: list, lo: np.ndarray, hi: np.ndarray) -> list:
     -------
     The same list with the closed, overlapping rays removed from both folds.
     """
-    (r0, e0, s0), (r1, e1, s1) = simulated
-    common, i0, i1 = np.intersect1d(r0, r1, assume_unique=True, return_indices=True)
-    closed = hi[common] == lo[common]                      # NaN (no target) compares unequal
-    drop = common[closed & (s0[i0] >= s1[i1])]
-    if not drop.size:
-        return simulated
-    k0, k1 = ~np.isin(r0, drop), ~np.isin(r1, drop)
-    return [(r0[k0], e0[k0], s0[k0]), (r1[k1], e1[k1], s1[k1])]
+    i0, _, over = _closed_overlap(simulated, lo, hi)
+    return _without(simulated, simulated[0][0][i0][over >= 0])
 
 
 def gap_rows(problem, positions: np.ndarray, sil: list, basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
