@@ -86,7 +86,7 @@ pixel with the surface point under it now, and a step that moves the surface in
 the image plane slides the surface under the pixels, a change of first order in
 the step that this gradient and the Gauss-Newton model leave out (the velocity
 field's image gradient times the slide; session 50 measured it ten times the
-frozen change on an inertia refit, 97 % of it on pixels whose visible triangle
+frozen change on an inertia refit, 96-97 % of it on pixels whose visible triangle
 stayed the same: docs/benchmarks.md, "A bound on the closed rays' overlap that
 does not saturate").  Where the slide is small against the velocity field's scale
 the two agree.
