@@ -57,8 +57,19 @@ def test_region_means_are_the_nan_means_over_each_regions_pixels():
     assert np.isnan(got[:, 4]).all() and np.isnan(got[:, 6]).all() and np.isnan(got[:, 5, 1]).all()
 
 
-def test_jacobian_columns_match_finite_differences(case):
+def _problem(case, slide: bool):
+    from dataclasses import replace
+
+    from vfcli.inverse.problem import Problem
+
     p = case.problem
+    return Problem(p.mesh, p.camera, p.response, p.meas, replace(p.settings, motion_slide=slide)) if slide else p
+
+
+@pytest.mark.parametrize("slide", [False, True])
+def test_jacobian_columns_match_finite_differences(case, slide):
+    """With and without the surface sliding under the pixels (motion_slide: the frozen frames' model)."""
+    p = _problem(case, slide)
     x0 = 0.9 * case.x_true
     b = Baseline.at(p, x0)
     rng = np.random.default_rng(4)
@@ -80,6 +91,29 @@ def test_jacobian_columns_match_finite_differences(case):
     res = window_residual(b)
     means = region_means(res.motion, res.pixel_region, N_REGIONS)
     assert means.shape == (p.n_frames, N_REGIONS, 3) and np.isfinite(means).any()
+
+
+@pytest.mark.parametrize("slide", [False, True])
+def test_the_calibrations_load_adjoint_is_the_transpose_of_the_motion_rows(case, slide):
+    """``motion_adjoint(s)`` (the load fit's right-hand side in the bootstrap) against the motion rows of
+    :meth:`Baseline.measure_linear` through the response's linearisation: ``dx . J^T Omega s = (J dx) . Omega s``,
+    on random dx and s, with and without the slide (then a rigid in-plane shift moves the velocity seen too)."""
+    from vfcli.diagnose.calibrate_run import motion_adjoint, row_weights
+
+    p = _problem(case, slide)
+    b = Baseline.at(p, 0.9 * case.x_true)
+    lin = p.response.linearize(b.x, p.sim_times)
+    rng = np.random.default_rng(8)
+    weights = row_weights(b)
+    n = b.n_motion_rows
+    for _ in range(3):
+        dx, s = rng.normal(size=p.n_params), rng.normal(size=weights.size)
+        rows = b.measure_linear(lin.apply(dx)[..., None])[:n, 0]
+        assert dx @ motion_adjoint(b, s, weights) == pytest.approx(rows @ (weights[:n] * s[:n]), rel=1e-10)
+    shift = np.zeros(b.displacements.shape + (1,))
+    shift[:, :, 0, 0] = 1.0
+    moved = np.abs(b.measure_linear(shift)[:n]).max()
+    assert (moved > 1.0) if slide else (moved < 1e-9)
 
 
 def test_screening_seam_without_candidates(case):

@@ -17,10 +17,10 @@ def case():
     return forward_case(resolution=(2, 2, 4), sides=("inferior", "superior"), n_frames=8)
 
 
-def _problem(case, motion, gap, ridge=0.0, components=(1.0, 1.0, 1.0), outside="paper"):
+def _problem(case, motion, gap, ridge=0.0, components=(1.0, 1.0, 1.0), outside="paper", slide=False):
     return Problem(case.model.mesh, CAMERA, case.response, case.measurement,
                    ObjectiveSettings(motion_weight=motion, gap_weight=gap, ridge_weight=ridge,
-                                     component_weights=components, outside=outside))
+                                     component_weights=components, outside=outside, motion_slide=slide))
 
 
 def _x0(case):
@@ -28,14 +28,15 @@ def _x0(case):
     return 0.6 * case.x_true + rng.normal(0, 40.0, case.x_true.size)
 
 
-@pytest.mark.parametrize("components,outside", [((1.0, 1.0, 1.0), "paper"), ((1.0, 1.0, 0.0), "paper"),
-                                                ((0.0, 0.0, 1.0), "paper"), ((0.3, 2.0, 0.7), "paper"),
-                                                ((1.0, 1.0, 1.0), "symmetric")])
-def test_motion_and_ridge_hessian_equal_the_derivative_of_the_exact_gradient(case, components, outside):
+@pytest.mark.parametrize("components,outside,slide", [
+    ((1.0, 1.0, 1.0), "paper", False), ((1.0, 1.0, 0.0), "paper", False), ((0.0, 0.0, 1.0), "paper", False),
+    ((0.3, 2.0, 0.7), "paper", False), ((1.0, 1.0, 1.0), "symmetric", False),
+    ((1.0, 1.0, 1.0), "paper", True), ((0.3, 2.0, 0.7), "symmetric", True), ((0.0, 0.0, 1.0), "paper", True)])
+def test_motion_and_ridge_hessian_equal_the_derivative_of_the_exact_gradient(case, components, outside, slide):
     """For a frozen raster the motion term is quadratic: H is its exact Hessian (central differences of g),
-    with any weights of the velocity components (one instrument's data only) and either charge of the
-    pixels only one side sees."""
-    p = _problem(case, 1e-4, 0.0, ridge=1e-6, components=components, outside=outside)
+    with any weights of the velocity components (one instrument's data only), either charge of the
+    pixels only one side sees, and with the surface sliding under the pixels (still linear in U)."""
+    p = _problem(case, 1e-4, 0.0, ridge=1e-6, components=components, outside=outside, slide=slide)
     x0 = _x0(case)
     frames = p.freeze(x0)
     model = gauss_newton_model(p, x0, frames)
@@ -129,3 +130,33 @@ def test_motion_blocks_of_several_terms_are_each_pairs_weighted_gram_product():
             want = sum(w * (dense @ bases[j][:, c, :]).T @ (dense @ bases[k][:, c, :]) for c, w in enumerate(weights))
             np.testing.assert_allclose(got[j, k], want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
     assert np.allclose(got[0, 1], got[1, 0].T) and not np.allclose(got[0, 1], got[0, 2])
+
+
+def test_slide_blocks_are_each_pairs_weighted_gram_product_of_the_residuals_two_parts():
+    """Every block of :func:`motion_slide_blocks` against the dense products of the 2J residual parts
+    ``X_j = M R_j / dt`` and ``Y_j = -K (M R_j)[:, :2]`` over the moved vertices, on random raster rows (several
+    pixels per triangle, K per triangle), random slide gradients and three terms."""
+    import scipy.sparse as sp
+
+    from vfcli.inverse.terms.motion import Slide, motion_slide_blocks
+
+    rng = np.random.default_rng(6)
+    n_vert, n_tri, n_pix, n_s, dt = 40, 25, 90, 4, 1e-4
+    tris = np.stack([rng.choice(n_vert, 3, replace=False) for _ in range(n_tri)])
+    triangle = rng.integers(0, n_tri, n_pix)
+    bary = rng.dirichlet(np.ones(3), n_pix)
+    m = sp.csr_matrix((bary.ravel(), tris[triangle].ravel(), np.arange(0, 3 * n_pix + 1, 3)), shape=(n_pix, n_vert))
+    slide = Slide(rng.normal(size=(n_tri, 3, 2)) * 500.0, triangle, np.zeros((n_pix, 2)))
+    bases = [rng.normal(size=(n_vert, 3, n_s)) for _ in range(3)]
+    moved = rng.random(n_vert) < 0.7
+    weights = (0.3, 2.0, 0.7)
+    got = motion_slide_blocks(m, slide, bases, moved, weights, dt)
+    dense = m.toarray() * moved[None, :]
+    k_pix = slide.gradient[triangle]
+    mr = [np.stack([dense @ b[:, c, :] for c in range(3)], axis=1) for b in bases]     # (n_pix, 3, S)
+    parts = [x / dt for x in mr] + [-np.einsum("pcd,pds->pcs", k_pix, x[:, :2]) for x in mr]
+    assert got.shape == (6, 6, n_s, n_s)
+    for a in range(6):
+        for b in range(6):
+            want = sum(w * parts[a][:, c].T @ parts[b][:, c] for c, w in enumerate(weights))
+            np.testing.assert_allclose(got[a, b], want, rtol=1e-10, atol=1e-12 * np.abs(want).max())

@@ -104,10 +104,12 @@ def test_the_test_response_satisfies_the_protocol_and_its_linearization_is_its_d
     assert np.abs(b_fast - b_slow).max() > 0.2 * np.abs(b_fast).max()
 
 
-def test_gradient_and_gauss_newton_hessian_are_exact_for_the_two_term_response(relaxing):
+@pytest.mark.parametrize("slide", [False, True])
+def test_gradient_and_gauss_newton_hessian_are_exact_for_the_two_term_response(relaxing, slide):
+    """With and without the surface sliding under the pixels (then 2 x 2 terms per frame)."""
     model, _, resp, meas, x_true = relaxing
     p = Problem(model.mesh, CAMERA, resp, meas, SETTINGS.__class__(motion_weight=1e-4, gap_weight=0.0,
-                                                                   ridge_weight=1e-6))
+                                                                   ridge_weight=1e-6, motion_slide=slide))
     x0 = _x0(x_true)
     frames = p.freeze(x0)
     _, grad = p.frozen_value_and_grad(x0, frames)

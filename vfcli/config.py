@@ -338,6 +338,11 @@ class OptimizeConfig(_Section):
         "meet at the last known opening location, overlap or not (before session 47); 'overlap-bounded': left out while "
         "the overlap is within the widest opening the camera measured in the window, the excess beyond it charged as "
         "(d/l)^2 without the arctan's saturation (vfcli/inverse/terms/gap.py)")
+    motion_slide: bool = Field(
+        False, description="Motion term's gradient and Gauss-Newton model: false (default, the paper's frozen (u, v)): "
+        "each pixel follows the material point the raster saw at the linearisation point; true: also the surface "
+        "sliding under the pixels when a step moves it in the image plane, the first-order change E evaluated with a "
+        "fresh raster sees (vfcli/inverse/terms/motion.py)")
     motion_outside: Literal["paper", "symmetric"] = Field(
         "paper", description="Motion term where only one of simulation and recording sees tissue: 'paper': only the "
         "recording's side costs |v|^2 (the paper's one-sided E); 'symmetric': the simulation's side in the measured gap "

@@ -34,6 +34,7 @@ from vfcli.diagnose.calibrate import (DEFAULT_REPLICATES, Calibration, NullParts
                                       quadrature_scores)
 from vfcli.diagnose.cycles import Cycles, TooFewCycles, floor_cycle_ids, floor_cycles, glottal_cycles
 from vfcli.inverse.stencil import stencil_scatter
+from vfcli.inverse.terms.motion import frame_adjoint
 
 #: noise stretches used at most on each side of the window (time and memory stay bounded)
 MAX_POOL_STRETCHES = 8
@@ -77,9 +78,10 @@ def motion_adjoint(baseline, s: np.ndarray, weights: np.ndarray) -> np.ndarray:
     at = 0
     for f, fr in enumerate(baseline.frames):
         n = 3 * fr.m_both.shape[0]
-        rows = (s[at:at + n] * weights[at:at + n]).reshape(-1, 3)
-        gd = fr.m_both.T @ rows / p.dt
-        stencil_scatter(g, p.stencil[f], gd)
+        gv, gu = frame_adjoint(fr, (s[at:at + n] * weights[at:at + n]).reshape(-1, 3))
+        stencil_scatter(g, p.stencil[f], gv / p.dt)
+        if gu is not None:
+            g[f] += gu
         at += n
     return p.response.adjoint(g, p.sim_times, baseline.x)
 

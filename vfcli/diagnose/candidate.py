@@ -31,6 +31,7 @@ from typing import Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from vfcli.inverse.terms.gap import gap_rows
+from vfcli.inverse.terms.motion import frame_change, frame_prediction
 
 
 @dataclass
@@ -73,9 +74,16 @@ class Baseline:
         return int(sum(3 * fr.m_both.shape[0] for fr in self.frames))
 
     def motion_vector(self, disp: np.ndarray) -> np.ndarray:
-        """(n_motion_rows,) simulated velocity (mm/s) at the compared pixels for displacements disp (F + 1, N, 3)."""
+        """(n_motion_rows,) simulated velocity (mm/s) at the compared pixels for displacements disp (F + 1, N, 3)
+        (the frozen frames' model, with the surface sliding under the pixels when the run's settings have it)."""
         p = self.problem
-        return np.concatenate([(fr.m_both @ p.frame_velocity(disp, f)).ravel()
+        return np.concatenate([frame_prediction(fr, p.frame_velocity(disp, f), disp[f]).ravel()
+                               for f, fr in enumerate(self.frames)] or [np.zeros(0)])
+
+    def motion_change(self, du: np.ndarray) -> np.ndarray:
+        """(n_motion_rows,) change of :meth:`motion_vector` (mm/s) for a displacement change du (F + 1, N, 3), mm."""
+        p = self.problem
+        return np.concatenate([frame_change(fr, p.frame_velocity(du, f), du[f]).ravel()
                                for f, fr in enumerate(self.frames)] or [np.zeros(0)])
 
     def measured_motion(self) -> np.ndarray:
@@ -114,7 +122,7 @@ class Baseline:
         dudp = np.asarray(dudp, dtype=float)
         if dudp.ndim != 4 or dudp.shape[:3] != self.displacements.shape:
             raise ValueError(f"dudp must be {self.displacements.shape + ('P',)}, got {dudp.shape}")
-        motion = np.stack([self.motion_vector(dudp[..., j]) for j in range(dudp.shape[-1])], axis=1) \
+        motion = np.stack([self.motion_change(dudp[..., j]) for j in range(dudp.shape[-1])], axis=1) \
             if dudp.shape[-1] else np.zeros((self.n_motion_rows, 0))
         return np.concatenate([motion, self.gap_jacobian(dudp)], axis=0)
 

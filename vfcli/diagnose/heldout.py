@@ -30,6 +30,7 @@ import numpy as np
 
 from vfcli.diagnose.confirmation import HeldOutError
 from vfcli.diagnose.refit import RefitResult, joint_fit
+from vfcli.inverse.terms.motion import frame_residual
 
 #: component weights of the camera-only fit (in-plane x, y; no vertical)
 CAMERA_ONLY = (1.0, 1.0, 0.0)
@@ -70,7 +71,7 @@ def prediction_error(baseline, disp: np.ndarray, frames_of: np.ndarray, componen
         fr = baseline.frames[f]
         if fr.m_both.shape[0] == 0:
             continue
-        r = (fr.m_both @ p.frame_velocity(disp, f) - fr.v_both)[:, comps]
+        r = frame_residual(fr, p.frame_velocity(disp, f), disp[f])[:, comps]
         ss += float(np.sum(r * r))
         n += r.size
     return float(np.sqrt(ss / n)) if n else float("nan")

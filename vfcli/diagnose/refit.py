@@ -61,7 +61,6 @@ did not move (session 25)").
 from __future__ import annotations
 
 import copy
-import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -127,19 +126,11 @@ class RefitResult:
         return np.column_stack([self.theta - 1.96 * self.sd, self.theta + 1.96 * self.sd])
 
 
-def blank_frame(frame):
-    """The frozen frame with no rows: it contributes nothing to E (a held-out frame)."""
-    return dataclasses.replace(frame, m_both=frame.m_both[:0], v_both=frame.v_both[:0], const=0.0,
-                               pix_both=frame.pix_both[:0], pix_only=frame.pix_only[:0],
-                               sil=[tuple(a[:0] for a in side) for side in frame.sil],
-                               excess=[tuple(a[:0] for a in side) for side in frame.excess])
-
-
 def masked(frames: list, keep: np.ndarray | None) -> list:
-    """``frames`` with the frames not in ``keep`` (F,) bool blanked (:func:`blank_frame`)."""
+    """``frames`` with the frames not in ``keep`` (F,) bool emptied (nothing compared: a held-out frame)."""
     if keep is None:
         return frames
-    return [fr if k else blank_frame(fr) for fr, k in zip(frames, np.asarray(keep, bool))]
+    return [fr if k else fr.emptied() for fr, k in zip(frames, np.asarray(keep, bool))]
 
 
 def energy(problem, x: np.ndarray, disp: np.ndarray, frames: list):

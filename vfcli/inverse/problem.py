@@ -89,7 +89,11 @@ field's image gradient times the slide; session 50 measured it ten times the
 frozen change on an inertia refit, 96-97 % of it on pixels whose visible triangle
 stayed the same: docs/benchmarks.md, "A bound on the closed rays' overlap that
 does not saturate").  Where the slide is small against the velocity field's scale
-the two agree.
+the two agree.  ``ObjectiveSettings.motion_slide`` adds that term: the frozen frame then
+also carries the velocity field's image gradient per visible triangle
+(:class:`vfcli.inverse.terms.motion.Slide`), the frozen motion residual follows the surface
+under the pixels to first order, and the gradient is the line search's derivative (to the
+central differences' own spread, tests/test_objective.py).
 """
 from __future__ import annotations
 
@@ -106,6 +110,7 @@ from vfcli.flow.gap.opening import measured_silhouettes
 from vfcli.inverse.stencil import frame_velocity_stencil, stencil_apply
 from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
 from vfcli.inverse.terms.gap import CLOSED_RAYS, closed_rays_excess, closed_rays_kept, widest_opening
+from vfcli.inverse.terms.motion import Slide, frame_residual
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
 from vfcli.model.response.base import Response
 
@@ -201,6 +206,10 @@ class ObjectiveSettings:
     #: overlap is within the widest measured opening and charges the excess quadratically
     #: (:func:`vfcli.inverse.terms.gap.closed_rays_excess`)
     closed_rays: str = "overlap-allowed"
+    #: False: the motion term's gradient and Gauss-Newton model follow the material points the frozen raster saw
+    #: (the paper's frozen (u, v)); True: they also follow the surface sliding under the pixels when a step moves it
+    #: in the image plane (:class:`vfcli.inverse.terms.motion.Slide`), the first-order change a fresh raster sees
+    motion_slide: bool = False
 
     def __post_init__(self) -> None:
         if self.outside not in OUTSIDE:
@@ -230,6 +239,15 @@ class _Frame:
     pix_only: np.ndarray    # flat pixel indices valid only in the measurement
     excess: list = ()       # per fold side: closed rays overlapping beyond the widest opening, as ``sil``
     #                         (closed_rays = "overlap-bounded"; :func:`vfcli.inverse.terms.gap.closed_rays_excess`)
+    slide: Slide | None = None  # the surface sliding under the compared pixels (motion_slide)
+
+    def emptied(self) -> _Frame:
+        """The frame with nothing compared and no silhouette: it adds nothing to E (a held-out frame)."""
+        return replace(self, m_both=self.m_both[:0], v_both=self.v_both[:0], const=0.0,
+                       pix_both=self.pix_both[:0], pix_only=self.pix_only[:0],
+                       sil=[tuple(a[:0] for a in side) for side in self.sil],
+                       excess=[tuple(a[:0] for a in side) for side in self.excess],
+                       slide=None if self.slide is None else self.slide.emptied())
 
 
 class Problem:
@@ -352,8 +370,13 @@ class Problem:
             out.append((rays, edge, scr[ee[:, 0], lc] + lam * (scr[ee[:, 1], lc] - scr[ee[:, 0], lc])))
         return out
 
-    def freeze(self, x: np.ndarray, disp: np.ndarray | None = None) -> list[_Frame]:
-        """Rasters and silhouette edges of every frame at ``x`` (the linearisation point)."""
+    def freeze(self, x: np.ndarray, disp: np.ndarray | None = None, slide: bool | None = None) -> list[_Frame]:
+        """Rasters and silhouette edges of every frame at ``x`` (the linearisation point).
+
+        slide : whether the frames carry the surface's slide under the pixels (default: the settings'
+        ``motion_slide``; it is zero at ``x``, so E's value there does not need it, its gradient does).
+        """
+        slide = self.settings.motion_slide if slide is None else bool(slide)
         u = self.displacements(x) if disp is None else disp
         cw = np.asarray(self.settings.component_weights, dtype=float)
         symmetric = self.settings.outside == "symmetric"
@@ -392,8 +415,13 @@ class Problem:
                 tgt = targets[side][rays]
                 ok = np.isfinite(tgt)
                 sil.append((rays[ok], edge[ok], tgt[ok]))
-            frames.append(_Frame(raster.interpolation_rows(rows), v_both, float(np.sum(v_only ** 2 @ cw)),
-                                 float(max(1, np.count_nonzero(valid))), sil, pix_both, pix_only, excess))
+            m_both = raster.interpolation_rows(rows)
+            sliding = None
+            if slide:
+                sliding = Slide.at(self.camera, pos, self.tri, raster.visible_triangle[rows], self.frame_velocity(u, f),
+                                 m_both @ u[f][:, :2])
+            frames.append(_Frame(m_both, v_both, float(np.sum(v_only ** 2 @ cw)),
+                                 float(max(1, np.count_nonzero(valid))), sil, pix_both, pix_only, excess, sliding))
         return frames
 
     # ------------------------------------------------------------ value and gradient
@@ -419,7 +447,7 @@ class Problem:
         h, w = self.camera.shape
         out = np.full((self.n_frames, h * w, 3), np.nan)
         for f, fr in enumerate(frames):
-            out[f, fr.pix_both] = fr.m_both @ self.frame_velocity(u, f) - fr.v_both
+            out[f, fr.pix_both] = frame_residual(fr, self.frame_velocity(u, f), u[f])
             out[f, fr.pix_only] = -self.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
         return out.reshape(self.n_frames, h, w, 3)
 
@@ -440,7 +468,7 @@ class Problem:
         """E at ``x`` (rasterised at ``x``)."""
         x = np.asarray(x, float)
         u = self.displacements(x)
-        return self._frozen(x, self.freeze(x, u), u, grad=False)[0]
+        return self._frozen(x, self.freeze(x, u, slide=False), u, grad=False)[0]
 
     def value_and_grad(self, x: np.ndarray) -> tuple[Terms, np.ndarray]:
         """E at ``x`` and its exact gradient for the raster of ``x`` ((n_params,) per unit x)."""

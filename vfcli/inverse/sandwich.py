@@ -37,7 +37,7 @@ see, is such a direction).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -69,9 +69,7 @@ def _only_frame(frames: list, f: int) -> list:
         if k == f:
             out.append(fr)
             continue
-        out.append(replace(fr, m_both=fr.m_both[:0], v_both=fr.v_both[:0], const=0.0,
-                           sil=[tuple(a[:0] for a in s) for s in fr.sil],
-                           excess=[tuple(a[:0] for a in s) for s in fr.excess]))
+        out.append(fr.emptied())
     return out
 
 

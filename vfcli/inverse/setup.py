@@ -210,7 +210,8 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     ridge = cfg.ridge_weight if cfg.ridge_weight is not None else DEFAULT_RIDGE[cfg.loads]
     settings = ObjectiveSettings(motion_weight=cfg.motion_weight, gap_weight=cfg.gap_weight,
                                  gap_length_mm=cfg.gap_length_mm, ridge_weight=ridge or 0.0, outside=cfg.motion_outside,
-                                 closed_rays=cfg.gap_closed_rays, lateral_axis=lateral)
+                                 closed_rays=cfg.gap_closed_rays, motion_slide=cfg.motion_slide,
+                                 lateral_axis=lateral)
     valid = np.asarray(inputs.valid, bool)
     if cfg.gap_margin_px > 0:
         valid = valid & ~near_gap(inputs.gap_masks, cfg.gap_margin_px)[None]

@@ -61,6 +61,8 @@ def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], at
     data["optimize"].setdefault("pressure_band_harmonics", None)
     # a run stored before session 47 asked the simulated edges to meet on every closed ray
     data["optimize"].setdefault("gap_closed_rays", "meet")
+    # a run stored before session 51 followed the material points in its gradient
+    data["optimize"].setdefault("motion_slide", False)
     offset = np.asarray(attrs["camera_offset_px"], float) + np.asarray(roi_origin_px, float)
     data["camera"] = {**run_config.get("camera", data["camera"]), "pose": "config",
                       "rotation_deg": float(attrs["camera_rotation_deg"]), "offset_px": [float(v) for v in offset]}

@@ -84,13 +84,14 @@ def candidate_blocks(baseline, dudp: np.ndarray) -> tuple[np.ndarray, np.ndarray
 def _kappa_after(baseline, model, dof: float, u: np.ndarray, n_extra: int) -> float:
     """kappa of the fit with displacements u (F + 1, N, 3): (n_eff - dof - n_extra) / (2 E_motion)."""
     from vfcli.inverse.terms import Evaluation
+    from vfcli.inverse.terms.motion import frame_residual
     from vfcli.inverse.uncertainty import effective_sample_size
 
     p = baseline.problem
     h, w = p.camera.shape
     images = np.full((p.n_frames, h * w, 3), np.nan)
     for f, fr in enumerate(baseline.frames):
-        images[f, fr.pix_both] = fr.m_both @ p.frame_velocity(u, f) - fr.v_both
+        images[f, fr.pix_both] = frame_residual(fr, p.frame_velocity(u, f), u[f])
         images[f, fr.pix_only] = -p.meas.velocity[f].reshape(-1, 3)[fr.pix_only]
     corr = effective_sample_size(images.reshape(p.n_frames, h, w, 3), pixel_stride=p.meas.pixel_stride)
     motion = next(t for t in p.terms if t.name == "motion")

@@ -23,8 +23,26 @@ For a frozen raster r_f is linear in U, and with ``dU(t) = sum_j R_j dC B_j(t)``
 
 so the Hessian is exact (the motion term is quadratic in x for a linear response) and
 ``R^T M^T M R`` only involves the vertices seen in frame f.
+
+The surface sliding under the pixels (``ObjectiveSettings.motion_slide``)
+-------------------------------------------------------------------------
+M_f holds each pixel's barycentrics fixed: a material point.  E evaluated with a fresh raster
+(a line search) compares the pixel y with the surface point under it after the step; to first
+order in the step, with delta(y) = M_f dU(t_f) the (x, y) displacement of the point the frozen
+raster saw (mm) and A the camera's (2, 2) matrix (px/mm)::
+
+    v_bar_new(y) = v_bar(y - A delta(y)) = v_bar(y) - K_y delta(y),    K_y = (grad_s v_bar) A   (3, 2), 1/s
+
+with grad_s v_bar the (3, 2) image gradient of the interpolated velocity on the pixel's triangle
+(:class:`Slide`, frozen at the linearisation point like M_f).  With motion_slide the frozen
+residual is ``r_f = M_f V_f - v_f - K (M_f (U(t_f) - U0(t_f)))``: the same at the linearisation
+point U0, still linear in U, and its gradient is E's directional derivative as a line search
+sees it (where no pixel changes its triangle).  The Gauss-Newton blocks then have 2J terms per
+frame: ``(M_f R_j / dt) (x) db_j,f`` and ``(-K M_f R_j) (x) B_j(t_f)``.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -43,6 +61,153 @@ def seen_vertex_gram(m_both: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
     seen = np.flatnonzero(np.diff(m.indptr))
     ms = m[:, seen]
     return seen, (ms.T @ ms).tocsr()
+
+
+@dataclass(frozen=True)
+class Slide:
+    """How the velocity a frozen frame's compared pixels see changes when the surface slides under them.
+
+    gradient : (m, 3, 2) K = (grad_s v_bar) A per visible triangle, 1/s: grad_s v_bar (3, 2) is the image
+        gradient (mm/s per px) of the velocity interpolated on the triangle, A the camera's (2, 2) px per mm;
+        a displacement delta (mm, model x and y) of the surface point under a pixel changes the velocity
+        seen there by ``-K delta``.
+    triangle : (n_both,) each compared pixel's index into ``gradient``.
+    ref : (n_both, 2) model (x, y) displacement of the surface point under each pixel at the freeze, mm.
+    """
+
+    gradient: np.ndarray
+    triangle: np.ndarray
+    ref: np.ndarray
+
+    @classmethod
+    def at(cls, camera, positions: np.ndarray, triangles: np.ndarray, visible_triangle: np.ndarray,
+           velocity: np.ndarray, ref: np.ndarray) -> Slide:
+        """From the frame's deformed vertices (N, 3) mm, its rasterised triangles (K, 3), each compared pixel's
+        index (n,) into them, the vertex velocity (N, 3) mm/s and ``ref`` (n, 2) mm."""
+        used, where = np.unique(np.asarray(visible_triangle, dtype=np.int64), return_inverse=True)
+        tri = np.asarray(triangles)[used]                                      # (m, 3)
+        scr = camera.project(np.asarray(positions, float)[tri.ravel()]).reshape(-1, 3, 2)
+        e1, e2 = scr[:, 1] - scr[:, 0], scr[:, 2] - scr[:, 0]
+        area2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        g1 = np.stack([e2[:, 1], -e2[:, 0]], axis=1) / area2[:, None]         # grad of vertex 1's weight, 1/px
+        g2 = np.stack([-e1[:, 1], e1[:, 0]], axis=1) / area2[:, None]
+        grads = np.stack([-(g1 + g2), g1, g2], axis=1)                          # (m, 3 vertices, 2)
+        grad_v = np.einsum("mjc,mjs->mcs", np.asarray(velocity, float)[tri], grads)   # (m, 3, 2) mm/s per px
+        return cls(grad_v @ camera.matrix, where.ravel(), np.asarray(ref, float))
+
+    def apply(self, delta: np.ndarray) -> np.ndarray:
+        """(n_both, 3) ``K delta`` for (n_both, 2) displacements delta, mm/s."""
+        return np.einsum("pcd,pd->pc", self.gradient[self.triangle], delta)
+
+    def transpose(self, rows: np.ndarray) -> np.ndarray:
+        """(n_both, 2) ``K^T rows`` for (n_both, 3) rows."""
+        return np.einsum("pcd,pc->pd", self.gradient[self.triangle], rows)
+
+    def emptied(self) -> Slide:
+        """No compared pixel."""
+        return Slide(self.gradient, self.triangle[:0], self.ref[:0])
+
+
+def frame_change(frame, velocity: np.ndarray, disp: np.ndarray) -> np.ndarray:
+    """(n_both, 3) the linear part of a frozen frame's simulated velocity at its compared pixels, mm/s.
+
+    frame : a frozen frame (:meth:`vfcli.inverse.problem.Problem.freeze`).
+    velocity : (N, 3) vertex velocity (or its change) at the frame time, mm/s.
+    disp : (N, 3) vertex displacements (or their change) at the frame time, mm (used with ``frame.slide`` only).
+    Returns ``M V`` without the slide, ``M V - K (M U)[:, :2]`` with it (module docstring).
+    """
+    out = frame.m_both @ velocity
+    if frame.slide is not None:
+        out -= frame.slide.apply(frame.m_both @ disp[:, :2])
+    return out
+
+
+def frame_prediction(frame, velocity: np.ndarray, disp: np.ndarray) -> np.ndarray:
+    """(n_both, 3) the simulated velocity a frozen frame's compared pixels see, mm/s (``velocity``, ``disp``: the
+    model's at the frame time, as :func:`frame_change`; with the slide relative to the freeze's displacement)."""
+    out = frame_change(frame, velocity, disp)
+    if frame.slide is not None:
+        out += frame.slide.apply(frame.slide.ref)
+    return out
+
+
+def frame_residual(frame, velocity: np.ndarray, disp: np.ndarray) -> np.ndarray:
+    """(n_both, 3) simulated minus measured velocity of a frozen frame's compared pixels, mm/s
+    (:func:`frame_prediction` minus ``frame.v_both``)."""
+    return frame_prediction(frame, velocity, disp) - frame.v_both
+
+
+def frame_adjoint(frame, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """The transpose of :func:`frame_change`: (N, 3) per unit velocity and, with the slide, (N, 3) per unit
+    displacement (None without it), for (n_both, 3) row values."""
+    gv = frame.m_both.T @ rows
+    if frame.slide is None:
+        return gv, None
+    gu = np.zeros_like(gv)
+    gu[:, :2] = -(frame.m_both.T @ frame.slide.transpose(rows))
+    return gv, gu
+
+
+def triangle_grams(m_both: sp.csr_matrix, triangle: np.ndarray, n_triangles: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each triangle's vertices (m, 3) and ``sum_p b_p b_p^T`` (m, 3, 3) over its pixels' barycentrics b_p.
+
+    m_both : (n_pix, N) interpolation rows, three entries per row in the triangle's vertex order (as
+    :meth:`vfcli.camera.raster.Raster.interpolation_rows` makes them); triangle : (n_pix,) each row's triangle
+    (0 .. n_triangles - 1; a triangle without rows gets vertex -1 and zeros).
+    """
+    cols = m_both.indices.reshape(-1, 3)
+    bary = m_both.data.reshape(-1, 3)
+    verts = np.full((n_triangles, 3), -1, dtype=np.int64)
+    verts[triangle] = cols
+    grams = np.empty((n_triangles, 3, 3))
+    for j in range(3):
+        for k in range(j, 3):
+            grams[:, j, k] = grams[:, k, j] = np.bincount(triangle, weights=bary[:, j] * bary[:, k],
+                                                          minlength=n_triangles)
+    return verts, grams
+
+
+def motion_slide_blocks(m_both: sp.csr_matrix, slide: Slide, bases: list[np.ndarray],
+                        vertices: np.ndarray | None, weights: tuple[float, float, float], dt: float) -> np.ndarray:
+    """The Gauss-Newton blocks of one frame's motion residual with the slide (module docstring).
+
+    The residual's 2J terms are ``X_j = M R_j / dt`` (with the velocity stencil in time) and
+    ``Y_j = -K M R_j[:, :2]`` (with B_j(t_f)); returns the (2J, 2J, S, S) blocks
+    ``sum_c w_c Z_a,c^T Z_b,c`` over the 2J terms Z (X first), per (unit control)^2 in (mm/s)^2.
+    K is constant on a triangle, so every weighted gram ``M^T diag(w) M`` is a sum of the triangles'
+    ``sum_p b_p b_p^T`` (:func:`triangle_grams`) weighted per triangle.
+    bases, vertices, weights : as :func:`motion_blocks`; dt : frame interval, s.
+    """
+    n_terms, n_s = len(bases), bases[0].shape[2]
+    k = n_terms * n_s
+    out = np.zeros((2 * k, 2 * k))
+    verts, tgram = triangle_grams(m_both, slide.triangle, len(slide.gradient))
+    rows = np.unique(verts[verts >= 0])
+    if vertices is not None:
+        rows = rows[vertices[rows]]
+    if rows.size:
+        at = np.full(max(m_both.shape[1], 1), -1)
+        at[rows] = np.arange(rows.size)
+        local = np.where(verts >= 0, at[np.maximum(verts, 0)], -1)          # (m, 3)
+        pair = (local[:, :, None] >= 0) & (local[:, None, :] >= 0)           # (m, 3, 3)
+        i = np.broadcast_to(local[:, :, None], pair.shape)[pair]
+        j = np.broadcast_to(local[:, None, :], pair.shape)[pair]
+
+        def gram(per_triangle: np.ndarray) -> sp.csr_matrix:
+            data = (per_triangle[:, None, None] * tgram)[pair]
+            return sp.csr_matrix((data, (i, j)), shape=(rows.size, rows.size))
+
+        r = [np.hstack([b[rows, c, :] for b in bases]) for c in range(3)]
+        comps = [c for c in range(3) if weights[c]]
+        g_k = slide.gradient                                                    # (m, 3, 2)
+        plain = gram(np.ones(len(g_k)))
+        out[:k, :k] = sum(weights[c] * (r[c].T @ (plain @ r[c])) for c in comps) / dt ** 2
+        out[:k, k:] = -sum(r[c].T @ (gram(weights[c] * g_k[:, c, d]) @ r[d]) for c in comps for d in range(2)) / dt
+        out[k:, :k] = out[:k, k:].T
+        yy = {(d, e): r[d].T @ (gram(sum(weights[c] * g_k[:, c, d] * g_k[:, c, e] for c in comps)) @ r[e])
+              for d, e in ((0, 0), (0, 1), (1, 1))}
+        out[k:, k:] = yy[0, 0] + yy[0, 1] + yy[0, 1].T + yy[1, 1]
+    return out.reshape(2 * n_terms, n_s, 2 * n_terms, n_s).transpose(0, 2, 1, 3)
 
 
 def motion_blocks(seen: np.ndarray, gram: sp.csr_matrix, bases: list[np.ndarray],
@@ -84,6 +249,10 @@ class MotionTerm(FrameTerm):
 
     name = "motion"
 
+    def n_kron(self, problem, n_lin_terms: int) -> int:
+        per = 2 * n_lin_terms if problem.settings.motion_slide else n_lin_terms
+        return problem.n_frames * per ** 2 if self.weight(problem.settings) else 0
+
     def value(self, ev: Evaluation) -> float:
         p = ev.problem
         w = self.weight(p.settings)
@@ -91,11 +260,13 @@ class MotionTerm(FrameTerm):
         u, n_f = ev.disp, p.n_frames
         motion = 0.0
         for f, fr in enumerate(ev.frames):
-            r = fr.m_both @ p.frame_velocity(u, f) - fr.v_both
+            r = frame_residual(fr, p.frame_velocity(u, f), u[f])
             motion += (np.sum(r * r @ cw) + fr.const) / fr.n_norm
             if ev.wants_grad and w:
-                gd = (fr.m_both.T @ (r * cw)) * (2.0 * w / (n_f * fr.n_norm * p.dt))
-                stencil_scatter(ev.grad_disp, p.stencil[f], gd)
+                gv, gu = frame_adjoint(fr, (r * cw) * (2.0 * w / (n_f * fr.n_norm)))
+                stencil_scatter(ev.grad_disp, p.stencil[f], gv / p.dt)
+                if gu is not None:
+                    ev.grad_disp[f] += gu
         return w * motion / n_f
 
     def kron_blocks(self, ev: Evaluation, lin: GroupedLinearization, groups: list[np.ndarray],
@@ -107,12 +278,23 @@ class MotionTerm(FrameTerm):
             return
         pairs = term_pairs(lin.n_terms)
         b = lin.temporal
+        slide = st.motion_slide
+        if slide:
+            pairs = term_pairs(2 * lin.n_terms)
         for f, fr in enumerate(ev.frames):
             db = [stencil_apply(bj, p.stencil[f]) for bj in b]
-            w = 2.0 * weight / (p.n_frames * fr.n_norm * p.dt ** 2)
-            seen, gram = seen_vertex_gram(fr.m_both)
+            if slide:
+                if fr.slide is None:
+                    raise ValueError("motion_slide needs frames frozen with it (Problem.freeze)")
+                w = 2.0 * weight / (p.n_frames * fr.n_norm)
+                db += [bj[f] for bj in b]
+            else:
+                w = 2.0 * weight / (p.n_frames * fr.n_norm * p.dt ** 2)
+                seen, gram = seen_vertex_gram(fr.m_both)
             for g, (stack, mv) in enumerate(zip(out.blocks, lin.moved)):
-                blocks = motion_blocks(seen, gram, [r[g] for r in lin.spatial], mv, st.component_weights)
+                bases = [r[g] for r in lin.spatial]
+                blocks = (motion_slide_blocks(fr.m_both, fr.slide, bases, mv, st.component_weights, p.dt) if slide
+                          else motion_blocks(seen, gram, bases, mv, st.component_weights))
                 for i, (j, k) in enumerate(pairs):
                     stack[f * len(pairs) + i] = w * blocks[j, k]
             out.outers[f * len(pairs):(f + 1) * len(pairs)] = pair_outers(np.stack(db))
