@@ -24,6 +24,9 @@ log = logging.getLogger(__name__)
 
 #: the --refit choices besides a candidate's name
 REFIT_MODES = ("auto", "none")
+#: a refit's E counts as below the baseline's when lower by more than this relative amount (rounding only: a refit
+#: that kept no step from the baseline's own state returns its E to the bit)
+LOWER_RTOL = 1e-9
 
 
 @dataclass(frozen=True)
@@ -99,8 +102,10 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     if mesh is not None:
         log.info("mesh part of %s: %s (%.0f s)", candidate.name, np.round(mesh, 6), time.perf_counter() - t4)
     sd, name, dof, _ = heldout_sd(result.theta, result.sd, held, mesh)
+    e_base = float(baseline.problem.evaluate(baseline.x).total)
     conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof,
-                        moved=len(result.history["iteration"]) > 1)
+                        moved=len(result.history["iteration"]) > 1,
+                        lowers_e=bool(result.history["total"][-1] < e_base * (1.0 - LOWER_RTOL)))
     ext = extended_baseline(baseline, result)
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
 
@@ -111,8 +116,12 @@ def words(conf: Confirmation) -> list[str]:
                     for n, e, (a, b) in zip(conf.parameter_names, conf.estimate, conf.interval))
     out = [f"refit with {conf.candidate}{f' (run {conf.run})' if conf.run else ''}: {est}"]
     if not conf.moved:
-        out[0] += ("; the refit never left its start (no step of it lowered E): this is the value it started from, "
-                   "with the term switched off, not a fitted one")
+        off = " (the term switched off)" if not np.any(np.asarray(conf.estimate, float)) else ""
+        out[0] += ("; the refit never left its start (no step of it lowered E): this is the value it started "
+                   f"from{off}, not a fitted one")
+    if not conf.lowers_e:
+        out[0] += ("; its E is not below the baseline's: the extended model explains nothing of the window the "
+                   "baseline did not, so its held-out errors cannot confirm it")
     names = {"cycles": "leaving frames out (by cycle, or by block in a short window)",
              "instruments": "vertical velocity predicted from the camera"}
     for h in conf.heldout:

@@ -169,6 +169,9 @@ class Confirmation:
         held-out groups set it, :func:`heldout_sd`): the interval is Student's.
     moved : False when the refit kept no step (its history holds its start only): the estimate is the start
         value (the term switched off), not a fitted one.
+    lowers_e : False when the refit's final E (re-rasterised, the whole window) is not below the baseline's: the
+        extended model explains nothing of the window the baseline did not, whatever the held-out fits (frozen
+        rasters, linear in the step) say; then it is no finding.
     """
 
     candidate: str
@@ -180,6 +183,7 @@ class Confirmation:
     run: str = ""
     dof: float = float("inf")
     moved: bool = True
+    lowers_e: bool = True
 
     @property
     def interval(self) -> np.ndarray:
@@ -196,8 +200,9 @@ class Confirmation:
 
     @property
     def improves(self) -> bool:
-        """Every held-out comparison made improves beyond its spread (False when none could be made)."""
-        return bool(self.heldout) and all(h.beyond_spread() for h in self.heldout)
+        """The refit lowers E below the baseline's and every held-out comparison made improves beyond its spread
+        (False when none could be made)."""
+        return self.lowers_e and bool(self.heldout) and all(h.beyond_spread() for h in self.heldout)
 
     def as_dict(self) -> dict:
         return {"candidate": self.candidate, "run": self.run, "uncertainty": self.uncertainty,
@@ -205,4 +210,5 @@ class Confirmation:
                 "parameters": {n: {"estimate": float(e), "sd": float(s), "interval": [float(a), float(b)]}
                                for n, e, s, (a, b) in zip(self.parameter_names, self.estimate, self.sd,
                                                           self.interval)},
-                "heldout": [h.as_dict() for h in self.heldout], "improves": self.improves, "moved": self.moved}
+                "heldout": [h.as_dict() for h in self.heldout], "improves": self.improves, "moved": self.moved,
+                "lowers_e": self.lowers_e}
