@@ -15,6 +15,9 @@ Reproduce (prints a markdown table and the means)::
 
     .venv/bin/python bench/bench_unseen.py 4125 4126 --duration 0.025 --keep DIR
     .venv/bin/python bench/bench_closed_rays.py DIR/seed4125 DIR/seed4126
+
+``--slide`` fits each rule also with ``optimize.motion_slide = true`` (the surface sliding under the pixels in the
+gradient and Gauss-Newton model, session 51).
 """
 from __future__ import annotations
 
@@ -39,8 +42,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("stores", type=Path, nargs="+", help="kept store folders (holding recording.h5)")
     ap.add_argument("--rules", nargs="+", choices=list(RULES), default=list(RULES), help="the rules to fit (all three)")
+    ap.add_argument("--slide", action="store_true", help="each rule with optimize.motion_slide = true too (runs named "
+                    "with 'slide' appended)")
     args = ap.parse_args()
     rules = {rule: RULES[rule] for rule in args.rules}
+    if args.slide:
+        rules.update({f"{rule}+slide": f"{RULES[rule]}slide" for rule in args.rules})
     print("| store | rule | inferior oscillating | static (mm) | total | mean z true / est (mm) | 90 % coverage | "
           "E_gap final |")
     print("| --- | --- | ---: | ---: | ---: | --- | ---: | ---: |")
@@ -48,7 +55,10 @@ def main() -> None:
     for work in args.stores:
         got = {}
         for rule, name in rules.items():
-            if not refit(work, f"optimize.gap_closed_rays={rule}", name, force=True):
+            sets = [f"optimize.gap_closed_rays={rule.removesuffix('+slide')}"]
+            if rule.endswith("+slide"):
+                sets.append("optimize.motion_slide=true")
+            if not refit(work, sets, name, force=True):
                 continue
             s = score(work, name)
             with Store(work / "recording.h5").read() as r:
@@ -69,7 +79,9 @@ def main() -> None:
               f"{np.mean([s['inf_static_err_mm'] for s in rows]):.4f} mm, mean z bias {bias.mean():+.2f} % "
               f"({bias.min():+.1f} .. {bias.max():+.1f} %, low on {int((bias < 0).sum())} of {n}), coverage within "
               f"85-95 % on {int(((cov >= 0.85) & (cov <= 0.95)).sum())} of {n}")
-    for a, b in (("meet", "overlap-allowed"), ("overlap-allowed", "overlap-bounded")):
+    pairs = [("meet", "overlap-allowed"), ("overlap-allowed", "overlap-bounded")]
+    pairs += [(rule, f"{rule}+slide") for rule in args.rules if args.slide]
+    for a, b in pairs:
         if a in table and b in table:
             lower = sum(y["inf_total_err"] < x["inf_total_err"] for x, y in zip(table[a], table[b]))
             same = sum(y["inf_total_err"] == x["inf_total_err"] for x, y in zip(table[a], table[b]))

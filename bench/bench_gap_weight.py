@@ -54,11 +54,12 @@ def score(work: Path, run: str) -> dict:
     return score_inferior(t, mesh, disp, std, None, sim_time)
 
 
-def refit(work: Path, setting: str, run: str, force: bool = False) -> bool:
-    """``vfcli optimize`` on ``work``'s store with one ``--set`` (``optimize.X=Y``) as the run ``run``; False (and the
-    command's last words on stderr) when it did not exit 0."""
+def refit(work: Path, setting: str | list[str], run: str, force: bool = False) -> bool:
+    """``vfcli optimize`` on ``work``'s store with one ``--set`` (``optimize.X=Y``) or several as the run ``run``;
+    False (and the command's last words on stderr) when it did not exit 0."""
     vfcli = str(Path(sys.executable).with_name("vfcli"))
-    res = subprocess.run([vfcli, "optimize", str(work / "recording.h5"), "--set", setting, "--run", run, "-q"]
+    sets = [a for one in ([setting] if isinstance(setting, str) else setting) for a in ("--set", one)]
+    res = subprocess.run([vfcli, "optimize", str(work / "recording.h5"), *sets, "--run", run, "-q"]
                          + (["--force"] if force else []), capture_output=True, text=True)
     if res.returncode != 0:
         print(f"{work.name}: optimize --set {setting} exited {res.returncode}: {res.stderr.strip()[-300:]}",

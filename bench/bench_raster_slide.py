@@ -13,11 +13,14 @@ rule:
   triangle (only the barycentric coordinates moved: the surface slid under the pixel), on a new visible triangle,
   and switching between compared and not compared.
 
+With ``--slide`` the frozen model follows the surface under the pixels (``optimize.motion_slide``): its dE should
+then track the re-rasterised one at small steps, and the load step lower E.
+
 Reproduce (about 5 min on the kept store of panel recording 2012, made by ``bench/bench_diagnose.py --only 2012
 --keep DIR --prepare``, its run ``bounded`` by ``vfcli optimize DIR/seed2012_inertia/recording.h5 --run bounded
 --set optimize.gap_closed_rays=overlap-bounded`` and ``vfcli diagnose ... --run bounded``)::
 
-    .venv/bin/python bench/bench_raster_slide.py DIR/seed2012_inertia/recording.h5 bounded [--density 1.5]
+    .venv/bin/python bench/bench_raster_slide.py DIR/seed2012_inertia/recording.h5 bounded [--density 1.5] [--slide]
 """
 from __future__ import annotations
 
@@ -92,11 +95,16 @@ def main() -> None:
     ap.add_argument("store", type=Path)
     ap.add_argument("run")
     ap.add_argument("--density", type=float, default=1.5, help="inertia's density factor (1: the model's own)")
+    ap.add_argument("--slide", action="store_true", help="the frozen model with the surface sliding under the pixels "
+                    "(optimize.motion_slide = true; the run's own setting otherwise)")
     args = ap.parse_args()
     with Store(args.store).read() as r:
         base = read_inputs(r, RecordingConfig(), args.run).baseline
         base.f0_hz = float(r.attrs("diagnose", args.run)["f0_hz"])
     p = base.problem
+    if args.slide:
+        p = copy.copy(p)
+        p.settings = replace(p.settings, motion_slide=True)
     allowed = copy.copy(p)
     allowed.settings = replace(p.settings, closed_rays="overlap-allowed")
     theta = np.array([args.density])
@@ -104,7 +112,7 @@ def main() -> None:
            for name, prob in (("overlap-allowed", allowed), (p.settings.closed_rays, p))}
     starts = {name: R._load_steps(e, e.state(np.asarray(base.x, float), theta), R.START_STEPS, R.START_RTOL)
               for name, e in ext.items()}
-    print(f"run {args.run} (rule {p.settings.closed_rays}), density factor {args.density}: E after at most "
+    print(f"run {args.run} (rule {p.settings.closed_rays}, motion_slide {p.settings.motion_slide}), density factor {args.density}: E after at most "
           f"{R.START_STEPS} load steps from the run's loads: "
           + ", ".join(f"{k} {s.terms.total:.4g} (motion {s.terms.motion:.4g})" for k, s in starts.items()))
     e = ext[p.settings.closed_rays]
