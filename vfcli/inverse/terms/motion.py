@@ -67,45 +67,56 @@ def seen_vertex_gram(m_both: sp.csr_matrix) -> tuple[np.ndarray, sp.csr_matrix]:
 class Slide:
     """How the velocity a frozen frame's compared pixels see changes when the surface slides under them.
 
-    gradient : (m, 3, 2) K = (grad_s v_bar) A per visible triangle, 1/s: grad_s v_bar (3, 2) is the image
+    gradient : (m, 3, 2) K = (grad_s v_bar) A per rasterised triangle, 1/s: grad_s v_bar (3, 2) is the image
         gradient (mm/s per px) of the velocity interpolated on the triangle, A the camera's (2, 2) px per mm;
         a displacement delta (mm, model x and y) of the surface point under a pixel changes the velocity
         seen there by ``-K delta``.
     triangle : (n_both,) each compared pixel's index into ``gradient``.
     ref : (n_both, 2) model (x, y) displacement of the surface point under each pixel at the freeze, mm.
+    offset : (n_both, 3) ``K ref``, mm/s (computed from the others when not given).
     """
 
     gradient: np.ndarray
     triangle: np.ndarray
     ref: np.ndarray
+    offset: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.offset is None:
+            object.__setattr__(self, "offset", self.apply(self.ref))
 
     @classmethod
     def at(cls, camera, positions: np.ndarray, triangles: np.ndarray, visible_triangle: np.ndarray,
            velocity: np.ndarray, ref: np.ndarray) -> Slide:
         """From the frame's deformed vertices (N, 3) mm, its rasterised triangles (K, 3), each compared pixel's
-        index (n,) into them, the vertex velocity (N, 3) mm/s and ``ref`` (n, 2) mm."""
-        used, where = np.unique(np.asarray(visible_triangle, dtype=np.int64), return_inverse=True)
-        tri = np.asarray(triangles)[used]                                      # (m, 3)
+        index (n,) into them, the vertex velocity (N, 3) mm/s and ``ref`` (n, 2) mm.  K is computed for every
+        rasterised triangle (a few thousand: cheaper than finding the visible ones); a triangle with no screen
+        area (never visible) gets K = 0."""
+        tri = np.asarray(triangles, dtype=np.int64)                            # (m, 3)
         scr = camera.project(np.asarray(positions, float)[tri.ravel()]).reshape(-1, 3, 2)
         e1, e2 = scr[:, 1] - scr[:, 0], scr[:, 2] - scr[:, 0]
         area2 = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-        g1 = np.stack([e2[:, 1], -e2[:, 0]], axis=1) / area2[:, None]         # grad of vertex 1's weight, 1/px
-        g2 = np.stack([-e1[:, 1], e1[:, 0]], axis=1) / area2[:, None]
-        grads = np.stack([-(g1 + g2), g1, g2], axis=1)                          # (m, 3 vertices, 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g1 = np.stack([e2[:, 1], -e2[:, 0]], axis=1) / area2[:, None]     # grad of vertex 1's weight, 1/px
+            g2 = np.stack([-e1[:, 1], e1[:, 0]], axis=1) / area2[:, None]
+            grads = np.stack([-(g1 + g2), g1, g2], axis=1)                      # (m, 3 vertices, 2)
+        grads[~np.isfinite(grads)] = 0.0
         grad_v = np.einsum("mjc,mjs->mcs", np.asarray(velocity, float)[tri], grads)   # (m, 3, 2) mm/s per px
-        return cls(grad_v @ camera.matrix, where.ravel(), np.asarray(ref, float))
+        return cls(grad_v @ camera.matrix, np.asarray(visible_triangle, dtype=np.int64), np.asarray(ref, float))
 
     def apply(self, delta: np.ndarray) -> np.ndarray:
         """(n_both, 3) ``K delta`` for (n_both, 2) displacements delta, mm/s."""
-        return np.einsum("pcd,pd->pc", self.gradient[self.triangle], delta)
+        k = self.gradient[self.triangle]
+        return k[:, :, 0] * delta[:, :1] + k[:, :, 1] * delta[:, 1:2]
 
     def transpose(self, rows: np.ndarray) -> np.ndarray:
         """(n_both, 2) ``K^T rows`` for (n_both, 3) rows."""
-        return np.einsum("pcd,pc->pd", self.gradient[self.triangle], rows)
+        k = self.gradient[self.triangle]
+        return np.stack([np.sum(k[:, :, 0] * rows, axis=1), np.sum(k[:, :, 1] * rows, axis=1)], axis=1)
 
     def emptied(self) -> Slide:
         """No compared pixel."""
-        return Slide(self.gradient, self.triangle[:0], self.ref[:0])
+        return Slide(self.gradient, self.triangle[:0], self.ref[:0], self.offset[:0])
 
 
 def frame_change(frame, velocity: np.ndarray, disp: np.ndarray) -> np.ndarray:
@@ -127,7 +138,7 @@ def frame_prediction(frame, velocity: np.ndarray, disp: np.ndarray) -> np.ndarra
     model's at the frame time, as :func:`frame_change`; with the slide relative to the freeze's displacement)."""
     out = frame_change(frame, velocity, disp)
     if frame.slide is not None:
-        out += frame.slide.apply(frame.slide.ref)
+        out += frame.slide.offset
     return out
 
 
