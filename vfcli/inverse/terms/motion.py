@@ -179,7 +179,8 @@ def triangle_grams(m_both: sp.csr_matrix, triangle: np.ndarray, n_triangles: int
 
 
 def motion_slide_blocks(m_both: sp.csr_matrix, slide: Slide, bases: list[np.ndarray],
-                        vertices: np.ndarray | None, weights: tuple[float, float, float], dt: float) -> np.ndarray:
+                        vertices: np.ndarray | None, weights: tuple[float, float, float], dt: float,
+                        grams: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The Gauss-Newton blocks of one frame's motion residual with the slide (module docstring).
 
     The residual's 2J terms are ``X_j = M R_j / dt`` (with the velocity stencil in time) and
@@ -187,12 +188,13 @@ def motion_slide_blocks(m_both: sp.csr_matrix, slide: Slide, bases: list[np.ndar
     ``sum_c w_c Z_a,c^T Z_b,c`` over the 2J terms Z (X first), per (unit control)^2 in (mm/s)^2.
     K is constant on a triangle, so every weighted gram ``M^T diag(w) M`` is a sum of the triangles'
     ``sum_p b_p b_p^T`` (:func:`triangle_grams`) weighted per triangle.
-    bases, vertices, weights : as :func:`motion_blocks`; dt : frame interval, s.
+    bases, vertices, weights : as :func:`motion_blocks`; dt : frame interval, s; grams : the frame's
+    :func:`triangle_grams` (computed when omitted; a frame's block groups share them).
     """
     n_terms, n_s = len(bases), bases[0].shape[2]
     k = n_terms * n_s
     out = np.zeros((2 * k, 2 * k))
-    verts, tgram = triangle_grams(m_both, slide.triangle, len(slide.gradient))
+    verts, tgram = grams if grams is not None else triangle_grams(m_both, slide.triangle, len(slide.gradient))
     rows = np.unique(verts[verts >= 0])
     if vertices is not None:
         rows = rows[vertices[rows]]
@@ -287,11 +289,9 @@ class MotionTerm(FrameTerm):
         weight = self.weight(st)
         if not weight:
             return
-        pairs = term_pairs(lin.n_terms)
-        b = lin.temporal
         slide = st.motion_slide
-        if slide:
-            pairs = term_pairs(2 * lin.n_terms)
+        pairs = term_pairs(2 * lin.n_terms if slide else lin.n_terms)
+        b = lin.temporal
         for f, fr in enumerate(ev.frames):
             db = [stencil_apply(bj, p.stencil[f]) for bj in b]
             if slide:
@@ -299,13 +299,14 @@ class MotionTerm(FrameTerm):
                     raise ValueError("motion_slide needs frames frozen with it (Problem.freeze)")
                 w = 2.0 * weight / (p.n_frames * fr.n_norm)
                 db += [bj[f] for bj in b]
+                grams = triangle_grams(fr.m_both, fr.slide.triangle, len(fr.slide.gradient))
             else:
                 w = 2.0 * weight / (p.n_frames * fr.n_norm * p.dt ** 2)
                 seen, gram = seen_vertex_gram(fr.m_both)
             for g, (stack, mv) in enumerate(zip(out.blocks, lin.moved)):
                 bases = [r[g] for r in lin.spatial]
-                blocks = (motion_slide_blocks(fr.m_both, fr.slide, bases, mv, st.component_weights, p.dt) if slide
-                          else motion_blocks(seen, gram, bases, mv, st.component_weights))
+                blocks = (motion_slide_blocks(fr.m_both, fr.slide, bases, mv, st.component_weights, p.dt, grams)
+                          if slide else motion_blocks(seen, gram, bases, mv, st.component_weights))
                 for i, (j, k) in enumerate(pairs):
                     stack[f * len(pairs) + i] = w * blocks[j, k]
             out.outers[f * len(pairs):(f + 1) * len(pairs)] = pair_outers(np.stack(db))
