@@ -2,6 +2,7 @@
 whose held-out error improves beyond its spread; otherwise "no missing physics detected"."""
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,6 +91,32 @@ def test_auto_refits_the_calibrated_lead_first_and_a_profile_lead_only_without_o
     assert choose(quiet, cands, "auto") is None and choose(quiet, cands, "none", profile_leads=("inertia",)) is None
     damped = [Screening(c.name, 1.0, 0.5, True, p_family=0.01 if c.name == "damping" else 0.8) for c in cands]
     assert choose(damped, cands, "auto", profile_leads=("inertia",)).name == "damping"
+
+
+def test_auto_refits_the_leads_in_turn_calibrated_first_then_profile_leads_at_most_three():
+    """Blind-panel 2012 (bound and slide): contact and asymmetry calibrated leads whose refits are not confirmed,
+    inertia a profile lead only; 2003: offset's refit not confirmed, damping a calibrated lead behind it."""
+    from vfcli.diagnose.candidate import Screening
+    from vfcli.diagnose.candidates import CANDIDATES
+    from vfcli.diagnose.confirm import MAX_REFITS, refit_order
+
+    cands = list(CANDIDATES)
+    p = {"inertia": (0.065, 0.58), "damping": (1.0, 0.76), "asymmetry": (0.03, 0.22), "offset": (0.975, 0.78),
+         "contact": (0.005, 0.17)}
+    scr = [Screening(c.name, 1.0, p[c.name][1], True, p_family=p[c.name][0]) for c in cands]
+    order = [c.name for c in refit_order(scr, cands, "auto", profile_leads=("inertia", "damping"))]
+    assert MAX_REFITS == 3 and order == ["contact", "asymmetry", "inertia"]
+    assert [c.name for c in refit_order(scr, cands, "auto", profile_leads=("inertia", "damping"), limit=5)] == \
+        ["contact", "asymmetry", "inertia", "damping"]
+    # ties on the calibrated p go to the smaller uncalibrated p; a profile lead that is a calibrated lead comes once
+    tie = [dataclasses.replace(s, p_family=0.005) if s.name in ("offset", "damping") else s for s in scr]
+    assert [c.name for c in refit_order(tie, cands, "auto", profile_leads=("damping",))] == \
+        ["contact", "damping", "offset"]
+    # a lead the loads absorb is never refitted; a name is refitted alone; none refits nothing
+    absorbed = [dataclasses.replace(s, identifiable=s.name != "contact") for s in scr]
+    assert [c.name for c in refit_order(absorbed, cands, "auto")] == ["asymmetry"]
+    assert [c.name for c in refit_order(scr, cands, "offset", profile_leads=("inertia",))] == ["offset"]
+    assert refit_order(scr, cands, "none", profile_leads=("inertia",)) == []
 
 
 def test_a_term_the_recording_cannot_show_is_said_so_not_called_absent():

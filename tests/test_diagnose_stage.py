@@ -146,6 +146,11 @@ def test_a_run_stored_before_the_closed_rays_rule_is_diagnosed_with_the_rule_it_
     assert run_recording_config(config, {"optimize": new}, attrs, np.zeros(2)).optimize.gap_closed_rays == \
         "overlap-allowed"
     assert config.optimize.gap_closed_rays == "overlap-allowed"                     # today's default
+    # a run stored before session 51 followed the material points in its gradient: it is rebuilt without the slide
+    del old["motion_slide"]
+    slid = run_recording_config(config, {"optimize": {**old, "motion_slide": True}}, attrs, np.zeros(2))
+    assert run_recording_config(config, {"optimize": old}, attrs, np.zeros(2)).optimize.motion_slide is False
+    assert slid.optimize.motion_slide is True
 
 
 def test_a_window_over_the_row_budget_is_diagnosed_on_a_coarser_grid_with_the_same_verdict(diagnosed, fitted):

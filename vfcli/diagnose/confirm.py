@@ -1,7 +1,7 @@
 """Confirm a screening lead: refit the baseline extended by the candidate, compare held-out errors.
 
-:func:`choose` picks the candidate to refit (the user's ``--refit NAME``, or with ``auto`` the
-identifiable candidate whose screening p-value is smallest and below the family-wise level);
+:func:`refit_order` lists the candidates to refit in turn (the user's ``--refit NAME``, or with ``auto`` the
+calibrated leads, smallest family-wise p first, then the profile leads, until one is confirmed);
 :func:`confirm_run` refits it on the whole window (:func:`vfcli.diagnose.refit.refit`), runs the
 held-out comparisons (:mod:`vfcli.diagnose.heldout`) and Locate on the extended model (the
 "after" residual), and returns them in a :class:`Confirmed`.
@@ -27,6 +27,9 @@ REFIT_MODES = ("auto", "none")
 #: a refit's E counts as below the baseline's when lower by more than this relative amount (rounding only: a refit
 #: that kept no step from the baseline's own state returns its E to the bit)
 LOWER_RTOL = 1e-9
+#: refits one diagnosis makes at most with ``--refit auto`` (the leads in turn until one is confirmed): each costs
+#: about what the run's own fit did (docs/diagnose.md, where the time goes)
+MAX_REFITS = 3
 
 
 @dataclass(frozen=True)
@@ -42,12 +45,29 @@ class Confirmed:
 
 
 def choose(screening, candidates, mode: str, alpha: float = 0.05, profile_leads=()):
-    """The candidate to refit, or None.
+    """The candidate to refit first, or None: the first of :func:`refit_order`.
 
-    mode : "none" (no refit), "auto" (the calibrated lead: the identifiable candidate with the smallest
-        bootstrap-calibrated family-wise p-value ``p_family`` when it is at most ``alpha``; without one, the
-        first of ``profile_leads`` (:mod:`vfcli.diagnose.profile`); no refit when the screening could not be
-        calibrated), or a candidate's name.
+    Raises
+    ------
+    ValueError
+        ``mode`` names no candidate (the caller turns it into a user error naming the choices).
+    """
+    order = refit_order(screening, candidates, mode, alpha, profile_leads)
+    return order[0] if order else None
+
+
+def refit_order(screening, candidates, mode: str, alpha: float = 0.05, profile_leads=(),
+                limit: int = MAX_REFITS) -> list:
+    """The candidates to refit, in turn, until one is confirmed (at most ``limit``).
+
+    mode : "none" (no refit), a candidate's name (that one alone), or "auto": the calibrated leads (the
+        identifiable candidates whose bootstrap-calibrated family-wise p-value ``p_family`` is at most ``alpha``;
+        smallest ``p_family`` first, ties by the uncalibrated p), then ``profile_leads`` (:mod:`vfcli.diagnose.profile`,
+        in the caller's order) that are not calibrated leads; none when the screening could not be calibrated
+        and no profile lead was found.  A finding is still a lead whose own refit is confirmed
+        (:mod:`vfcli.diagnose.decide`), but leads on recordings without the term are common (model error locked in
+        phase with the motion), so each further refit is one more chance for such a lead to pass its held-out
+        comparisons: the nulls with several leads are measured in docs/benchmarks.md ("Session 52").
 
     Raises
     ------
@@ -55,16 +75,17 @@ def choose(screening, candidates, mode: str, alpha: float = 0.05, profile_leads=
         ``mode`` names no candidate (the caller turns it into a user error naming the choices).
     """
     if mode == "none":
-        return None
+        return []
     by_name = {c.name: c for c in candidates}
     if mode != "auto":
         if mode not in by_name:
             raise ValueError(f"--refit {mode!r}: choose one of {', '.join((*REFIT_MODES, *by_name))}")
-        return by_name[mode]
-    leads = [s for s in screening if s.identifiable and np.isfinite(s.p_family) and s.p_family <= alpha]
-    if not leads:
-        return next((by_name[n] for n in profile_leads if n in by_name), None)
-    return by_name.get(min(leads, key=lambda s: (s.p_family, s.p_value)).name)
+        return [by_name[mode]]
+    leads = sorted((s for s in screening if s.identifiable and np.isfinite(s.p_family) and s.p_family <= alpha),
+                   key=lambda s: (s.p_family, s.p_value))
+    names = [s.name for s in leads] + [n for n in profile_leads]
+    order = [by_name[n] for i, n in enumerate(names) if n in by_name and n not in names[:i]]
+    return order[:max(int(limit), 0)]
 
 
 def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:

@@ -86,6 +86,12 @@ class ProfileScreen:
                 "e0": float(self.e0), "e": [float(v) for v in self.e], "lead": self.lead}
 
 
+def leads_by_fall(profiles) -> list[str]:
+    """Names of the profile leads among ``profiles`` (:class:`ProfileScreen`), the largest fall of E first (the
+    order the confirmation refits try them in, :func:`vfcli.diagnose.confirm.refit_order`)."""
+    return [p.name for p in sorted((p for p in profiles if p.lead), key=lambda q: float(np.min(q.relative)))]
+
+
 def profile_screens(baseline, candidates, steps: int = PROFILE_STEPS) -> list[ProfileScreen]:
     """The profile (module docstring) of every candidate with ``profile_screening`` and one parameter,
     when the baseline's f0 is known (the steady state works per harmonic of it); in the given order."""

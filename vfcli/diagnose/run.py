@@ -19,7 +19,7 @@ from vfcli.camera.pose import model_axes_velocity
 from vfcli.diagnose.calibrate_run import calibrate_run
 from vfcli.diagnose.candidate import available_candidates, screenings
 from vfcli.diagnose.candidates.blocks import screen_run_columns
-from vfcli.diagnose.profile import profile_screens
+from vfcli.diagnose.profile import leads_by_fall, profile_screens
 from vfcli.diagnose.cycles import PHASE_NAMES, Cycles, TooFewCycles, floor_cycles, glottal_cycles
 from vfcli.diagnose.locate import Located, decompose, rank_hotspots
 from vfcli.diagnose.noise import cycle_floor, ldv_known_variance, ldv_noise_density
@@ -289,6 +289,6 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
     lines += [p.words() for p in profiles]
     decision = decide([c.name for c in cands], cal.calibration.p_family, [r.identifiable for r in results],
                       cal.calibration.n_replicates, settings.alpha, confirmations,
-                      profile_leads=[p.name for p in profiles if p.lead],
+                      profile_leads=leads_by_fall(profiles),
                       limits=detection_limits(cands, cal, settings.alpha))
     return Diagnosis(loc, results, status, lines + decision.lines, cal, decision, profiles)

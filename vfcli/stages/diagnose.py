@@ -222,13 +222,14 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
     """Locate the residual of /optimize/<run> and store it as /diagnose/<run>; confirm a lead by refit.
 
     map_path : the residual map image (PNG), written when given.
-    refit : "auto" (refit the candidate the screening singles out, if any), "none", or a candidate's
-        name (refit it whatever the screening says).  A refit is stored as its own run
+    refit : "auto" (refit the leads in turn until one is confirmed, at most
+        :data:`vfcli.diagnose.confirm.MAX_REFITS`: :func:`vfcli.diagnose.confirm.refit_order`), "none", or a
+        candidate's name (refit it whatever the screening says).  A refit is stored as its own run
         /optimize/<run>+<candidate>, with before/after residual maps and velocity-at-point plots
         (PNG) beside --map, or beside the store without --map.
     """
     from vfcli.diagnose.candidate import available_candidates
-    from vfcli.diagnose.confirm import choose
+    from vfcli.diagnose.confirm import choose, refit_order
 
     dcfg = ctx.config.diagnose
     try:
@@ -272,11 +273,10 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             residual_map(d.located, d.locate.residual, map_path, f"residual of run {run}")
         cands = available_candidates()
         profiled = d.decision.profile_leads if d.decision is not None else ()
-        cand = choose(d.screening, cands, refit, alpha, profiled)
+        # with auto, the leads in turn until one's refit is confirmed: calibrated leads first, then profile leads
+        tries = refit_order(d.screening, cands, refit, alpha, profiled)
         extra: dict[str, Any] = {}
-        if cand is not None:
-            # with auto, a profile lead is refitted too when the calibrated lead's refit is not confirmed
-            tries = [cand] + [c for c in cands if refit == "auto" and c.name in profiled and c.name != cand.name][:1]
+        if tries:
             extra, confs = confirm_and_write(s, inputs, d, tries, run, settings,
                                              figure_paths(reader.path, run, map_path), done, phases)
             d = redecide(d, {c.candidate: c for c in confs})

@@ -333,10 +333,12 @@ STAGES: dict[str, Stage] = {
             "bootstrap calibration, and the decision (attrs decision, alpha_family).",
             reads=("optimize", "mesh", "fields", "flow", "ldv", "sync"),
             has_runs=True,
-            method=3,
+            method=4,
             method_changes={2: "the model's velocity at the frame times in every motion row (vfcli 2c4c8b6)",
                             3: "a refit confirms a finding only when it lowers E below the baseline's (a refit that "
-                               "kept no step had confirmed on its held-out fits alone; session 51)"},
+                               "kept no step had confirmed on its held-out fits alone; session 51)",
+                            4: "the leads are refitted in turn until one is confirmed, at most three (a second "
+                               "calibrated lead had not been refitted; session 52)"},
             datasets={
                 "frame_time": D("s", "Times of the run's window frames", ("frame_time",)),
                 "frame_phase": D("cycles", "Glottal cycle phase of each window frame (from the gap area)", ("frame_time",)),
