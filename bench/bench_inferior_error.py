@@ -30,7 +30,8 @@ def main() -> None:
     if truth is None:
         sys.exit(f"{args.folder}: no truth/*.h5 (a kept phantom folder holds its sealed truth there)")
     for run in args.runs:
-        print(f"{args.folder.name} {run}: inferior error {100 * inferior_error(args.folder / 'recording.h5', run, truth):.1f} %")
+        err = inferior_error(args.folder / "recording.h5", run, truth)
+        print(f"{args.folder.name} {run}: inferior error {100 * err:.1f} %")
 
 
 if __name__ == "__main__":

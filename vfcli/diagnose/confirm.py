@@ -83,9 +83,8 @@ def refit_order(screening, candidates, mode: str, alpha: float = 0.05, profile_l
         return [by_name[mode]]
     leads = sorted((s for s in screening if s.identifiable and np.isfinite(s.p_family) and s.p_family <= alpha),
                    key=lambda s: (s.p_family, s.p_value))
-    names = [s.name for s in leads] + [n for n in profile_leads]
-    order = [by_name[n] for i, n in enumerate(names) if n in by_name and n not in names[:i]]
-    return order[:max(int(limit), 0)]
+    names = dict.fromkeys([*(s.name for s in leads), *profile_leads])     # in order, each once
+    return [by_name[n] for n in names if n in by_name][:max(int(limit), 0)]
 
 
 def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:
