@@ -8,7 +8,7 @@ import pytest
 from vfcli.inverse.optimizers.base import FitOptions, fit
 from vfcli.inverse.problem import Problem, synthesize_measurement
 from vfcli.inverse.linearization import gauss_newton_model
-from vfcli.inverse.terms.gap import closed_rays_excess, closed_rays_kept
+from vfcli.inverse.terms.gap import closed_rays_excess, closed_rays_kept, closing_targets
 from vfcli.model.mesh import TAG_SUPERIOR
 
 try:  # tests/ on sys.path (no tests/__init__.py)
@@ -183,3 +183,61 @@ def test_folds_that_overlap_while_the_camera_sees_them_closed_are_fitted_only_wh
     print(err)
     assert err["overlap-allowed"] < 5e-3    # measured 1.6e-3
     assert err["meet"] > 10 * err["overlap-allowed"]   # measured 0.041: the fit pulls the folds apart to touch
+
+
+def test_a_closed_ray_where_the_simulated_folds_leave_a_gap_asks_it_to_close_where_it_stands():
+    rays = np.array([2, 3, 4, 5, 6])
+    edge = np.arange(5)
+    s0 = np.array([10.0, 12.0, 12.0, 11.0, 9.0])
+    s1 = np.array([14.0, 11.0, 12.0, 13.0, 8.0])     # ray 2 open by 4 px, ray 3 overlaps, ray 4 touches, ray 5 open
+    lo = np.full(9, np.nan)
+    hi = np.full(9, np.nan)
+    lo[2:7] = [11.0, 11.5, 12.0, 10.0, np.nan]       # rays 2, 3, 4 closed (the fallback location); ray 5 open
+    hi[2:7] = [11.0, 11.5, 12.0, 14.0, np.nan]
+    before = lo.copy(), hi.copy()
+    t_lo, t_hi = closing_targets([(rays, edge, s0), (rays, edge, s1)], lo, hi)
+    np.testing.assert_array_equal(t_lo[2:7], [12.0, 11.5, 12.0, 10.0, np.nan])   # ray 2: the middle of 10 and 14
+    np.testing.assert_array_equal(t_hi[2:7], [12.0, 11.5, 12.0, 14.0, np.nan])   # the others as measured
+    np.testing.assert_array_equal(lo, before[0])                                  # the inputs untouched
+    np.testing.assert_array_equal(hi, before[1])
+    # a ray only one fold crosses cannot be judged: its fallback stays
+    t_lo, _ = closing_targets([(rays[1:], edge[1:], s0[1:]), (rays, edge, s1)], lo, hi)
+    assert t_lo[2] == 11.0
+
+
+@pytest.mark.parametrize("rule", ["overlap-allowed", "overlap-bounded"])
+def test_e_is_continuous_where_the_simulated_folds_start_to_overlap_on_a_closed_ray(within_bound, rule):
+    """The fallback location (the last known opening) is a guess of where a closed ray's seam lies. Placed 3 px off
+    the folds' meeting point, it used to cost a gap that closes on that ray ``2 arctan((3 px / (k l))^2)`` (times the
+    term's normalisation) as its width went to zero, and nothing once the folds overlapped by a hair: a jump in E at
+    every ray where the simulated folds start to overlap, which no Gauss-Newton step or line search sees (the contact
+    refit of panel seed 2009 kept no step because of it). Across the push where the first closed ray's folds
+    start to overlap, the gap term now changes by what the push changes, not by that jump."""
+    case, x_true, meas, over = within_bound
+    lo, hi = meas.gap_lo.copy(), meas.gap_hi.copy()
+    lo[over] += 3.0                                      # the fallback 3 px off the seam
+    hi[over] += 3.0
+    st = replace(SETTINGS, closed_rays=rule)
+    p = Problem(case.model.mesh, CAMERA, case.response, replace(meas, gap_lo=lo, gap_hi=hi), st)
+
+    def deepest(push: float) -> float:
+        """The largest simulated overlap on a closed ray, px, over the frames (negative: every closed ray open)."""
+        u = p.displacements(_push(case, x_true, push))
+        out = -np.inf
+        for f in range(p.n_frames):
+            rays, o = _overlap_px(p, u, f)
+            if over[f, rays].any():
+                out = max(out, float(o[over[f, rays]].max()))
+        return out
+
+    a, b = -400.0, 100.0                                 # pulled apart: open everywhere; pressed by 100: overlapping
+    assert deepest(a) < 0 < deepest(b)
+    for _ in range(60):                                  # bisection to the push where the first ray starts to overlap
+        m = 0.5 * (a + b)
+        a, b = (m, b) if deepest(m) < 0 else (a, m)
+    e_open, e_over = p.evaluate(_push(case, x_true, a)).gap, p.evaluate(_push(case, x_true, b)).gap
+    scale = CAMERA.px_per_mm * st.gap_length_mm
+    old_jump = st.gap_weight / (p.n_frames * 2.0 * len(p.rays)) * 2 * np.arctan((3.0 / scale) ** 2)
+    print(f"push {a:.9f}: gap term {e_open:.9g} open, {e_over:.9g} overlapping; the fallback's jump was {old_jump:.3g}")
+    assert old_jump > 1e-4                               # 8.1e-4: the old code changed by exactly this
+    assert abs(e_open - e_over) < 1e-6 * old_jump        # measured 0 (the push moved by 1e-13)

@@ -334,10 +334,10 @@ class OptimizeConfig(_Section):
     gap_closed_rays: Literal["overlap-allowed", "meet", "overlap-bounded"] = Field(
         "overlap-allowed", description="Gap term on an image line the camera sees closed: 'overlap-allowed' (default): "
         "left out where the simulated folds overlap (a superior view cannot see one fold pass behind the other, and "
-        "the model has no contact), a simulated gap there is asked to close; 'meet': both simulated edges are asked to "
-        "meet at the last known opening location, overlap or not (before session 47); 'overlap-bounded': left out while "
-        "the overlap is within the widest opening the camera measured in the window, the excess beyond it charged as "
-        "(d/l)^2 without the arctan's saturation (vfcli/inverse/terms/gap.py)")
+        "the model has no contact), a simulated gap there is asked to close where it stands; 'meet': both simulated "
+        "edges are asked to meet at the last known opening location, overlap or not (before session 47); "
+        "'overlap-bounded': left out while the overlap is within the widest opening the camera measured in the window, "
+        "the excess beyond it charged as (d/l)^2 without the arctan's saturation (vfcli/inverse/terms/gap.py)")
     motion_slide: bool = Field(
         False, description="Motion term's gradient and Gauss-Newton model: false (default, the paper's frozen (u, v)): "
         "each pixel follows the material point the raster saw at the linearisation point; true: also the surface "

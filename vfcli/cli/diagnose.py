@@ -15,9 +15,9 @@ from vfcli.cli.common import store_command
 @click.option("--harmonics", "n_harmonics", type=int, default=5, show_default=True, help="Harmonics of f0 tested.")
 @click.option("--map", "map_path", type=click.Path(dir_okay=False), help="Write the residual map to this PNG.")
 @click.option("--refit", "refit", default="auto", show_default=True, metavar="auto|none|NAME",
-              help="Confirm by refit: 'auto' refits the leads in turn until one is confirmed (calibrated leads "
-                   "first, then profile leads; at most 3 refits), 'none' never refits, a candidate's name (inertia, "
-                   "damping, asymmetry, offset, contact) refits that one.")
+              help="Confirm by refit: 'auto' refits the leads in turn (calibrated leads first, then profile leads; "
+                   "at most 3 refits) and names the confirmed one whose refit predicts held-out data best, 'none' "
+                   "never refits, a candidate's name (inertia, damping, asymmetry, offset, contact) refits that one.")
 def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path, refit):  # type: ignore[no-untyped-def]
     """Locate where a fitted run disagrees with its recording, and name the missing physics.
 

@@ -8,6 +8,10 @@ only when its confirmation refit (``vfcli.diagnose.confirmation.Confirmation`` o
 duck-typed here: ``candidate`` and ``improves``) also predicts data the fit did not see better
 than the baseline, beyond the spread over splits.  Without a confirmation a lead stays a lead:
 the answer is then still "no missing physics detected", with the unconfirmed leads named.
+When several leads' refits are confirmed, the one whose refit predicts the held-out data best (the largest mean
+relative reduction of the held-out error over the held-out kinds, ``gain``) is the finding: they are alternative
+explanations of one residual, and the others' lines say which explained it better.  This changes which physics is
+named, never whether one is.
 
 The family-wise false-alarm rate of the leads is alpha (0.05) by construction of the calibration;
 requiring the confirmation as well can only lower the rate of false findings.
@@ -54,6 +58,16 @@ class Decision:
         return f"missing physics: {', '.join(self.findings)}" if self.findings else "no missing physics detected"
 
 
+def _gain(confirmation: Any) -> float:
+    """A confirmation's held-out gain (``gain``: the mean relative reduction of the held-out error); -inf without."""
+    g = float(getattr(confirmation, "gain", float("nan")))
+    return g if np.isfinite(g) else -np.inf
+
+
+def _percent(g: float) -> str:
+    return f"{100 * g:.2g} %" if np.isfinite(g) else "no"
+
+
 def _p(p: float, n_replicates: int) -> str:
     floor = 1.0 / (n_replicates + 1)
     return f"p <= {floor:.2g}" if p <= floor + 1e-12 else f"p = {p:.2g}"
@@ -95,8 +109,21 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
     order = np.argsort(p, kind="stable")
     leads = tuple(names[i] for i in order if identifiable[i] and p[i] <= alpha)
     profiled = tuple(n for n in profile_leads if n in names and n not in leads)
-    findings = tuple(n for n in leads + profiled
-                     if n in confirmations and bool(getattr(confirmations[n], "improves", False)))
+    confirmed = tuple(n for n in leads + profiled
+                      if n in confirmations and bool(getattr(confirmations[n], "improves", False)))
+    findings = confirmed[:1]
+    if len(confirmed) > 1:
+        # one residual, several terms that each explain some of it: the one whose refit predicts held-out data best
+        # is named (docs/diagnose.md, "Model it"); the others' lines say so
+        findings = (max(confirmed, key=lambda n: _gain(confirmations[n])),)
+
+    def bettered(n: str) -> str:
+        """Why a confirmed refit ``n`` is not named: the named one predicts held-out data better."""
+        best = findings[0]
+        mine, theirs = _percent(_gain(confirmations[n])), _percent(_gain(confirmations[best]))
+        return (f"its refit predicts held-out data better than the baseline beyond the spread too, but {best}'s "
+                f"predicts it better ({mine} against {theirs} lower held-out error): not named, {best} explains the "
+                "residual")
     head = (f"decision: family-wise false-alarm rate {alpha:g} over {len(names)} candidates, calibrated by "
             f"{n_replicates} bootstrap replicates (noise resampled in whole cycles, periodic model error included)")
     lines = [head]
@@ -106,7 +133,8 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
             continue
         if n in profiled:
             why = ("its refit predicts held-out data better than the baseline beyond the spread: missing physics found"
-                   if n in findings else "its refit does not predict held-out data better beyond the spread"
+                   if n in findings else bettered(n) if n in confirmed
+                   else "its refit does not predict held-out data better beyond the spread"
                    if n in confirmations else "not confirmed: no held-out refit")
             lines.append(f"{n}: no evidence in the calibrated screening (family-wise {_p(p[i], n_replicates)}), "
                          f"a profile lead: {why}")
@@ -114,7 +142,8 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
             lines.append(f"{n}: missing physics found (calibrated family-wise {_p(p[i], n_replicates)}; its refit "
                          "predicts held-out data better than the baseline beyond the spread)")
         elif n in leads:
-            why = ("its refit does not predict held-out data better beyond the spread" if n in confirmations
+            why = (bettered(n) if n in confirmed
+                   else "its refit does not predict held-out data better beyond the spread" if n in confirmations
                    else "not confirmed: no held-out refit")
             lines.append(f"{n}: a calibrated lead (family-wise {_p(p[i], n_replicates)}), {why}")
         else:

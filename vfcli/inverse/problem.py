@@ -55,11 +55,12 @@ over the crossings of the fold's surface-mesh edges with the ray, where an edge
 (a, b) crosses at ``s = lat_a + (c - ray_a) / (ray_b - ray_a) (lat_b - lat_a)``.
 The measured silhouettes are the outermost gap-mask transitions of the ray
 (:func:`measured_silhouettes`); on a closed ray both are the last known opening
-location (the paper's fallback), so a closed measured gap asks a simulated gap to
-close there.  A closed ray where the simulated folds overlap is left out
+location (the paper's fallback), where ``closed_rays = "meet"`` asks a simulated gap to
+close.  A closed ray where the simulated folds overlap is left out
 (``closed_rays = "overlap-allowed"``, the default since session 47): the camera
 cannot see one fold pass behind the other, and the model has no contact, so its
-folds overlap in the closed phase (:func:`vfcli.inverse.terms.gap.closed_rays_kept`;
+folds overlap in the closed phase (:func:`vfcli.inverse.terms.gap.closed_rays_kept`; where they leave a gap, it is
+asked to close where it stands, :func:`vfcli.inverse.terms.gap.closing_targets`;
 ``"meet"`` asks them to meet exactly, overlap or not; ``"overlap-bounded"`` leaves the ray out while the overlap is
 within the widest opening measured in the window and charges the excess as ``(d / l)^2``, without the arctan's
 saturation: :func:`vfcli.inverse.terms.gap.closed_rays_excess`).  With
@@ -109,7 +110,7 @@ from vfcli.camera.silhouette import edge_crossings, extreme_per_ray, surface_edg
 from vfcli.flow.gap.opening import measured_silhouettes
 from vfcli.inverse.stencil import frame_velocity_stencil, stencil_apply
 from vfcli.inverse.terms import DEFAULT_TERMS, Evaluation, Term, Terms
-from vfcli.inverse.terms.gap import CLOSED_RAYS, closed_rays_excess, closed_rays_kept, widest_opening
+from vfcli.inverse.terms.gap import CLOSED_RAYS, closed_rays_excess, closed_rays_kept, closing_targets, widest_opening
 from vfcli.inverse.terms.motion import Slide, frame_residual
 from vfcli.model.mesh import TAG_MEDIAL, TAG_SUPERIOR, FoldMesh
 from vfcli.model.response.base import Response
@@ -408,9 +409,10 @@ class Problem:
             simulated = self.silhouettes(pos)
             excess = []
             if self.settings.closed_rays == "overlap-allowed":
-                simulated = closed_rays_kept(simulated, *targets)
+                simulated, targets = closed_rays_kept(simulated, *targets), closing_targets(simulated, *targets)
             elif self.settings.closed_rays == "overlap-bounded":
-                simulated, excess = closed_rays_excess(simulated, *targets, self.widest_opening_px)
+                (simulated, excess), targets = (closed_rays_excess(simulated, *targets, self.widest_opening_px),
+                                                closing_targets(simulated, *targets))
             for side, (rays, edge, _) in enumerate(simulated):
                 tgt = targets[side][rays]
                 ok = np.isfinite(tgt)

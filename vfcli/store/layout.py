@@ -279,7 +279,7 @@ STAGES: dict[str, Stage] = {
             "One optimisation run: force-field control values, history and the reconstructed motion.",
             reads=("mesh", "fields", "flow", "hsc"),
             has_runs=True,
-            method=5,
+            method=6,
             method_changes={2: "the model's velocity at the frame times (central differences), no longer half a "
                                "frame later (vfcli 2c4c8b6)",
                             3: "the L-curve scans 16 decades of ridge weight, to its real corner (it stopped on "
@@ -289,7 +289,9 @@ STAGES: dict[str, Stage] = {
                                "and the stated uncertainty was several times too wide)",
                             5: "the estimated pose places mid-length by the motion's symmetry with both ends of the "
                                "gap in view too (the midpoint of the gap's extent was off where the opening is "
-                               "wider toward one end)"},
+                               "wider toward one end)",
+                            6: "a ray the camera sees closed asks a simulated gap on it to close where it stands, not "
+                               "at the last known opening location (E jumped where the folds started to overlap)"},
             datasets={
                 "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),
                 "displacements": D("mm", "Reconstructed vertex displacements", ("sim_time", "node", "xyz"), True),
@@ -333,12 +335,15 @@ STAGES: dict[str, Stage] = {
             "bootstrap calibration, and the decision (attrs decision, alpha_family).",
             reads=("optimize", "mesh", "fields", "flow", "ldv", "sync"),
             has_runs=True,
-            method=4,
+            method=5,
             method_changes={2: "the model's velocity at the frame times in every motion row (vfcli 2c4c8b6)",
                             3: "a refit confirms a finding only when it lowers E below the baseline's (a refit that "
                                "kept no step had confirmed on its held-out fits alone; session 51)",
                             4: "the leads are refitted in turn until one is confirmed, at most three (a second "
-                               "calibrated lead had not been refitted; session 52)"},
+                               "calibrated lead had not been refitted; session 52)",
+                            5: "every lead is refitted and the confirmed one whose refit predicts held-out data best "
+                               "is named (the first confirmed had been, though a later lead explained the residual "
+                               "better; session 53)"},
             datasets={
                 "frame_time": D("s", "Times of the run's window frames", ("frame_time",)),
                 "frame_phase": D("cycles", "Glottal cycle phase of each window frame (from the gap area)", ("frame_time",)),

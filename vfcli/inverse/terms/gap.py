@@ -85,15 +85,39 @@ def _without(simulated: list, drop: np.ndarray) -> list:
     return [(r0[k0], e0[k0], s0[k0]), (r1[k1], e1[k1], s1[k1])]
 
 
+def closing_targets(simulated: list, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The measured silhouettes ``lo``, ``hi`` (n_rays,) with each closed ray on which the simulated folds leave a gap
+    targeted at that gap's middle: the camera says the folds meet there, not where.
+
+    The measured silhouettes of a closed ray are both the last known opening location (the paper's fallback), a
+    guess of where the seam lies. Under the rules that leave a closed ray out where the simulated folds overlap,
+    a gap that closes away from that guess cost ``2 arctan((m - t)^2 / l^2)`` as its width went to zero (m its
+    meeting point, t the guess) and nothing once the folds overlapped by a hair: E jumped there. On a panel
+    contact recording (seed 2009) the contact refit started at full contact, where every contact node sits on the
+    midplane, and any step that raised the contact share opened those rays: its gap term jumped by 5 % (E by
+    1.9e-3) at a step of 1e-7, and the refit kept no step (docs/benchmarks.md, "Session 53: closed rays close where
+    they stand"). Targeted at the middle, the two rows are ``-w / 2`` and ``+w / 2`` (w the simulated width): zero as
+    the gap closes, so E is continuous where the folds start to overlap. Returns copies.
+    """
+    i0, i1, over = _closed_overlap(simulated, lo, hi)
+    lo, hi = np.array(lo, dtype=float, copy=True), np.array(hi, dtype=float, copy=True)
+    opened = over < 0                                       # NaN (not closed) compares unequal
+    rays = simulated[0][0][i0][opened]
+    middle = 0.5 * (simulated[0][2][i0][opened] + simulated[1][2][i1][opened])
+    lo[rays] = middle
+    hi[rays] = middle
+    return lo, hi
+
+
 def closed_rays_kept(simulated: list, lo: np.ndarray, hi: np.ndarray) -> list:
     """The simulated silhouettes of one frame without the rays the camera sees closed where the folds overlap.
 
     A superior view cannot see one fold pass behind the other: a ray it sees closed says only that the folds meet
     or overlap there. The linear-elastic model has no contact, so its folds overlap in the closed phase as the
     recorded folds do when pressed together (their closed phase is a contact, the model's an overlap). Where the
-    simulated folds overlap on a closed ray, the ray says nothing more and is left out; where they leave a gap it
-    keeps the last known opening location as both targets (the paper's fallback), so the simulated gap is asked to
-    close. Open rays are all kept.
+    simulated folds overlap on a closed ray, the ray says nothing more and is left out; where they leave a gap the
+    ray is kept and the simulated gap is asked to close where it stands (:func:`closing_targets`). Open rays are all
+    kept.
 
     Parameters
     ----------
