@@ -233,6 +233,51 @@ def test_a_changed_config_reruns_from_the_stage_it_shapes(phantom, tmp_path):
     assert stages["sync"]["reason"].startswith("/sync: config changed") and "n_harmonics" in stages["sync"]["reason"]
 
 
+#: a child that runs vfcli with a SIGINT raised inside h5py's attribute iteration, where h5py calls back into Python
+#: (the first time a group's attributes are read): the signal is then handled inside compiled code
+_SIGINT_IN_H5PY = """
+import signal, sys
+from h5py import h5a
+from h5py._hl import attrs
+
+original = attrs.AttributeManager.__iter__
+
+def interrupted_once(self):
+    def callback(name, *args):
+        attrs.AttributeManager.__iter__ = original
+        signal.raise_signal(signal.SIGINT)
+    h5a.iterate(self._id, callback)
+    yield from original(self)
+
+attrs.AttributeManager.__iter__ = interrupted_once
+from vfcli.cli.main import main
+sys.argv = ["vfcli", *sys.argv[1:]]
+main()
+"""
+
+
+@pytest.mark.parametrize("command", ["run", "info"])
+def test_a_ctrl_c_that_h5py_wraps_in_another_error_is_still_an_interruption(phantom, tmp_path, command):
+    """Ctrl-C while h5py iterates a group's attributes (a Cython loop calling back into Python) comes out as
+    ``SystemError: <cyfunction FastRLock.__exit__> returned a result with an exception set`` with the
+    KeyboardInterrupt as its cause: `vfcli run` exited 1 with a traceback (a bug's exit) instead of 130
+    (test_ctrl_c_during_a_run_lists_the_steps_it_committed, one run in many). Here a real SIGINT is raised inside that
+    callback: exit 130, the one line, no traceback, the store as it was."""
+    _, store0, _, _ = phantom
+    store = tmp_path / "rec.h5"
+    _copy_store(store0, store)
+    with Store(store).read() as r:
+        before = {st.path: st.provenance.get("digest") for st in r.statuses()}
+    args = ["run", str(store), "--force", *_sets(SETS)] if command == "run" else ["info", str(store)]
+    res = subprocess.run([sys.executable, "-c", _SIGINT_IN_H5PY, *args], capture_output=True, text=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}, preexec_fn=sigint_default, timeout=300)
+    assert res.returncode == 130, res.stderr
+    assert res.stderr.strip().splitlines()[-1] == f"vfcli {command}: interrupted (Ctrl-C)", res.stderr
+    assert "Traceback" not in res.stderr
+    with Store(store).read() as r:
+        assert {st.path: st.provenance.get("digest") for st in r.statuses()} == before
+
+
 def test_ctrl_c_during_a_run_lists_the_steps_it_committed(phantom, tmp_path):
     """Ctrl-C in flow printed only "interrupted (Ctrl-C)", where a failed run lists the steps it committed first:
     SIGINT once flow's part file appears; the steps before it are listed as run, exit 130.

@@ -31,6 +31,25 @@ EXIT_NOT_IMPLEMENTED = 6
 EXIT_INTERRUPTED = 130  # 128 + SIGINT, as shells report a command killed by Ctrl-C
 
 
+def interruption(exc: BaseException) -> BaseException | None:
+    """The Ctrl-C (KeyboardInterrupt) or SIGTERM exit (SystemExit) that ``exc`` stands for: ``exc`` itself or one in
+    its chain of causes and contexts; None for any other exception.
+
+    A signal whose Python handler runs while compiled code is calling back into Python can come out wrapped: Ctrl-C
+    during h5py's iteration over a group's attributes surfaced as ``SystemError: <cyfunction FastRLock.__exit__>
+    returned a result with an exception set``, its cause the KeyboardInterrupt, and `vfcli run` then exited 1 with a
+    traceback instead of 130 (tests/test_run.py::test_ctrl_c_during_a_run_lists_the_steps_it_committed, one run in
+    many)."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, (KeyboardInterrupt, SystemExit)):
+            return e
+        seen.add(id(e))
+        e = e.__cause__ if e.__cause__ is not None else e.__context__
+    return None
+
+
 class VfcliError(Exception):
     """Base class: a problem the user can fix; printed as one line."""
 

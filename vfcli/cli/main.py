@@ -12,7 +12,7 @@ import sys
 import click
 
 from vfcli import __version__
-from vfcli.errors import EXIT_INTERRUPTED, NotImplementedYet, VfcliError
+from vfcli.errors import EXIT_INTERRUPTED, NotImplementedYet, VfcliError, interruption
 
 EPILOG = """\b
 Exit codes: 0 done or up to date, 1 internal error (a bug), 2 usage or config error,
@@ -76,6 +76,15 @@ class VfcliGroup(click.Group):
             # interrupted command leaves the previous store; 130 = 128 + SIGINT, as shells use.
             click.echo(f"vfcli {ctx.invoked_subcommand or 'vfcli'}: interrupted (Ctrl-C)", err=True)
             ctx.exit(EXIT_INTERRUPTED)
+        except Exception as exc:
+            # a signal that came out wrapped (compiled code calling back into Python): as the signal itself
+            stop = interruption(exc)
+            if stop is None:
+                raise
+            if isinstance(stop, KeyboardInterrupt):
+                click.echo(f"vfcli {ctx.invoked_subcommand or 'vfcli'}: interrupted (Ctrl-C)", err=True)
+                ctx.exit(EXIT_INTERRUPTED)
+            raise stop from exc
 
 
 @click.group(cls=VfcliGroup, epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})

@@ -23,7 +23,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from vfcli.errors import ConfigError, VfcliError
+from vfcli.errors import ConfigError, VfcliError, interruption
 from vfcli.io.raw_folder import RawFiles, find_raw_files
 from vfcli.parallel import Mapper
 from vfcli.progress import Progress, no_progress
@@ -394,13 +394,19 @@ def run_recording(
         t0 = time.perf_counter()
         try:
             results = _run_step(step, context(), raw_files)
-        except (VfcliError, KeyboardInterrupt) as exc:
+        except BaseException as exc:
             # what the run did before the step that failed (or was interrupted), for the command's output (the
-            # error is its one line; the steps before are committed, the interrupted one left as it was)
-            why_not = "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else str(exc)
+            # error is its one line; the steps before are committed, the interrupted one left as it was); a Ctrl-C
+            # that came out wrapped in another exception is raised as itself (vfcli.errors.interruption)
+            stop = exc if isinstance(exc, VfcliError) else interruption(exc)
+            if stop is None or isinstance(stop, SystemExit):
+                raise
+            why_not = "interrupted (Ctrl-C)" if isinstance(stop, KeyboardInterrupt) else str(stop)
             failed = StageOutcome(step, "failed", why_not, time.perf_counter() - t0, collect.messages)
-            exc.partial = RunSummary(store, [*done, failed], False, time.perf_counter() - t_start)
-            raise
+            stop.partial = RunSummary(store, [*done, failed], False, time.perf_counter() - t_start)
+            if stop is exc:
+                raise
+            raise stop from exc
         finally:
             logger.removeHandler(collect)
         ran = any(r.status == "written" for r in results)
