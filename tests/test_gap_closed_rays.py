@@ -238,6 +238,7 @@ def test_e_is_continuous_where_the_simulated_folds_start_to_overlap_on_a_closed_
     e_open, e_over = p.evaluate(_push(case, x_true, a)).gap, p.evaluate(_push(case, x_true, b)).gap
     scale = CAMERA.px_per_mm * st.gap_length_mm
     old_jump = st.gap_weight / (p.n_frames * 2.0 * len(p.rays)) * 2 * np.arctan((3.0 / scale) ** 2)
-    print(f"push {a:.9f}: gap term {e_open:.9g} open, {e_over:.9g} overlapping; the fallback's jump was {old_jump:.3g}")
+    print(f"push {a:.9f} (+{b - a:.1e}): gap term {e_open:.9g} open, {e_over:.9g} overlapping; the fallback's jump "
+          f"was {old_jump:.3g}")
     assert old_jump > 1e-4                               # 8.1e-4: the old code changed by exactly this
-    assert abs(e_open - e_over) < 1e-6 * old_jump        # measured 0 (the push moved by 1e-13)
+    assert abs(e_open - e_over) < 1e-6 * old_jump        # measured 0: the pushes one float apart
