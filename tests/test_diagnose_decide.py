@@ -144,7 +144,7 @@ def test_of_several_confirmed_leads_the_one_predicting_held_out_data_best_is_nam
     held-out errors 0.85 % and 1.8 % lower, and was named while inertia, a profile lead behind it, was never refitted;
     inertia's refit (session 52, the same store) predicts them 33 % and 41 % better. Every lead is refitted now and
     the better one named; a single confirmed lead is named as before, and none confirmed stays none."""
-    from vfcli.diagnose.confirm import best_confirmed
+    from vfcli.diagnose.decide import best_confirmed
     from vfcli.diagnose.confirmation import Confirmation, HeldOutError
 
     def conf(name, cycles, instruments):

@@ -71,20 +71,17 @@ class VfcliGroup(click.Group):
         except VfcliError as exc:
             click.echo(f"vfcli {ctx.invoked_subcommand or 'vfcli'}: error: {exc}", err=True)
             ctx.exit(exc.exit_code)
-        except KeyboardInterrupt:
-            # The store is committed whole or not at all (vfcli.store.transaction), so an
-            # interrupted command leaves the previous store; 130 = 128 + SIGINT, as shells use.
-            click.echo(f"vfcli {ctx.invoked_subcommand or 'vfcli'}: interrupted (Ctrl-C)", err=True)
-            ctx.exit(EXIT_INTERRUPTED)
-        except Exception as exc:
-            # a signal that came out wrapped (compiled code calling back into Python): as the signal itself
+        except (KeyboardInterrupt, Exception) as exc:
+            # Ctrl-C, also when it came out wrapped in another error (compiled code calling back into Python,
+            # vfcli.errors.interruption). The store is committed whole or not at all (vfcli.store.transaction), so
+            # an interrupted command leaves the previous store; 130 = 128 + SIGINT, as shells use.
             stop = interruption(exc)
             if stop is None:
                 raise
-            if isinstance(stop, KeyboardInterrupt):
-                click.echo(f"vfcli {ctx.invoked_subcommand or 'vfcli'}: interrupted (Ctrl-C)", err=True)
-                ctx.exit(EXIT_INTERRUPTED)
-            raise stop from exc
+            if not isinstance(stop, KeyboardInterrupt):
+                raise stop from exc                 # SIGTERM's exit, wrapped: exit as it would have
+            click.echo(f"vfcli {ctx.invoked_subcommand or 'vfcli'}: interrupted (Ctrl-C)", err=True)
+            ctx.exit(EXIT_INTERRUPTED)
 
 
 @click.group(cls=VfcliGroup, epilog=EPILOG, context_settings={"help_option_names": ["-h", "--help"]})

@@ -2,7 +2,7 @@
 
 :func:`refit_order` lists the candidates to refit in turn (the user's ``--refit NAME``, or with ``auto`` the
 calibrated leads, smallest family-wise p first, then the profile leads; each is refitted, and of the confirmed ones
-the one that predicts held-out data best is named, :func:`best_confirmed`);
+the one that predicts held-out data best is named, :func:`vfcli.diagnose.decide.best_confirmed`);
 :func:`confirm_run` refits it on the whole window (:func:`vfcli.diagnose.refit.refit`), runs the
 held-out comparisons (:mod:`vfcli.diagnose.heldout`) and Locate on the extended model (the
 "after" residual), and returns them in a :class:`Confirmed`.
@@ -60,7 +60,7 @@ def choose(screening, candidates, mode: str, alpha: float = 0.05, profile_leads=
 def refit_order(screening, candidates, mode: str, alpha: float = 0.05, profile_leads=(),
                 limit: int = MAX_REFITS) -> list:
     """The candidates to refit, in turn (at most ``limit``; each is refitted, the best confirmed one named:
-    :func:`best_confirmed`).
+    :func:`vfcli.diagnose.decide.best_confirmed`).
 
     mode : "none" (no refit), a candidate's name (that one alone), or "auto": the calibrated leads (the
         identifiable candidates whose bootstrap-calibrated family-wise p-value ``p_family`` is at most ``alpha``;
@@ -87,17 +87,6 @@ def refit_order(screening, candidates, mode: str, alpha: float = 0.05, profile_l
                    key=lambda s: (s.p_family, s.p_value))
     names = dict.fromkeys([*(s.name for s in leads), *profile_leads])     # in order, each once
     return [by_name[n] for n in names if n in by_name][:max(int(limit), 0)]
-
-
-def best_confirmed(confirmations) -> int:
-    """Index of the confirmed refit (``improves``) whose held-out gain (``gain``) is largest, the first on a tie; 0
-    when none is confirmed (the first refit's figures are then the ones shown)."""
-    best, score = 0, -np.inf
-    for i, c in enumerate(confirmations):
-        g = float(c.gain) if np.isfinite(c.gain) else -np.inf
-        if c.improves and g > score:
-            best, score = i, g
-    return best
 
 
 def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:

@@ -29,6 +29,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from vfcli.diagnose.words import percent_size
+
 #: the family-wise false-alarm rate the decision is calibrated for
 FAMILY_ALPHA = 0.05
 
@@ -64,8 +66,15 @@ def _gain(confirmation: Any) -> float:
     return g if np.isfinite(g) else -np.inf
 
 
-def _percent(g: float) -> str:
-    return f"{100 * g:.2g} %" if np.isfinite(g) else "no"
+def best_confirmed(confirmations: Sequence[Any]) -> int:
+    """Index of the confirmed refit (``improves``) whose held-out gain (``gain``) is largest, the first on a tie; 0
+    when none is confirmed (the first refit's figures are then the ones shown).  The finding :func:`decide` names
+    among several confirmed leads."""
+    best, score = 0, -np.inf
+    for i, c in enumerate(confirmations):
+        if bool(getattr(c, "improves", False)) and _gain(c) > score:
+            best, score = i, _gain(c)
+    return best
 
 
 def _p(p: float, n_replicates: int) -> str:
@@ -111,16 +120,14 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
     profiled = tuple(n for n in profile_leads if n in names and n not in leads)
     confirmed = tuple(n for n in leads + profiled
                       if n in confirmations and bool(getattr(confirmations[n], "improves", False)))
-    findings = confirmed[:1]
-    if len(confirmed) > 1:
-        # one residual, several terms that each explain some of it: the one whose refit predicts held-out data best
-        # is named (docs/diagnose.md, "Model it"); the others' lines say so
-        findings = (max(confirmed, key=lambda n: _gain(confirmations[n])),)
+    # one residual, several terms that each explain some of it: the one whose refit predicts held-out data best is
+    # named (docs/diagnose.md, "Model it"); the others' lines say so
+    findings = (confirmed[best_confirmed([confirmations[n] for n in confirmed])],) if confirmed else ()
 
     def bettered(n: str) -> str:
         """Why a confirmed refit ``n`` is not named: the named one predicts held-out data better."""
         best = findings[0]
-        mine, theirs = _percent(_gain(confirmations[n])), _percent(_gain(confirmations[best]))
+        mine, theirs = (f"{percent_size(_gain(confirmations[k]))} %" for k in (n, best))
         return (f"its refit predicts held-out data better than the baseline beyond the spread too, but {best}'s "
                 f"predicts it better ({mine} against {theirs} lower held-out error): not named, {best} explains the "
                 "residual")

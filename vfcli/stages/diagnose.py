@@ -273,7 +273,7 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             residual_map(d.located, d.locate.residual, map_path, f"residual of run {run}")
         cands = available_candidates()
         profiled = d.decision.profile_leads if d.decision is not None else ()
-        # with auto, the leads in turn until one's refit is confirmed: calibrated leads first, then profile leads
+        # with auto, every lead in turn (calibrated leads first, then profile leads); the best confirmed is named
         tries = refit_order(d.screening, cands, refit, alpha, profiled)
         extra: dict[str, Any] = {}
         if tries:
@@ -307,7 +307,7 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
 def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cands, run: str, settings, paths,
                       done: dict, phases: Phases | None = None) -> tuple[dict[str, Any], list]:
     """Refit each of the candidates ``cands`` (:func:`vfcli.diagnose.confirm.confirm_run`), write the figures and
-    images of the confirmed one whose refit predicts held-out data best (:func:`vfcli.diagnose.confirm.best_confirmed`;
+    images of the confirmed one whose refit predicts held-out data best (:func:`vfcli.diagnose.decide.best_confirmed`;
     else the first's); fills ``done`` with what its extended model's /optimize run needs.  Every candidate is refitted
     even after one is confirmed: several leads are alternative explanations of one residual, and the first confirmed
     need not be the best (panel seed 2012, session 53: contact's refit, the first lead, predicted the held-out data
@@ -316,7 +316,8 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     stage's bar (:class:`vfcli.progress.Phases`): each refit is a phase of its own, ``refit <candidate>``."""
     import dataclasses
 
-    from vfcli.diagnose.confirm import best_confirmed, confirm_run, words
+    from vfcli.diagnose.confirm import confirm_run, words
+    from vfcli.diagnose.decide import best_confirmed
     from vfcli.diagnose.maps import residual_map
     from vfcli.diagnose.plots import velocity_at_points
     from vfcli.diagnose.run import locate_run
