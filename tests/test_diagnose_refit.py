@@ -17,6 +17,7 @@ import pytest
 from _candidates_case import CAMERA, SETTINGS, pressure_case, reduced_damping, reduced_inertia
 from _forward_case import direct_transfer
 from vfcli.diagnose.candidates import Inertia, KelvinVoigtDamping, MountingOffset, StiffnessAsymmetry
+from vfcli.diagnose.confirm import words
 from vfcli.diagnose.confirmation import Confirmation, HeldOutError, heldout_sd
 from vfcli.diagnose.heldout import cycle_groups, leave_cycles_out, prediction_error
 from vfcli.diagnose.refit import joint_fit, refit
@@ -65,6 +66,43 @@ def test_joint_fit_finds_a_known_theta_from_zero(candidate, theta, tol):
     # the baseline refitted alone cannot get there: a residual stays
     b = joint_fit(base.problem, base.x, None, base.f0_hz, max_iterations=10)
     assert b.history["total"][-1] > 20 * r.history["total"][-1]
+
+
+class _OneSidedSoftening(StiffnessAsymmetry):
+    """The left fold's softening as a term that is physical only when positive (as contact's share and damping's
+    retardation time are): a stiffer left fold is no such term."""
+
+    one_sided = True
+
+
+@pytest.mark.parametrize("truth", [-0.2, 0.2])
+def test_a_one_sided_term_is_fitted_on_its_physical_side_only(truth):
+    cand = _OneSidedSoftening()
+    base = case_with(cand, (truth,))
+    r = refit(base, cand, max_iterations=10)
+    if truth > 0:                                   # the bound idle: found as the two-sided term is
+        np.testing.assert_allclose(r.theta, [truth], atol=1e-3 * truth)
+        return
+    # data asking for a negative value: no iterate crosses zero, the fit ends switched off, at the loads'
+    # own optimum (the baseline refitted alone), where the two-sided term goes on to the data's -0.2
+    assert np.all(r.history["theta"] >= 0.0) and r.theta[0] == 0.0
+    alone = joint_fit(base.problem, base.x, None, base.f0_hz, max_iterations=10)
+    np.testing.assert_allclose(r.history["total"][-1], alone.history["total"][-1], rtol=1e-3)
+    free = refit(base, StiffnessAsymmetry(), max_iterations=10)
+    np.testing.assert_allclose(free.theta, [truth], atol=1e-3 * abs(truth))
+
+
+def test_a_held_out_fit_that_switches_a_one_sided_term_off_predicts_as_the_baseline():
+    cand = _OneSidedSoftening()
+    base = case_with(cand, (-0.2,), noise_mm_s=50.0, seed=11)
+    r = refit(base, cand, max_iterations=8)
+    held = leave_cycles_out(base, cand, r, cycle_groups(3.0 * np.arange(12) / 12), max_splits=3, max_iterations=4)
+    assert np.all(held.theta == 0.0)
+    # the same model as the baseline: its errors, not those of a fit that stopped elsewhere from another start
+    np.testing.assert_array_equal(held.extended, held.baseline)
+    assert held.reduction == 0.0 and not held.beyond_spread()
+    line = words(Confirmation(cand.name, cand.parameter_names, r.theta, r.sd, heldout=(held,)))[1]
+    assert line.endswith("not beyond the spread over splits; its fits switched asymmetry off, which is the baseline)")
 
 
 def test_damping_refit_at_a_finite_retardation_uses_the_modal_steady_state():

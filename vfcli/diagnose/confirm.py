@@ -149,6 +149,8 @@ def words(conf: Confirmation) -> list[str]:
     for h in conf.heldout:
         verdict = "beyond the spread over splits" if h.beyond_spread() else "not beyond the spread over splits"
         direction = "lower" if h.reduction >= 0 else "higher"
+        if h.theta is not None and not np.any(np.asarray(h.theta, float)) and np.array_equal(h.extended, h.baseline):
+            verdict += f"; its fits switched {conf.candidate} off, which is the baseline"
         out.append(f"held-out error {names[h.kind]}: {np.sqrt(np.mean(h.baseline ** 2)):.3g} -> "
                    f"{np.sqrt(np.mean(h.extended ** 2)):.3g} {h.units} ({percent_size(h.reduction)} % {direction}, "
                    f"{h.n_splits} splits, {verdict})")

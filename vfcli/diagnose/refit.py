@@ -17,8 +17,8 @@ Gauss-Newton (:func:`joint_fit`), each iteration at (x, theta):
 * the load block ``H_LL`` of the run's Gauss-Newton Hessian (:func:`vfcli.inverse.linearization.
   gauss_newton_model`, raster frozen at U), the cross and own blocks ``H_Lc``, ``H_cc``
   (:func:`vfcli.diagnose.candidates.blocks.candidate_blocks`);
-* the joint step from the Schur complement ``S = H_cc - H_Lc^T H_LL^-1 H_Lc`` and a backtracking
-  line search on E.
+* the joint step from the Schur complement ``S = H_cc - H_Lc^T H_LL^-1 H_Lc`` (stopped at theta = 0 for a
+  ``one_sided`` candidate, :func:`_physical_step`) and a backtracking line search on E.
 
 A candidate that states its extended model as a response (``candidate.response(baseline, theta)``, a
 :class:`vfcli.model.response.base.Response` linear in x at fixed theta: inertia's steady state,
@@ -317,7 +317,7 @@ def _gauss_newton(ext: _Extended, st: _State, max_iterations: int, fixed_theta: 
         solved = qm.hessian.solve(np.column_stack([g_l, h_lc]))
         if ext.p and not fixed_theta:
             schur = h_cc - h_lc.T @ solved[:, 1:]
-            dtheta = -_pinv_sym(schur) @ (g_c - h_lc.T @ solved[:, 0])
+            dtheta = _physical_step(ext.candidate, st.theta, -_pinv_sym(schur) @ (g_c - h_lc.T @ solved[:, 0]))
             dx = -(solved[:, 0] + solved[:, 1:] @ dtheta)
         else:
             dtheta = np.zeros(ext.p)
@@ -343,6 +343,19 @@ def _gauss_newton(ext: _Extended, st: _State, max_iterations: int, fixed_theta: 
             converged = True
             break
     return st, blocks, converged, it
+
+
+def _physical_step(candidate, theta: np.ndarray, dtheta: np.ndarray) -> np.ndarray:
+    """``dtheta`` (p,), stopped at theta = 0 for a ``one_sided`` candidate (one parameter; contact, damping: a
+    negative share or retardation time is no physics).  The load step that goes with it, ``-H_LL^-1 (g_L + H_Lc
+    dtheta)``, is then the Gauss-Newton model's minimum over theta >= 0 (its profile in theta is a convex
+    parabola), so the fit stays on the physical side and a term the data do not want ends switched off
+    (a camera-only fit of contact phantom 2014 went to a share of -1.5: folds pulled through the midplane,
+    docs/benchmarks.md, "Session 54")."""
+    if not getattr(candidate, "one_sided", False):
+        return dtheta
+    theta = np.asarray(theta, dtype=float)
+    return np.maximum(theta + dtheta, 0.0) - theta
 
 
 def _best_start(ext: _Extended, st: _State, values) -> _State:

@@ -335,7 +335,7 @@ STAGES: dict[str, Stage] = {
             "bootstrap calibration, and the decision (attrs decision, alpha_family).",
             reads=("optimize", "mesh", "fields", "flow", "ldv", "sync"),
             has_runs=True,
-            method=5,
+            method=6,
             method_changes={2: "the model's velocity at the frame times in every motion row (vfcli 2c4c8b6)",
                             3: "a refit confirms a finding only when it lowers E below the baseline's (a refit that "
                                "kept no step had confirmed on its held-out fits alone; session 51)",
@@ -343,7 +343,10 @@ STAGES: dict[str, Stage] = {
                                "calibrated lead had not been refitted; session 52)",
                             5: "every lead is refitted and the confirmed one whose refit predicts held-out data best "
                                "is named (the first confirmed had been, though a later lead explained the residual "
-                               "better; session 53)"},
+                               "better; session 53)",
+                            6: "a one-sided term (contact, damping) is refitted on its physical side only, and a "
+                               "held-out fit that switches it off predicts as the baseline (a camera-only contact "
+                               "fit had pulled the folds through the midplane; session 54)"},
             datasets={
                 "frame_time": D("s", "Times of the run's window frames", ("frame_time",)),
                 "frame_phase": D("cycles", "Glottal cycle phase of each window frame (from the gap area)", ("frame_time",)),
