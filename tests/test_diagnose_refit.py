@@ -252,6 +252,32 @@ def test_a_refit_that_kept_no_step_says_its_estimate_is_its_start():
     assert words(on)[0].endswith("this is the value it started from, not a fitted one")
 
 
+def test_a_lead_whose_refit_does_not_lower_e_says_so_not_that_its_held_out_fits_failed():
+    """Null 2027 (session 53): contact's refit stayed at share 0 with E not below the baseline's; the decision read
+    "its refit does not predict held-out data better beyond the spread" whatever its held-out fits did."""
+    from vfcli.diagnose.decide import decide
+
+    h = HeldOutError("cycles", "mm/s", np.array([60.0, 61.0, 59.0, 60.5]), np.array([50.0, 51.5, 49.0, 50.0]))
+    assert h.beyond_spread()
+    flat = Confirmation("contact", ("contact_share",), np.array([0.0]), np.array([0.3]), heldout=(h,), lowers_e=False)
+    d = decide(["contact"], np.array([0.005]), [True], 199, confirmations={"contact": flat})
+    assert d.findings == ()
+    assert ("contact: a calibrated lead (family-wise p <= 0.005), its refit explains nothing the baseline did not "
+            "(E not below the baseline's)") in d.lines, d.lines
+
+
+def test_a_profile_searched_start_is_a_fitted_estimate():
+    """Damping 2003 (session 53): the retardation time 0.107 ms came from the start scan's golden-section search and
+    no Gauss-Newton step followed; the words called it "the value it started from, not a fitted one"."""
+    cand = reduced_damping(pressure_case(12, 4))
+    base = case_with(cand, (0.3,))
+    r = joint_fit(base.problem, base.x, cand, base.f0_hz, max_iterations=0, model=base.model)
+    assert r.profiled and len(r.history["iteration"]) == 1
+    assert 0.2 < r.theta[0] < 0.4                               # between the start values that bracket 0.3
+    scanned = joint_fit(base.problem, base.x, StiffnessAsymmetry(), base.f0_hz, max_iterations=0)
+    assert not scanned.profiled
+
+
 def test_choose_takes_the_smallest_identifiable_lead_below_the_family_level_or_the_named_one():
     from vfcli.diagnose.candidate import Screening
     from vfcli.diagnose.candidates import CANDIDATES

@@ -126,7 +126,7 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     sd, name, dof, _ = heldout_sd(result.theta, result.sd, held, mesh)
     e_base = float(baseline.problem.evaluate(baseline.x).total)
     conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof,
-                        moved=len(result.history["iteration"]) > 1,
+                        moved=len(result.history["iteration"]) > 1 or result.profiled,
                         lowers_e=bool(result.history["total"][-1] < e_base * (1.0 - LOWER_RTOL)))
     ext = extended_baseline(baseline, result)
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)

@@ -167,8 +167,11 @@ class Confirmation:
     run : name of the /optimize run the extended model was stored as ("" when not stored).
     dof : degrees of freedom of the stated sd (infinite for the sandwich; G - 1 when a jackknife over G
         held-out groups set it, :func:`heldout_sd`): the interval is Student's.
-    moved : False when the refit kept no step (its history holds its start only): the estimate is the start
-        value (the term switched off), not a fitted one.
+    moved : False when the refit kept no step from a start value it did not fit (its history holds its start only,
+        and the start is not a profile search's minimum, :attr:`vfcli.diagnose.refit.RefitResult.profiled`): the
+        estimate is a value it was given (the term switched off, or contact's full share), not a fitted one.  Not a
+        condition of a finding: contact's full share is the rigid contact itself, which no step improves where the
+        folds do collide (docs/benchmarks.md, "Session 54").
     lowers_e : False when the refit's final E (re-rasterised, the whole window) is not below the baseline's: the
         extended model explains nothing of the window the baseline did not, whatever the held-out fits (frozen
         rasters, linear in the step) say; then it is no finding.
@@ -203,6 +206,15 @@ class Confirmation:
         """The refit lowers E below the baseline's and every held-out comparison made improves beyond its spread
         (False when none could be made)."""
         return self.lowers_e and bool(self.heldout) and all(h.beyond_spread() for h in self.heldout)
+
+    @property
+    def shortfall(self) -> str:
+        """Why it is not confirmed, in words ("" when it is)."""
+        if self.improves:
+            return ""
+        if not self.lowers_e:
+            return "its refit explains nothing the baseline did not (E not below the baseline's)"
+        return "its refit does not predict held-out data better beyond the spread"
 
     @property
     def gain(self) -> float:

@@ -98,6 +98,12 @@ def detection_words(parameter: str, limit: float, full_value: float | None = Non
     return text
 
 
+def _shortfall(conf) -> str:
+    """Why a refit does not confirm its lead (:attr:`vfcli.diagnose.confirmation.Confirmation.shortfall`; the
+    held-out words for an object that does not say)."""
+    return getattr(conf, "shortfall", "") or "its refit does not predict held-out data better beyond the spread"
+
+
 def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bool], n_replicates: int,
            alpha: float = FAMILY_ALPHA, confirmations: Mapping[str, Any] | None = None,
            profile_leads: Sequence[str] = (), limits: Mapping[str, str] | None = None) -> Decision:
@@ -141,8 +147,7 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
         if n in profiled:
             why = ("its refit predicts held-out data better than the baseline beyond the spread: missing physics found"
                    if n in findings else bettered(n) if n in confirmed
-                   else "its refit does not predict held-out data better beyond the spread"
-                   if n in confirmations else "not confirmed: no held-out refit")
+                   else _shortfall(confirmations[n]) if n in confirmations else "not confirmed: no held-out refit")
             lines.append(f"{n}: no evidence in the calibrated screening (family-wise {_p(p[i], n_replicates)}), "
                          f"a profile lead: {why}")
         elif n in findings:
@@ -150,8 +155,7 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
                          "predicts held-out data better than the baseline beyond the spread)")
         elif n in leads:
             why = (bettered(n) if n in confirmed
-                   else "its refit does not predict held-out data better beyond the spread" if n in confirmations
-                   else "not confirmed: no held-out refit")
+                   else _shortfall(confirmations[n]) if n in confirmations else "not confirmed: no held-out refit")
             lines.append(f"{n}: a calibrated lead (family-wise {_p(p[i], n_replicates)}), {why}")
         else:
             # a refit asked for by name (--refit NAME) of a candidate that is no lead: say why it cannot count, which

@@ -105,6 +105,8 @@ class RefitResult:
     converged : E stopped decreasing (relative change below :data:`FTOL`).
     kappa : the Laplace scale (1 / (2 sigma^2) per unit E).
     uncertainty : "sandwich".  sd_laplace : (p,) the Laplace standard deviations, for comparison.
+    profiled : the start is the minimum of a profile search over theta (a one-parameter candidate with its own
+        response, :func:`_best_start`): a fitted value even where no Gauss-Newton step follows it.
     """
 
     candidate: str
@@ -119,6 +121,7 @@ class RefitResult:
     kappa: float
     uncertainty: str = "sandwich"
     sd_laplace: np.ndarray | None = None
+    profiled: bool = False
 
     @property
     def interval(self) -> np.ndarray:
@@ -274,8 +277,9 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
             hist[k].append(v)
         hist["theta"].append(np.array(state.theta, float))
 
+    profiled = False
     if theta0 is None and not fixed_theta:
-        st = _best_start(ext, st, getattr(candidate, "start_values", ()))
+        st, profiled = _best_start(ext, st, getattr(candidate, "start_values", ()))
     record(0, st, 0.0)
     st, blocks, converged, it = _gauss_newton(ext, st, max_iterations, fixed_theta, record, 0)
     recentre = getattr(candidate, "recentre", None)
@@ -302,7 +306,7 @@ def joint_fit(problem, x0: np.ndarray, candidate=None, f0_hz: float = float("nan
     return RefitResult(candidate.name if candidate is not None else "", names, st.theta.copy(),
                        np.sqrt(np.maximum(np.diag(cov), 0.0)), cov, st.x.copy(), st.disp, history,
                        bool(converged), float(kappa), "sandwich",
-                       np.sqrt(np.maximum(np.diag(cov_laplace), 0.0)))
+                       np.sqrt(np.maximum(np.diag(cov_laplace), 0.0)), profiled)
 
 
 def _gauss_newton(ext: _Extended, st: _State, max_iterations: int, fixed_theta: bool, record, it0: int):
@@ -358,11 +362,12 @@ def _physical_step(candidate, theta: np.ndarray, dtheta: np.ndarray) -> np.ndarr
     return np.maximum(theta + dtheta, 0.0) - theta
 
 
-def _best_start(ext: _Extended, st: _State, values) -> _State:
+def _best_start(ext: _Extended, st: _State, values) -> tuple[_State, bool]:
     """The best of ``st`` and the candidate's ``start_values`` (each a theta, the loads given one
     Gauss-Newton step at that theta, or steps until E settles under the candidate's own response): a term
     far from linear in theta (a density that puts a harmonic of f0 above a resonance) is not reached
-    from theta = 0 by Gauss-Newton steps."""
+    from theta = 0 by Gauss-Newton steps.  Also whether that best is the minimum of a profile search
+    (:func:`_refine_profile`), a fitted value, rather than one of the values tried."""
     best = st
     profile = {0.0: st} if ext.p == 1 else {}
     for v in values:
@@ -383,8 +388,8 @@ def _best_start(ext: _Extended, st: _State, values) -> _State:
             if cand.terms.total < best.terms.total:
                 best = cand
     if ext.has_response and ext.p == 1 and len(profile) > 2 and best is not st:
-        best = _refine_profile(ext, profile, best)
-    return best
+        return _refine_profile(ext, profile, best), True
+    return best, False
 
 
 def _refine_profile(ext: _Extended, profile: dict, best: _State) -> _State:
