@@ -12,6 +12,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: why a refit that lowers E is not confirmed, in the decision's words
+NOT_BEYOND_SPREAD = "its refit does not predict held-out data better beyond the spread"
+
 #: the held-out kinds: whole glottal cycles left out; the vibrometer's vertical velocity left out
 HELDOUT_KINDS = ("cycles", "instruments")
 
@@ -214,7 +217,7 @@ class Confirmation:
             return ""
         if not self.lowers_e:
             return "its refit explains nothing the baseline did not (E not below the baseline's)"
-        return "its refit does not predict held-out data better beyond the spread"
+        return NOT_BEYOND_SPREAD
 
     @property
     def gain(self) -> float:

@@ -29,6 +29,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from vfcli.diagnose.confirmation import NOT_BEYOND_SPREAD
 from vfcli.diagnose.words import percent_size
 
 #: the family-wise false-alarm rate the decision is calibrated for
@@ -101,7 +102,7 @@ def detection_words(parameter: str, limit: float, full_value: float | None = Non
 def _shortfall(conf) -> str:
     """Why a refit does not confirm its lead (:attr:`vfcli.diagnose.confirmation.Confirmation.shortfall`; the
     held-out words for an object that does not say)."""
-    return getattr(conf, "shortfall", "") or "its refit does not predict held-out data better beyond the spread"
+    return getattr(conf, "shortfall", "") or NOT_BEYOND_SPREAD
 
 
 def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bool], n_replicates: int,
