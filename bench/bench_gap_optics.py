@@ -19,12 +19,18 @@ and only then, the truth (the gap at pixel centres and the glottal area) is scor
   the glottis in view (:func:`vfcli.flow.plausibility.gap_length_share`, what ``vfcli flow`` warns on
   below :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN`).
 
+``--edges`` also prints, per seed, each final (smoothed) edge's error against the truth's sub-pixel edge on the
+same ray (the truth's gap fraction per pixel along the ray: the run's first and last covered pixels place its
+ends), by the ray's true width: the mean (bias) and standard deviation of e0's and e1's errors, px along the ray.
+A width error that both edges share is the gap level or the blur; one edge's alone is what lies beside that edge
+(the rim's shading, the light's direction).
+
 ``--psf`` / ``--fov-rel`` pin the drawn blur (px) and the field of view (x the glottis length)
 of every seed (the rest of the draw is the seed's). Rendered videos are cached in ``--cache``.
 
 Reproduce::
 
-    .venv/bin/python bench/bench_gap_optics.py SEED [SEED ...] [--duration 0.025] [--psf 0.3] [--fov-rel 1.0]
+    .venv/bin/python bench/bench_gap_optics.py SEED [SEED ...] [--duration 0.025] [--psf 0.3] [--fov-rel 1.0] [--edges]
 """
 from __future__ import annotations
 
@@ -88,8 +94,9 @@ def render(seed: int, duration: float, psf: float | None, fov_rel: float | None,
     return out
 
 
-def flow_gap(v: dict, cfg: FlowConfig) -> tuple[np.ndarray, np.ndarray, object]:
-    """The flow step's gap masks (n, H, W) and areas (n,) mm^2, and its calibration."""
+def flow_gap(v: dict, cfg: FlowConfig) -> tuple[np.ndarray, np.ndarray, object, list]:
+    """The flow step's gap masks (n, H, W), areas (n,) mm^2, its calibration and each frame's final edges
+    ((e0, e1) per frame, (n_rays,) lateral px; empty without sub-pixel edges)."""
     frames = v["frames"]
     px = float(v["px_per_mm"])
     rotation = float(v["rotation"]) if bool(v["stated"]) else 0.0
@@ -99,12 +106,54 @@ def flow_gap(v: dict, cfg: FlowConfig) -> tuple[np.ndarray, np.ndarray, object]:
         midline = calib.midline if calib.midline_line is None else calib.midline_line
         masks = np.stack([gap_mask(f, calib.threshold, cfg.median_px, midline=midline,
                                    lateral_axis=calib.lateral_axis, exclude=calib.surround) for f in frames])
-        return masks, glottal_area(masks, px), calib
-    masks, areas = [], []
+        return masks, glottal_area(masks, px), calib, []
+    masks, areas, edges = [], [], []
     for _, seg in segment_stream(iter(frames), calib.gap):
         masks.append(seg.mask)
         areas.append(seg.area_mm2(px))
-    return np.stack(masks), np.asarray(areas), calib
+        edges.append((seg.e0, seg.e1))
+    return np.stack(masks), np.asarray(areas), calib, edges
+
+
+#: True-width bins of :func:`edge_errors`, px along the ray
+WIDTH_BINS_PX = (1, 2, 3, 4, 5, 6, 8, 12, 40)
+
+
+def true_edges(frac: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The truth's sub-pixel edges on each ray of one frame: ``frac`` (n_lat, n_rays) the gap's area fraction per
+    pixel with the lateral axis first. The first and last covered pixels of a ray hold its edges (a covered share
+    c of the first pixel puts e0 at its centre + 1/2 - c). Returns (e0, e1, width), NaN where fewer than two
+    pixels are covered; width: the covered area along the ray, px."""
+    f = np.asarray(frac, float)
+    covered = f > 0
+    n = covered.sum(axis=0)
+    first = np.argmax(covered, axis=0)
+    last = f.shape[0] - 1 - np.argmax(covered[::-1], axis=0)
+    cols = np.arange(f.shape[1])
+    e0 = first + 0.5 - f[first, cols]
+    e1 = last - 0.5 + f[last, cols]
+    ok = n >= 2
+    return np.where(ok, e0, np.nan), np.where(ok, e1, np.nan), np.where(ok, f.sum(axis=0), np.nan)
+
+
+def edge_errors(v: dict, edges: list, lateral_axis: int) -> list[tuple]:
+    """Per true-width bin (:data:`WIDTH_BINS_PX`): (lo, hi, n, e0 bias, e0 sd, e1 bias, e1 sd), px along the ray,
+    over the rays open in both the flow step's edges and the truth."""
+    d0, d1, tw = [], [], []
+    for (e0, e1), frac in zip(edges, v["frac"]):
+        f = np.asarray(frac, float)
+        t0, t1, w = true_edges(f if lateral_axis == 0 else f.T)
+        ok = np.isfinite(e0) & np.isfinite(t0)
+        d0.append(e0[ok] - t0[ok])
+        d1.append(e1[ok] - t1[ok])
+        tw.append(w[ok])
+    d0, d1, tw = (np.concatenate(x) if x else np.zeros(0) for x in (d0, d1, tw))
+    out = []
+    for lo, hi in zip(WIDTH_BINS_PX[:-1], WIDTH_BINS_PX[1:]):
+        s = (tw >= lo) & (tw < hi)
+        if s.sum() >= 20:
+            out.append((lo, hi, int(s.sum()), d0[s].mean(), d0[s].std(), d1[s].mean(), d1[s].std()))
+    return out
 
 
 def score(v: dict, masks: np.ndarray, areas: np.ndarray) -> dict:
@@ -137,6 +186,7 @@ def main() -> None:
     ap.add_argument("--psf", type=float, default=None)
     ap.add_argument("--fov-rel", type=float, default=None)
     ap.add_argument("--cache", type=Path, default=Path("/tmp/gap_optics_cache"))
+    ap.add_argument("--edges", action="store_true", help="also each edge's error by true width (px along the ray)")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="flow.X=Y")
     args = ap.parse_args()
     over = {}
@@ -150,7 +200,7 @@ def main() -> None:
     for seed in args.seeds:
         v = render(seed, args.duration, args.psf, args.fov_rel, args.cache)
         t = time.perf_counter()
-        masks, areas, calib = flow_gap(v, cfg)
+        masks, areas, calib, edges = flow_gap(v, cfg)
         wall = time.perf_counter() - t
         s = score(v, masks, areas)
         est = calib.edge_model.psf_sigma_px if calib.edge_model is not None else float("nan")
@@ -160,6 +210,10 @@ def main() -> None:
               f"{100 * s['area_median']:.1f}% | {s['found']} | {s['false']} | {found:.2f} / {true:.2f} | "
               f"{'yes' if calib.gap_resolved else 'no'} | {wall:.0f} |",
               flush=True)
+        if args.edges and edges:
+            for lo, hi, n, b0, s0, b1, s1 in edge_errors(v, edges, calib.gap.lateral_axis):
+                print(f"|   {seed} true width {lo}-{hi} px | {n} rays | e0 {b0:+.3f} (sd {s0:.3f}) | e1 {b1:+.3f} "
+                      f"(sd {s1:.3f}) | width {b1 - b0:+.3f} px |", flush=True)
 
 
 if __name__ == "__main__":
