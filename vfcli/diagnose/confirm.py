@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vfcli.diagnose.bound import refit_at_own_bound
 from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.confirmation import Confirmation, heldout_sd
 from vfcli.diagnose.heldout import across_instruments, cycle_groups, leave_cycles_out
@@ -100,20 +101,31 @@ def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:
 
 
 def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=None,
-                max_iterations: int = 8, heldout_iterations: int = 3, max_splits: int = 4) -> Confirmed:
+                max_iterations: int = 8, heldout_iterations: int = 3, max_splits: int = 4,
+                own_bound: bool = False) -> Confirmed:
     """Refit ``candidate`` on the whole window, then the held-out comparisons and the "after" Locate.
 
     window_phase : (F,) glottal cycle phase of the window's frames.
     locate : ``lambda baseline: LocateResult`` (e.g. :func:`vfcli.diagnose.run.locate_run` with the
         recording), or None to skip the "after" residual.
+    own_bound : the baseline's ridge weight is its L-curve's corner (optimize chose it): the extended model of a
+        candidate with its own response is then refitted under its own corner
+        (:func:`vfcli.diagnose.bound.refit_at_own_bound`), and its held-out fits use that weight. Whether it
+        lowers E is judged under the baseline's weight (:meth:`RefitResult.total_at`).
     """
     t0 = time.perf_counter()
     result = refit(baseline, candidate, max_iterations=max_iterations)
+    problem = baseline.problem
+    if own_bound:
+        problem, result = refit_at_own_bound(baseline, candidate, result, max_iterations)
+        if result.ridge_weight is not None:
+            log.info("refit of %s under its own L-curve corner, ridge weight %.3g 1/Pa^2 (the baseline's %.3g)",
+                     candidate.name, result.ridge_weight, baseline.problem.settings.ridge_weight)
     t1 = time.perf_counter()
     groups = cycle_groups(window_phase)
-    cyc = leave_cycles_out(baseline, candidate, result, groups, max_splits, heldout_iterations)
+    cyc = leave_cycles_out(baseline, candidate, result, groups, max_splits, heldout_iterations, problem)
     t2 = time.perf_counter()
-    inst = across_instruments(baseline, candidate, result, groups, heldout_iterations + 1)
+    inst = across_instruments(baseline, candidate, result, groups, heldout_iterations + 1, problem)
     t3 = time.perf_counter()
     log.info("refit of %s: %.0f s (%d iterations); held out cycles %.0f s, instruments %.0f s", candidate.name,
              t1 - t0, len(result.history["iteration"]) - 1, t2 - t1, t3 - t2)
@@ -127,7 +139,8 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     e_base = float(baseline.problem.evaluate(baseline.x).total)
     conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof,
                         moved=len(result.history["iteration"]) > 1 or result.profiled,
-                        lowers_e=bool(result.history["total"][-1] < e_base * (1.0 - LOWER_RTOL)))
+                        lowers_e=bool(result.total_at(baseline.problem.settings.ridge_weight)
+                                      < e_base * (1.0 - LOWER_RTOL)))
     ext = extended_baseline(baseline, result)
     return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
 

@@ -97,16 +97,19 @@ def _pick(groups: np.ndarray, max_splits: int) -> np.ndarray:
 
 
 def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndarray, max_splits: int = 4,
-                     max_iterations: int = 3) -> HeldOutError | None:
+                     max_iterations: int = 3, extended_problem=None) -> HeldOutError | None:
     """Leave-cycles-out errors of the baseline and of ``candidate``'s extension (module docstring).
 
     extended : the extended model's refit on the whole window (its start).  groups : (F,) from
-    :func:`cycle_groups`.  Returns None when fewer than two groups exist.
+    :func:`cycle_groups`.  extended_problem : the problem the extension is fitted under (its own ridge weight,
+    :func:`vfcli.diagnose.bound.refit_at_own_bound`); default the baseline's.  Returns None when fewer than two
+    groups exist.
     """
     ids = _pick(np.asarray(groups), max_splits)
     if len(ids) < 2:
         return None
     model = getattr(baseline, "model", None)
+    ext_problem = baseline.problem if extended_problem is None else extended_problem
     base_err, ext_err, thetas = [], [], []
     for g in ids:
         held = np.flatnonzero(groups == g)
@@ -114,7 +117,7 @@ def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndar
         keep[held] = False
         b = joint_fit(baseline.problem, baseline.x, None, baseline.f0_hz, keep=keep,
                       max_iterations=max_iterations, model=model, stated=False, frozen=True)
-        e = joint_fit(baseline.problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta, keep=keep,
+        e = joint_fit(ext_problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta, keep=keep,
                       max_iterations=max_iterations, model=model, stated=False, frozen=True)
         base_err.append(prediction_error(baseline, b.displacements, held))
         ext_err.append(base_err[-1] if switched_off(candidate, e.theta)
@@ -124,10 +127,11 @@ def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndar
 
 
 def across_instruments(baseline, candidate, extended: RefitResult, groups: np.ndarray,
-                       max_iterations: int = 4) -> HeldOutError | None:
+                       max_iterations: int = 4, extended_problem=None) -> HeldOutError | None:
     """Fit camera + gap + pressure, predict the vertical velocity, per cycle group (module docstring).
 
-    Returns None when fewer than two groups exist or no compared pixel carries a vertical velocity.
+    extended_problem : as :func:`leave_cycles_out`'s.  Returns None when fewer than two groups exist or no compared
+    pixel carries a vertical velocity.
     """
     ids = np.unique(np.asarray(groups)[np.asarray(groups) >= 0])
     if len(ids) < 2:
@@ -138,7 +142,9 @@ def across_instruments(baseline, candidate, extended: RefitResult, groups: np.nd
     model = getattr(baseline, "model", None)
     b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model, stated=False,
                   frozen=True)
-    e = joint_fit(problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta,
+    ext_problem = (baseline.problem if extended_problem is None else extended_problem).with_weights(
+        component_weights=CAMERA_ONLY)
+    e = joint_fit(ext_problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta,
                   max_iterations=max_iterations, model=model, stated=False, frozen=True)
     base_err = [prediction_error(baseline, b.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
     ext_err = (list(base_err) if switched_off(candidate, e.theta) else

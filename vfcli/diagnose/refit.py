@@ -107,6 +107,9 @@ class RefitResult:
     uncertainty : "sandwich".  sd_laplace : (p,) the Laplace standard deviations, for comparison.
     profiled : the start is the minimum of a profile search over theta (a one-parameter candidate with its own
         response, :func:`_best_start`): a fitted value even where no Gauss-Newton step follows it.
+    ridge_weight : the ridge weight the fit ended under where it is not the problem's it started with
+        (:func:`vfcli.diagnose.bound.refit_at_own_bound`: the extended model's own L-curve corner), 1/Pa^2; None:
+        the baseline's.
     """
 
     candidate: str
@@ -122,6 +125,15 @@ class RefitResult:
     uncertainty: str = "sandwich"
     sd_laplace: np.ndarray | None = None
     profiled: bool = False
+    ridge_weight: float | None = None
+
+    def total_at(self, ridge_weight: float) -> float:
+        """The fit's final E with its ridge term taken at ``ridge_weight`` (1/Pa^2) instead of its own: E under
+        another model's objective (the baseline's, whose weight a rebounded refit left)."""
+        total, ridge = float(self.history["total"][-1]), float(self.history["ridge"][-1])
+        if self.ridge_weight is None or self.ridge_weight == ridge_weight:
+            return total
+        return total - ridge + ridge * float(ridge_weight) / float(self.ridge_weight)
 
     @property
     def interval(self) -> np.ndarray:

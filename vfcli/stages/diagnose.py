@@ -304,6 +304,17 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
     return result
 
 
+def bound_from_lcurve(run_config: dict[str, Any]) -> bool:
+    """Whether the run's ridge weight was its L-curve's corner (``optimize.ridge_weight`` null under a load model
+    optimize bounds so, :data:`vfcli.inverse.setup.DEFAULT_RIDGE`): its refits then choose their own
+    (:func:`vfcli.diagnose.bound.refit_at_own_bound`); a weight the lab set is kept."""
+    from vfcli.inverse.setup import DEFAULT_RIDGE
+
+    opt = run_config.get("optimize", {}) or {}
+    loads = opt.get("loads", "pressure")
+    return opt.get("ridge_weight") is None and loads in DEFAULT_RIDGE and DEFAULT_RIDGE[loads] is None
+
+
 def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cands, run: str, settings, paths,
                       done: dict, phases: Phases | None = None) -> tuple[dict[str, Any], list]:
     """Refit each of the candidates ``cands`` (:func:`vfcli.diagnose.confirm.confirm_run`), write the figures and
@@ -331,7 +342,8 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
             phases.expect(1)
             phases(f"refit {cand.name}")
         tried.append((cand, confirm_run(b, cand, d.locate.cycles.phase[d.locate.window],
-                                        lambda ext: locate_run(ext, inputs.recording, settings))))
+                                        lambda ext: locate_run(ext, inputs.recording, settings),
+                                        own_bound=bound_from_lcurve(inputs.run_config))))
     cand, got = tried[best_confirmed([g.confirmation for _, g in tried])]
     name = refit_run_name(run, cand.name)
     conf = dataclasses.replace(got.confirmation, run=name)
@@ -349,7 +361,8 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     # the extended run states the same uncertainty as the diagnosis (with the held-out fits' disagreement)
     done.update(refit=dataclasses.replace(got.refit, sd=np.asarray(conf.sd, float), uncertainty=conf.uncertainty),
                 name=name, sim_time=p.sim_times, config=inputs.run_config,
-                attrs={**(inputs.run_attrs or {}), "pixel_stride": p.meas.pixel_stride},
+                attrs={**(inputs.run_attrs or {}), "pixel_stride": p.meas.pixel_stride,
+                       **({} if got.refit.ridge_weight is None else {"ridge_weight": got.refit.ridge_weight})},
                 parameter_names=[str(v) for v in getattr(p.response.load_model, "parameter_names", lambda: [])()])
     extra = {"refit": conf.as_dict(), "images": {k: str(v) for k, v in paths.items()}}
     if others:
