@@ -78,3 +78,27 @@ def test_a_term_without_its_own_response_keeps_the_baselines_bound(inertia_case)
                                            ({}, True)])
 def test_only_a_run_whose_weight_the_l_curve_chose_lets_its_refits_choose_theirs(optimize, own):
     assert bound_from_lcurve({"optimize": optimize}) is own
+
+
+def test_an_l_curve_corner_below_its_reference_weight_says_the_tied_loads_cannot_fit_the_motion(inertia_case, caplog):
+    """The quasi-static fit of data with the folds' mass: its corner 0.5 decades below the weight at which penalty
+    and data weigh alike (4.5e-5 against 1.4e-4); without the mass 5 decades above it (as on every widened store but
+    the inertia phantoms).  optimize warns on the first (vfcli.inverse.setup.warn_unbounded_correction)."""
+    import logging
+
+    from vfcli.inverse.linearization import gauss_newton_model
+    from vfcli.inverse.regularization import lcurve
+    from vfcli.inverse.setup import warn_unbounded_correction
+
+    _, data, _ = inertia_case
+    curves = {}
+    for name, problem in (("mass", data.problem), ("clean", pressure_case(24, 4).problem)):
+        p = problem.with_weights(ridge_weight=0.0)
+        zero = np.zeros(p.n_params)
+        curves[name] = lcurve(gauss_newton_model(p, zero), zero, p.penalty)
+        print(name, f"corner {curves[name].chosen:.3g}, reference {curves[name].reference:.3g}")
+    assert curves["mass"].unbounded and not curves["clean"].unbounded
+    assert curves["clean"].chosen > 1e4 * curves["clean"].reference
+    with caplog.at_level(logging.WARNING, logger="vfcli.inverse.setup"):
+        warn_unbounded_correction(curves["mass"])
+    assert "do not explain the motion" in caplog.text and "0.5 decades below" in caplog.text

@@ -224,8 +224,24 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
         curve = lcurve(gauss_newton_model(problem, np.zeros(problem.n_params)), np.zeros(problem.n_params),
                        problem.penalty)
         log.info("L-curve: ridge weight %.3g 1/Pa^2", curve.chosen)
+        if cfg.loads == "pressure" and curve.unbounded:
+            warn_unbounded_correction(curve)
         problem = Problem(inputs.mesh, camera, response, measurement, replace(settings, ridge_weight=curve.chosen))
     return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve)
+
+
+def warn_unbounded_correction(curve) -> None:
+    """Warn that the L-curve left the ``pressure`` loads' free correction practically unbounded
+    (:attr:`vfcli.inverse.regularization.LCurve.unbounded`): the loads tied to the measured pressure do not
+    explain the motion, the pressure gains stop carrying the load's mean, and the static shape (which the
+    velocities do not see) follows the free correction. On the blind panel's inertia phantoms the inferior
+    surface of such fits was 47-140 % off, against 1-8 % on the widened nulls (docs/benchmarks.md, "Session 55")."""
+    log.warning("optimize: the L-curve's corner (ridge weight %.3g 1/Pa^2) lies %.1f decades below the weight at which "
+                "the penalty and the data weigh alike (%.3g): the loads tied to the measured pressure do not explain "
+                "the motion, so their free correction is left practically unbounded and the static shape and the "
+                "inferior surface are not determined by this fit. The model may miss physics the motion shows (on "
+                "phantoms: the folds' inertia); run `vfcli diagnose`, whose refit of such a term bounds its loads "
+                "anew", curve.chosen, float(np.log10(curve.reference / curve.chosen)), curve.reference)
 
 
 def setup_summary(setup: Setup) -> dict[str, Any]:
