@@ -15,8 +15,10 @@ inferior surface 1.31 -> 0.12 mm for a true 1.29).
 The extended model of a candidate that states its own response (inertia, damping: linear in the loads at
 fixed theta) has an L-curve of its own. It is computed exactly as optimize computes the baseline's:
 on the Gauss-Newton model at zero loads, with the ridge left out. On 2012 at the refit's density its corner is
-9.8 1/Pa^2. There the loads refitted at that weight carry the mean through the pressure gains again (inferior gain
-767 Pa, free mean 0) and the static shape reads 1.07 mm (docs/benchmarks.md, "Session 55").
+9.8 1/Pa^2 (2.73 with the reduction recentred on the estimate, as the diagnosis computes it). The loads refitted at
+9.8 with the density fixed carry the mean through the pressure gains again (inferior gain 767 Pa, free mean 0) and
+the static shape reads 1.07 mm; the diagnosis's refit run is 16 % off on the inferior surface, its baseline 47 %
+(docs/benchmarks.md, "Session 55").
 """
 from __future__ import annotations
 
