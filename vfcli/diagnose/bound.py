@@ -22,12 +22,11 @@ the static shape reads 1.07 mm; the diagnosis's refit run is 16 % off on the inf
 """
 from __future__ import annotations
 
-import copy
 import dataclasses
 
 import numpy as np
 
-from vfcli.diagnose.refit import RefitResult, joint_fit
+from vfcli.diagnose.refit import RefitResult, extended_problem, joint_fit
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.inverse.regularization import lcurve
 
@@ -43,14 +42,6 @@ def own_ridge_weight(problem) -> float:
     p = problem.with_weights(ridge_weight=0.0)
     zero = np.zeros(p.n_params)
     return float(lcurve(gauss_newton_model(p, zero), zero, p.penalty).chosen)
-
-
-def extended_problem(baseline, candidate, theta: np.ndarray):
-    """The baseline's problem with ``candidate``'s extended response at ``theta`` (a candidate that states one,
-    ``candidate.response``); the ridge weight and everything else the baseline's."""
-    other = copy.copy(baseline.problem)
-    other.response = candidate.response(baseline, np.asarray(theta, dtype=float))
-    return other
 
 
 def refit_at_own_bound(baseline, candidate, result: RefitResult, max_iterations: int = 8):

@@ -191,9 +191,7 @@ class _Extended:
         if key not in self._problems:
             if len(self._problems) > 8:
                 self._problems.clear()
-            other = copy.copy(self.problem)
-            other.response = self.candidate.response(self.baseline(None, None, []), np.asarray(theta, dtype=float))
-            self._problems[key] = other
+            self._problems[key] = extended_problem(self.baseline(None, None, []), self.candidate, theta)
         return self._problems[key]
 
     def change(self, x: np.ndarray, u0: np.ndarray, theta: np.ndarray) -> np.ndarray:
@@ -507,12 +505,19 @@ def laplace(ext: _Extended, st: _State, blocks) -> tuple[np.ndarray, float]:
     return _pinv_sym(schur) / kappa, kappa
 
 
+def extended_problem(baseline, candidate, theta: np.ndarray):
+    """A shallow copy of the baseline's problem with ``candidate``'s extended response at ``theta`` (a candidate
+    that states one, ``candidate.response``: linear in the loads at fixed theta); the ridge weight and everything
+    else the baseline's."""
+    other = copy.copy(baseline.problem)
+    other.response = candidate.response(baseline, np.asarray(theta, dtype=float))
+    return other
+
+
 def with_displacements(problem, disp: np.ndarray):
     """A shallow copy of ``problem`` whose model shows ``disp`` (F + 1, N, 3) whatever its controls
     (an extended model's displacements, for what reads ``problem.displacements``: the motion residual
     images, Locate and the residual maps)."""
-    import copy
-
     other = copy.copy(problem)
     other.displacements = lambda x: disp
     return other

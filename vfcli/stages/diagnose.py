@@ -311,8 +311,7 @@ def bound_from_lcurve(run_config: dict[str, Any]) -> bool:
     from vfcli.inverse.setup import DEFAULT_RIDGE
 
     opt = run_config.get("optimize", {}) or {}
-    loads = opt.get("loads", "pressure")
-    return opt.get("ridge_weight") is None and loads in DEFAULT_RIDGE and DEFAULT_RIDGE[loads] is None
+    return opt.get("ridge_weight") is None and DEFAULT_RIDGE.get(opt.get("loads", "pressure"), 0.0) is None
 
 
 def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cands, run: str, settings, paths,
