@@ -74,3 +74,22 @@ def test_fits_without_a_flat_floor_do_not_make_the_slit_resolved():
     flat[:, 10:16] = True
     got = ray_gap_levels(widths, levels, SIGMA, flat=flat)
     assert got is not None and np.nanmax(got) == 941.0
+
+
+def test_a_narrow_slit_fitted_too_wide_shows_no_floor_at_its_darkest_pixels():
+    """Widened seed 4161 (blur 0.77 px, a slit at most 3 px wide): the fit read 5 px, as wide as six blur widths, and
+    its level sat at the dip's darkest pixels. Judged on the one or two pixel centres nearest the middle (where none
+    lay 3 sigma inside both edges), that bottom was a "flat floor", the slit was stated resolved, and its area read
+    +156 %. Analytic: a 3 px slit at 385 counts in 1500-count tissue, blurred by 0.77 px, without noise; fitted as
+    19.0-24.0 px with the level at its darkest pixel. Judged on three pixels the V shows; the true 3 px slit has no
+    floor either, and a slit of 6 sigma + 2 px has one."""
+    sigma, rows = 0.77, np.arange(45, dtype=float)
+    profile = _slit(rows, 20.0, 23.0, 385.0, np.full(45, 1500.0), sigma)
+    level = np.array([profile.min()])
+    # the old rule's pixels (the two nearest the middle, 21 and 22) sit at that level: a "floor" of two pixels
+    np.testing.assert_allclose(profile[[21, 22]], level[0], rtol=1e-12)
+    assert not flat_floor(profile[:, None], np.array([19.0]), np.array([24.0]), level, sigma, NOISE)[0]
+    assert not flat_floor(profile[:, None], np.array([20.0]), np.array([23.0]), np.array([385.0]), sigma, NOISE)[0]
+    wide = _slit(rows, 18.0, 18.0 + 6 * sigma + 2, 385.0, np.full(45, 1500.0), sigma)
+    assert flat_floor(wide[:, None], np.array([18.0]), np.array([18.0 + 6 * sigma + 2]), np.array([385.0]), sigma,
+                      NOISE)[0]

@@ -33,6 +33,10 @@ SMOOTH_RAYS = 9
 MIN_RAYS = 5
 #: Significance of :func:`flat_floor`'s test: a floor as flat as the fits' noise fails it with this probability
 FLAT_FLOOR_ALPHA = 0.01
+#: Fewest pixel centres a floor is judged flat on: the fitted level is drawn to the dip's darkest pixels, so one or
+#: two of them sit at it whatever the dip's shape, and only a third can show a V (a blurred slit narrower than it
+#: was fitted: widened seed 4161, a slit at most 3 px wide read 5 px, "resolved", its area +156 %)
+FLAT_FLOOR_MIN_PX = 3
 
 
 def resolved_width_px(sigma: float) -> float:
@@ -46,8 +50,10 @@ def flat_floor(rays: np.ndarray, e0: np.ndarray, e1: np.ndarray, level: np.ndarr
     """Whether each ray's fitted slit shows a flat floor at its fitted level: the slit a resolved width stands for.
 
     A slit :data:`RESOLVED_SIGMAS` PSF widths wide or wider reaches the gap level over its middle, the pixel
-    centres at least half of those widths from both edges (where none is, the one or two nearest its middle):
-    there the image is the fitted level and noise. A fit that took a wide stretch of dark tissue for the gap,
+    centres at least half of those widths from both edges: there the image is the fitted level and noise. The
+    floor is judged on at least :data:`FLAT_FLOOR_MIN_PX` pixels (where fewer lie that far inside, the
+    :data:`FLAT_FLOOR_MIN_PX` nearest the slit's middle): on fewer, the dip's darkest pixels, to which the level is
+    fitted, pass for a floor whatever the dip's shape. A fit that took a wide stretch of dark tissue for the gap,
     with a narrower, darker dip inside it, has no such floor (widened seeds 4121 and 3006: "slits" 16-36 px wide
     at one end of the glottis at 700-1075 counts, fitted over tissue and a 3-5 px gap whose dip reached 300-500
     counts below them; they passed the width test and set those rays' levels, and 4121's video, whose gap is
@@ -76,9 +82,12 @@ def flat_floor(rays: np.ndarray, e0: np.ndarray, e1: np.ndarray, level: np.ndarr
     half = 0.5 * RESOLVED_SIGMAS * float(sigma)
     centres = np.arange(a.shape[0], dtype=float)[:, None]
     inner = (centres >= e0[None, :] + half) & (centres <= e1[None, :] - half)
-    middle = np.abs(centres - 0.5 * (e0 + e1)[None, :]) <= 0.5
+    # the FLAT_FLOOR_MIN_PX pixel centres nearest the middle (ties to the lower one)
+    dist = np.abs(centres - 0.5 * (e0 + e1)[None, :]) + 1e-9 * centres
     with np.errstate(invalid="ignore"):
-        inner = np.where(inner.any(axis=0)[None, :], inner, middle)
+        order = np.argsort(np.argsort(np.where(np.isfinite(dist), dist, np.inf), axis=0), axis=0)
+        middle = order < FLAT_FLOOR_MIN_PX
+        inner = np.where((inner.sum(axis=0) >= FLAT_FLOOR_MIN_PX)[None, :], inner, middle)
         n = inner.sum(axis=0)
         dof = np.maximum(n, 1)
         msq = np.where(inner, (a - g[None, :]) ** 2, 0.0).sum(axis=0) / dof
