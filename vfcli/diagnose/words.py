@@ -45,6 +45,32 @@ def hotspot_words(located: Located, h: Hotspot) -> str:
             f"{p_text(h.p_value)} ({p_text(h.p_adjusted).replace('p', 'adjusted', 1)} over {len(located.hotspots)} parts)")
 
 
+def fold_side_words(camera, mesh, pose_source: str, origin_px=(0.0, 0.0)) -> str:
+    """Which fold of the video the words call left and which right.
+
+    The diagnosis names places and parameters by the model's folds (fold 0 "left", fold 1 "right": hotspots,
+    ``left_softening``, ``offset_y_left_mm``). Which of the video's folds that is follows the run's camera rotation;
+    the two folds look alike, so a rotation estimated from the gap is chosen within a half turn of
+    ``camera.rotation_deg`` (:func:`vfcli.camera.pose.gap_axis`), and with the mounting angle not in the config the
+    model's left fold may be the lab's right one (widened phantom 2111, rotation 95.8 deg unstated: fitted at
+    -84.2 deg, its left fold's softening read as the right's). The line says where each fold is in the video.
+
+    camera : the run's :class:`vfcli.camera.camera.Camera` (on the stored frames' grid).  mesh : the run's
+    :class:`vfcli.model.mesh.FoldMesh`.  pose_source : the run's ``pose_source`` attribute ("config" or "estimated
+    from the glottal gap (...)").  origin_px : (col, row) of the stored frames' first pixel in the video, px.
+    """
+    at = [np.asarray(camera.project(mesh.nodes[mesh.fold_nodes(f)].mean(axis=0)), float) + np.asarray(origin_px, float)
+          for f in (0, 1)]
+    (c0, r0), (c1, r1) = at
+    line = (f"left and right name the model's folds: in the video's pixels the left fold (fold 0) is the one centred "
+            f"at col {c0:.0f}, row {r0:.0f}, the right fold (fold 1) the one centred at col {c1:.0f}, row {r1:.0f} "
+            f"(camera rotation {camera.rotation_deg:.1f} deg")
+    if pose_source == "config":
+        return line + ", from the config)"
+    return line + (f", {pose_source}; the folds look alike, so the estimate keeps within a half turn of "
+                   "camera.rotation_deg: unless that is the rig's mounting angle, check which fold is which)")
+
+
 def summary_lines(located: Located, max_lines: int = 5) -> list[str]:
     """The lines the command prints: the significant hotspots (at most ``max_lines``) and what they mean
     (:data:`MEANING`), or that there are none."""

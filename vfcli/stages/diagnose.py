@@ -23,6 +23,7 @@ from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.cycles import TooFewCycles, too_few_advice
 from vfcli.diagnose.residual import grid_filled, rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
+from vfcli.diagnose.words import fold_side_words
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.model.refine import finer_model
 from vfcli.parallel import serial_map
@@ -264,6 +265,11 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             d.lines.insert(1, stride_words(stride, ctx.config.diagnose.max_motion_rows))
             log.info("diagnose: %s", d.lines[1])
         s.set_attrs(pixel_stride=stride)
+        problem = inputs.baseline.problem
+        pose_source = str((inputs.run_attrs or {}).get("pose_source", "config"))
+        sides = fold_side_words(problem.camera, problem.mesh, pose_source,
+                                reader.attrs("flow").get("roi_origin_px", (0.0, 0.0)))
+        d.lines.insert(2 if stride > 1 else 1, sides)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 
