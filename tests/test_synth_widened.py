@@ -18,6 +18,7 @@ from vfcli.synth.widened import FOV_REL, RANGES, LoadDistribution, draw_widened
 
 N_SEEDS = 400
 NOMINAL = MeshConfig()
+WAS_2075_E = 3972.353798300764   # seed 2075's batch modulus (Pa) as drawn on aac2ff5, before the lamp was drawn
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +38,7 @@ def _within(values, key, rel=1.0):
 @pytest.mark.parametrize("key", [
     "rotation_deg", "psf_sigma_px", "thickness_mm", "exit_radius_mm",
     "inferior_angle_deg", "depth_mm", "length_mm", "gap_mm", "ldv_dropout_fraction",
-    "ldv_spike_window_s", "ldv_gap_noise_rel",
+    "ldv_spike_window_s", "ldv_gap_noise_rel", "light_tilt_deg", "light_azimuth_deg", "ambient",
 ])
 def test_each_drawn_quantity_fills_its_documented_range(draws, key):
     _within([getattr(d, key) for d in draws], key)
@@ -99,6 +100,31 @@ def test_same_seed_same_draw_other_seed_other_draw():
     a, b = draw_widened(7, 256, 256, NOMINAL), draw_widened(7, 256, 256, NOMINAL)
     assert a == b
     assert draw_widened(8, 256, 256, NOMINAL).rotation_deg != a.rotation_deg
+
+
+def test_the_lamp_drawn_last_leaves_every_earlier_draw_as_it_was():
+    """Seeds 4158 and 2075 as drawn before the lamp was (session 55's proof panel and null; the figures in
+    docs/benchmarks.md): the lamp comes from the end of the seed's stream, so the rest of the draw is unchanged."""
+    d = draw_widened(4158, 256, 256, NOMINAL)
+    assert d.rotation_deg == pytest.approx(-42.5062473898827, abs=1e-12)
+    assert d.psf_sigma_px == pytest.approx(2.04, abs=0.005) and d.fov_mm == pytest.approx(14.8, abs=0.05)
+    assert draw_widened(2075, 256, 256, NOMINAL).youngs_modulus_pa == pytest.approx(WAS_2075_E, rel=1e-12)
+
+
+def test_the_lamp_points_its_drawn_angle_off_the_camera_axis_and_the_video_is_lit_by_it():
+    from vfcli.config import SynthConfig
+    from vfcli.synth.phantom import render_settings
+
+    for seed in range(20):
+        d = draw_widened(seed, 256, 256, NOMINAL)
+        v = np.asarray(d.light_dir)
+        assert np.degrees(np.arccos(v[2] / np.linalg.norm(v))) == pytest.approx(d.light_tilt_deg, abs=1e-9)
+        if d.light_tilt_deg > 1.0:
+            assert np.degrees(np.arctan2(v[1], v[0])) == pytest.approx(d.light_azimuth_deg, abs=1e-9)
+        r = render_settings(SynthConfig(panel="widened", seed=seed), d)
+        assert r.light_dir == d.light_dir and r.ambient == d.ambient and r.psf_sigma_px == d.psf_sigma_px
+    default = render_settings(SynthConfig())
+    assert default.light_dir == (0.2, 0.1, 1.0) and default.ambient == 0.2   # the default panel's look, as before
 
 
 def test_lab_mesh_has_the_drawn_geometry_but_the_nominal_material():
@@ -253,7 +279,8 @@ def test_truth_records_every_drawn_value_and_the_lab_files_only_what_a_lab_knows
     assert lab["mesh"]["density_kg_m3"] == NOMINAL.density_kg_m3
     assert lab["mesh"]["depth_mm"] == draw.depth_mm and lab["mesh"]["length_mm"] == draw.length_mm
     # no drawn value a lab would not know appears in its files
-    secret = [draw.youngs_modulus_pa, draw.density_kg_m3, draw.psf_sigma_px, draw.load.gap_gain]
+    secret = [draw.youngs_modulus_pa, draw.density_kg_m3, draw.psf_sigma_px, draw.load.gap_gain, draw.light_tilt_deg,
+              draw.ambient]
     if not draw.rotation_stated:
         secret.append(draw.rotation_deg)
     for f in out.iterdir():

@@ -176,6 +176,15 @@ class Recording:
             yield out.image, out.truth, disp, vel
 
 
+def render_settings(cfg: SynthConfig, wide: WidenedDraw | None = None) -> RenderSettings:
+    """The look of a phantom's video: the default panel's, or with a widened draw's optics blur, fixture and lamp."""
+    render = RenderSettings(supersample=cfg.supersample, snr=cfg.snr)
+    if wide is None:
+        return render
+    return replace(render, psf_sigma_px=wide.psf_sigma_px, fixture_in_view=wide.fixture_in_view,
+                   light_dir=wide.light_dir, ambient=wide.ambient)
+
+
 def make_recording(cfg: SynthConfig, mesh_cfg: MeshConfig, progress: Callable[..., Any] | None = None) -> Recording:
     """Simulate a phantom recording (the video is rendered lazily by :meth:`Recording.frames`)."""
     rng = np.random.default_rng(cfg.seed)
@@ -212,11 +221,10 @@ def make_recording(cfg: SynthConfig, mesh_cfg: MeshConfig, progress: Callable[..
     settings = LdvSettings(fs_hz=cfg.ldv_fs_hz, epoch_s=cfg.ldv_epoch_s, noise_rel=cfg.ldv_noise_rel,
                            dropout_fraction=cfg.ldv_dropout_fraction, f0_drift_rel=cfg.f0_drift_rel,
                            pressure_noise_pa=cfg.pressure_noise_pa)
-    render = RenderSettings(supersample=cfg.supersample, snr=cfg.snr)
+    render = render_settings(cfg, wide)
     if wide is not None:
         settings = replace(settings, dropout_fraction=wide.ldv_dropout_fraction,
                            spike_window_s=wide.ldv_spike_window_s, gap_noise_rel=wide.ldv_gap_noise_rel)
-        render = replace(render, psf_sigma_px=wide.psf_sigma_px, fixture_in_view=wide.fixture_in_view)
     scan = simulate_ldv_scan(points, PeriodicTable(table), cfg.f0_hz, waveform, settings, rng)
     return Recording(truth, camera, cfg.fps_hz, pressure, frame_times, frame_phase, frame_f0, points, scan, render,
                      waveform, rng, wide)

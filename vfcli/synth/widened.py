@@ -3,7 +3,8 @@
 ``synth.panel = "widened"`` draws, from the seed alone, the conditions a lab's recordings differ
 in (issue 15): the camera's in-plane angle and zoom, the optics blur, whether the fixture is in
 view, the M5-family geometry of the mould, the material of this batch, the distribution of the
-aerodynamic load, the vibrometer's artefacts and whether its UFF export has a units record.
+aerodynamic load, the vibrometer's artefacts, whether its UFF export has a units record, and the
+lamp (its angle off the camera axis, its direction about it, the share of diffuse light).
 The ranges are the constants below (see docs/synth.md for their sources; [est] marks our own
 estimates, [pub] published values from the reference note "The physical set-up: numbers to build with").
 
@@ -51,6 +52,9 @@ RANGES: dict[str, tuple[float, float]] = {
     "ldv_dropout_fraction": (0.02, 0.1),     # points with spike bursts or frozen segments [est]
     "ldv_spike_window_s": (0.001, 0.005),    # a spike burst's length, s [est]
     "ldv_gap_noise_rel": (0.3, 2.0),         # signal-loss noise through the gap / signal RMS [est]
+    "light_tilt_deg": (0.0, 20.0),           # the lamp's angle off the camera axis [est]
+    "light_azimuth_deg": (-180.0, 180.0),    # its direction about the axis, from the glottis' axis, any [est]
+    "ambient": (0.1, 0.35),                  # share of the light that does not depend on the surface normal [est]
 }
 
 
@@ -109,6 +113,15 @@ class WidenedDraw:
     ldv_spike_window_s: float
     ldv_gap_noise_rel: float
     uff_units_record: bool
+    light_tilt_deg: float
+    light_azimuth_deg: float
+    ambient: float
+
+    @property
+    def light_dir(self) -> tuple[float, float, float]:
+        """(3,) direction towards the lamp in model axes (x along the glottis, z up the camera axis), z = 1."""
+        t, a = np.radians(self.light_tilt_deg), np.radians(self.light_azimuth_deg)
+        return (float(np.tan(t) * np.cos(a)), float(np.tan(t) * np.sin(a)), 1.0)
 
     def true_mesh(self, nominal: MeshConfig) -> MeshConfig:
         """The phantom's true [mesh]: drawn geometry and this batch's material."""
@@ -184,6 +197,8 @@ def draw_widened(seed: int, width_px: int, height_px: int, nominal: MeshConfig) 
     spike_window = _u(rng, "ldv_spike_window_s")
     gap_noise = _u(rng, "ldv_gap_noise_rel")
     units = bool(rng.uniform() < 0.5)
+    # drawn last, so that every draw above is what it was before the lamp was drawn (session 56)
+    tilt, azimuth, ambient = _u(rng, "light_tilt_deg"), _u(rng, "light_azimuth_deg"), _u(rng, "ambient")
     return WidenedDraw(rotation, rotation_stated, fov, size / fov, centre, psf, fixture, thickness, exit_r,
                        entrance_r, sweep, inf_angle, depth, length, gap, youngs, density, load, dropout,
-                       spike_window, gap_noise, units)
+                       spike_window, gap_noise, units, tilt, azimuth, ambient)
