@@ -43,12 +43,14 @@ _REBUILD_TOL_MM = 1e-4
 
 @dataclass(frozen=True)
 class DiagnoseInputs:
-    """baseline : the run's fitted model.  recording : the whole recording.  run_config : the run's settings."""
+    """baseline : the run's fitted model.  recording : the whole recording.  run_config : the run's settings.
+    run_attrs : the run's attributes.  roi_origin_px : (col, row) of the stored frames' first pixel in the video."""
 
     baseline: Baseline
     recording: Recording
     run_config: dict[str, Any]
     run_attrs: dict[str, Any] | None = None
+    roi_origin_px: tuple[float, float] = (0.0, 0.0)
 
 
 def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], attrs: dict[str, Any],
@@ -133,7 +135,7 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
                     valid=reader.dataset("fields", "valid"), gap_masks=reader.dataset("flow", "gap_mask"),
                     velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
                     window_start=int(cfg.optimize.first_frame), **ldv)
-    return DiagnoseInputs(baseline, rec, stored.config, dict(stored.attrs))
+    return DiagnoseInputs(baseline, rec, stored.config, dict(stored.attrs), (float(roi[0]), float(roi[1])))
 
 
 def stride_words(stride: int, max_rows: int) -> str:
@@ -267,8 +269,7 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         s.set_attrs(pixel_stride=stride)
         problem = inputs.baseline.problem
         pose_source = str((inputs.run_attrs or {}).get("pose_source", "config"))
-        sides = fold_side_words(problem.camera, problem.mesh, pose_source,
-                                reader.attrs("flow").get("roi_origin_px", (0.0, 0.0)))
+        sides = fold_side_words(problem.camera, problem.mesh, pose_source, inputs.roi_origin_px)
         d.lines.insert(2 if stride > 1 else 1, sides)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
