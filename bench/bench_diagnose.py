@@ -32,6 +32,10 @@ Phase 2, scoring (reads truth.h5, :func:`score_case`):
 * the inferior surface (which no instrument sees): RMS error of the displacement over the run's
   window relative to the RMS true displacement, for the baseline run (``default``) and for the
   extended refit's run, against truth;
+* both in the fit's own frame: the two folds look alike from above, so a pose estimated from the video
+  may come out half a turn off (its left fold the phantom's right); such a recording is scored against
+  the truth turned by half a turn (:func:`vfcli.synth.scoring.half_turned`, the asymmetry's softening
+  as ``-s / (1 - s)``) and marked in the table;
 * the false-alarm rate on the null recordings (any finding) against the family-wise alpha the
   diagnosis states it calibrated for, with its 95 % Clopper-Pearson interval (:func:`false_alarms`);
 * wall time per stage (synth, each step of ``vfcli run``, diagnose).
@@ -332,7 +336,7 @@ def refit_figures(refit: dict[str, Any] | None) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------- phase 2: scoring
 
 
-def true_parameter(effect: str, strength: float, attrs: dict[str, Any]) -> float | None:
+def true_parameter(effect: str, strength: float, attrs: dict[str, Any], turned: bool = False) -> float | None:
     """The hidden effect's parameter in the candidate's units, from the phantom's truth attributes.
 
     inertia : the density factor a model with the nominal E needs for the same ``rho / E`` (the fit
@@ -340,7 +344,9 @@ def true_parameter(effect: str, strength: float, attrs: dict[str, Any]) -> float
         (batch density / nominal) / (batch E / nominal).
     damping : the retardation time tau (ms) of ``1 + i w tau``: the phantom's loss factor at f0 over
         ``2 pi f0``.
-    asymmetry : the left softening s of ``E_left = (1 - s) E_right`` (the strength itself).
+    asymmetry : the left softening s of ``E_left = (1 - s) E_right`` (the strength itself); with the pose
+        fitted half a turn off (``turned``) the model's left fold is the phantom's right, so the truth in
+        the model's frame is ``E_right = (1 - s) E_left``: ``-s / (1 - s)``.
     contact : 1, the share of the rigid contact (the phantom's folds never interpenetrate: its contact is
         the rigid contact of the linear folds at the midplane, whatever its adduction factor).
     none : None.
@@ -355,20 +361,33 @@ def true_parameter(effect: str, strength: float, attrs: dict[str, Any]) -> float
     if effect == "damping":
         return 1e3 * strength / (2 * np.pi * float(attrs["f0_hz"]))
     if effect == "asymmetry":
-        return float(strength)
+        return float(-strength / (1.0 - strength)) if turned else float(strength)
     if effect == "contact":
         return 1.0
     return None
 
 
-def inferior_error(store: Path, run: str, truth: Path) -> float:
+def run_half_turned(store: Path, run: str, truth_attrs: dict[str, Any]) -> bool:
+    """Whether the run's camera rotation is half a turn off the phantom's (its left fold is the phantom's
+    right; :func:`vfcli.synth.scoring.pose_half_turned`)."""
+    from vfcli.store.transaction import Store
+    from vfcli.synth.scoring import pose_half_turned
+
+    with Store(store).read() as r:
+        used = float(r.attrs("optimize", run)["camera_rotation_deg"])
+    return pose_half_turned(used, float(truth_attrs["camera_rotation_deg"]))
+
+
+def inferior_error(store: Path, run: str, truth: Path, turned: bool = False) -> float:
     """RMS error of the run's inferior-surface displacement over its window relative to the RMS true
-    displacement there (the reconstruction mesh's inferior nodes inside the phantom's (u, v) range)."""
+    displacement there (the reconstruction mesh's inferior nodes inside the phantom's (u, v) range);
+    ``turned``: the run's pose is half a turn off, the truth is compared in the run's frame
+    (:func:`vfcli.synth.scoring.half_turned`)."""
     from vfcli.model.mesh import FoldMesh
     from vfcli.store.mesh import read_mesh
     from vfcli.store.transaction import Store
     from vfcli.store.truth import read_truth
-    from vfcli.synth.scoring import rms, side_truth
+    from vfcli.synth.scoring import half_turned, rms, side_truth
 
     keys = ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in ("nodes", "tets", "tet_fold", "faces",
                                                                             "face_tag", "face_fold", "uv", "node_side")]
@@ -382,8 +401,8 @@ def inferior_error(store: Path, run: str, truth: Path) -> float:
     inside = sim_time <= t["frames/time"][-1] + 1e-9
     truth_mesh = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
     idx = np.searchsorted(t["frames/time"], sim_time[inside] - 1e-9)
-    nodes, ref = side_truth(mesh.uv, mesh.node_side, truth_mesh.uv, truth_mesh.node_side,
-                            t["frames/displacement"][idx].astype(float), 1)
+    phantom = (truth_mesh.uv, truth_mesh.node_side, t["frames/displacement"][idx].astype(float))
+    nodes, ref = side_truth(mesh.uv, mesh.node_side, *(half_turned(*phantom) if turned else phantom), 1)
     return rms(disp[inside][:, nodes] - ref) / rms(ref)
 
 
@@ -405,17 +424,19 @@ def score_case(work: Path, phase1: dict[str, Any]) -> dict[str, Any]:
     _, attrs = read_truth(truth, [])
     s["draw"] = {k.removeprefix("widened_"): (v.tolist() if hasattr(v, "tolist") else v)
                  for k, v in attrs.items() if k.startswith("widened_")}
-    s["true_parameter"] = true_parameter(case.effect, case.strength, attrs)
     store = work / "recording.h5"
+    turned = diag is not None and store.exists() and run_half_turned(store, "default", attrs)
+    s["pose_turned"] = bool(turned)
+    s["true_parameter"] = true_parameter(case.effect, case.strength, attrs, turned)
     if diag is not None and store.exists():
-        s["inferior_before"] = inferior_error(store, "default", truth)
+        s["inferior_before"] = inferior_error(store, "default", truth, turned)
     fig = refit_figures((diag or {}).get("refit"))
     if fig:
         s["refit"] = {k: v for k, v in fig.items() if not k.startswith("heldout_")}
         s["refit_candidate"] = CANDIDATE_EFFECT.get(str(fig["candidate"]), str(fig["candidate"]))
         run = fig["run"] or _extended_run(store)
         if run:
-            s["inferior_after"] = inferior_error(store, run, truth)
+            s["inferior_after"] = inferior_error(store, run, truth, run_half_turned(store, run, attrs))
         if s["refit_candidate"] == case.effect:
             s.update({k: fig[k] for k in ("estimate", "lo", "hi", "parameter") if k in fig})
             tp = s["true_parameter"]
@@ -515,7 +536,8 @@ def markdown(results: list[dict[str, Any]], effects: list[str], meta: dict[str, 
             "| ---: | --- | ---: | ---: | ---: | ---: | ---: |"]
     for r in results:
         d = r.get("draw", {})
-        out.append(f"| {r['seed']} | {r['effect']} | {r['strength']:.3g} | {_f(d.get('rotation_deg'), '{:.0f}')} | "
+        turned = " (fitted half a turn off: scored in the fit's frame)" if r.get("pose_turned") else ""
+        out.append(f"| {r['seed']} | {r['effect']} | {r['strength']:.3g} | {_f(d.get('rotation_deg'), '{:.0f}')}{turned} | "
                    f"{_f(d.get('fov_mm'), '{:.1f}')} / {_f(d.get('length_mm'), '{:.1f}')} | "
                    f"{_f(d.get('psf_sigma_px'), '{:.2f}')} | "
                    f"{_f(d.get('youngs_modulus_pa', float('nan')) / 4400, '{:.3f}')} |")

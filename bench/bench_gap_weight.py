@@ -31,6 +31,7 @@ from bench_unseen import read_truth, score_inferior  # noqa: E402
 
 from vfcli.store import Store  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
+from vfcli.synth.scoring import pose_half_turned  # noqa: E402
 
 MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
 
@@ -44,14 +45,16 @@ def score(work: Path, run: str) -> dict:
     """The inferior surface of the run ``run`` of ``work``'s store against its phantom's truth
     (:func:`bench_unseen.score_inferior`, as ``bench_unseen.py`` scores its runs)."""
     truth = work / "raw" / "truth.h5"
-    t, _ = read_truth(truth if truth.is_file() else work / "truth" / "truth.h5",
+    t, a = read_truth(truth if truth.is_file() else work / "truth" / "truth.h5",
                       ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in MESH_KEYS])
     with Store(work / "recording.h5").read() as r:
         mesh = read_mesh(r)
         disp = np.asarray(r.read("optimize", "displacements", run), float)[:-1]
         std = np.asarray(r.read("optimize", "displacement_std", run), float)[:-1]
         sim_time = np.asarray(r.read("optimize", "sim_time", run), float)[:-1]
-    return score_inferior(t, mesh, disp, std, None, sim_time)
+        rotation = float(r.attrs("optimize", run)["camera_rotation_deg"])
+    turned = pose_half_turned(rotation, float(a["camera_rotation_deg"]))
+    return score_inferior(t, mesh, disp, std, None, sim_time, turned)
 
 
 def refit(work: Path, setting: str | list[str], run: str, force: bool = False) -> bool:

@@ -83,7 +83,8 @@ def split(work: Path) -> dict[str, float]:
     score_cov = long_run_covariance(frame_scores(prob, x, frames, u, lin)).covariance
     plug_std = displacement_std(mse_covariance(joint.hessian, score_cov, np.outer(lam_x, lam_x))[0], lin)[:-1]
     truth = work / "raw" / "truth.h5"
-    nodes, ref = side_truth_at(truth if truth.is_file() else work / "truth" / "truth.h5", mesh, stored.sim_time[:-1])
+    nodes, ref = side_truth_at(truth if truth.is_file() else work / "truth" / "truth.h5", mesh, stored.sim_time[:-1],
+                               rotation_deg=float(stored.attrs["camera_rotation_deg"]))
     est = np.asarray(stored.displacements, float)[:-1][:, nodes]
     post2 = np.maximum(std[:, nodes] ** 2 - si[nodes][None] ** 2, 0.0)
     rms = lambda a: float(np.sqrt(np.mean(a)))  # noqa: E731

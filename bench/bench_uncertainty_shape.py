@@ -37,7 +37,8 @@ def shape(work: Path) -> str:
     with Store(work / "recording.h5").read() as r:
         stored = read_run(r, "default")
         mesh = read_mesh(r)
-    nodes, ref = side_truth_at(work / "raw" / "truth.h5", mesh, stored.sim_time[:-1])
+    nodes, ref = side_truth_at(work / "raw" / "truth.h5", mesh, stored.sim_time[:-1],
+                               rotation_deg=float(stored.attrs["camera_rotation_deg"]))
     est = np.asarray(stored.displacements, float)[:-1][:, nodes]
     sd = np.asarray(stored.displacement_std, float)[:-1][:, nodes]
     err = np.abs(est - ref)

@@ -65,8 +65,8 @@ from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
 from vfcli.store.truth import read_truth, truth_datasets  # noqa: E402
-from vfcli.synth.scoring import (interval_coverage, iou, relative_rms_error, rms, side_truth,  # noqa: E402
-                                 sync_offset_error)
+from vfcli.synth.scoring import (half_turned, interval_coverage, iou, pose_half_turned,  # noqa: E402
+                                 relative_rms_error, rms, side_truth, sync_offset_error)
 
 STAGES = ["synth", "ingest-hsc", "ingest-ldv", "sync", "flow", "mesh", "optimize"]
 NEEDS = {"synth": [], "ingest-hsc": ["synth"], "ingest-ldv": ["synth"], "sync": ["ingest-hsc", "ingest-ldv"],
@@ -175,18 +175,21 @@ def _run(r) -> str | None:
 
 
 def score_inferior(t: dict, mesh: FoldMesh, disp: np.ndarray, std: np.ndarray, std_static: np.ndarray | None,
-                   sim_time: np.ndarray) -> dict:
+                   sim_time: np.ndarray, turned: bool = False) -> dict:
     """The inferior surface of a run against the phantom's truth.
 
     t : truth arrays (``frames/time``, ``frames/displacement`` and ``mesh/<key>``, :func:`read_truth`).
     disp, std : (T, N, 3) the run's displacements and stated sd at ``sim_time`` (T,), mm, the last time left out.
     std_static : (N, 3) the stated sd of the static part, mm, or None.
+    turned : the run's pose is half a turn off the phantom's (the same reconstruction in a frame whose left
+        fold is the phantom's right): the truth is compared in the run's frame (``half_turned``).
     """
     s: dict = {}
     truth_mesh = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
     idx = np.searchsorted(t["frames/time"], sim_time - 1e-9)
     true = t["frames/displacement"][idx].astype(float)
-    nodes, ref = side_truth(mesh.uv, mesh.node_side, truth_mesh.uv, truth_mesh.node_side, true, 1)
+    phantom = (truth_mesh.uv, truth_mesh.node_side, true)
+    nodes, ref = side_truth(mesh.uv, mesh.node_side, *(half_turned(*phantom) if turned else phantom), 1)
     est = disp[:, nodes]
     est_mean, ref_mean = est.mean(axis=0), ref.mean(axis=0)
     osc_true = ref - ref_mean
@@ -263,7 +266,7 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             # the folds are symmetric: the pose turned by 180 deg about the glottis centre (origin at x = L)
             # is the same reconstruction; score against the nearer of the two and say which
             rot_err = float(np.mod(rot_used - a["camera_rotation_deg"] + 180.0, 360.0) - 180.0)
-            flipped = abs(rot_err) > 90
+            flipped = pose_half_turned(rot_used, a["camera_rotation_deg"])
             true_off = np.asarray(a["camera_offset_px"], float)
             if flipped:
                 true_off = true_off + cam.project(np.array([[a["widened_length_mm"], 0.0]]))[0] - cam.project(np.zeros((1, 2)))[0]
@@ -284,7 +287,7 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             s["motion_data_err"] = relative_rms_error(model_axes_velocity(fv[..., :2], float(r.attrs("flow").get("rotation_deg", 0.0)), rot_used)[ok], sign * true_w[ok][:, :2])
             del true_w, fv
     if stages["optimize"][0] == 0:
-        s.update(score_inferior(t, mesh, disp, std, std_static, sim_time))
+        s.update(score_inferior(t, mesh, disp, std, std_static, sim_time, s["pose_flipped"]))
     return s
 
 

@@ -113,6 +113,10 @@ def test_the_true_parameter_in_the_candidates_units():
     # inertia: rho / E at the nominal E
     assert bd.true_parameter("inertia", 1.5, attrs) == pytest.approx(1.5 * 1.02 / 0.85)
     assert bd.true_parameter("asymmetry", 0.3, attrs) == 0.3
+    # a pose half a turn off: the model's left fold is the phantom's right, E_right = 0.7 E_left, so the
+    # model's own left softening is 1 - 1 / 0.7
+    assert bd.true_parameter("asymmetry", 0.3, attrs, turned=True) == pytest.approx(1 - 1 / 0.7)
+    assert bd.true_parameter("damping", 0.2, attrs, turned=True) == bd.true_parameter("damping", 0.2, attrs)
     assert bd.true_parameter("contact", 0.6, attrs) == 1.0 and bd.true_parameter("none", 0.0, attrs) is None
 
 

@@ -93,6 +93,47 @@ def side_truth(mesh_uv: np.ndarray, mesh_side: np.ndarray, truth_uv: np.ndarray,
     return nodes, ref[:, nodes]
 
 
+def pose_half_turned(rotation_used_deg: float, rotation_true_deg: float) -> bool:
+    """True when a fitted camera rotation lies nearer the true one turned by half a turn than the true one.
+
+    The two folds look alike from above, so a pose estimated from the video may come out turned by
+    180 deg about the glottis' centre: the same reconstruction in a frame whose left fold is the
+    phantom's right (:func:`half_turned` re-expresses the truth in that frame).
+    """
+    err = np.mod(float(rotation_used_deg) - float(rotation_true_deg) + 180.0, 360.0) - 180.0
+    return bool(abs(err) > 90.0)
+
+
+def half_turned(uv: np.ndarray, side: np.ndarray, disp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A two-fold mesh's surface coordinates and displacements in the frame turned by 180 deg about the
+    glottis' centre (the vertical axis through x = L/2, y = 0).
+
+    The turn maps fold 0 onto fold 1, the longitudinal coordinate u onto 1 - u and turns the horizontal
+    components of every displacement over (x, y) -> (-x, -y); the vertical one is kept.
+
+    Parameters
+    ----------
+    uv, side : (N, 2), (N,) surface coordinates and side of a mesh with both folds, fold 0 first (N/2
+        nodes each).
+    disp : (..., N, 3) displacements there, mm.
+
+    Returns
+    -------
+    uv, side, disp in the turned frame: node i of the result is the node the turn takes to fold 0's
+    i-th place (the arguments of :func:`side_truth`'s phantom).
+    """
+    uv, side, disp = np.asarray(uv, float), np.asarray(side), np.asarray(disp, float)
+    n = len(uv)
+    if n % 2:
+        raise ValueError(f"half_turned needs both folds' nodes, fold 0 first; got an odd count {n}")
+    order = np.r_[np.arange(n // 2, n), np.arange(n // 2)]
+    turned_uv = uv[order].copy()
+    turned_uv[:, 0] = 1.0 - turned_uv[:, 0]
+    turned = disp[..., order, :].copy()
+    turned[..., :2] *= -1.0
+    return turned_uv, side[order], turned
+
+
 #: An entry stated with no uncertainty and right to this (mm) is one the model fixes exactly (a clamped node).
 EXACT_MM = 1e-9
 
