@@ -230,7 +230,7 @@ def render_radiance(camera: Camera, vertices: np.ndarray, triangles: np.ndarray,
     camera : the camera.
     vertices : (N, 3) deformed surface vertices at this instant, mm.
     triangles : (K, 3) int surface triangles (the superior-view surface of both folds;
-        winding outward, although shading uses |n . l|).
+        winding outward: the shading uses the outward normals, ``max(n . l, 0)``).
     material_uv : (N, 2) material (texture) coordinates of the vertices, mm-scaled
         (e.g. rest (x, y) of a flat superior surface, or (u L, v arc length)); fixed in time.
     triangle_fold : (K,) int fold (0 left, 1 right) of each triangle.
@@ -257,7 +257,10 @@ def _radiance_from_raster(camera: Camera, ras: Raster, gap_fine: np.ndarray, ver
     # per-vertex Lambert shading (Gouraud), blended with the texture coordinates in one pass
     light = np.asarray(settings.light_dir, dtype=float)
     light = light / np.linalg.norm(light)
-    lambert = np.abs(vertex_normals(vertices, triangles) @ light) / abs(light[2])   # 1 when horizontal
+    # Lambert's cosine law at the outward normals (the view surface's winding is outward, and every point the
+    # camera sees faces it): a surface turned away from the lamp gets the diffuse share only. |n . l| lit the
+    # steep medial wall that faces away from a tilted lamp as brightly as the one facing it.
+    lambert = np.clip(vertex_normals(vertices, triangles) @ light, 0.0, None) / abs(light[2])   # 1 when horizontal
     attrs = np.column_stack([np.asarray(material_uv, dtype=float),
                              settings.ambient + (1.0 - settings.ambient) * lambert])
     blended = ras.interpolate_visible(attrs)
