@@ -141,19 +141,23 @@ def test_uniform_silicone_renders_the_stated_surface_level():
     assert np.allclose(img, settings.surface_level, rtol=1e-4)
 
 
+@pytest.mark.parametrize("two_sided", [False, True])
 @pytest.mark.parametrize("slope", [-4.0, 4.0])
-def test_a_steep_surface_turned_away_from_the_lamp_gets_the_diffuse_light_only(slope):
+def test_a_steep_surface_turned_away_from_the_lamp_gets_the_diffuse_light_only(slope, two_sided):
     """Lambert's cosine law at the outward normal: the sheet z = slope * y has the normal (0, -slope, 1) / sqrt(1 +
     slope^2); under a lamp towards (0, 0.4, 1) it is lit at (n . l) / l_z of a horizontal surface's direct light
     when it faces the lamp (slope -4: 2.6 / sqrt(17)) and gets the diffuse share only when it faces away (slope 4:
-    n . l < 0; |n . l| lit it at 0.6 / sqrt(17) instead)."""
+    n . l < 0). The default panel's historical two-sided shading (``two_sided_lambert``) lights it at
+    |n . l| = 0.6 / sqrt(17) instead."""
     cam = Camera(8.0, 0.0, (40.0, 40.0), 80, 80)
-    settings = RenderSettings(texture_contrast=0.0, mark_density=0.0, psf_sigma_px=0.0, light_dir=(0.0, 0.4, 1.0))
+    settings = RenderSettings(texture_contrast=0.0, mark_density=0.0, psf_sigma_px=0.0, light_dir=(0.0, 0.4, 1.0),
+                              two_sided_lambert=two_sided)
     textures = make_scene_textures(cam, settings, np.random.default_rng(0))
     verts, tris = flat_sheet(-10.0, 10.0, -10.0, 10.0, n=5)
     verts[:, 2] = slope * verts[:, 1]
     img = render_radiance(cam, verts, tris, verts[:, :2], np.zeros(len(tris), int), textures, settings)
-    direct = max(-slope * 0.4 + 1.0, 0.0) / np.sqrt(1.0 + slope**2)
+    cosine = (-slope * 0.4 + 1.0) / np.sqrt(1.0 + slope**2)
+    direct = abs(cosine) if two_sided else max(cosine, 0.0)
     expected = settings.surface_level * (settings.ambient + (1.0 - settings.ambient) * direct)
     assert np.allclose(img, expected, rtol=1e-4)
 

@@ -177,10 +177,11 @@ class Recording:
 
 
 def render_settings(cfg: SynthConfig, wide: WidenedDraw | None = None) -> RenderSettings:
-    """The look of a phantom's video: the default panel's, or with a widened draw's optics blur, fixture and lamp."""
+    """The look of a phantom's video: the default panel's (its historical two-sided shading, so the demo's recording
+    stays as it was), or with a widened draw's optics blur, fixture and lamp, shaded by Lambert's law."""
     render = RenderSettings(supersample=cfg.supersample, snr=cfg.snr)
     if wide is None:
-        return render
+        return replace(render, two_sided_lambert=True)
     return replace(render, psf_sigma_px=wide.psf_sigma_px, fixture_in_view=wide.fixture_in_view,
                    light_dir=wide.light_dir, ambient=wide.ambient)
 

@@ -54,6 +54,9 @@ class RenderSettings:
     fixture_in_view : True, uncovered pixels outside the gap show the fixture (``fixture_level``);
         False, they show the flat top of the silicone block the folds are cast in (static, at
         ``surface_level`` with the texture contrast), so nothing but silicone and gap is in view.
+    two_sided_lambert : False, Lambert's law at the outward normals, ``max(n . l, 0)``; True, the default
+        panel's look from before session 57, ``|n . l|``, which lights a wall facing away from the lamp
+        like one facing it (kept so that the default phantom, the demo's, stays the recording it was).
     """
 
     supersample: int = 2
@@ -73,6 +76,7 @@ class RenderSettings:
     snr: float = 40.0
     read_noise_dn: float = 2.0
     fixture_in_view: bool = True
+    two_sided_lambert: bool = False
 
     def __post_init__(self) -> None:
         if int(self.supersample) < 1:
@@ -258,9 +262,10 @@ def _radiance_from_raster(camera: Camera, ras: Raster, gap_fine: np.ndarray, ver
     light = np.asarray(settings.light_dir, dtype=float)
     light = light / np.linalg.norm(light)
     # Lambert's cosine law at the outward normals (the view surface's winding is outward, and every point the
-    # camera sees faces it): a surface turned away from the lamp gets the diffuse share only. |n . l| lit the
-    # steep medial wall that faces away from a tilted lamp as brightly as the one facing it.
-    lambert = np.clip(vertex_normals(vertices, triangles) @ light, 0.0, None) / abs(light[2])   # 1 when horizontal
+    # camera sees faces it): a surface turned away from the lamp gets the diffuse share only. |n . l| (the default
+    # panel's historical look) lights the steep medial wall that faces away from a tilted lamp like the one facing it.
+    cosine = vertex_normals(vertices, triangles) @ light
+    lambert = (np.abs(cosine) if settings.two_sided_lambert else np.clip(cosine, 0.0, None)) / abs(light[2])
     attrs = np.column_stack([np.asarray(material_uv, dtype=float),
                              settings.ambient + (1.0 - settings.ambient) * lambert])
     blended = ras.interpolate_visible(attrs)
