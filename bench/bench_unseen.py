@@ -366,7 +366,7 @@ def main() -> None:
           "inferior total error | 90 % coverage (static part) | stated std / RMS true | stated static std of mean z (mm) |")
     print("| ---: |" + " ---: |" * 14)
     for seed, _, _, s in results:
-        print(f"| {seed} | {_fmt(s.get('sync_rms_us'))} | {_fmt(s.get('gap_iou'))} | {_fmt(s.get('area_total_err'), True, 3)} | "
+        print(f"| {seed} | {_fmt(s.get('sync_rms_us'))} | {_fmt(s.get('gap_iou'), digits=3)} | {_fmt(s.get('area_total_err'), True, 3)} | "
               f"{_fmt(s.get('area_median_err'), True, 3)} | {s.get('frames_with_gap', '-')} | "
               f"{_fmt(s.get('ldv_on_image'))} ({_fmt(s.get('ldv_on_image_true'))}) | "
               f"{_fmt(s.get('flow_err_model_axes'), True, 2)} / {_fmt(s.get('flow_err_image_axes'), True, 2)} | {_fmt(s.get('inf_osc_err'), True, 2)} | "
