@@ -367,35 +367,26 @@ def true_parameter(effect: str, strength: float, attrs: dict[str, Any], turned: 
     return None
 
 
-def run_half_turned(store: Path, run: str, truth_attrs: dict[str, Any]) -> bool:
-    """Whether the run's camera rotation is half a turn off the phantom's (its left fold is the phantom's
-    right; :func:`vfcli.synth.scoring.pose_half_turned`)."""
-    from vfcli.store.transaction import Store
-    from vfcli.synth.scoring import pose_half_turned
-
-    with Store(store).read() as r:
-        used = float(r.attrs("optimize", run)["camera_rotation_deg"])
-    return pose_half_turned(used, float(truth_attrs["camera_rotation_deg"]))
-
-
-def inferior_error(store: Path, run: str, truth: Path, turned: bool = False) -> float:
+def inferior_error(store: Path, run: str, truth: Path) -> tuple[float, bool]:
     """RMS error of the run's inferior-surface displacement over its window relative to the RMS true
-    displacement there (the reconstruction mesh's inferior nodes inside the phantom's (u, v) range);
-    ``turned``: the run's pose is half a turn off, the truth is compared in the run's frame
-    (:func:`vfcli.synth.scoring.half_turned`)."""
+    displacement there (the reconstruction mesh's inferior nodes inside the phantom's (u, v) range), and
+    whether the run's pose is half a turn off the phantom's: then the truth is compared in the run's frame
+    (:func:`vfcli.synth.scoring.pose_half_turned`, :func:`vfcli.synth.scoring.half_turned`)."""
     from vfcli.model.mesh import FoldMesh
     from vfcli.store.mesh import read_mesh
     from vfcli.store.transaction import Store
     from vfcli.store.truth import read_truth
-    from vfcli.synth.scoring import half_turned, rms, side_truth
+    from vfcli.synth.scoring import half_turned, pose_half_turned, rms, side_truth
 
     keys = ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in ("nodes", "tets", "tet_fold", "faces",
                                                                             "face_tag", "face_fold", "uv", "node_side")]
-    t, _ = read_truth(truth, keys)
+    t, attrs = read_truth(truth, keys)
     with Store(store).read() as r:
         mesh = read_mesh(r)
         disp = r.read("optimize", "displacements", run).astype(float)
         sim_time = r.read("optimize", "sim_time", run)
+        turned = pose_half_turned(float(r.attrs("optimize", run)["camera_rotation_deg"]),
+                                  float(attrs["camera_rotation_deg"]))
     n = min(len(disp), len(sim_time))
     disp, sim_time = disp[:n], sim_time[:n]
     inside = sim_time <= t["frames/time"][-1] + 1e-9
@@ -403,7 +394,7 @@ def inferior_error(store: Path, run: str, truth: Path, turned: bool = False) -> 
     idx = np.searchsorted(t["frames/time"], sim_time[inside] - 1e-9)
     phantom = (truth_mesh.uv, truth_mesh.node_side, t["frames/displacement"][idx].astype(float))
     nodes, ref = side_truth(mesh.uv, mesh.node_side, *(half_turned(*phantom) if turned else phantom), 1)
-    return rms(disp[inside][:, nodes] - ref) / rms(ref)
+    return rms(disp[inside][:, nodes] - ref) / rms(ref), turned
 
 
 def score_case(work: Path, phase1: dict[str, Any]) -> dict[str, Any]:
@@ -425,18 +416,18 @@ def score_case(work: Path, phase1: dict[str, Any]) -> dict[str, Any]:
     s["draw"] = {k.removeprefix("widened_"): (v.tolist() if hasattr(v, "tolist") else v)
                  for k, v in attrs.items() if k.startswith("widened_")}
     store = work / "recording.h5"
-    turned = diag is not None and store.exists() and run_half_turned(store, "default", attrs)
-    s["pose_turned"] = bool(turned)
-    s["true_parameter"] = true_parameter(case.effect, case.strength, attrs, turned)
+    turned = False
     if diag is not None and store.exists():
-        s["inferior_before"] = inferior_error(store, "default", truth, turned)
+        s["inferior_before"], turned = inferior_error(store, "default", truth)
+    s["pose_turned"] = turned
+    s["true_parameter"] = true_parameter(case.effect, case.strength, attrs, turned)
     fig = refit_figures((diag or {}).get("refit"))
     if fig:
         s["refit"] = {k: v for k, v in fig.items() if not k.startswith("heldout_")}
         s["refit_candidate"] = CANDIDATE_EFFECT.get(str(fig["candidate"]), str(fig["candidate"]))
         run = fig["run"] or _extended_run(store)
         if run:
-            s["inferior_after"] = inferior_error(store, run, truth, run_half_turned(store, run, attrs))
+            s["inferior_after"] = inferior_error(store, run, truth)[0]
         if s["refit_candidate"] == case.effect:
             s.update({k: fig[k] for k in ("estimate", "lo", "hi", "parameter") if k in fig})
             tp = s["true_parameter"]

@@ -30,8 +30,9 @@ def main() -> None:
     if truth is None:
         sys.exit(f"{args.folder}: no truth/*.h5 (a kept phantom folder holds its sealed truth there)")
     for run in args.runs:
-        err = inferior_error(args.folder / "recording.h5", run, truth)
-        print(f"{args.folder.name} {run}: inferior error {100 * err:.1f} %")
+        err, turned = inferior_error(args.folder / "recording.h5", run, truth)
+        turn = " (pose half a turn off: scored in the fit's frame)" if turned else ""
+        print(f"{args.folder.name} {run}: inferior error {100 * err:.1f} %{turn}")
 
 
 if __name__ == "__main__":

@@ -179,9 +179,9 @@ class Recording:
 def render_settings(cfg: SynthConfig, wide: WidenedDraw | None = None) -> RenderSettings:
     """The look of a phantom's video: the default panel's (its historical two-sided shading, so the demo's recording
     stays as it was), or with a widened draw's optics blur, fixture and lamp, shaded by Lambert's law."""
-    render = RenderSettings(supersample=cfg.supersample, snr=cfg.snr)
+    render = RenderSettings(supersample=cfg.supersample, snr=cfg.snr, two_sided_lambert=wide is None)
     if wide is None:
-        return replace(render, two_sided_lambert=True)
+        return render
     return replace(render, psf_sigma_px=wide.psf_sigma_px, fixture_in_view=wide.fixture_in_view,
                    light_dir=wide.light_dir, ambient=wide.ambient)
 
