@@ -22,7 +22,6 @@ Reproduce::
 """
 from __future__ import annotations
 
-import argparse
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -34,7 +33,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 import vfcli.flow.gap.subpixel.segment as segment  # noqa: E402
-from bench_gap_optics import render, score  # noqa: E402
+from bench_gap_optics import render, score, seed_arguments  # noqa: E402
 from vfcli.config import FlowConfig  # noqa: E402
 from vfcli.flow.gap.detect import dark_core_level, gap_mask  # noqa: E402
 from vfcli.flow.gap.subpixel import EdgeModel, estimate_edge_model, segment_stream  # noqa: E402
@@ -81,11 +80,7 @@ def segment_with(v: dict, gap, free_inner: bool) -> tuple[np.ndarray, np.ndarray
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("seeds", type=int, nargs="+")
-    ap.add_argument("--duration", type=float, default=0.025)
-    ap.add_argument("--cache", type=Path, default=Path("/tmp/gap_optics_cache"))
-    args = ap.parse_args()
+    args = seed_arguments(__doc__.splitlines()[0]).parse_args()
     cfg = FlowConfig()
     level = channel_counts()
     print(f"channel level {level:.1f} counts; IoU / area error (total) per column")

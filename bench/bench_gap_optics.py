@@ -15,6 +15,9 @@ and only then, the truth (the gap at pixel centres and the glottal area) is scor
 * frames with a gap found / truly open; the estimated blur (px) against the drawn one;
 * whether the flow step found the gap resolved (``FlowCalibration.gap_resolved``: wide enough to show its
   own level; where not, ``vfcli flow`` warns that the gap is not determined by the video);
+* the two readings of the edges (``FlowCalibration.edge_disagreement``, :mod:`vfcli.flow.gap.subpixel.ambiguity`):
+  how far the sampled glottal area moves between the edge fit from the detected edges and the one searched over
+  each edge's neighbourhood, where ``vfcli flow`` warns above 5 % (blank where the gap is not resolved);
 * the gap's length share: its extent along its axis over the whole video, found and true, as a share of
   the glottis in view (:func:`vfcli.flow.plausibility.gap_length_share`, what ``vfcli flow`` warns on
   below :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN`).
@@ -179,13 +182,26 @@ def length_shares(v: dict, masks: np.ndarray, seed: int) -> tuple[float, float]:
     return shares[0], shares[1]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def _share(x: float) -> str:
+    """A share as a percentage to one place, blank when NaN; marked "(warned)" above the flow step's doubt level."""
+    from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA
+
+    return "" if not np.isfinite(x) else f"{100 * x:.1f}%" + (" (warned)" if x > AMBIGUOUS_AREA else "")
+
+
+def seed_arguments(description: str) -> argparse.ArgumentParser:
+    """The command line the gap benchmarks share: seeds, ``--duration`` (s) and ``--cache`` (the renders' folder)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("seeds", type=int, nargs="+")
     ap.add_argument("--duration", type=float, default=0.025)
+    ap.add_argument("--cache", type=Path, default=Path("/tmp/gap_optics_cache"))
+    return ap
+
+
+def main() -> None:
+    ap = seed_arguments(__doc__.splitlines()[0])
     ap.add_argument("--psf", type=float, default=None)
     ap.add_argument("--fov-rel", type=float, default=None)
-    ap.add_argument("--cache", type=Path, default=Path("/tmp/gap_optics_cache"))
     ap.add_argument("--edges", action="store_true", help="also each edge's error by true width (px along the ray)")
     ap.add_argument("--set", dest="sets", action="append", default=[], help="flow.X=Y")
     args = ap.parse_args()
@@ -195,8 +211,9 @@ def main() -> None:
         over[k.removeprefix("flow.")] = eval(val)  # noqa: S307 - a bench's own command line
     cfg = FlowConfig(**over)
     print("| seed | blur (px) | est. blur (px) | px/mm | FOV / L | fixture | gap IoU | area error (total) | "
-          "area error (median, open) | frames with gap / open | false | length share found / true | resolved | s |")
-    print("| ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: |")
+          "area error (median, open) | frames with gap / open | false | length share found / true | resolved | "
+          "edge readings differ | s |")
+    print("| ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | ---: | ---: |")
     for seed in args.seeds:
         v = render(seed, args.duration, args.psf, args.fov_rel, args.cache)
         t = time.perf_counter()
@@ -208,7 +225,7 @@ def main() -> None:
         print(f"| {seed} | {float(v['psf']):.2f} | {est:.2f} | {float(v['px_per_mm']):.1f} | {float(v['fov_rel']):.2f} | "
               f"{'yes' if v['fixture'] else 'no'} | {s['iou']:.3f} | {100 * s['area_total']:+.1f}% | "
               f"{100 * s['area_median']:.1f}% | {s['found']} | {s['false']} | {found:.2f} / {true:.2f} | "
-              f"{'yes' if calib.gap_resolved else 'no'} | {wall:.0f} |",
+              f"{'yes' if calib.gap_resolved else 'no'} | {_share(calib.edge_disagreement)} | {wall:.0f} |",
               flush=True)
         if args.edges and edges:
             for lo, hi, n, b0, s0, b1, s1 in edge_errors(v, edges, calib.gap.lateral_axis):

@@ -162,6 +162,8 @@ def test_gap_iou_and_area_against_the_exact_slit(recording):
     assert attrs["subpixel_edges"] and 0.1 < attrs["psf_sigma_px"] < 0.5  # 2 x 2 samples, no optics blur: 0.21
     assert abs(attrs["gap_level_counts"] - ph.gap_counts) < 0.1 * ph.gap_counts
     assert attrs["gap_level_resolved"]          # a 24 px slit shows its own level (tests/test_gap_blur.py: one that does not)
+    # the two readings of the edges (vfcli.flow.pipeline.edge_readings) agree on an exact slit: measured 0.03 %
+    assert 0.0 <= attrs["edge_disagreement"] < 0.005
     assert attrs["edge_window_px"] == 15.0 and attrs["edge_window_frames"] == 2  # 1 mm at 15 px/mm, 0.2 ms at 10 kHz
 
 

@@ -38,7 +38,8 @@ from vfcli.flow.gap.subpixel.crease import (CLOSED_FRACTION, along_midline, clos
 from vfcli.flow.gap.rays import as_rays
 from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, flat_floor,
                                                ray_gap_levels, resolved_width_px)
-from vfcli.flow.gap.subpixel.segment import ray_fits
+from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA, SEARCH_REACH_PX, area_disagreement
+from vfcli.flow.gap.subpixel.segment import ray_fits, ray_fits_twice
 from vfcli.flow.gap.subpixel.taper import taper_limits
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_END_PX, GAP_LENGTH_WARN, GAP_LONGER_WARN, gap_length_share
@@ -222,6 +223,10 @@ class FlowCalibration:
     surround : (H, W) bool or None
         The folds' dark surroundings (:func:`vfcli.flow.gap.surround.dark_surround`): never gap, and left out of the
         automatic threshold where they are as dark as the gap; None: none found, or ``flow.exclude_surround`` off.
+    edge_disagreement : float
+        How far the video pins the gap's edges (:func:`edge_readings`): the relative difference of the sampled
+        gap's area read from the detection's edges and searched over each edge's neighbourhood; NaN when the gap
+        is not resolved or without sub-pixel edges.
     """
 
     threshold: float
@@ -236,6 +241,7 @@ class FlowCalibration:
     gap_resolved: bool = False
     median_along_slit: bool = False
     surround: np.ndarray | None = None
+    edge_disagreement: float = float("nan")
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
@@ -289,7 +295,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
         line = midline_line(centre)
     seen = np.isfinite(centre)
     midline = float(np.median(centre[seen])) if seen.any() else None
-    gap, model, resolved = None, None, False
+    gap, model, resolved, disagreement = None, None, False, float("nan")
     if cfg.subpixel_edges:
         model = estimate_edge_model(sample, masks, lateral)
         if model is None:
@@ -318,8 +324,10 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
                               ray_crease=ray_crease, ray_closed_floor=ray_floor, exclude=surround)
             gap, resolved = _with_ray_gap_levels(sample, masks, gap)
+            if resolved:
+                disagreement = edge_readings(sample, masks, gap)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
-                           line, resolved, along, surround)
+                           line, resolved, along, surround, disagreement)
 
 
 def _sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral: int, axis_from_gap: bool,
@@ -356,6 +364,18 @@ def _sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral
 RAY_GAP_FRAMES = 16
 
 
+#: The edges are read twice (:func:`edge_readings`) on this many of the sampled frames, those whose rough gap is
+#: largest (the open phase, where a wall beside the gap shows): on the 41 regression seeds and 10 fresh ones the
+#: disagreements read on 8 frames were within -0.9 and +5.7 points of those on 16, for half the cost, and the warnings
+#: the same but one (4146, 5.1 % on 16 frames, 4.5 % on 8; docs/benchmarks.md, "Session 58")
+EDGE_READING_FRAMES = 8
+
+
+def _widest_sampled(masks: np.ndarray, n: int = RAY_GAP_FRAMES) -> np.ndarray:
+    """Indices, in order, of the ``n`` sampled frames whose rough gap masks (k, H, W) are largest."""
+    return np.sort(np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:n])
+
+
 def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> tuple[SubpixelGap, bool]:
     """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
     frames with the largest rough gaps (``masks``, :data:`RAY_GAP_FRAMES`): the edge fit's prior and rule (b)'s
@@ -368,7 +388,7 @@ def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap
     :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level),
     ``gap`` has no per-ray levels (its widths' limits only), ``resolved`` is False and it warns
     (:func:`warn_unresolved_gap`)."""
-    widest = np.sort(np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:RAY_GAP_FRAMES])
+    widest = _widest_sampled(masks)
     fits = [ray_fits(sample[i], gap) for i in widest]
     widths = np.stack([f.e1 - f.e0 for f in fits])
     rms = np.concatenate([f.rms for f in fits])
@@ -383,6 +403,31 @@ def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap
         warn_unresolved_gap(np.where(flat, widths, np.nan), gap.model, len(fits))
         return gap, False
     return replace(gap, ray_gap=levels), True
+
+
+def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> float:
+    """The relative difference of the two readings of the sampled gap's area
+    (:func:`vfcli.flow.gap.subpixel.ambiguity.area_disagreement`) on the :data:`EDGE_READING_FRAMES` sampled frames
+    with the largest rough gaps (``masks``); logs it, and warns when it exceeds
+    :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` (the gap masks, the glottal area and the gap term are
+    then doubtful by about that share)."""
+    widest = _widest_sampled(masks, EDGE_READING_FRAMES)
+    frames = [sample[i] for i in widest]
+    share = area_disagreement(*ray_fits_twice(frames, gap, SEARCH_REACH_PX))
+    if not np.isfinite(share):
+        return share
+    if share > AMBIGUOUS_AREA:
+        log.warning("flow: the video does not pin the gap's edges: in the %d sampled frames with the widest gap the "
+                    "glottal area read from the detected edges and the one the edge fit finds searching %.0f px "
+                    "around each edge differ by %.0f %% (more than %.0f %%), so the gap masks, the glottal area and "
+                    "the gap term are doubtful by about that much. Check the video beside the gap: a medial wall "
+                    "in shade (a dark band between the gap and the lit fold) is told from the gap by its level only; "
+                    "light the folds along the camera's axis if you can",
+                    len(frames), SEARCH_REACH_PX, 100 * share, 100 * AMBIGUOUS_AREA)
+    else:
+        log.info("flow: the two readings of the gap's edges agree: the sampled glottal area differs by %.1f %%",
+                 100 * share)
+    return share
 
 
 def warn_unresolved_gap(widths: np.ndarray, model: EdgeModel, n_frames: int) -> None:

@@ -12,7 +12,8 @@ is the integral of the edge distance (:func:`area_from_edges`).
 Modules, one concern each: :mod:`.profile` (the slit model and its per-ray fit),
 :mod:`.edge_model` (gap level and PSF of a recording), :mod:`.smoothing` (edges along the
 glottis and in time), :mod:`.area` (mask and area from edges), :mod:`.segment` (frames and
-streams). The names below are the package's interface.
+streams), :mod:`.ambiguity` (how far the video pins the edges: two readings
+compared). The names below are the package's interface.
 """
 from vfcli.flow.gap.subpixel.area import GapSegmentation, area_from_edges, mask_from_edges
 from vfcli.flow.gap.subpixel.edge_model import estimate_edge_model

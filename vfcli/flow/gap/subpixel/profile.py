@@ -295,16 +295,71 @@ def _fit_from_either_start(prof: np.ndarray, rows: np.ndarray, start0: np.ndarra
     s0 = np.where(np.isfinite(lo), lo - 0.5, start0)
     s1 = np.where(np.isfinite(hi), hi + 0.5, start1)
     again = np.flatnonzero((s1 > s0) & ((s0 - start0 > SECOND_START_PX) | (start1 - s1 > SECOND_START_PX)))
-    if again.size == 0:
-        return fit
-    other = fit_slit_profiles(prof[again], rows[again], s0[again], s1[again], sigma, prior[again],
-                              inner=(lo[again], hi[again]))
-    pick = other.cost < fit.cost[again]
-    better = again[pick]
+    if again.size:
+        fit = _lower_cost(fit, fit_slit_profiles(prof[again], rows[again], s0[again], s1[again], sigma, prior[again],
+                                                 inner=(lo[again], hi[again])), again)
+    return fit
+
+
+def _lower_cost(fit: SlitFit, other: SlitFit, rays: np.ndarray) -> SlitFit:
+    """``fit`` with the rays ``rays`` (indices) taken from ``other`` (their fits, in that order) where its cost is
+    lower."""
+    pick = other.cost < fit.cost[rays]
+    better = rays[pick]
     e0, e1, levels, rms, cost = (np.array(v, copy=True) for v in (fit.e0, fit.e1, fit.levels, fit.rms, fit.cost))
     e0[better], e1[better], levels[better] = other.e0[pick], other.e1[pick], other.levels[pick]
     rms[better], cost[better] = other.rms[pick], other.cost[pick]
     return SlitFit(e0, e1, levels, rms, cost)
+
+
+#: Step of the search of :func:`searched_edges`, px: a quarter of a pixel, finer than a misfit basin of any optics (an
+#: edge's basin is about a PSF width, at least the pixel's own 0.29 px), so that the Levenberg-Marquardt polish starts
+#: in the basin of the search's minimum (with a step of 0.1 px, a third sweep and a search in every pass, 3-4 times
+#: the cost, the 41 regression seeds' disagreements were within -0.9 to +4.7 points of these and one more seed was
+#: warned, 4145 at 5.5 for 4.8 %; docs/benchmarks.md, "Session 58")
+SEARCH_STEP_PX = 0.25
+
+
+def searched_edges(profiles: np.ndarray, rows: np.ndarray, e0: np.ndarray, e1: np.ndarray, sigma: float,
+                   gap_counts, reach_px: float, step_px: float = SEARCH_STEP_PX) -> SlitFit:
+    """The slit model's lowest misfit over each edge's neighbourhood, not only the basin of a start.
+
+    :func:`fit_slit_profiles` finds the minimum nearest its start, inside its bounds.  Beside a medial wall that
+    faces away from the lamp (a dark band between the gap and the lit tissue) the misfit can have two minima, the
+    edge at the gap and the edge at the wall's far side, and a fit started beyond the wall, or held there by wall
+    pixels taken as surely gap, stays there (widened seed 4165 under Lambert shading: the shaded side's edges 1.5 px
+    out on average, the glottal area +40 %).  Here each edge in turn (e1, then e0) is moved over a grid of
+    ``step_px`` from ``reach_px`` inside its start to half a pixel outside it, the other edge held, the levels solved
+    at each point; then Levenberg-Marquardt polishes from the best point, with no inner bounds.  Same arguments as
+    :func:`fit_slit_profiles` (``e0``, ``e1``: the starts, px); the gap stays at least 0.2 px wide during the search.
+
+    Returns
+    -------
+    SlitFit of the polished fits.
+    """
+    y = np.asarray(profiles, dtype=float)
+    r = np.asarray(rows, dtype=float)
+    ok = np.isfinite(y)
+    w = ok.astype(float)
+    n = len(y)
+    prior = np.broadcast_to(np.asarray(gap_counts, dtype=float), (n,))
+    data = (r, np.where(ok, y, 0.0), w, np.sqrt(w), sigma, prior, GAP_LEVEL_WEIGHT, 1e-12)
+    lo = np.where(ok, r, np.inf).min(axis=1)
+    hi = np.where(ok, r, -np.inf).max(axis=1)
+    edges = [np.array(e0, dtype=float), np.array(e1, dtype=float)]
+    inward = np.arange(-reach_px, 0.5 + 1e-9, step_px)   # negative: into the gap
+    for side in (1, 0):
+        other = edges[1 - side]
+        best, best_cost = edges[side].copy(), np.full(n, np.inf)
+        for d in inward:
+            cand = np.clip(edges[side] + (d if side else -d), lo, hi)
+            valid = cand > other + 0.2 if side else cand < other - 0.2
+            trial = np.where(valid, cand, edges[side])
+            cost = _slit_levels(data, *((other, trial) if side else (trial, other)))[2]
+            take = valid & (cost < best_cost)
+            best[take], best_cost[take] = cand[take], cost[take]
+        edges[side] = best
+    return fit_slit_profiles(y, r, edges[0], edges[1], sigma, prior)
 
 
 def ray_windows(
@@ -390,6 +445,27 @@ def fit_ray_edges_many(
     frames : K (H, W) arrays of counts.  e0s, e1s : K (n_rays,) float.  inners : K pairs or None.
     gap_counts : K (n_rays,) float or None.  Returns K :class:`SlitFit`.
     """
+    return _fit_passes(frames, e0s, e1s, model, lateral_axis, passes, inners, gap_counts)[0]
+
+
+def fit_ray_edges_twice(
+    frames: list, e0s: list, e1s: list, model: EdgeModel, search_px: float, lateral_axis: int = 0, passes: int = 2,
+    inners: list | None = None, gap_counts: list | None = None,
+) -> tuple[list[SlitFit], list[SlitFit]]:
+    """Two readings of the same rays (:mod:`vfcli.flow.gap.subpixel.ambiguity`): :func:`fit_ray_edges_many`'s, and the
+    same with its last pass's fits competing with :func:`searched_edges` over ``search_px`` px (a ray keeps the lower
+    misfit).  One pass loop: the searched reading costs the search only.  Arguments as :func:`fit_ray_edges_many`'s.
+    Returns (started, searched), each K :class:`SlitFit`.
+    """
+    searched, started = _fit_passes(frames, e0s, e1s, model, lateral_axis, passes, inners, gap_counts, search_px)
+    return started, searched
+
+
+def _fit_passes(frames: list, e0s: list, e1s: list, model: EdgeModel, lateral_axis: int, passes: int,
+                inners: list | None, gap_counts: list | None, search_px: float = 0.0
+                ) -> tuple[list[SlitFit], list[SlitFit]]:
+    """The pass loop of :func:`fit_ray_edges_many`: (fits, the last pass's fits before the search); with ``search_px``
+    = 0 the two are the same."""
     margin = max(MIN_WINDOW_PX, int(np.ceil(WINDOW_SIGMAS * model.psf_sigma_px)))
     e0s = [np.asarray(e, float).copy() for e in e0s]
     e1s = [np.asarray(e, float).copy() for e in e1s]
@@ -411,10 +487,11 @@ def fit_ray_edges_many(
     cost = [np.full(len(e0), np.nan) for e0 in e0s]
     at = np.concatenate([[0], np.cumsum([len(sel) for sel in sels])]).astype(int)
     if at[-1] == 0:
-        return [SlitFit(*parts) for parts in zip(e0s, e1s, levels, rms, cost)]
+        fits = [SlitFit(*parts) for parts in zip(e0s, e1s, levels, rms, cost)]
+        return fits, fits
     inner = (np.concatenate(inner_lo), np.concatenate(inner_hi))
     prior = np.concatenate(priors)
-    for _ in range(max(1, passes)):
+    for k_pass in range(max(1, passes)):
         windows = [ray_windows(f, e0, e1, margin, lateral_axis) for f, e0, e1 in zip(frames, e0s, e1s)]
         length = max(w[0].shape[1] for w in windows)
         prof = np.full((at[-1], length), np.nan)
@@ -426,9 +503,22 @@ def fit_ray_edges_many(
             rows[at[k]:at[k + 1], n:] = rk[sel][:, -1:] + np.arange(1, length - n + 1)
         start0 = np.concatenate([e0[sel] for e0, sel in zip(e0s, sels)])
         start1 = np.concatenate([e1[sel] for e1, sel in zip(e1s, sels)])
-        fit = _fit_from_either_start(prof, rows, start0, start1, model.psf_sigma_px, prior, inner)
+        fit = started = _fit_from_either_start(prof, rows, start0, start1, model.psf_sigma_px, prior, inner)
+        if search_px > 0 and k_pass == max(1, passes) - 1:
+            fit = _lower_cost(started, searched_edges(prof, rows, started.e0, started.e1, model.psf_sigma_px, prior,
+                                                      search_px), np.arange(len(started.e0)))
         for k, sel in enumerate(sels):                  # the next pass's windows are centred on these edges
             part = slice(at[k], at[k + 1])
             e0s[k][sel], e1s[k][sel] = fit.e0[part], fit.e1[part]
             levels[k][sel], rms[k][sel], cost[k][sel] = fit.levels[part], fit.rms[part], fit.cost[part]
-    return [SlitFit(*parts) for parts in zip(e0s, e1s, levels, rms, cost)]
+    fits = [SlitFit(*parts) for parts in zip(e0s, e1s, levels, rms, cost)]
+    if search_px <= 0:
+        return fits, fits
+    before = []                                         # the last pass's fits as they were before the search
+    for k, (fit_k, sel) in enumerate(zip(fits, sels)):
+        part = slice(at[k], at[k + 1])
+        arrays = [np.array(v, copy=True) for v in (fit_k.e0, fit_k.e1, fit_k.levels, fit_k.rms, fit_k.cost)]
+        for mine, theirs in zip(arrays, (started.e0, started.e1, started.levels, started.rms, started.cost)):
+            mine[sel] = theirs[part]
+        before.append(SlitFit(*arrays))
+    return fits, before

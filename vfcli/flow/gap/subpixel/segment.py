@@ -10,7 +10,7 @@ import numpy as np
 from vfcli.flow.gap.detect import gap_mask
 from vfcli.flow.gap.rays import as_rays, outermost_silhouette
 from vfcli.flow.gap.subpixel.area import GapSegmentation, mask_from_edges
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges_many
+from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges_many, fit_ray_edges_twice
 from vfcli.flow.gap.subpixel.smoothing import robustness_weights, smooth_edges
 
 
@@ -162,6 +162,24 @@ def ray_fits_many(frames: list, gap: SubpixelGap) -> list[RayFit]:
     fits = fit_ray_edges_many([frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo],
                               gap.model, gap.lateral_axis, inners=[found[k][3] for k in todo],
                               gap_counts=[found[k][4] for k in todo]) if todo else []
+    return _ray_fits(found, todo, fits, gap)
+
+
+def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float) -> tuple[list[RayFit], list[RayFit]]:
+    """Two readings of :func:`ray_fits_many`: as it reads them, and with each edge also searched over ``search_px`` px
+    around it (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges_twice`); (started, searched)."""
+    found = [_detected(frame, gap) for frame in frames]
+    todo = [k for k, d in enumerate(found) if d[3] is not None]
+    started, searched = fit_ray_edges_twice(
+        [frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo], gap.model, search_px,
+        gap.lateral_axis, inners=[found[k][3] for k in todo],
+        gap_counts=[found[k][4] for k in todo]) if todo else ([], [])
+    return _ray_fits(found, todo, started, gap), _ray_fits(found, todo, searched, gap)
+
+
+def _ray_fits(found: list, todo: list, fits: list, gap: SubpixelGap) -> list[RayFit]:
+    """The :class:`RayFit` of each frame from its detection (``found``, :func:`_detected`) and, for the frames ``todo``,
+    its sub-pixel fit (``fits``, in that order), closed rays' rules applied."""
     out = [RayFit(e0, e1, np.full(len(e0), np.nan), np.full(len(e0), np.nan)) for e0, e1, *_ in found]
     for k, fit in zip(todo, fits):
         e0, e1, level = _closed_rays(fit, found[k][2], gap, found[k][5])
