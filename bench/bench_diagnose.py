@@ -74,6 +74,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
 
 from vfcli.synth.effects import EFFECTS, STRENGTH_RANGE  # noqa: E402
 
@@ -369,32 +370,27 @@ def true_parameter(effect: str, strength: float, attrs: dict[str, Any], turned: 
 
 def inferior_error(store: Path, run: str, truth: Path) -> tuple[float, bool]:
     """RMS error of the run's inferior-surface displacement over its window relative to the RMS true
-    displacement there (the reconstruction mesh's inferior nodes inside the phantom's (u, v) range), and
-    whether the run's pose is half a turn off the phantom's: then the truth is compared in the run's frame
-    (:func:`vfcli.synth.scoring.pose_half_turned`, :func:`vfcli.synth.scoring.half_turned`)."""
-    from vfcli.model.mesh import FoldMesh
+    displacement there (the reconstruction mesh's inferior nodes inside the phantom's (u, v) range, the window's
+    frames inside the truth's time range; :func:`_runner.side_truth_at`), and whether the run's pose is half a turn
+    off the phantom's: then the truth is compared in the run's frame (:func:`vfcli.synth.scoring.pose_half_turned`,
+    :func:`vfcli.synth.scoring.half_turned`)."""
+    from _runner import side_truth_at
     from vfcli.store.mesh import read_mesh
     from vfcli.store.transaction import Store
     from vfcli.store.truth import read_truth
-    from vfcli.synth.scoring import half_turned, pose_half_turned, rms, side_truth
+    from vfcli.synth.scoring import pose_half_turned, rms
 
-    keys = ["frames/time", "frames/displacement"] + [f"mesh/{k}" for k in ("nodes", "tets", "tet_fold", "faces",
-                                                                            "face_tag", "face_fold", "uv", "node_side")]
-    t, attrs = read_truth(truth, keys)
+    t, attrs = read_truth(truth, ["frames/time"])
     with Store(store).read() as r:
         mesh = read_mesh(r)
         disp = r.read("optimize", "displacements", run).astype(float)
         sim_time = r.read("optimize", "sim_time", run)
-        turned = pose_half_turned(float(r.attrs("optimize", run)["camera_rotation_deg"]),
-                                  float(attrs["camera_rotation_deg"]))
+        rotation = float(r.attrs("optimize", run)["camera_rotation_deg"])
     n = min(len(disp), len(sim_time))
-    disp, sim_time = disp[:n], sim_time[:n]
-    inside = sim_time <= t["frames/time"][-1] + 1e-9
-    truth_mesh = FoldMesh(**{k.split("/")[1]: t[k] for k in t if k.startswith("mesh/")})
-    idx = np.searchsorted(t["frames/time"], sim_time[inside] - 1e-9)
-    phantom = (truth_mesh.uv, truth_mesh.node_side, t["frames/displacement"][idx].astype(float))
-    nodes, ref = side_truth(mesh.uv, mesh.node_side, *(half_turned(*phantom) if turned else phantom), 1)
-    return rms(disp[inside][:, nodes] - ref) / rms(ref), turned
+    inside = sim_time[:n] <= t["frames/time"][-1] + 1e-9
+    nodes, ref = side_truth_at(truth, mesh, sim_time[:n][inside], 1, rotation_deg=rotation)
+    return (rms(disp[:n][inside][:, nodes] - ref) / rms(ref),
+            pose_half_turned(rotation, float(attrs["camera_rotation_deg"])))
 
 
 def score_case(work: Path, phase1: dict[str, Any]) -> dict[str, Any]:
