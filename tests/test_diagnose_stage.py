@@ -211,3 +211,22 @@ def test_a_window_over_the_row_budget_is_diagnosed_on_a_coarser_grid_with_the_sa
                       or "not identifiable" in line)
 
     assert said(full) and said(out["lines"]) == said(full)
+
+
+def test_the_diagnosis_reads_flows_edge_readings_and_says_when_the_gap_is_doubtful(fitted):
+    """read_inputs carries /flow's edge_disagreement; the lines after the first say which fold is which and, when that
+    figure is above flow's line, that the gap is doubtful (this phantom's gap is not: measured 4.3 %)."""
+    import dataclasses
+
+    from vfcli.config import RecordingConfig
+    from vfcli.diagnose.words import GAP_DOUBT_START
+    from vfcli.stages.diagnose import context_lines, read_inputs
+
+    with Store(fitted).read() as r:
+        stored = float(r.attrs("flow")["edge_disagreement"])
+        inputs = read_inputs(r, RecordingConfig(), "fit")
+    assert inputs.gap_edge_disagreement == stored and 0.0 <= stored < 0.05
+    lines = context_lines(inputs, 10**9)
+    assert len(lines) == 1 and lines[0].startswith("left and right name the model's folds")
+    doubtful = context_lines(dataclasses.replace(inputs, gap_edge_disagreement=0.2), 10**9)
+    assert doubtful[:1] == lines and doubtful[1].startswith(GAP_DOUBT_START) and "differ by 20 %" in doubtful[1]

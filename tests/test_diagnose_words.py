@@ -47,3 +47,15 @@ def test_the_stated_pixels_are_the_videos_not_the_cropped_frames(mesh):
     b = _centres(fold_side_words(cam, mesh, "config", (30.0, 12.0)))
     np.testing.assert_allclose(b[0] - a[0], [30.0, 12.0], atol=1.0)
     np.testing.assert_allclose(b[1] - a[1], [30.0, 12.0], atol=1.0)
+
+
+def test_a_doubtful_gap_is_said_with_its_figure_and_what_it_may_carry():
+    """flow's edge readings (/flow edge_disagreement) above its 5 % line: the diagnosis says the gap is doubtful and
+    which evidence rests on it; at or below the line, or not measured, it says nothing."""
+    from vfcli.diagnose.words import GAP_DOUBT_START, gap_doubt_words
+    from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA
+
+    line = gap_doubt_words(0.175)
+    assert line.startswith(GAP_DOUBT_START) and "differ by 18 % of its area" in line and "more than 5 %" in line
+    assert "contact" in line and "offset" in line and "asymmetry" in line
+    assert gap_doubt_words(AMBIGUOUS_AREA) == "" and gap_doubt_words(0.039) == "" and gap_doubt_words(float("nan")) == ""

@@ -98,3 +98,29 @@ def summary_lines(located: Located, max_lines: int = 5) -> list[str]:
 #: loads) makes as readily as a missing term; whether a candidate term explains it is the decision's to say
 MEANING = ("parts above the noise floor are where the fit and the recording differ beyond noise (the model's own "
            "error or missing physics); the candidates below say whether a known term explains them")
+
+
+#: how the line on a doubtful gap begins (:func:`gap_doubt_words`)
+GAP_DOUBT_START = "the gap this run was fitted to is doubtful"
+
+
+def gap_doubt_words(edge_disagreement: float) -> str:
+    """The line on a doubtful gap ("" when the gap is not doubtful).
+
+    ``vfcli flow`` reads the gap's edges two ways and warns when the sampled glottal area moves by more than
+    :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` between them (a medial wall in shade beside one edge:
+    that fold's side of the gap read too wide, widened seeds 4112 and 4165 by 55 and 40 %).  The run was fitted to
+    that gap, so what the gap carries (the closure, for contact; one fold's share of the gap, for a mounting offset
+    or a softer fold) may be the gap's error rather than missing physics; the diagnosis says so beside its verdict.
+
+    edge_disagreement : the ``/flow`` attribute ``edge_disagreement`` (NaN: not measured, e.g. a gap never resolved).
+    """
+    from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA
+
+    x = float(edge_disagreement)
+    if not np.isfinite(x) or x <= AMBIGUOUS_AREA:
+        return ""
+    return (f"{GAP_DOUBT_START}: flow's two readings of its edges differ by {percent_size(x)} % of its area (more than "
+            f"{percent_size(AMBIGUOUS_AREA)} %; /flow edge_disagreement), as beside a medial wall in shade; what the "
+            "gap carries (the closure, for contact; one fold's share of the gap, for an offset or an asymmetry) may be "
+            "the gap's error rather than missing physics")

@@ -23,7 +23,7 @@ from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.cycles import TooFewCycles, too_few_advice
 from vfcli.diagnose.residual import grid_filled, rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
-from vfcli.diagnose.words import fold_side_words
+from vfcli.diagnose.words import GAP_DOUBT_START, fold_side_words, gap_doubt_words
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.model.refine import finer_model
 from vfcli.parallel import serial_map
@@ -44,13 +44,16 @@ _REBUILD_TOL_MM = 1e-4
 @dataclass(frozen=True)
 class DiagnoseInputs:
     """baseline : the run's fitted model.  recording : the whole recording.  run_config : the run's settings.
-    run_attrs : the run's attributes.  roi_origin_px : (col, row) of the stored frames' first pixel in the video."""
+    run_attrs : the run's attributes.  roi_origin_px : (col, row) of the stored frames' first pixel in the video.
+    gap_edge_disagreement : /flow's ``edge_disagreement`` (NaN: not stored;
+    :func:`vfcli.diagnose.words.gap_doubt_words`)."""
 
     baseline: Baseline
     recording: Recording
     run_config: dict[str, Any]
     run_attrs: dict[str, Any] | None = None
     roi_origin_px: tuple[float, float] = (0.0, 0.0)
+    gap_edge_disagreement: float = float("nan")
 
 
 def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], attrs: dict[str, Any],
@@ -135,7 +138,21 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
                     valid=reader.dataset("fields", "valid"), gap_masks=reader.dataset("flow", "gap_mask"),
                     velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
                     window_start=int(cfg.optimize.first_frame), **ldv)
-    return DiagnoseInputs(baseline, rec, stored.config, dict(stored.attrs), (float(roi[0]), float(roi[1])))
+    return DiagnoseInputs(baseline, rec, stored.config, dict(stored.attrs), (float(roi[0]), float(roi[1])),
+                          float(flow_attrs.get("edge_disagreement", float("nan"))))
+
+
+def context_lines(inputs: DiagnoseInputs, max_rows: int) -> list[str]:
+    """The lines that follow the diagnosis' first: the coarser grid the motion was compared on (when it was,
+    :func:`stride_words`), which fold of the video is which (:func:`vfcli.diagnose.words.fold_side_words`), and a
+    doubtful gap (when /flow says so, :func:`vfcli.diagnose.words.gap_doubt_words`)."""
+    problem = inputs.baseline.problem
+    stride = problem.meas.pixel_stride
+    lines = [stride_words(stride, max_rows)] if stride > 1 else []
+    pose_source = str((inputs.run_attrs or {}).get("pose_source", "config"))
+    lines.append(fold_side_words(problem.camera, problem.mesh, pose_source, inputs.roi_origin_px))
+    doubt = gap_doubt_words(inputs.gap_edge_disagreement)
+    return lines + [doubt] if doubt else lines
 
 
 def stride_words(stride: int, max_rows: int) -> str:
@@ -263,14 +280,13 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             advice = too_few_advice(rec.glottal_area, inputs.baseline.problem.dt, rec.pressure_f0_hz)
             raise InputDataError(f"diagnose: {exc}; {advice}", reader.path) from None
         stride = inputs.baseline.problem.meas.pixel_stride
+        context = context_lines(inputs, ctx.config.diagnose.max_motion_rows)
+        d.lines[1:1] = context
         if stride > 1:
-            d.lines.insert(1, stride_words(stride, ctx.config.diagnose.max_motion_rows))
-            log.info("diagnose: %s", d.lines[1])
+            log.info("diagnose: %s", context[0])
+        if context[-1].startswith(GAP_DOUBT_START):
+            log.warning("diagnose: %s", context[-1])
         s.set_attrs(pixel_stride=stride)
-        problem = inputs.baseline.problem
-        pose_source = str((inputs.run_attrs or {}).get("pose_source", "config"))
-        sides = fold_side_words(problem.camera, problem.mesh, pose_source, inputs.roi_origin_px)
-        d.lines.insert(2 if stride > 1 else 1, sides)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
 
