@@ -61,21 +61,21 @@ def sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral_
 
 def segment_with(v: dict, gap, free_inner: bool) -> tuple[np.ndarray, np.ndarray]:
     """Masks (n, H, W) and areas (n,) mm^2 of the video with the sub-pixel gap settings ``gap``."""
-    original = segment.fit_ray_edges
+    original = segment.fit_ray_edges_twice        # what segment's ray fits call (fit_ray_edges, before session 58)
 
-    def unbounded(frame, e0, e1, model, lateral_axis=0, passes=2, inner=None):
-        n = len(e0)
-        return original(frame, e0, e1, model, lateral_axis, passes, inner=(np.full(n, np.inf), np.full(n, -np.inf)))
+    def unbounded(frames, e0s, e1s, model, search_px, lateral_axis=0, passes=2, inners=None, gap_counts=None):
+        free = [(np.full(len(e), np.inf), np.full(len(e), -np.inf)) for e in e0s]
+        return original(frames, e0s, e1s, model, search_px, lateral_axis, passes, inners=free, gap_counts=gap_counts)
 
     if free_inner:
-        segment.fit_ray_edges = unbounded
+        segment.fit_ray_edges_twice = unbounded
     try:
         masks, areas = [], []
         for _, seg in segment_stream(iter(v["frames"]), gap):
             masks.append(seg.mask)
             areas.append(seg.area_mm2(float(v["px_per_mm"])))
     finally:
-        segment.fit_ray_edges = original
+        segment.fit_ray_edges_twice = original
     return np.stack(masks), np.asarray(areas)
 
 

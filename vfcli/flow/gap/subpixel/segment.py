@@ -10,7 +10,7 @@ import numpy as np
 from vfcli.flow.gap.detect import gap_mask
 from vfcli.flow.gap.rays import as_rays, outermost_silhouette
 from vfcli.flow.gap.subpixel.area import GapSegmentation, mask_from_edges
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges_many, fit_ray_edges_twice
+from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges_twice
 from vfcli.flow.gap.subpixel.smoothing import robustness_weights, smooth_edges
 
 
@@ -156,25 +156,23 @@ def ray_fits(frame: np.ndarray, gap: SubpixelGap) -> RayFit:
 
 
 def ray_fits_many(frames: list, gap: SubpixelGap) -> list[RayFit]:
-    """:func:`ray_fits` of several frames, their sub-pixel fits in one call (:func:`fit_ray_edges_many`)."""
-    found = [_detected(frame, gap) for frame in frames]
-    todo = [k for k, d in enumerate(found) if d[3] is not None]
-    fits = fit_ray_edges_many([frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo],
-                              gap.model, gap.lateral_axis, inners=[found[k][3] for k in todo],
-                              gap_counts=[found[k][4] for k in todo]) if todo else []
-    return _ray_fits(found, todo, fits, gap)
+    """:func:`ray_fits` of several frames, their sub-pixel fits in one call
+    (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges_many`)."""
+    return ray_fits_twice(frames, gap, 0.0)[0]
 
 
 def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float) -> tuple[list[RayFit], list[RayFit]]:
     """Two readings of :func:`ray_fits_many`: as it reads them, and with each edge also searched over ``search_px`` px
-    around it (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges_twice`); (started, searched)."""
+    around it (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges_twice`); (started, searched), the same list when
+    ``search_px`` is 0."""
     found = [_detected(frame, gap) for frame in frames]
     todo = [k for k, d in enumerate(found) if d[3] is not None]
     started, searched = fit_ray_edges_twice(
         [frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo], gap.model, search_px,
         gap.lateral_axis, inners=[found[k][3] for k in todo],
         gap_counts=[found[k][4] for k in todo]) if todo else ([], [])
-    return _ray_fits(found, todo, started, gap), _ray_fits(found, todo, searched, gap)
+    first = _ray_fits(found, todo, started, gap)
+    return first, (first if search_px <= 0 else _ray_fits(found, todo, searched, gap))
 
 
 def _ray_fits(found: list, todo: list, fits: list, gap: SubpixelGap) -> list[RayFit]:
