@@ -413,16 +413,16 @@ def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> fl
     then doubtful by about that share)."""
     widest = _widest_sampled(masks, EDGE_READING_FRAMES)
     frames = [sample[i] for i in widest]
-    share = area_disagreement(*ray_fits_twice(frames, gap, SEARCH_REACH_PX))
+    share = area_disagreement(*ray_fits_twice(frames, gap, SEARCH_REACH_PX, held=True))
     if not np.isfinite(share):
         return share
     if share > AMBIGUOUS_AREA:
         log.warning("flow: the video does not pin the gap's edges: in the %d sampled frames with the widest gap the "
-                    "glottal area read from the detected edges and the one the edge fit finds searching %.0f px "
-                    "around each edge differ by %.0f %% (more than %.0f %%), so the gap masks, the glottal area and "
-                    "the gap term are doubtful by about that much. Check the video beside the gap: a medial wall "
-                    "in shade (a dark band between the gap and the lit fold) is told from the gap by its level only; "
-                    "light the folds along the camera's axis if you can",
+                    "glottal area read with the edges held beyond the pixels surely in the gap and the one the edge "
+                    "fit finds searching %.0f px around each edge differ by %.0f %% (more than %.0f %%), so the gap "
+                    "masks, the glottal area and the gap term are doubtful by about that much. Check the video beside "
+                    "the gap: a medial wall in shade (a dark band between the gap and the lit fold) is told from the "
+                    "gap by its level only; light the folds along the camera's axis if you can",
                     len(frames), SEARCH_REACH_PX, 100 * share, 100 * AMBIGUOUS_AREA)
     else:
         log.info("flow: the two readings of the gap's edges agree: the sampled glottal area differs by %.1f %%",

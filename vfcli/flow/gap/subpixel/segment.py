@@ -103,10 +103,10 @@ def raw_edges(frame: np.ndarray, gap: SubpixelGap) -> tuple[np.ndarray, np.ndarr
        dark components near the midline of at least ``median_px`` pixels; on each ray, the
        component nearest the midline.
     2. Sub-pixel edges on every ray the detection crosses (:func:`fit_ray_edges`); a ray
-       whose fitted edges cross (width <= 0) is closed. The edges lie at or beyond the outermost
-       pixel centres surely in the gap: darker than half-way between the gap level and the ray's
-       closed crease (``ray_crease``; else the threshold), and than the detection level. Without
-       a model, the detection's pixel boundaries.
+       whose fitted edges cross (width <= 0) is closed. The fit starts from the detection's edges and
+       from the outermost pixel centres surely in the gap: darker than half-way between the gap level
+       and the ray's closed crease (``ray_crease``; else the threshold), and than the detection level;
+       each ray keeps the start of lower misfit. Without a model, the detection's pixel boundaries.
     3. A detected component is kept only if at least ``median_px`` of its rays show the gap
        itself (:func:`_held_rays`): (a) the fitted slit covers a whole pixel: a narrower
        blurred dip cannot be told from a dark line of tissue (the contact line of a closed
@@ -161,16 +161,18 @@ def ray_fits_many(frames: list, gap: SubpixelGap) -> list[RayFit]:
     return ray_fits_twice(frames, gap, 0.0)[0]
 
 
-def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float) -> tuple[list[RayFit], list[RayFit]]:
+def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float, held: bool = False
+                   ) -> tuple[list[RayFit], list[RayFit]]:
     """Two readings of :func:`ray_fits_many`: as it reads them, and with each edge also searched over ``search_px`` px
     around it (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges_twice`); (started, searched), the same list when
-    ``search_px`` is 0."""
+    ``search_px`` is 0.  ``held``: the started reading's edges kept at or beyond the pixels surely in the gap
+    (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges`), as :mod:`vfcli.flow.gap.subpixel.ambiguity` compares."""
     found = [_detected(frame, gap) for frame in frames]
     todo = [k for k, d in enumerate(found) if d[3] is not None]
     started, searched = fit_ray_edges_twice(
         [frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo], gap.model, search_px,
         gap.lateral_axis, inners=[found[k][3] for k in todo],
-        gap_counts=[found[k][4] for k in todo]) if todo else ([], [])
+        gap_counts=[found[k][4] for k in todo], held=held) if todo else ([], [])
     first = _ray_fits(found, todo, started, gap)
     return first, (first if search_px <= 0 else _ray_fits(found, todo, searched, gap))
 
