@@ -226,7 +226,10 @@ def test_the_diagnosis_reads_flows_edge_readings_and_says_when_the_gap_is_doubtf
         stored = float(r.attrs("flow")["edge_disagreement"])
         inputs = read_inputs(r, RecordingConfig(), "fit")
     assert inputs.gap_edge_disagreement == stored and 0.0 <= stored < 0.05
-    lines = context_lines(inputs, 10**9)
+    context = context_lines(inputs, 10**9)
+    lines = context.lines
     assert len(lines) == 1 and lines[0].startswith("left and right name the model's folds")
+    assert context.stride == "" and context.doubt == ""
     doubtful = context_lines(dataclasses.replace(inputs, gap_edge_disagreement=0.2), 10**9)
-    assert doubtful[:1] == lines and doubtful[1].startswith(GAP_DOUBT_START) and "differ by 20 %" in doubtful[1]
+    assert doubtful.lines[:1] == lines and doubtful.lines[1] == doubtful.doubt
+    assert doubtful.doubt.startswith(GAP_DOUBT_START) and "differ by 20 %" in doubtful.doubt

@@ -14,7 +14,7 @@ import logging
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.cycles import TooFewCycles, too_few_advice
 from vfcli.diagnose.residual import grid_filled, rms_residual
 from vfcli.diagnose.run import Diagnosis, LocateSettings, Recording, diagnose_run
-from vfcli.diagnose.words import GAP_DOUBT_START, fold_side_words, gap_doubt_words
+from vfcli.diagnose.words import fold_side_words, gap_doubt_words
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.model.refine import finer_model
 from vfcli.parallel import serial_map
@@ -142,17 +142,31 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
                           float(flow_attrs.get("edge_disagreement", float("nan"))))
 
 
-def context_lines(inputs: DiagnoseInputs, max_rows: int) -> list[str]:
+class ContextLines(NamedTuple):
+    """The lines that follow the diagnosis' first (:func:`context_lines`), each kept apart so the stage logs
+    each as what it is: ``stride`` the coarser grid the motion was compared on ("" on every pixel), ``fold`` which
+    fold of the video is which, ``doubt`` a doubtful gap ("" when /flow does not say so)."""
+
+    stride: str
+    fold: str
+    doubt: str
+
+    @property
+    def lines(self) -> list[str]:
+        """The lines in the order they are shown, the empty ones left out."""
+        return [line for line in self if line]
+
+
+def context_lines(inputs: DiagnoseInputs, max_rows: int) -> ContextLines:
     """The lines that follow the diagnosis' first: the coarser grid the motion was compared on (when it was,
     :func:`stride_words`), which fold of the video is which (:func:`vfcli.diagnose.words.fold_side_words`), and a
     doubtful gap (when /flow says so, :func:`vfcli.diagnose.words.gap_doubt_words`)."""
     problem = inputs.baseline.problem
     stride = problem.meas.pixel_stride
-    lines = [stride_words(stride, max_rows)] if stride > 1 else []
     pose_source = str((inputs.run_attrs or {}).get("pose_source", "config"))
-    lines.append(fold_side_words(problem.camera, problem.mesh, pose_source, inputs.roi_origin_px))
-    doubt = gap_doubt_words(inputs.gap_edge_disagreement)
-    return lines + [doubt] if doubt else lines
+    return ContextLines(stride_words(stride, max_rows) if stride > 1 else "",
+                        fold_side_words(problem.camera, problem.mesh, pose_source, inputs.roi_origin_px),
+                        gap_doubt_words(inputs.gap_edge_disagreement))
 
 
 def stride_words(stride: int, max_rows: int) -> str:
@@ -281,11 +295,11 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             raise InputDataError(f"diagnose: {exc}; {advice}", reader.path) from None
         stride = inputs.baseline.problem.meas.pixel_stride
         context = context_lines(inputs, ctx.config.diagnose.max_motion_rows)
-        d.lines[1:1] = context
-        if stride > 1:
-            log.info("diagnose: %s", context[0])
-        if context[-1].startswith(GAP_DOUBT_START):
-            log.warning("diagnose: %s", context[-1])
+        d.lines[1:1] = context.lines
+        if context.stride:
+            log.info("diagnose: %s", context.stride)
+        if context.doubt:
+            log.warning("diagnose: %s", context.doubt)
         s.set_attrs(pixel_stride=stride)
         if map_path is not None:
             from vfcli.diagnose.maps import residual_map
