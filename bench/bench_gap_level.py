@@ -8,8 +8,9 @@ segmented four ways, each scored as there (pooled IoU, total area error):
 * ``level``: the gap level replaced by the phantom's channel level (the renderer's
   ``gap_level`` above its black level, counts), the blur searched again with it;
 * ``level + blur``: the channel level and the drawn blur;
-* ``+ no inner bound``: as the previous, and the slit fit's edges free of the rough run's pixels
-  (:func:`vfcli.flow.gap.subpixel.fit_ray_edges` with ``inner`` at +-inf, patched in this process).
+* ``+ no inner bound``: as the previous, with ``inner`` at +-inf (patched in this process): the fit no longer
+  starts from the pixels surely in the gap either (it has not been held by them since session 59,
+  :func:`vfcli.flow.gap.subpixel.fit_ray_edges`).
 
 It also reports the blur the PSF search reads with the channel level over a range widened to
 :data:`SIGMA_RANGE_PX` (the flow step's search stops at 3 px). The phantom's truth (channel level,
@@ -35,9 +36,8 @@ sys.path.insert(0, str(ROOT / "bench"))
 import vfcli.flow.gap.subpixel.segment as segment  # noqa: E402
 from bench_gap_optics import render, score, seed_arguments  # noqa: E402
 from vfcli.config import FlowConfig  # noqa: E402
-from vfcli.flow.gap.detect import dark_core_level, gap_mask  # noqa: E402
 from vfcli.flow.gap.subpixel import EdgeModel, estimate_edge_model, segment_stream  # noqa: E402
-from vfcli.flow.pipeline import calibrate, sample_indices  # noqa: E402
+from vfcli.flow.pipeline import _sampled_masks, calibrate, sample_indices  # noqa: E402
 from vfcli.synth.render import RenderSettings  # noqa: E402
 
 #: Range of the PSF search with the channel level, px (twice the flow step's top).
@@ -50,13 +50,13 @@ def channel_counts() -> float:
     return s.black_level_dn + s.gap_level * s.full_scale_dn
 
 
-def sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral_axis: int) -> np.ndarray:
-    """The rough gap masks (k, H, W) the calibration measures its edge model on (its dark-core fallback included)."""
-    masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral_axis) for f in sample])
-    if not masks.any():
-        core = dark_core_level(sample, threshold)
-        masks = np.stack([gap_mask(f, threshold, median_px, lateral_axis=lateral_axis, core_level=core) for f in sample])
-    return masks
+def sampled_masks(sample: np.ndarray, calib, median_px: int) -> np.ndarray:
+    """The rough gap masks (k, H, W) the calibration measured its edge model on: the flow step's own
+    (:func:`vfcli.flow.pipeline._sampled_masks`) at the calibration's threshold, lateral axis, median and dark
+    surroundings (this bench's copy of it, without the surroundings and the median along the glottis, stopped
+    every seed once those came in)."""
+    return _sampled_masks(sample, calib.threshold, median_px, calib.lateral_axis, False, calib.median_along_slit,
+                          calib.surround)[0]
 
 
 def segment_with(v: dict, gap, free_inner: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -96,7 +96,7 @@ def main() -> None:
         if calib.gap is None:
             print(f"| {seed} | {drawn:.2f} / - | no edge model | | | | | |", flush=True)
             continue
-        masks = sampled_masks(sample, calib.threshold, cfg.median_px, calib.lateral_axis)
+        masks = sampled_masks(sample, calib, cfg.median_px)
         own = calib.edge_model
         if estimate_edge_model(sample, masks, calib.lateral_axis) != own:
             raise RuntimeError(f"seed {seed}: the rough masks here are not the calibration's")
