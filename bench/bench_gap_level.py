@@ -63,9 +63,11 @@ def segment_with(v: dict, gap, free_inner: bool) -> tuple[np.ndarray, np.ndarray
     """Masks (n, H, W) and areas (n,) mm^2 of the video with the sub-pixel gap settings ``gap``."""
     original = segment.fit_ray_edges_twice        # what segment's ray fits call (fit_ray_edges, before session 58)
 
-    def unbounded(frames, e0s, e1s, model, search_px, lateral_axis=0, passes=2, inners=None, gap_counts=None):
+    def unbounded(frames, e0s, e1s, model, search_px, lateral_axis=0, passes=2, inners=None, gap_counts=None,
+                  held=False):
         free = [(np.full(len(e), np.inf), np.full(len(e), -np.inf)) for e in e0s]
-        return original(frames, e0s, e1s, model, search_px, lateral_axis, passes, inners=free, gap_counts=gap_counts)
+        return original(frames, e0s, e1s, model, search_px, lateral_axis, passes, inners=free, gap_counts=gap_counts,
+                        held=held)
 
     if free_inner:
         segment.fit_ray_edges_twice = unbounded
