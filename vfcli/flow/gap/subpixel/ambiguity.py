@@ -25,8 +25,8 @@ that hold (the pixels surely in the gap are its second start only): held, the sh
 than half-way to the gap level, kept the edge on the wall (4165: 172.0 px held, 169.4 free, truth 168.5), and free the
 resolved seeds' mean area error fell from 12.0 to 6.7 %, the targets met on 12 seeds against 11 (docs/benchmarks.md,
 "Session 59").  Compared free, the two readings agree where the held one went astray and the warning lost the seeds it
-was made for (4149 +26 % unwarned); the held reading is kept as the doubt's measure, a reading the slit model also
-takes for the best nearby.
+was made for (4149 +26 % unwarned); the held reading stays the first of the two compared: a minimum of the same
+misfit under a constraint the pixels suggest, so where it and the search disagree the video admits more than one gap.
 """
 from __future__ import annotations
 
