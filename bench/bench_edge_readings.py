@@ -1,9 +1,9 @@
 """## The cost of the flow step's second reading of the gap's edges (issue 15; session 58).
 
 ``vfcli flow`` reads the sampled gap's edges twice (:func:`vfcli.flow.pipeline.edge_readings`): as the edge fit
-places them from the detected edges, and with each edge also searched over 4 px around it
-(:func:`vfcli.flow.gap.subpixel.profile.searched_edges`), and warns when the two glottal areas differ by more than
-5 %.  For each widened seed (rendered as ``bench/bench_gap_optics.py`` renders it, cached in ``--cache``) this
+places them from the detected edges held beyond the pixels surely in the gap (the product until session 59), and
+with each edge also searched over 4 px around it (:func:`vfcli.flow.gap.subpixel.profile.searched_edges`), and warns
+when the two glottal areas differ by more than 5 %.  For each widened seed (rendered as ``bench/bench_gap_optics.py`` renders it, cached in ``--cache``) this
 times the flow step's calibration of the same sampled frames with the second reading and without it (the baseline,
 :func:`vfcli.flow.pipeline.edge_readings` replaced by a no-op for that call), in one process, and prints their
 ratio and the disagreement.  The calibration runs once per recording; the rest of ``vfcli flow`` (every frame's
@@ -49,6 +49,7 @@ def main() -> None:
         share = calib.edge_disagreement
         print(f"| {seed} | {times[0]:.2f} | {times[1]:.2f} | {times[1] / times[0]:.2f} | "
               f"{'not resolved' if share != share else f'{100 * share:.1f}%'} |", flush=True)
+
 
 if __name__ == "__main__":
     main()

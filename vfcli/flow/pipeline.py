@@ -225,8 +225,8 @@ class FlowCalibration:
         automatic threshold where they are as dark as the gap; None: none found, or ``flow.exclude_surround`` off.
     edge_disagreement : float
         How far the video pins the gap's edges (:func:`edge_readings`): the relative difference of the sampled
-        gap's area read from the detection's edges and searched over each edge's neighbourhood; NaN when the gap
-        is not resolved or without sub-pixel edges.
+        gap's area read with the edges held beyond the pixels surely in the gap and searched over each edge's
+        neighbourhood; NaN when the gap is not resolved or without sub-pixel edges.
     """
 
     threshold: float
@@ -407,8 +407,9 @@ def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap
 
 def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> float:
     """The relative difference of the two readings of the sampled gap's area
-    (:func:`vfcli.flow.gap.subpixel.ambiguity.area_disagreement`) on the :data:`EDGE_READING_FRAMES` sampled frames
-    with the largest rough gaps (``masks``); logs it, and warns when it exceeds
+    (:func:`vfcli.flow.gap.subpixel.ambiguity.area_disagreement`: the edge fit held beyond the pixels surely in the
+    gap, and searched) on the :data:`EDGE_READING_FRAMES` sampled frames with the largest rough gaps (``masks``);
+    these are fitted again, apart from the segmentation's own fits, which are not held; logs it, and warns when it exceeds
     :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` (the gap masks, the glottal area and the gap term are
     then doubtful by about that share)."""
     widest = _widest_sampled(masks, EDGE_READING_FRAMES)

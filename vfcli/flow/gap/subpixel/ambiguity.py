@@ -44,7 +44,8 @@ def area_disagreement(started: list, searched: list) -> float:
     """Relative difference of the summed slit widths of two readings of the same frames' rays.
 
     started, searched : K per-frame fits with ``e0``, ``e1`` (n_rays,) px (NaN or ``e1 <= e0``: closed), the
-        detection-started edge fit and the searched one
+        detection-started edge fit (held beyond the pixels surely in the gap, as the flow step compares it) and the
+        searched one
         (:func:`vfcli.flow.gap.subpixel.segment.ray_fits_twice`).
 
     Returns ``|A_searched - A_started| / A_started`` with ``A`` the sum over frames and rays of the open width, px
