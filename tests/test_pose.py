@@ -291,3 +291,36 @@ def test_the_symmetry_window_is_where_a_glottis_of_length_l_covers_the_visible_g
     assert window((False, True)) == (10.0, 20.0)
     assert window((True, False)) == (0.0, 10.0)
     assert window((True, True)) == (-40.0, 60.0)
+
+
+def test_near_a_diagonal_the_gap_is_read_along_the_axis_flow_measured_it():
+    """Within DIAGONAL_TOLERANCE_DEG of 45 deg either image axis crosses the glottis alike: a rotation estimated at
+    -44.9 deg for a gap /flow read along columns (its stated -45.1 deg) made optimize warn "set camera.rotation_deg",
+    the rotation it had (widened seed 4194). Away from the diagonals a disagreement is still one."""
+    from vfcli.camera.pose import DIAGONAL_TOLERANCE_DEG, gap_ray_axis, lateral_axis_for
+
+    assert (lateral_axis_for(-44.9), lateral_axis_for(-45.1)) == (0, 1)          # the coin the pose's precision tosses
+    for rotation, measured in ((-44.9, 1), (-45.1, 0), (44.5, 1), (135.6, 1), (-134.2, 0), (225.3, 0)):
+        assert gap_ray_axis(rotation, measured) == (measured, False), rotation
+    for rotation in (0.0, 30.0, 43.5, 90.0, -60.0, 180.0):                       # agreeing: the rotation's own axis
+        assert gap_ray_axis(rotation, lateral_axis_for(rotation)) == (lateral_axis_for(rotation), False)
+    for rotation in (0.0, 30.0, 43.5, 46.5, 90.0, -60.0):                        # disagreeing away from a diagonal
+        other = 1 - lateral_axis_for(rotation)
+        assert gap_ray_axis(rotation, other) == (lateral_axis_for(rotation), True), rotation
+    assert gap_ray_axis(45.0 + 2 * DIAGONAL_TOLERANCE_DEG, 0) == (1, True)
+
+
+@pytest.mark.parametrize("rise, lateral, warned", [(1.0, 0, False), (1.0, 1, False), (0.5, 1, True), (0.5, 0, False)])
+def test_flow_does_not_warn_of_the_rotation_for_a_gap_on_the_diagonal(caplog, rise, lateral, warned):
+    """flow's check of the sampled gap: a slit at 45 deg in the image agrees with either lateral axis (before, the one
+    that lost the coin toss was told to set camera.rotation_deg); one at 27 deg still disagrees with the wrong one."""
+    from vfcli.flow.pipeline import check_sampled_gap
+
+    masks = np.zeros((8, 96, 96), bool)
+    for k in range(8):
+        for i in range(10, 80):
+            masks[k, int(10 + rise * i) : int(10 + rise * i) + 2, i] = k % 2 == 0
+    with caplog.at_level(logging.WARNING):
+        check_sampled_gap(masks, 100.0, True, lateral)
+    said = any("makes image" in r.getMessage() for r in caplog.records)
+    assert said == warned, [r.getMessage() for r in caplog.records]

@@ -346,6 +346,32 @@ def lateral_axis_for(rotation_deg: float) -> int:
     return 0 if abs(np.cos(th)) >= abs(np.sin(th)) - 1e-12 else 1
 
 
+#: Within this many degrees of a diagonal (45 deg + k 90 deg) either image axis crosses the glottis alike (at 44-46
+#: deg): the rotation's own axis is then a coin the pose's precision tosses (the rotation estimated from the gap is
+#: a few tenths of a degree off on the widened panels, docs/benchmarks.md), so the axis /flow measured the gap along
+#: stands
+DIAGONAL_TOLERANCE_DEG = 1.0
+
+
+def gap_ray_axis(rotation_deg: float, measured_axis: int, tolerance_deg: float = DIAGONAL_TOLERANCE_DEG
+                 ) -> tuple[int, bool]:
+    """(axis, disagrees): the lateral image axis to read the gap's rays along, 0 (rows) or 1 (columns), for a camera
+    rotation (degrees) and the axis /flow measured the gap along.
+
+    The rotation's axis (:func:`lateral_axis_for`), unless the rotation lies within ``tolerance_deg`` of a diagonal,
+    where either axis crosses the glottis at about 45 deg and the measured one is taken (a rotation of -44.9 deg
+    estimated for a stated -45.1 deg had made optimize warn that the rotation and /flow disagree, advising to set the
+    rotation already set; widened seed 4194). ``disagrees``: the rotation's axis is not the measured one and the
+    rotation is away from the diagonals (a rotation that does not fit the measured gap; the caller warns)."""
+    axis = lateral_axis_for(rotation_deg)
+    if axis == int(measured_axis):
+        return axis, False
+    off = abs((float(rotation_deg) - 45.0) % 90.0)
+    if min(off, 90.0 - off) <= tolerance_deg:
+        return int(measured_axis), False
+    return axis, True
+
+
 def model_axes_velocity(velocity_uv: np.ndarray, velocity_rotation_deg: float, rotation_deg: float) -> np.ndarray:
     """(u, v) of the model axes for ``rotation_deg``, from (u, v) /flow turned by ``velocity_rotation_deg``.
 

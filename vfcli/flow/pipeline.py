@@ -27,7 +27,7 @@ from typing import Any, Iterable, Iterator, Protocol
 
 import numpy as np
 
-from vfcli.camera.pose import gap_axis, lateral_axis_for
+from vfcli.camera.pose import gap_axis, gap_ray_axis, lateral_axis_for
 from vfcli.config import FlowConfig
 from vfcli.errors import InputDataError
 from vfcli.flow.gap.detect import dark_core_level, gap_mask, gap_threshold, midline_from_masks, midline_line
@@ -111,7 +111,7 @@ def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool, lateral_a
     if (counts > 0).sum() >= 3:
         angle = gap_axis(counts).rotation_deg
         other = angle - 180 if angle > 0 else angle + 180
-        if lateral_axis_for(angle) != lateral_axis:
+        if gap_ray_axis(angle, lateral_axis)[1]:
             log.warning("flow: the sampled gap runs at %.0f deg in the image (along image %s) but the camera rotation "
                         "makes image %s lateral; set camera.rotation_deg (about %.0f or %.0f deg) and camera.pose, "
                         "then rerun ingest-hsc and flow", angle, _ALONG[lateral_axis_for(angle)],
@@ -245,9 +245,10 @@ class FlowCalibration:
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
-    """The sampled gap masks (k, H, W) show a gap whose principal axis makes ``lateral`` the lateral axis."""
+    """The sampled gap masks (k, H, W) show a gap whose principal axis makes ``lateral`` the lateral axis (or lies
+    within :data:`vfcli.camera.pose.DIAGONAL_TOLERANCE_DEG` of a diagonal, where either axis is: :func:`gap_ray_axis`)."""
     counts = masks.sum(axis=0)
-    return bool((counts > 0).sum() >= 3 and lateral_axis_for(gap_axis(counts).rotation_deg) == lateral)
+    return bool((counts > 0).sum() >= 3 and not gap_ray_axis(gap_axis(counts).rotation_deg, lateral)[1])
 
 
 def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float, rotation_deg: float,

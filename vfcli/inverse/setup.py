@@ -17,7 +17,7 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from vfcli.camera.camera import Camera
-from vfcli.camera.pose import lateral_axis_for, locate, model_axes_velocity, motion_amplitude
+from vfcli.camera.pose import gap_ray_axis, locate, model_axes_velocity, motion_amplitude
 from vfcli.config import OptimizeConfig
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
@@ -195,8 +195,8 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     rotation, offset, pose_source = camera_pose(inputs, pose)
     velocity = np.array(inputs.velocity, dtype=np.float64)
     velocity[..., :2] = model_axes_velocity(velocity[..., :2], inputs.velocity_rotation_deg, rotation)
-    lateral = lateral_axis_for(rotation)
-    if lateral != inputs.lateral_axis:
+    lateral, disagrees = gap_ray_axis(rotation, inputs.lateral_axis)
+    if disagrees:
         log.warning("optimize: the camera rotation %.1f deg makes image axis %d lateral but /flow measured the gap "
                     "along axis %d; set camera.rotation_deg (and camera.pose = 'config') and rerun ingest-hsc and flow",
                     rotation, lateral, inputs.lateral_axis)
