@@ -356,7 +356,8 @@ DIAGONAL_TOLERANCE_DEG = 1.0
 def gap_ray_axis(rotation_deg: float, measured_axis: int, tolerance_deg: float = DIAGONAL_TOLERANCE_DEG
                  ) -> tuple[int, bool]:
     """(axis, disagrees): the lateral image axis to read the gap's rays along, 0 (rows) or 1 (columns), for a camera
-    rotation (degrees) and the axis /flow measured the gap along.
+    rotation (degrees) and the axis the gap was measured along (optimize: /flow's axis; flow's check of the sampled
+    gap passes the gap's own angle as the rotation and the configured rotation's axis as the measured one).
 
     The rotation's axis (:func:`lateral_axis_for`), unless the rotation lies within ``tolerance_deg`` of a diagonal,
     where either axis crosses the glottis at about 45 deg and the measured one is taken (a rotation of -44.9 deg

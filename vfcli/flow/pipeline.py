@@ -245,8 +245,9 @@ class FlowCalibration:
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
-    """The sampled gap masks (k, H, W) show a gap whose principal axis makes ``lateral`` the lateral axis (or lies
-    within :data:`vfcli.camera.pose.DIAGONAL_TOLERANCE_DEG` of a diagonal, where either axis is: :func:`gap_ray_axis`)."""
+    """The sampled gap masks (k, H, W) show a gap whose principal axis makes ``lateral`` the lateral axis, or lies
+    within :data:`vfcli.camera.pose.DIAGONAL_TOLERANCE_DEG` of a diagonal, where either axis is
+    (:func:`gap_ray_axis`)."""
     counts = masks.sum(axis=0)
     return bool((counts > 0).sum() >= 3 and not gap_ray_axis(gap_axis(counts).rotation_deg, lateral)[1])
 
@@ -410,9 +411,9 @@ def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> fl
     """The relative difference of the two readings of the sampled gap's area
     (:func:`vfcli.flow.gap.subpixel.ambiguity.area_disagreement`: the edge fit held beyond the pixels surely in the
     gap, and searched) on the :data:`EDGE_READING_FRAMES` sampled frames with the largest rough gaps (``masks``);
-    these are fitted again, apart from the segmentation's own fits, which are not held; logs it, and warns when it exceeds
-    :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` (the gap masks, the glottal area and the gap term are
-    then doubtful by about that share)."""
+    these are fitted again, apart from the segmentation's own fits, which are not held; logs it, and warns when it
+    exceeds :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` (the gap masks, the glottal area and the gap term
+    are then doubtful by about that share)."""
     widest = _widest_sampled(masks, EDGE_READING_FRAMES)
     frames = [sample[i] for i in widest]
     share = area_disagreement(*ray_fits_twice(frames, gap, SEARCH_REACH_PX, held=True))
