@@ -179,3 +179,22 @@ def test_the_pullback_is_the_adjoint_of_the_contact_map():
         err = abs(np.sum(pulled * du) - fd) / abs(fd)
         assert err < 1e-6, (err, np.sum(pulled * du), fd)                   # measured 1e-10 .. 2e-8
         assert abs(np.sum(g * du) - fd) / abs(fd) > 0.01                     # the forces' change matters
+
+
+@pytest.mark.slow
+def test_the_correction_is_the_elastic_solve_of_the_contact_forces():
+    """The correction sums the unit pushes' displacements (computed once per model); against the FEM
+    solve of the forces themselves, ``K^-1 N^T lambda``, to round-off."""
+    base = crossing_case()
+    term = Contact()
+    model, cn, _ = term.operators(base)
+    lam = term.forces(base)
+    rows = [0, 5, 10]
+    rhs = np.zeros((model.n_dofs, len(rows)))
+    for j, t in enumerate(rows):
+        rhs[cn.ydof, j] = cn.side * lam[t]
+    direct = model.vertex_displacements(model.solve(rhs)).reshape(len(rows), -1, 3)
+    got = term.correction(base, lam)[rows]
+    assert np.abs(direct).max() > 0.1                          # the crossing is pushed back by about its depth
+    assert np.abs(got - direct).max() < 1e-9 * np.abs(direct).max()
+    assert not np.any(term.correction(base, np.zeros_like(lam)))

@@ -144,22 +144,25 @@ class Contact(DisplacementTerm):
         self.model = model
         self.band_mm = float(band_mm)
         self._own: tuple = (None, None)               # (mesh, default model)
-        self._ops: tuple = (None, None, None)         # (model, ContactNodes, compliance)
-        self._units: tuple = (None, None)             # (model, (n_c, N, 3) unit pushes)
+        self._ops: tuple = (None, None, None, None)   # (model, ContactNodes, compliance, (n_c, N, 3) unit pushes)
 
     def operators(self, baseline) -> tuple:
-        """(model, :class:`ContactNodes`, compliance G (n_c, n_c)) of the baseline's model (cached)."""
+        """(model, :class:`ContactNodes`, compliance G (n_c, n_c)) of the baseline's model (cached with the unit
+        pushes' displacements, :meth:`correction_of_units`: one solve per contact node, in chunks)."""
         model = term_model(self, baseline)
         if self._ops[0] is not model:
             cn = contact_nodes(model, self.band_mm)
             g = np.empty((len(cn.nodes), len(cn.nodes)))
+            units = np.empty((len(cn.nodes), model.mesh.n_nodes, 3))
             for a in range(0, len(cn.nodes), 256):             # unit y pushes, in chunks
                 cols = np.arange(a, min(a + 256, len(cn.nodes)))
                 rhs = np.zeros((model.n_dofs, len(cols)))
                 rhs[cn.ydof[cols], np.arange(len(cols))] = cn.side[cols]
-                g[:, cols] = cn.side[:, None] * model.solve(rhs)[cn.ydof]
-            self._ops = (model, cn, 0.5 * (g + g.T))
-        return self._ops
+                u = model.solve(rhs)
+                g[:, cols] = cn.side[:, None] * u[cn.ydof]
+                units[cols] = model.vertex_displacements(u).reshape(len(cols), -1, 3)
+            self._ops = (model, cn, 0.5 * (g + g.T), units)
+        return self._ops[:3]
 
     def separation(self, baseline, disp: np.ndarray | None = None) -> np.ndarray:
         """(T, n_c) distance of each contact node from the midplane on its side, mm, for ``disp``
@@ -174,15 +177,11 @@ class Contact(DisplacementTerm):
         return solve_contact(self.separation(baseline), g)
 
     def correction(self, baseline, lam: np.ndarray) -> np.ndarray:
-        """(T, N, 3) displacement (mm) of the contact forces ``lam`` (T, n_c)."""
-        model, cn, _ = self.operators(baseline)
-        out = np.zeros((len(lam), model.mesh.n_nodes, 3))
-        rows = np.flatnonzero(np.any(lam > 0, axis=1))
-        if len(rows):
-            rhs = np.zeros((model.n_dofs, len(rows)))
-            np.add.at(rhs, (cn.ydof[:, None], np.arange(len(rows))[None]), (cn.side[None] * lam[rows]).T)
-            out[rows] = model.vertex_displacements(model.solve(rhs)).reshape(len(rows), -1, 3)
-        return out
+        """(T, N, 3) displacement (mm) of the contact forces ``lam`` (T, n_c): their sum over the unit pushes'
+        displacements (:meth:`correction_of_units`; the folds are linear)."""
+        self.operators(baseline)
+        units = self._ops[3]
+        return np.tensordot(np.asarray(lam, dtype=float), units, axes=(1, 0))
 
     def pullback(self, baseline, grad: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """(T, N, 3) gradient with respect to the baseline's displacements U0 of ``sum(grad * U)``, U the
@@ -210,13 +209,9 @@ class Contact(DisplacementTerm):
 
     def correction_of_units(self, baseline, which: np.ndarray) -> np.ndarray:
         """(k, N, 3) displacement (mm) of a unit push (Pa mm^2, along the fold's outward y) at each contact
-        node ``which`` (k,) (indices into the contact nodes), cached per model."""
-        model, cn, _ = self.operators(baseline)
-        if self._units[0] is not model:
-            rhs = np.zeros((model.n_dofs, len(cn.nodes)))
-            rhs[cn.ydof, np.arange(len(cn.nodes))] = cn.side
-            self._units = (model, model.vertex_displacements(model.solve(rhs)).reshape(len(cn.nodes), -1, 3))
-        return self._units[1][np.asarray(which)]
+        node ``which`` (k,) (indices into the contact nodes), cached per model with :meth:`operators`."""
+        self.operators(baseline)
+        return self._ops[3][np.asarray(which)]
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
         return self.correction(baseline, self.forces(baseline))[..., None]
