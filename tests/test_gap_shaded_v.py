@@ -3,10 +3,11 @@
 The blurred-slit model says "no gap" with crossed edges (``e1 <= e0``): its gap basis turns negative between
 them and the two tissue ramps meet in a V. Widened phantom 4199 (blur 1.05 px, a glottis at -16.5 deg, medial
 walls in shade that darken gradually toward the gap) showed the gap at its own level (227-260 counts for a
-recorded gap level of 243) on rays whose fit crossed: a quarter of the rays of its widest frames were closed
-that way, and its sampled glottal area read 17 % low. The profiles below are three such rays of its frame 19,
-as rendered (image column 60, 45 and 61; rows from ``row0``), with the detection's run and the pixel centres
-darker than half-way from the tissue beside the gap to the gap level (``inner``).
+recorded gap level of 243) on rays whose fit crossed: 12 of the 167 rays across the gap in its widest frame
+were closed that way (its sampled glottal area read 17 % low, a third of the rays across the true gap
+empty). The profiles below are three such rays of that frame as rendered (image columns 60, 45 and 61; rows
+from ``row0``), with the detection's run and the pixel centres darker than half-way from the tissue beside
+the gap to the gap level (``inner``).
 """
 from __future__ import annotations
 

@@ -317,9 +317,8 @@ def _open_where_surely_gap(fit: SlitFit, prof: np.ndarray, rows: np.ndarray, sig
     Crossed edges are how the slit model says "no gap": its gap basis turns negative between them, so that the two
     tissue ramps meet in a V. That V also fits a dip that is the gap seen between medial walls in shade, which
     darken gradually toward it, better than the flat-floored slit under the recording's blur does: on widened
-    phantom 4199 (blur 1.05 px, walls shaded) a quarter of the rays of its widest frames were closed that way, each
-    with pixels at the gap's own level, and the sampled glottal area read 17 % low (docs/benchmarks.md, "Session
-    61"). A pixel darker than half-way from the tissue beside the gap to the gap level is more gap than tissue, so
+    phantom 4199 (blur 1.05 px, walls shaded) 12 of the 167 rays across the gap in its widest frame were closed that
+    way, each with pixels at the gap's own level (docs/benchmarks.md, "Session 61"). A pixel darker than half-way from the tissue beside the gap to the gap level is more gap than tissue, so
     such a ray is open; where it is, the held fit says."""
     lo, hi = inner
     redo = np.flatnonzero(~(fit.e1 > fit.e0) & np.isfinite(lo) & np.isfinite(hi) & (lo <= hi))
