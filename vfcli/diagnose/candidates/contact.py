@@ -179,9 +179,7 @@ class Contact(DisplacementTerm):
     def correction(self, baseline, lam: np.ndarray) -> np.ndarray:
         """(T, N, 3) displacement (mm) of the contact forces ``lam`` (T, n_c): their sum over the unit pushes'
         displacements (:meth:`correction_of_units`; the folds are linear)."""
-        self.operators(baseline)
-        units = self._ops[3]
-        return np.tensordot(np.asarray(lam, dtype=float), units, axes=(1, 0))
+        return np.tensordot(np.asarray(lam, dtype=float), self._unit_pushes(baseline), axes=(1, 0))
 
     def pullback(self, baseline, grad: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """(T, N, 3) gradient with respect to the baseline's displacements U0 of ``sum(grad * U)``, U the
@@ -210,8 +208,12 @@ class Contact(DisplacementTerm):
     def correction_of_units(self, baseline, which: np.ndarray) -> np.ndarray:
         """(k, N, 3) displacement (mm) of a unit push (Pa mm^2, along the fold's outward y) at each contact
         node ``which`` (k,) (indices into the contact nodes), cached per model with :meth:`operators`."""
+        return self._unit_pushes(baseline)[np.asarray(which)]
+
+    def _unit_pushes(self, baseline) -> np.ndarray:
+        """(n_c, N, 3) displacement (mm) of a unit push at every contact node (:meth:`operators`' cache)."""
         self.operators(baseline)
-        return self._ops[3][np.asarray(which)]
+        return self._ops[3]
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
         return self.correction(baseline, self.forces(baseline))[..., None]

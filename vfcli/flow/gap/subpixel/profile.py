@@ -318,8 +318,9 @@ def _open_where_surely_gap(fit: SlitFit, prof: np.ndarray, rows: np.ndarray, sig
     tissue ramps meet in a V. That V also fits a dip that is the gap seen between medial walls in shade, which
     darken gradually toward it, better than the flat-floored slit under the recording's blur does: on widened
     phantom 4199 (blur 1.05 px, walls shaded) 12 of the 167 rays across the gap in its widest frame were closed that
-    way, each with pixels at the gap's own level (docs/benchmarks.md, "Session 61"). A pixel darker than half-way from the tissue beside the gap to the gap level is more gap than tissue, so
-    such a ray is open; where it is, the held fit says."""
+    way, each with pixels at the gap's own level (docs/benchmarks.md, "Session 61"). A pixel darker than half-way
+    from the tissue beside the gap to the gap level is more gap than tissue, so such a ray is open; where it is, the
+    held fit says."""
     lo, hi = inner
     redo = np.flatnonzero(~(fit.e1 > fit.e0) & np.isfinite(lo) & np.isfinite(hi) & (lo <= hi))
     if redo.size == 0:
