@@ -89,7 +89,7 @@ def reduced_inertia(case):
     red = ModalReduction(case.model, load.spatial_loads(case.model), n_modes=8, n_ritz=6)
 
     class _Reduced(Inertia):
-        def reduction(self, baseline, n_harmonics=6, centre=1.0):
+        def reduction(self, baseline, n_harmonics=6, centre=1.0, map=None):
             return red
 
     return _Reduced(case.model), red

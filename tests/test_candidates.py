@@ -60,7 +60,7 @@ def test_inertia_column_is_the_density_derivative_of_its_extension_with_a_noisy_
     red = ModalReduction(base.model, load.spatial_loads(base.model), n_modes=4, n_ritz=4)
 
     class _Reduced(Inertia):                           # the Ritz reduction (exact moments at rho = 0), not the
-        def reduction(self, baseline, n_harmonics=6, centre=1.0):  # complete expansion of this 2 mm mesh
+        def reduction(self, baseline, n_harmonics=6, centre=1.0, map=None):  # complete expansion of this 2 mm mesh
             return red
 
     inertia = _Reduced(base.model)
@@ -236,7 +236,7 @@ def test_damping_column_is_the_retardation_derivative_of_its_extension_with_a_no
     load = base.problem.response.load_model
     red = ModalReduction(base.model, load.spatial_loads(base.model), n_modes=4, n_ritz=4)
     damping = KelvinVoigtDamping(base.model)
-    damping._modal.reduction = lambda baseline, n_harmonics=6: red
+    damping._modal.reduction = lambda baseline, n_harmonics=6, map=None: red
     delta = 1e-4                                       # ms
     fd = (damping.extension(base, [delta]) - damping.extension(base, [-delta])) / (2 * delta)
     column = damping.displacement_jacobian(base)[..., 0]
@@ -253,7 +253,7 @@ def test_damping_states_its_extended_model_as_the_steady_state_of_the_modal_redu
     load = base.problem.response.load_model
     red = ModalReduction(base.model, load.spatial_loads(base.model), n_modes=4, n_ritz=4)
     damping = KelvinVoigtDamping(base.model)
-    damping._modal.reduction = lambda baseline, n_harmonics=6: red          # the small reduction, not the complete one
+    damping._modal.reduction = lambda baseline, n_harmonics=6, map=None: red  # the small reduction, not the complete one
     tau_ms = 0.4
     got = damping.response(base, [tau_ms]).displacements(base.x, base.problem.sim_times) - base.displacements
     inertia = Inertia(base.model)

@@ -148,6 +148,30 @@ def test_heldout_error_drops_with_the_effect_and_not_without():
     assert not null.beyond_spread() and abs(null.reduction) < 0.05
 
 
+@pytest.mark.parametrize("side_by_side", ["ForkMap", "ThreadMap"])
+def test_refits_side_by_side_confirm_as_one_after_the_other_bit_for_bit(side_by_side):
+    """`vfcli diagnose --jobs 2` refits its leads side by side (vfcli.diagnose.confirm.confirm_all), each in a child
+    forked from the process (vfcli.fork_map.ForkMap, its result pickled back) or, without fork, in a thread
+    (vfcli.parallel.ThreadMap), sharing the baseline: every refit's estimate, loads and held-out errors are those
+    of the refits one after the other, to the bit."""
+    from vfcli.diagnose.confirm import confirm_all
+    from vfcli.fork_map import ForkMap
+    from vfcli.parallel import ThreadMap
+
+    base = case_with(StiffnessAsymmetry(), (0.2,), noise_mm_s=50.0, seed=11)
+    phase = 3.0 * np.arange(12) / 12
+    got = {}
+    for name, mapper in (("serial", None), ("side", {"ForkMap": ForkMap, "ThreadMap": ThreadMap}[side_by_side](2))):
+        got[name] = confirm_all(base, [StiffnessAsymmetry(), MountingOffset()], phase, map=mapper)
+    for a, b in zip(got["serial"], got["side"]):
+        assert a.confirmation.candidate == b.confirmation.candidate
+        assert np.array_equal(a.refit.x, b.refit.x) and np.array_equal(a.refit.theta, b.refit.theta)
+        assert [h.kind for h in a.confirmation.heldout] == [h.kind for h in b.confirmation.heldout]
+        for ha, hb in zip(a.confirmation.heldout, b.confirmation.heldout):
+            assert np.array_equal(ha.baseline, hb.baseline) and np.array_equal(ha.extended, hb.extended)
+    assert abs(got["side"][0].refit.theta[0] - 0.2) < 0.02             # the asymmetry found, not a no-op
+
+
 def test_prediction_error_is_the_rms_of_the_held_out_rows():
     base = pressure_case(12, 4)
     # the baseline's own data, its own displacements: no error; scaled velocity: a known error
@@ -388,6 +412,7 @@ def test_the_profile_leads_to_the_truth_with_the_term_and_stays_quiet_without(te
     once the loads are refitted, best at the truth; on data without it every value fits worse (same noise
     both ways).  Measured: inertia -93 % at 1 / +3968 % at best; damping -94 % at 0.2 / +177 % at best."""
     from vfcli.diagnose.profile import profile_screens
+    from vfcli.fork_map import ForkMap
 
     b0 = pressure_case(12, 4)
     cand = reduced_inertia(b0)[0] if term == "inertia" else reduced_damping(b0)
@@ -397,6 +422,9 @@ def test_the_profile_leads_to_the_truth_with_the_term_and_stays_quiet_without(te
         fitted = joint_fit(data.problem, data.x, None, data.f0_hz, max_iterations=10)
         base = Baseline.at(data.problem, fitted.x, data.f0_hz, model=b0.model)
         (out[theta],) = profile_screens(base, [cand])
+        if theta:                 # its values side by side (`vfcli diagnose --jobs 2`, forked): the same, to the bit
+            (side,) = profile_screens(base, [cand], map=ForkMap(2))
+            assert side.e0 == out[theta].e0 and np.array_equal(side.e, out[theta].e)
     present, absent = out[truth], out[0.0]
     print(present.words(), "|", absent.words())
     assert present.lead and present.best == truth and present.relative.min() < -0.5

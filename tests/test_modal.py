@@ -121,3 +121,29 @@ def test_the_complete_expansion_is_exact_and_shifts_make_the_ritz_reduction_exac
     print(errs)
     assert np.all(errs[:, 1] < 1e-8), errs                              # exact at its shifts
     assert np.max(errs[1:, 0]) > 1e-2, errs                             # plain: off above the fundamental
+
+
+@pytest.mark.parametrize("side_by_side", ["ForkMap", "ThreadMap"])
+def test_the_shifts_factorised_side_by_side_give_the_same_reduction_bit_for_bit(side_by_side):
+    """The shifted Ritz blocks are independent pieces (a factorisation of ``K - w^2 M`` each): built through a
+    map over two forked children (vfcli.fork_map.ForkMap, as `vfcli diagnose --jobs 2` builds them on Linux) or two
+    threads (vfcli.parallel.ThreadMap, elsewhere) the reduction is the serial one to the bit, and the map received
+    every shift."""
+    from vfcli.fork_map import ForkMap
+    from vfcli.parallel import ThreadMap
+
+    model = elastic_model(3.0)
+    loads = _loads(model)
+    shifts = F0_HZ * np.arange(1, 4)
+    seen = []
+
+    def recorded(func, items):
+        items = list(items)
+        seen.extend(items)
+        return {"ForkMap": ForkMap, "ThreadMap": ThreadMap}[side_by_side](2)(func, items)
+
+    serial = ModalReduction(model, loads, n_modes=4, n_ritz=3, shifts_hz=shifts)
+    threaded = ModalReduction(model, loads, n_modes=4, n_ritz=3, shifts_hz=shifts, map=recorded)
+    assert np.array_equal(np.asarray(seen), shifts)
+    for name in ("eigenvalues_", "vertex_modes_", "modal_loads_"):
+        assert np.array_equal(getattr(threaded, name), getattr(serial, name)), name

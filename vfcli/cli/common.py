@@ -48,6 +48,17 @@ def run_options(func: Callable[..., Any]) -> Callable[..., Any]:
     return func
 
 
+def jobs_option(func: Callable[..., Any]) -> Callable[..., Any]:
+    """--jobs N: the workers a command spreads a recording's in-process pieces over (``jobs``, None: the cores;
+    :func:`vfcli.parallel.local_map`)."""
+    return click.option(
+        "--jobs", "-j", "jobs", type=click.IntRange(min=1), default=None, metavar="N",
+        help="Processes for the diagnosis's independent pieces (its profile values, its modal reduction's "
+             "factorisations, its refits), forked from this one (threads where there is no fork); default: the "
+             "cores this process may use, e.g. a SLURM allotment; 1: one after the other. The results are the "
+             "same whatever N; each piece running beside another holds its own working memory.")(func)
+
+
 def store_command(func: Callable[..., Any]) -> Callable[..., Any]:
     """Add FILE and the :func:`run_options`; pass a RunContext as ``ctx``."""
 

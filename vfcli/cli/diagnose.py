@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from vfcli.cli.common import store_command
+from vfcli.cli.common import jobs_option, store_command
 
 
 @click.command("diagnose")
@@ -18,7 +18,8 @@ from vfcli.cli.common import store_command
               help="Confirm by refit: 'auto' refits the leads in turn (calibrated leads first, then profile leads; "
                    "at most 3 refits) and names the confirmed one whose refit predicts held-out data best, 'none' "
                    "never refits, a candidate's name (inertia, damping, asymmetry, offset, contact) refits that one.")
-def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path, refit):  # type: ignore[no-untyped-def]
+@jobs_option
+def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path, refit, jobs):  # type: ignore[no-untyped-def]
     """Locate where a fitted run disagrees with its recording, and name the missing physics.
 
     Reads: /optimize/<run>, /mesh, /fields, /flow (/hsc's pressure for the pressure loads; /ldv and
@@ -30,10 +31,12 @@ def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path, refit):  # type: i
     Prints the findings in plain words.
     """
     from vfcli.cli.outputs import PICTURE_FORMATS, check_output_file
+    from vfcli.parallel import local_map
     from vfcli.stages.diagnose import run_diagnose
 
     check_output_file(map_path, "--map", PICTURE_FORMATS)
 
+    ctx.local_map = local_map(jobs)
     result = run_diagnose(ctx, run_name, alpha, n_harmonics, map_path, refit)
     click_ctx = click.get_current_context()
     if not click_ctx.params.get("as_json") and not click_ctx.params.get("quiet"):

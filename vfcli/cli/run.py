@@ -11,7 +11,7 @@ from typing import Any
 import click
 
 from vfcli.cli.choices import RUN_STEPS
-from vfcli.cli.common import run_options, setup_logging
+from vfcli.cli.common import jobs_option, run_options, setup_logging
 from vfcli.errors import VfcliError
 
 #: The steps, for --until (`vfcli batch` imports this name too).
@@ -35,10 +35,11 @@ def _report_current(store: Path, out: Path) -> bool:
               help="Then export everything into this folder (skipped when it is up to date).")
 @click.option("--report", "report_file", type=click.Path(dir_okay=False),
               help="Then write the HTML report to this file (skipped when newer than the store).")
+@jobs_option
 @run_options
 def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, export_dir: str | None,
-            report_file: str | None, config_path: str | None, overrides: tuple[str, ...], force: bool,
-            quiet: bool, as_json: bool, verbose: int) -> None:
+            report_file: str | None, jobs: int | None, config_path: str | None, overrides: tuple[str, ...],
+            force: bool, quiet: bool, as_json: bool, verbose: int) -> None:
     """Run every step of one recording in one process: ingest-hsc, ingest-ldv, sync, flow,
     mesh, optimize (run 'default'), diagnose (of run 'default'; skipped, saying why, when it
     could not calibrate its decision: fewer than 3 stretches of the window's length at whole
@@ -51,6 +52,7 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
     Reads: raw files and the store. Writes: every stage group of the store.
     """
     from vfcli.cli.outputs import check_output_file, check_output_folder
+    from vfcli.parallel import local_map
     from vfcli.progress import make_progress
     from vfcli.stages.run import run_recording
 
@@ -62,7 +64,7 @@ def run_cmd(store: str, raw_dir: str | None, until: str | None, dry_run: bool, e
             Path(store), Path(raw_dir) if raw_dir else None, until=until, overrides=list(overrides),
             config_path=Path(config_path) if config_path else None, dry_run=dry_run, force=force,
             command=" ".join(shlex.quote(a) for a in ["vfcli", *sys.argv[1:]]),
-            progress=make_progress(False if quiet else None))
+            progress=make_progress(False if quiet else None), local_map=local_map(jobs))
     except (VfcliError, KeyboardInterrupt) as exc:
         # the steps that ran (and are committed) before the one that failed or was interrupted; the error itself
         # is one line on stderr

@@ -9,6 +9,7 @@ held-out comparisons (:mod:`vfcli.diagnose.heldout`) and Locate on the extended 
 """
 from __future__ import annotations
 
+import builtins
 import logging
 import time
 from dataclasses import dataclass
@@ -37,13 +38,11 @@ MAX_REFITS = 3
 @dataclass(frozen=True)
 class Confirmed:
     """refit : the extended model's fit on the whole window.  confirmation : its evidence for the decision.
-    after : Locate on the extended model (:class:`vfcli.diagnose.run.LocateResult`), or None.
-    extended : the extended model as a :class:`Baseline` (its x, displacements and frozen raster)."""
+    after : Locate on the extended model (:class:`vfcli.diagnose.run.LocateResult`), or None."""
 
     refit: RefitResult
     confirmation: Confirmation
     after: object
-    extended: Baseline
 
 
 def choose(screening, candidates, mode: str, alpha: float = 0.05, profile_leads=()):
@@ -141,8 +140,17 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
                         moved=len(result.history["iteration"]) > 1 or result.profiled,
                         lowers_e=bool(result.total_at(baseline.problem.settings.ridge_weight)
                                       < e_base * (1.0 - LOWER_RTOL)))
-    ext = extended_baseline(baseline, result)
-    return Confirmed(result, conf, locate(ext) if locate is not None else None, ext)
+    return Confirmed(result, conf, locate(extended_baseline(baseline, result)) if locate is not None else None)
+
+
+def confirm_all(baseline: Baseline, candidates, window_phase: np.ndarray, locate=None, own_bound: bool = False,
+                map=None) -> list[Confirmed]:
+    """:func:`confirm_run` for each of ``candidates`` (in their order; the refits are independent: each starts from
+    the baseline), through ``map``, an in-process map (:func:`vfcli.parallel.local_map`: they share the baseline and
+    the recording's open store; each sends back its :class:`Confirmed`), default one after the other; the same
+    results whatever the map."""
+    return list((map or builtins.map)(
+        lambda c: confirm_run(baseline, c, window_phase, locate, own_bound=own_bound), candidates))
 
 
 def words(conf: Confirmation) -> list[str]:

@@ -92,9 +92,12 @@ def leads_by_fall(profiles) -> list[str]:
     return [p.name for p in sorted((p for p in profiles if p.lead), key=lambda q: float(np.min(q.relative)))]
 
 
-def profile_screens(baseline, candidates, steps: int = PROFILE_STEPS) -> list[ProfileScreen]:
+def profile_screens(baseline, candidates, steps: int = PROFILE_STEPS, map=None) -> list[ProfileScreen]:
     """The profile (module docstring) of every candidate with ``profile_screening`` and one parameter,
-    when the baseline's f0 is known (the steady state works per harmonic of it); in the given order."""
+    when the baseline's f0 is known (the steady state works per harmonic of it); in the given order.
+
+    map : an in-process map (:func:`vfcli.parallel.local_map`) for the independent pieces: the reduction's
+        factorisations at its shifts and the values of each profile; default one after the other."""
     from vfcli.diagnose.refit import load_profile
 
     if not (np.isfinite(baseline.f0_hz) and baseline.f0_hz > 0):
@@ -106,9 +109,9 @@ def profile_screens(baseline, candidates, steps: int = PROFILE_STEPS) -> list[Pr
         thetas = np.asarray(c.start_values, dtype=float)
         t0 = time.perf_counter()
         if callable(getattr(c, "reduction", None)):
-            c.reduction(baseline)                     # built once, shared with the refit
+            c.reduction(baseline, map=map)            # built once, shared with the refit
         t1 = time.perf_counter()
-        e0, e = load_profile(baseline, c, thetas, steps)
+        e0, e = load_profile(baseline, c, thetas, steps, map=map)
         log.info("profile of %s: reduction %.0f s, %d values %.0f s", c.name, t1 - t0, len(thetas),
                  time.perf_counter() - t1)
         out.append(ProfileScreen(c.name, c.parameter_names[0], thetas, e0, e))

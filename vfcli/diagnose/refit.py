@@ -60,9 +60,11 @@ did not move (session 25)").
 """
 from __future__ import annotations
 
+import builtins
 import copy
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -188,11 +190,12 @@ class _Extended:
         if not self.has_response:
             return self.problem
         key = tuple(np.asarray(theta, dtype=float).ravel())
-        if key not in self._problems:
+        got = self._problems.get(key)
+        if got is None:          # a local: another thread's profile value may clear the dict (load_profile's map)
             if len(self._problems) > 8:
                 self._problems.clear()
-            self._problems[key] = extended_problem(self.baseline(None, None, []), self.candidate, theta)
-        return self._problems[key]
+            got = self._problems[key] = extended_problem(self.baseline(None, None, []), self.candidate, theta)
+        return got
 
     def change(self, x: np.ndarray, u0: np.ndarray, theta: np.ndarray) -> np.ndarray:
         if self.p == 0:
@@ -524,7 +527,8 @@ def with_displacements(problem, disp: np.ndarray):
 
 
 def load_profile(baseline: Baseline, candidate, thetas, steps: int = 3,
-                 best_steps: int = START_STEPS, rtol: float = START_RTOL) -> tuple[float, np.ndarray]:
+                 best_steps: int = START_STEPS, rtol: float = START_RTOL, map: Callable | None = None
+                 ) -> tuple[float, np.ndarray]:
     """E of the baseline and of the extended model at each theta with the loads refitted, from the baseline's fit.
 
     Every theta gets up to ``steps`` Gauss-Newton steps of the loads alone (:func:`_load_steps`, stopping
@@ -538,6 +542,10 @@ def load_profile(baseline: Baseline, candidate, thetas, steps: int = 3,
     (inertia at the tissue's density), so E at fixed loads says nothing; refitted, the profile says whether
     some theta fits better than none.
 
+    map : runs the baseline's steps and each theta's (independent pieces; an in-process map,
+        :func:`vfcli.parallel.local_map`: they share the baseline), default one after the other; the same numbers
+        whatever the map.
+
     Returns
     -------
     (E0, (k,) E(theta)), E as the objective (:func:`vfcli.inverse.problem.energy`); E(theta) is inf where the
@@ -545,21 +553,27 @@ def load_profile(baseline: Baseline, candidate, thetas, steps: int = 3,
     """
     ext = _Extended(baseline.problem, candidate, baseline.f0_hz, getattr(baseline, "model", None), None)
     x = np.asarray(baseline.x, dtype=float)
-    e0 = _load_steps(ext, ext.state(x, np.zeros(ext.p)), max(steps, best_steps), rtol).terms.total
-    states, out = [], []
-    for v in thetas:
+
+    def steps_at(item):
+        """(E, loads) after the steps at one theta (the state they ended in is ``ext.state(loads, theta)``, to the
+        bit: what a piece sends back is small), or None where the term failed."""
+        theta, n, term = item
         try:
-            st = _load_steps(ext, ext.state(x, np.asarray(v, dtype=float).reshape(ext.p)), steps, rtol)
-            states.append(st)
-            out.append(st.terms.total)
+            st = _load_steps(ext, ext.state(x, theta), n, rtol)
         except ValueError:
-            states.append(None)
-            out.append(np.inf)
-    out = np.asarray(out, dtype=float)
+            if not term:
+                raise                     # the baseline's own steps: not a failure of the term
+            return None
+        return float(st.terms.total), st.x
+
+    thetas = [np.asarray(v, dtype=float).reshape(ext.p) for v in thetas]
+    items = [(np.zeros(ext.p), max(steps, best_steps), False), *((v, steps, True) for v in thetas)]
+    (e0, _), *ends = (map or builtins.map)(steps_at, items)
+    out = np.asarray([np.inf if end is None else end[0] for end in ends], dtype=float)
     k = int(np.argmin(out))
     if best_steps > steps and np.isfinite(out[k]) and out[k] >= e0:
         try:
-            out[k] = _load_steps(ext, states[k], best_steps - steps, rtol).terms.total
+            out[k] = _load_steps(ext, ext.state(ends[k][1], thetas[k]), best_steps - steps, rtol).terms.total
         except ValueError:
             pass
     return float(e0), out

@@ -250,12 +250,14 @@ def detection_limits(cands, cal, alpha: float) -> dict[str, str]:
 
 def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = None, map: Callable = builtins.map,
                  confirmations: dict | None = None, profile: bool = True,
-                 phase: Callable[[str], None] = no_phase) -> Diagnosis:
+                 phase: Callable[[str], None] = no_phase, local_map: Callable | None = None) -> Diagnosis:
     """Locate the baseline's residual (:func:`locate_run`), screen the candidate physics terms, calibrate
     their null distribution by bootstrap (:mod:`vfcli.diagnose.calibrate_run`), profile the candidates the
     score test cannot reach (:mod:`vfcli.diagnose.profile`; ``profile=False`` skips it) and decide
     (:mod:`vfcli.diagnose.decide`).  map : applied to the bootstrap's chunks of replicates.  phase : called with
-    each step's name as it starts (locate, screen, calibrate, profile, decide; :class:`vfcli.progress.Phases`)."""
+    each step's name as it starts (locate, screen, calibrate, profile, decide; :class:`vfcli.progress.Phases`).
+    local_map : an in-process map (:func:`vfcli.parallel.local_map`) for the profiles' pieces (they share the
+    baseline); default one after the other."""
     settings = settings or LocateSettings()
     phase("locate")
     loc = locate_run(baseline, rec, settings)
@@ -284,7 +286,7 @@ def diagnose_run(baseline, rec: Recording, settings: LocateSettings | None = Non
                for r, pc, pf in zip(results, cal.calibration.p_value, cal.calibration.p_family)]
     if profile:
         phase("profile")
-    profiles = tuple(profile_screens(baseline, cands)) if profile else ()
+    profiles = tuple(profile_screens(baseline, cands, map=local_map)) if profile else ()
     phase("decide")
     lines += [p.words() for p in profiles]
     decision = decide([c.name for c in cands], cal.calibration.p_family, [r.identifiable for r in results],

@@ -10,11 +10,16 @@ Backends
 
 Usage: ``fac = factorize(A, "auto"); X = fac.solve(B)`` with ``B`` of shape
 ``(n,)`` or ``(n, k)``; the factorisation is computed once and reused.
+
+Threads (the diagnosis's refits, :func:`vfcli.parallel.local_map`) may solve with one factorisation at once:
+SuperLU is thread-safe (SuperLU 5, scipy releases the GIL in its solves); CHOLMOD's solve writes its
+Common and its work array and PARDISO's its handle, so those two solve one call at a time (a lock).
 """
 from __future__ import annotations
 
 import importlib.util
 import logging
+import threading
 from typing import Protocol
 
 import numpy as np
@@ -83,11 +88,13 @@ class _Cholespy:
         c.sort_indices()
         self._solver = CholeskySolverD(a.shape[0], c.indptr.astype(np.int32), c.indices.astype(np.int32),
                                        c.data.astype(np.float64), MatrixType.CSR)
+        self._lock = threading.Lock()        # one solve at a time: it writes the solver's own work array
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         rhs = np.ascontiguousarray(b, dtype=np.float64)
         x = np.empty_like(rhs)
-        self._solver.solve(rhs, x)
+        with self._lock:
+            self._solver.solve(rhs, x)
         return x
 
 
@@ -103,10 +110,12 @@ class _Pardiso:
         self._solver = PyPardisoSolver(mtype=2)  # real symmetric positive definite
         self._solver.set_statistical_info_off()
         self._solver.factorize(self._a)
+        self._lock = threading.Lock()        # one solve at a time: it sets the handle's phase
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         rhs = np.asarray(b, dtype=np.float64)
-        x = self._solver.solve(self._a, rhs)
+        with self._lock:
+            x = self._solver.solve(self._a, rhs)
         return x.reshape(rhs.shape)
 
 

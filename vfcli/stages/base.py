@@ -24,7 +24,10 @@ class RunContext:
     """One command's view of a recording: its store, its configs and how to report.
 
     map : where the recording's independent pieces of work run (:mod:`vfcli.parallel`; the
-        optimize basis solves); None: one after the other in this process.
+        optimize basis solves, the diagnosis's bootstrap replicates); None: one after the other in this process.
+    local_map : where the pieces that share this process's memory run (the diagnosis's profile values and refits:
+        each uses the run's baseline, half a GB on the demo recording, and reads the open store): forked children or
+        threads (:func:`vfcli.parallel.local_map`, the command line's ``--jobs``); None: one after the other.
     """
 
     store: Store
@@ -34,6 +37,7 @@ class RunContext:
     force: bool = False
     progress: Progress = no_progress
     map: Mapper | None = None
+    local_map: Mapper | None = None
     #: SHA-256 of the config file the stored config was read from now (None: the store's own was used)
     config_file_sha256: str | None = None
 

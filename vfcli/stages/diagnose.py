@@ -288,7 +288,8 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         phases("read")
         inputs = read_inputs(reader, ctx.config, run)
         try:
-            d = diagnose_run(inputs.baseline, inputs.recording, settings, map=ctx.map or serial_map, phase=phases)
+            d = diagnose_run(inputs.baseline, inputs.recording, settings, map=ctx.map or serial_map, phase=phases,
+                             local_map=ctx.local_map)
         except TooFewCycles as exc:
             rec = inputs.recording
             advice = too_few_advice(rec.glottal_area, inputs.baseline.problem.dt, rec.pressure_f0_hz)
@@ -315,7 +316,7 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         extra: dict[str, Any] = {}
         if tries:
             extra, confs = confirm_and_write(s, inputs, d, tries, run, settings,
-                                             figure_paths(reader.path, run, map_path), done, phases)
+                                             figure_paths(reader.path, run, map_path), done, phases, ctx.local_map)
             d = redecide(d, {c.candidate: c for c in confs})
         phases("write")
         write_diagnosis(s, d, inputs.baseline.problem.meas.times)
@@ -352,7 +353,7 @@ def bound_from_lcurve(run_config: dict[str, Any]) -> bool:
 
 
 def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cands, run: str, settings, paths,
-                      done: dict, phases: Phases | None = None) -> tuple[dict[str, Any], list]:
+                      done: dict, phases: Phases | None = None, local_map=None) -> tuple[dict[str, Any], list]:
     """Refit each of the candidates ``cands`` (:func:`vfcli.diagnose.confirm.confirm_run`), write the figures and
     images of the confirmed one whose refit predicts held-out data best (:func:`vfcli.diagnose.decide.best_confirmed`;
     else the first's); fills ``done`` with what its extended model's /optimize run needs.  Every candidate is refitted
@@ -360,10 +361,12 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     need not be the best (panel seed 2012, session 53: contact's refit, the first lead, predicted the held-out data
     0.85 % and 1.8 % better, inertia's 43 % and 61 %).  Returns the summary's additions and every
     :class:`vfcli.diagnose.confirmation.Confirmation` made; their words are appended to ``d.lines``.  phases : the
-    stage's bar (:class:`vfcli.progress.Phases`): each refit is a phase of its own, ``refit <candidate>``."""
+    stage's bar (:class:`vfcli.progress.Phases`): each refit is a phase of its own, ``refit <candidate>``, or, refitted
+    side by side through ``local_map`` (an in-process map, :func:`vfcli.parallel.local_map`), one phase for them all,
+    ``refit <candidate>, <candidate>``."""
     import dataclasses
 
-    from vfcli.diagnose.confirm import confirm_run, words
+    from vfcli.diagnose.confirm import confirm_all, confirm_run, words
     from vfcli.diagnose.decide import best_confirmed
     from vfcli.diagnose.maps import residual_map
     from vfcli.diagnose.plots import velocity_at_points
@@ -372,14 +375,21 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     b = inputs.baseline
     if not np.isfinite(b.f0_hz):
         b.f0_hz = float(d.located.f0_hz)             # the window's f0 from the gap area's cycle (Locate's)
-    tried = []
-    for cand in cands:
-        if phases is not None:
+    window_phase = d.locate.cycles.phase[d.locate.window]
+    after = lambda ext: locate_run(ext, inputs.recording, settings)          # noqa: E731
+    own = bound_from_lcurve(inputs.run_config)
+    if local_map is not None and len(cands) > 1:
+        if phases is not None:                          # side by side: one phase for them all
             phases.expect(1)
-            phases(f"refit {cand.name}")
-        tried.append((cand, confirm_run(b, cand, d.locate.cycles.phase[d.locate.window],
-                                        lambda ext: locate_run(ext, inputs.recording, settings),
-                                        own_bound=bound_from_lcurve(inputs.run_config))))
+            phases("refit " + ", ".join(c.name for c in cands))
+        tried = list(zip(cands, confirm_all(b, cands, window_phase, after, own, local_map)))
+    else:
+        tried = []
+        for cand in cands:
+            if phases is not None:
+                phases.expect(1)
+                phases(f"refit {cand.name}")
+            tried.append((cand, confirm_run(b, cand, window_phase, after, own_bound=own)))
     cand, got = tried[best_confirmed([g.confirmation for _, g in tried])]
     name = refit_run_name(run, cand.name)
     conf = dataclasses.replace(got.confirmation, run=name)

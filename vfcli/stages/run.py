@@ -316,6 +316,7 @@ def run_recording(
     command: str | None = None,
     progress: Progress = no_progress,
     map: Mapper | None = None,
+    local_map: Mapper | None = None,
 ) -> RunSummary:
     """Run the pipeline on one recording: the steps up to ``until`` that are not current.
 
@@ -333,6 +334,8 @@ def run_recording(
     map : runs the independent pieces of work of the steps (:mod:`vfcli.parallel`: optimize's
         basis solves), e.g. a Dask client's map; default one after the other. The stored
         results are the same whatever the map.
+    local_map : runs the pieces that stay in this process (the diagnosis's profile values and refits), e.g.
+        :func:`vfcli.parallel.local_map`; default one after the other. The same results whatever it is.
 
     Raises
     ------
@@ -352,7 +355,7 @@ def run_recording(
 
     def context() -> RunContext:  # reopened per step: each step sees the store as the last one left it
         return RunContext.open(store, config_path, items, command=command, force=force, progress=progress,
-                               map=map)
+                               map=map, local_map=local_map)
 
     ctx = context()
     active = [s for s in steps if raw_files is not None or s not in _RAW_STEPS]

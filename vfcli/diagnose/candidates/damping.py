@@ -51,9 +51,10 @@ class KelvinVoigtDamping(DisplacementTerm):
 
         self._modal = modal if modal is not None else Inertia(model)   # its modal reduction and steady state
 
-    def reduction(self, baseline):
-        """The modal reduction the steady state uses (:meth:`Inertia.reduction`, built once per baseline)."""
-        return self._modal.reduction(baseline, self._modal.n_harmonics)
+    def reduction(self, baseline, map=None):
+        """The modal reduction the steady state uses (:meth:`Inertia.reduction`, built once per baseline; map: its
+        factorisations', :class:`vfcli.model.response.modal.ModalReduction`)."""
+        return self._modal.reduction(baseline, self._modal.n_harmonics, map=map)
 
     def displacement_jacobian(self, baseline) -> np.ndarray:
         """(F + 1, N, 3, 1) dU/dtau at tau = 0, mm per ms: ``-U0'(t)``.  For a load tied to a recorded

@@ -186,13 +186,14 @@ class Inertia(DisplacementTerm):
                 f"{', '.join(f'{v:g}' for v in self.start_values)}) is, where the diagnosis runs it (its own line, "
                 f"'inertia: profile ...')")
 
-    def reduction(self, baseline, n_harmonics: int = 6, centre: float = 1.0) -> ModalReduction:
+    def reduction(self, baseline, n_harmonics: int = 6, centre: float = 1.0, map=None) -> ModalReduction:
         """The modal reduction of the baseline's model and load patterns, built once per response,
         model, f0 and centre: the complete modal expansion (exact at any density and retardation time)
         when each fold has at most :data:`vfcli.model.response.modal.COMPLETE_MAX_DOFS` free DOFs (a run's
         2.5 mm mesh: 3480), else the Ritz reduction with shifted Ritz vectors at the harmonics
         ``k f0 sqrt(centre)`` (k = 1..n_harmonics): exact there at density factor ``centre`` without
-        damping, not at other densities (:meth:`recentre`)."""
+        damping, not at other densities (:meth:`recentre`).  map : runs its shifts' factorisations (an in-process
+        map, :class:`vfcli.model.response.modal.ModalReduction`); default one after the other."""
         response = baseline.problem.response
         model = self._model(baseline)
         complete = complete_expansion(model)
@@ -207,7 +208,7 @@ class Inertia(DisplacementTerm):
         else:
             shifts = (baseline.f0_hz * np.sqrt(centre) * np.arange(1, n_harmonics + 1)
                       if np.isfinite(baseline.f0_hz) else ())
-            red = ModalReduction(model, loads, shifts_hz=shifts)
+            red = ModalReduction(model, loads, shifts_hz=shifts, map=map)
         # keep the one at centre 1 (the profile's and damping's) and the newest other one
         self._reduced = [(k, r) for k, r in self._reduced if k[:4] == key[:4] and k[4] == 1.0][:1] + [(key, red)]
         return red

@@ -35,6 +35,7 @@ eigenproblem ``V^T K V z = mu V^T M V z``; with the M-orthonormal reduced modes 
 """
 from __future__ import annotations
 
+import builtins
 import logging
 
 import numpy as np
@@ -155,6 +156,9 @@ class ModalReduction:
     shifts_hz : frequencies (Hz) at which shifted Ritz vectors are added (e.g. the harmonics
         ``k f0`` the steady state is evaluated at); empty: none.
     n_shift_blocks : Krylov blocks per shift (>= 1).
+    map : runs the shifts' factorisations and Krylov blocks (independent pieces; an in-process map such as
+        :func:`vfcli.parallel.local_map`: SuperLU releases the GIL), default one after the other; the same basis
+        whatever the map.
 
     Attributes
     ----------
@@ -165,7 +169,7 @@ class ModalReduction:
     """
 
     def __init__(self, model, loads, n_modes: int = 20, n_ritz: int = 10, shifts_hz=(),
-                 n_shift_blocks: int = 2) -> None:
+                 n_shift_blocks: int = 2, map=None) -> None:
         f = loads.toarray() if sp.issparse(loads) else np.asarray(loads, dtype=float)
         if f.ndim != 2 or f.shape[0] != model.n_dofs:
             raise ValueError(f"loads must be (n_dofs={model.n_dofs}, S), got {f.shape}")
@@ -176,11 +180,12 @@ class ModalReduction:
         for k in (0, 1):
             rows = slice(model.offsets[k], model.offsets[k + 1])
             per_fold[rows, k * f.shape[1]:(k + 1) * f.shape[1]] = f[rows]
-        parts = [ritz_vectors(model, per_fold, n_ritz)]
-        for shift in np.atleast_1d(np.asarray(shifts_hz, dtype=float)):
+        shifts = np.atleast_1d(np.asarray(shifts_hz, dtype=float))
+        for shift in shifts:
             if not shift > 0:
                 raise ValueError(f"shifts_hz must be positive frequencies, got {shift!r}")
-            parts.append(shifted_ritz_vectors(model, f, shift, n_shift_blocks))
+        parts = [ritz_vectors(model, per_fold, n_ritz),
+                 *(map or builtins.map)(lambda shift: shifted_ritz_vectors(model, f, shift, n_shift_blocks), shifts)]
         freqs = []
         if n_modes:
             for fold in (0, 1):

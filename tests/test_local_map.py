@@ -1,0 +1,150 @@
+"""vfcli.parallel's in-process maps of `--jobs` (the diagnosis's profile values and refits): ThreadMap,
+vfcli.fork_map.ForkMap and local_map's choice, and the command line's option."""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from vfcli.parallel import ThreadMap, available_cores, local_map
+
+
+def test_results_come_in_the_items_order_from_several_threads():
+    """The later items end first (they sleep less); the results are still in the items' order, and the pieces ran
+    on more than one thread at once."""
+    running, most, names = [0], [0], set()
+    lock = threading.Lock()
+
+    def piece(i):
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+            names.add(threading.current_thread().name)
+        time.sleep(0.05 * (4 - i))
+        with lock:
+            running[0] -= 1
+        return i * i
+
+    assert ThreadMap(2)(piece, range(4)) == [0, 1, 4, 9]
+    assert most[0] == 2 and len(names) == 2 and threading.current_thread().name not in names
+
+
+def test_the_first_error_in_the_items_order_is_raised_after_every_piece_ended():
+    ended = []
+
+    def piece(i):
+        if i in (1, 2):
+            time.sleep(0.05 * (3 - i))            # item 2 fails first in time, item 1 first in order
+            raise ValueError(f"piece {i}")
+        time.sleep(0.1)
+        ended.append(i)
+        return i
+
+    with pytest.raises(ValueError, match="piece 1"):
+        ThreadMap(2)(piece, range(4))
+    assert sorted(ended) == [0, 3]
+
+
+def test_one_thread_is_the_caller_s_own_and_the_default_is_the_cores_it_may_use():
+    from vfcli.fork_map import ForkMap
+
+    assert local_map(1) is None
+    default = local_map(None)
+    cores = available_cores()
+    assert (default is None) if cores == 1 else (isinstance(default, ForkMap) and default.n == cores)
+    assert isinstance(local_map(3), ForkMap)                 # on Linux: forked children
+    with pytest.raises(ValueError, match="at least 1"):
+        local_map(0)
+
+
+@pytest.mark.parametrize("command", ["diagnose", "run"])
+def test_jobs_below_one_is_refused_in_one_line_before_anything_runs(vfcli, tmp_path, command):
+    store = tmp_path / "rec.h5"
+    res = vfcli(command, store, "--jobs", "0")
+    assert res.returncode == 2 and "'--jobs'" in res.stderr and "0 is not in the range x>=1" in res.stderr, res.stderr
+    assert "Traceback" not in res.stderr and not store.exists()
+
+
+def test_forked_pieces_see_the_caller_s_memory_and_send_back_their_results_in_order():
+    """Each piece runs in a child forked when it starts: it reads what the caller holds without its being pickled
+    (a lambda over a local array, which no pickling map could send), runs beside the others (their process ids
+    differ from the caller's and from each other's) and its result comes back in the items' order."""
+    import os
+
+    import numpy as np
+
+    from vfcli.fork_map import ForkMap
+
+    held = np.arange(1000.0)
+
+    def piece(i):
+        time.sleep(0.05 * (4 - i))                      # the later items end first
+        return os.getpid(), float(held[i] * 2)
+
+    got = ForkMap(2)(lambda i: piece(i), range(4))
+    assert [v for _, v in got] == [0.0, 2.0, 4.0, 6.0]
+    pids = {p for p, _ in got}
+    assert len(pids) == 4 and os.getpid() not in pids
+
+
+def test_a_forked_piece_s_error_comes_back_with_its_traceback_and_a_dead_one_says_how_it_died():
+    import os
+    import signal
+
+    from vfcli.fork_map import ForkMap, PieceDied, RemoteTraceback
+
+    def failing(i):
+        if i == 1:
+            raise ValueError("piece one is wrong")
+        return i
+
+    with pytest.raises(ValueError, match="piece one is wrong") as info:
+        ForkMap(2)(failing, range(3))
+    assert isinstance(info.value.__cause__, RemoteTraceback) and "in failing" in str(info.value.__cause__)
+
+    def killed(i):
+        if i == 2:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return i
+
+    with pytest.raises(PieceDied, match=r"piece 3 of 3: .*killed by SIGKILL"):
+        ForkMap(2)(killed, range(3))
+
+
+_INTERRUPTED = """
+import os, sys, time
+from vfcli.fork_map import ForkMap
+
+def piece(i):
+    print(os.getpid(), flush=True)
+    time.sleep(60)
+
+try:
+    ForkMap(2)(piece, range(4))
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+    sys.exit(130)
+"""
+
+
+def test_ctrl_c_while_forked_pieces_run_kills_and_reaps_them_at_once():
+    """A real SIGINT to the caller (a process of its own) while two children sleep: it ends within seconds, not
+    after their minute, and leaves no child behind (each pid the children printed is gone)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    proc = subprocess.Popen([sys.executable, "-c", _INTERRUPTED], stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    pids = [int(proc.stdout.readline()) for _ in range(2)]
+    t0 = time.perf_counter()
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and out.strip() == "interrupted" and time.perf_counter() - t0 < 10
+    for pid in pids:
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)

@@ -1,0 +1,143 @@
+"""A map over forked children of this process: the in-process map for pieces that share large state.
+
+The diagnosis's larger pieces (its profile values, its shifted factorisations, the confirmation refits of its
+leads) each use the run's baseline (half a GB on the demo recording) and read the open store, and spend most of
+their time in small numpy calls that hold the GIL: in threads two refits ran 1.3 times faster than one after the
+other, not twice (docs/diagnose.md, "Session 62"). A child forked when its piece starts sees this process's memory
+as it is then, copy-on-write: nothing is pickled on the way in, and the piece runs on its own core. Only its result
+travels back, pickled through a pipe, so a piece should return what the caller needs and no more.
+
+POSIX only (``os.fork``); on Linux by default (:func:`vfcli.parallel.local_map`), where forking a process whose
+only thread is the caller's is safe for numpy, scipy and h5py: the child reads the store through the inherited
+file (``pread``) and ends with ``os._exit``, which closes no HDF5 file and flushes no buffer of the parent's.
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import selectors
+import signal
+import traceback
+from typing import Any, Callable, Iterable, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: bytes read from a child's pipe at a time
+CHUNK = 1 << 20
+
+
+class RemoteTraceback(Exception):
+    """The traceback of a piece's error in its child, as text: the cause of the error the caller sees (as
+    :mod:`concurrent.futures.process` does)."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(text)
+        self.text = text
+
+    def __str__(self) -> str:
+        return self.text
+
+
+class PieceDied(RuntimeError):
+    """A child ended without a result: killed by a signal (the kernel's out-of-memory killer sends SIGKILL) or
+    exited on its own."""
+
+
+def _child(func: Callable[[Any], Any], item: Any, fd: int) -> None:
+    """Run one piece in the child and send ``(ok, result or error, traceback text)``; never returns."""
+    code = 0
+    try:
+        try:
+            payload = pickle.dumps((True, func(item), ""), protocol=pickle.HIGHEST_PROTOCOL)
+        except BaseException as exc:  # noqa: BLE001 - the caller raises it
+            text = "".join(traceback.format_exception(exc))
+            try:
+                payload = pickle.dumps((False, exc, text), protocol=pickle.HIGHEST_PROTOCOL)
+                pickle.loads(payload)
+            except Exception:          # an error that does not travel: its words and traceback do
+                payload = pickle.dumps((False, RuntimeError(f"{type(exc).__name__}: {exc}"), text))
+        view = memoryview(payload)
+        while view:
+            view = view[os.write(fd, view):]
+    except BaseException:  # noqa: BLE001 - the parent sees no result and says so
+        code = 70
+    finally:
+        os._exit(code)
+
+
+def _describe(status: int) -> str:
+    if os.WIFSIGNALED(status):
+        sig = os.WTERMSIG(status)
+        name = signal.Signals(sig).name if sig in signal.Signals._value2member_map_ else str(sig)
+        hint = " (SIGKILL: the out-of-memory killer? try --jobs 1)" if sig == signal.SIGKILL else ""
+        return f"killed by {name}{hint}"
+    return f"exit status {os.WEXITSTATUS(status)}"
+
+
+class ForkMap:
+    """A :class:`vfcli.parallel.Mapper` over at most ``n`` children at once, each forked for one piece (module
+    docstring); the results in the items' order, each as pickled and unpickled.  The first error of a piece (in
+    the items' order) is raised, its child's traceback its cause, once every piece has ended; a child that dies
+    without a result raises :class:`PieceDied`.  When the caller is interrupted (Ctrl-C) or fails, the children
+    still running are killed and reaped before the exception goes on."""
+
+    def __init__(self, n: int) -> None:
+        self.n = int(n)
+        if self.n < 1:
+            raise ValueError(f"ForkMap: need at least 1 process, got {n}")
+
+    def __call__(self, func: Callable[[T], R], items: Iterable[T]) -> list[R]:
+        todo = list(items)
+        out: list[Any] = [None] * len(todo)
+        errors: dict[int, BaseException] = {}
+        running: dict[int, tuple[int, int, bytearray]] = {}        # fd -> (item, pid, bytes so far)
+        sel = selectors.DefaultSelector()
+        nxt = 0
+        try:
+            while nxt < len(todo) or running:
+                while nxt < len(todo) and len(running) < self.n:
+                    r, w = os.pipe()
+                    pid = os.fork()
+                    if pid == 0:                               # the child
+                        os.close(r)
+                        _child(func, todo[nxt], w)
+                    os.close(w)
+                    running[r] = (nxt, pid, bytearray())
+                    sel.register(r, selectors.EVENT_READ)
+                    nxt += 1
+                for key, _ in sel.select():
+                    fd = key.fd
+                    i, pid, buf = running[fd]
+                    chunk = os.read(fd, CHUNK)
+                    if chunk:
+                        buf += chunk
+                        continue
+                    sel.unregister(fd)
+                    os.close(fd)
+                    del running[fd]
+                    _, status = os.waitpid(pid, 0)
+                    if not buf:
+                        errors[i] = PieceDied(f"piece {i + 1} of {len(todo)}: its process ended without a result "
+                                              f"({_describe(status)})")
+                        continue
+                    ok, value, text = pickle.loads(bytes(buf))
+                    if ok:
+                        out[i] = value
+                    else:
+                        value.__cause__ = RemoteTraceback(text)
+                        errors[i] = value
+        except BaseException:
+            for fd, (_, pid, _) in running.items():
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                    os.waitpid(pid, 0)
+                except OSError:
+                    pass
+                os.close(fd)
+            raise
+        finally:
+            sel.close()
+        if errors:
+            raise errors[min(errors)]
+        return out
