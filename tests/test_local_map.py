@@ -117,7 +117,7 @@ import os, sys, time
 from vfcli.fork_map import ForkMap
 
 def piece(i):
-    print(os.getpid(), flush=True)
+    os.write(1, f"{os.getpid()}\\n".encode())      # one write: print's two would interleave with the other child's
     time.sleep(60)
 
 try:
@@ -148,3 +148,47 @@ def test_ctrl_c_while_forked_pieces_run_kills_and_reaps_them_at_once():
     for pid in pids:
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
+
+
+_KILLED = """
+import os, sys, time
+from vfcli.fork_map import ForkMap
+
+def piece(i):
+    os.write(1, f"{os.getpid()}\\n".encode())      # one write: print's two would interleave with the other child's
+    time.sleep(60)
+
+ForkMap(2)(piece, range(2))
+"""
+
+
+def test_a_parent_killed_outright_leaves_no_forked_piece_running():
+    """`kill -9` (or the out-of-memory killer) of the caller while two pieces run: the children die with it
+    (PR_SET_PDEATHSIG), they do not compute on for their minute."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    proc = subprocess.Popen([sys.executable, "-c", _KILLED], stdout=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    pids = [int(proc.stdout.readline()) for _ in range(2)]
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    deadline = time.perf_counter() + 10
+    alive = list(pids)
+    while alive and time.perf_counter() < deadline:
+        alive = [p for p in alive if _alive(p)]
+        time.sleep(0.05)
+    assert not alive
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie, dead but not yet reaped by init, counts as gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False

@@ -44,10 +44,29 @@ class PieceDied(RuntimeError):
     exited on its own."""
 
 
-def _child(func: Callable[[Any], Any], item: Any, fd: int) -> None:
-    """Run one piece in the child and send ``(ok, result or error, traceback text)``; never returns."""
+def _die_with_parent() -> None:
+    """In a child: SIGINT and SIGTERM at their default action (the parent says what happened; the handlers a
+    stage's write installs, which would print and unwind the write, are the parent's), and on Linux SIGKILL
+    when the parent dies (``prctl(PR_SET_PDEATHSIG)``): a parent killed by ``kill -9`` or the out-of-memory killer
+    leaves no piece running on."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))       # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _child(func: Callable[[Any], Any], item: Any, fd: int, parent: int) -> None:
+    """Run one piece in the child and send ``(ok, result or error, traceback text)``; never returns (``os._exit``:
+    the stack it was forked from, a stage's write among it, is never unwound here)."""
     code = 0
     try:
+        _die_with_parent()
+        if os.getppid() != parent:                    # the parent died before the line above
+            os._exit(71)
         try:
             payload = pickle.dumps((True, func(item), ""), protocol=pickle.HIGHEST_PROTOCOL)
         except BaseException as exc:  # noqa: BLE001 - the caller raises it
@@ -93,6 +112,7 @@ class ForkMap:
         errors: dict[int, BaseException] = {}
         running: dict[int, tuple[int, int, bytearray]] = {}        # fd -> (item, pid, bytes so far)
         sel = selectors.DefaultSelector()
+        parent = os.getpid()
         nxt = 0
         try:
             while nxt < len(todo) or running:
@@ -100,8 +120,11 @@ class ForkMap:
                     r, w = os.pipe()
                     pid = os.fork()
                     if pid == 0:                               # the child
-                        os.close(r)
-                        _child(func, todo[nxt], w)
+                        try:
+                            os.close(r)
+                            _child(func, todo[nxt], w, parent)
+                        finally:
+                            os._exit(70)
                     os.close(w)
                     running[r] = (nxt, pid, bytearray())
                     sel.register(r, selectors.EVENT_READ)
