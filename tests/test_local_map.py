@@ -192,3 +192,26 @@ def _alive(pid: int) -> bool:
             return f.read().split(") ")[1][0] != "Z"
     except (FileNotFoundError, ProcessLookupError):
         return False
+
+
+def test_no_second_child_is_forked_while_the_memory_holds_none_and_the_first_always_is():
+    """``room`` says whether one more child fits in the memory available: while it says no, the pieces run one at a
+    time (no two children alive at once), and still every piece runs; the machine's own figure reads /proc
+    (MemAvailable against CHILD_SHARE of this process's resident memory)."""
+    import os
+
+    from vfcli.fork_map import ForkMap, _kb, room_for_a_child
+
+    def piece(i):
+        start = time.time()
+        time.sleep(0.15)
+        return os.getpid(), start, time.time()
+
+    got = ForkMap(3, room=lambda: False)(piece, range(3))
+    spans = sorted((s, e) for _, s, e in got)
+    assert all(spans[k][1] <= spans[k + 1][0] for k in range(2)), spans          # never two at once
+    both = ForkMap(3, room=lambda: True)(piece, range(3))
+    spans = sorted((s, e) for _, s, e in both)
+    assert spans[1][0] < spans[0][1]                                            # side by side when there is room
+    available, rss = _kb("/proc/meminfo", "MemAvailable"), _kb("/proc/self/status", "VmRSS")
+    assert 0 < rss < available < _kb("/proc/meminfo", "MemTotal") and room_for_a_child()   # a test process fits

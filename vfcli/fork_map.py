@@ -13,12 +13,15 @@ file (``pread``) and ends with ``os._exit``, which closes no HDF5 file and flush
 """
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import selectors
 import signal
 import traceback
 from typing import Any, Callable, Iterable, TypeVar
+
+log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -85,6 +88,31 @@ def _child(func: Callable[[Any], Any], item: Any, fd: int, parent: int) -> None:
         os._exit(code)
 
 
+#: a child's own memory, as a share of the caller's resident memory when it forks: measured 0.24-0.28 on the demo's
+#: two refits (each child's private dirty pages 1.02 and 1.20 GB, the caller's resident set 4.2 GB at its peak;
+#: docs/diagnose.md, "Session 62"), doubled for the pieces of a larger recording
+CHILD_SHARE = 0.5
+
+
+def _kb(path: str, key: str) -> float:
+    """The value of ``key`` (kB) in a /proc file such as /proc/meminfo, or NaN where it cannot be read."""
+    try:
+        with open(path) as f:
+            for line in f:
+                if line.startswith(key + ":"):
+                    return float(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return float("nan")
+
+
+def room_for_a_child() -> bool:
+    """Whether the machine's available memory (``MemAvailable``) holds one more child: :data:`CHILD_SHARE` of this
+    process's resident memory (``VmRSS``).  True where Linux's /proc cannot be read (the limit is then --jobs)."""
+    available, rss = _kb("/proc/meminfo", "MemAvailable"), _kb("/proc/self/status", "VmRSS")
+    return not (available < CHILD_SHARE * rss)        # NaN: no figure, no limit
+
+
 def _describe(status: int) -> str:
     if os.WIFSIGNALED(status):
         sig = os.WTERMSIG(status)
@@ -96,13 +124,16 @@ def _describe(status: int) -> str:
 
 class ForkMap:
     """A :class:`vfcli.parallel.Mapper` over at most ``n`` children at once, each forked for one piece (module
-    docstring); the results in the items' order, each as pickled and unpickled.  The first error of a piece (in
+    docstring); the results in the items' order, each as pickled and unpickled.  A child is forked beside the
+    running ones only while ``room()`` says the memory holds it (default :func:`room_for_a_child`); the first
+    always is.  The first error of a piece (in
     the items' order) is raised, its child's traceback its cause, once every piece has ended; a child that dies
     without a result raises :class:`PieceDied`.  When the caller is interrupted (Ctrl-C) or fails, the children
     still running are killed and reaped before the exception goes on."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, room: Callable[[], bool] = room_for_a_child) -> None:
         self.n = int(n)
+        self.room = room
         if self.n < 1:
             raise ValueError(f"ForkMap: need at least 1 process, got {n}")
 
@@ -113,10 +144,16 @@ class ForkMap:
         running: dict[int, tuple[int, int, bytearray]] = {}        # fd -> (item, pid, bytes so far)
         sel = selectors.DefaultSelector()
         parent = os.getpid()
-        nxt = 0
+        nxt, held = 0, False
         try:
             while nxt < len(todo) or running:
                 while nxt < len(todo) and len(running) < self.n:
+                    if running and not self.room():          # one more child would not fit in memory: wait
+                        if not held:
+                            log.info("%d pieces at once, not %d: the memory available holds no more",
+                                     len(running), self.n)
+                        held = True
+                        break
                     r, w = os.pipe()
                     pid = os.fork()
                     if pid == 0:                               # the child
