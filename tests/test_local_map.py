@@ -215,3 +215,23 @@ def test_no_second_child_is_forked_while_the_memory_holds_none_and_the_first_alw
     assert spans[1][0] < spans[0][1]                                            # side by side when there is room
     available, rss = _kb("/proc/meminfo", "MemAvailable"), _kb("/proc/self/status", "VmRSS")
     assert 0 < rss < available < _kb("/proc/meminfo", "MemTotal") and room_for_a_child()   # a test process fits
+
+
+def test_a_forked_piece_s_warning_is_logged_by_the_caller_so_a_stage_stores_it():
+    """A warning a piece logs in its child is logged again by the caller, under the piece's logger, once: where a
+    stage captures its warnings to store them (vfcli.stages.base.captured_warnings), the piece's warning is among
+    them, as it is when the piece runs in the caller itself."""
+    import logging
+
+    from vfcli.fork_map import ForkMap
+    from vfcli.stages.base import captured_warnings
+
+    def piece(i):
+        logging.getLogger("vfcli.diagnose.somewhere").warning("piece %d: the corner is at the end", i)
+        return i
+
+    for mapper in (None, ForkMap(2)):
+        with captured_warnings() as stored:
+            got = (mapper or (lambda f, xs: [f(x) for x in xs]))(piece, range(2))
+        assert got == [0, 1]
+        assert stored == [f"WARNING vfcli.diagnose.somewhere: piece {i}: the corner is at the end" for i in (0, 1)]

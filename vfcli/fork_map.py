@@ -5,7 +5,8 @@ leads) each use the run's baseline (half a GB on the demo recording) and read th
 their time in small numpy calls that hold the GIL: in threads two refits ran 1.3 times faster than one after the
 other, not twice (docs/diagnose.md, "Session 62"). A child forked when its piece starts sees this process's memory
 as it is then, copy-on-write: nothing is pickled on the way in, and the piece runs on its own core. Only its result
-travels back, pickled through a pipe, so a piece should return what the caller needs and no more.
+travels back, pickled through a pipe, so a piece should return what the caller needs and no more; with it come the
+log records the piece made, which the caller logs as its own (a stage stores its warnings).
 
 POSIX only (``os.fork``); on Linux by default (:func:`vfcli.parallel.local_map`), where forking a process whose
 only thread is the caller's is safe for numpy, scipy and h5py: the child reads the store through the inherited
@@ -62,23 +63,56 @@ def _die_with_parent() -> None:
         pass
 
 
+class _Kept(logging.Handler):
+    """The log records of a child, as (logger name, level, message), for its parent to log."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.NOTSET)
+        self.records: list[tuple[str, int, str]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append((record.name, record.levelno, record.getMessage()))
+
+
+def _keep_records() -> _Kept:
+    """In a child: every log record it makes (at the levels its loggers let through, the parent's) is kept instead of
+    handled, so that the parent logs it: a warning then reaches the handlers the parent has, among them the capture
+    that stores a stage's warnings with the stage (:func:`vfcli.stages.base.captured_warnings`), and is printed once."""
+    kept = _Kept()
+    loggers = [logging.getLogger()] + [lg for lg in logging.root.manager.loggerDict.values()
+                                       if isinstance(lg, logging.Logger)]
+    for lg in loggers:
+        for h in list(lg.handlers):
+            lg.removeHandler(h)
+        lg.propagate = True
+    logging.getLogger().addHandler(kept)
+    return kept
+
+
+def relog(records) -> None:
+    """Log a child's records (:func:`_keep_records`) in this process, under their own loggers."""
+    for name, level, message in records:
+        logging.getLogger(name).log(level, "%s", message)
+
+
 def _child(func: Callable[[Any], Any], item: Any, fd: int, parent: int) -> None:
-    """Run one piece in the child and send ``(ok, result or error, traceback text)``; never returns (``os._exit``:
-    the stack it was forked from, a stage's write among it, is never unwound here)."""
+    """Run one piece in the child and send ``(ok, result or error, traceback text, log records)``; never returns
+    (``os._exit``: the stack it was forked from, a stage's write among it, is never unwound here)."""
     code = 0
     try:
         _die_with_parent()
         if os.getppid() != parent:                    # the parent died before the line above
             os._exit(71)
+        kept = _keep_records()
         try:
-            payload = pickle.dumps((True, func(item), ""), protocol=pickle.HIGHEST_PROTOCOL)
+            payload = pickle.dumps((True, func(item), "", kept.records), protocol=pickle.HIGHEST_PROTOCOL)
         except BaseException as exc:  # noqa: BLE001 - the caller raises it
             text = "".join(traceback.format_exception(exc))
             try:
-                payload = pickle.dumps((False, exc, text), protocol=pickle.HIGHEST_PROTOCOL)
+                payload = pickle.dumps((False, exc, text, kept.records), protocol=pickle.HIGHEST_PROTOCOL)
                 pickle.loads(payload)
             except Exception:          # an error that does not travel: its words and traceback do
-                payload = pickle.dumps((False, RuntimeError(f"{type(exc).__name__}: {exc}"), text))
+                payload = pickle.dumps((False, RuntimeError(f"{type(exc).__name__}: {exc}"), text, kept.records))
         view = memoryview(payload)
         while view:
             view = view[os.write(fd, view):]
@@ -181,7 +215,8 @@ class ForkMap:
                         errors[i] = PieceDied(f"piece {i + 1} of {len(todo)}: its process ended without a result "
                                               f"({_describe(status)})")
                         continue
-                    ok, value, text = pickle.loads(bytes(buf))
+                    ok, value, text, records = pickle.loads(bytes(buf))
+                    relog(records)
                     if ok:
                         out[i] = value
                     else:
