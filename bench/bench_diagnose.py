@@ -672,8 +672,20 @@ def _guarded(case: Case, base: Path, args: argparse.Namespace, t0: float) -> dic
         return None
     if args.only and case.seed not in args.only:
         return None
-    return run_case(case, base / case.name, args.duration, args.synth_sets, args.run_sets, args.diag_args,
+    return run_case(case, base / case.name, args.duration, args.synth_sets, args.run_sets, diagnose_args(args),
                     args.prepare)
+
+
+def diagnose_args(args: argparse.Namespace) -> list[str]:
+    """The `vfcli diagnose` arguments of every recording: ``--diagnose-arg`` ones, and, unless they set it, ``--jobs``
+    so that the recordings diagnosed at once share the cores (each diagnosis forks its pieces over ``--jobs``
+    workers, default every core: ``--jobs 2`` recordings at once on 2 cores would run four)."""
+    from vfcli.parallel import available_cores
+
+    extra = list(args.diag_args)
+    if not any(a == "--jobs" or a.startswith("--jobs=") or a == "-j" for a in extra):
+        extra += ["--jobs", str(max(1, available_cores() // max(int(args.jobs), 1)))]
+    return extra
 
 
 if __name__ == "__main__":
