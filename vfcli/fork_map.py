@@ -160,10 +160,9 @@ class ForkMap:
     """A :class:`vfcli.parallel.Mapper` over at most ``n`` children at once, each forked for one piece (module
     docstring); the results in the items' order, each as pickled and unpickled.  A child is forked beside the
     running ones only while ``room()`` says the memory holds it (default :func:`room_for_a_child`); the first
-    always is.  The first error of a piece (in
-    the items' order) is raised, its child's traceback its cause, once every piece has ended; a child that dies
-    without a result raises :class:`PieceDied`.  When the caller is interrupted (Ctrl-C) or fails, the children
-    still running are killed and reaped before the exception goes on."""
+    always is.  The first error of a piece (in the items' order) is raised, its child's traceback its cause, once
+    every piece has ended; a child that dies without a result raises :class:`PieceDied`.  When the caller is
+    interrupted (Ctrl-C) or fails, the children still running are killed and reaped before the exception goes on."""
 
     def __init__(self, n: int, room: Callable[[], bool] = room_for_a_child) -> None:
         self.n = int(n)
