@@ -152,8 +152,8 @@ def test_heldout_error_drops_with_the_effect_and_not_without():
 def test_refits_side_by_side_confirm_as_one_after_the_other_bit_for_bit(side_by_side):
     """`vfcli diagnose --jobs 2` refits its leads side by side (vfcli.diagnose.confirm.confirm_all), each in a child
     forked from the process (vfcli.fork_map.ForkMap, its result pickled back) or, without fork, in a thread
-    (vfcli.parallel.ThreadMap), sharing the baseline: every refit's estimate, loads and held-out errors are those
-    of the refits one after the other, to the bit."""
+    (vfcli.parallel.ThreadMap), sharing the baseline, and a single lead's held-out fits side by side: every refit's
+    estimate, loads and held-out errors are those of the fits one after the other, to the bit."""
     from vfcli.diagnose.confirm import confirm_all
     from vfcli.fork_map import ForkMap
     from vfcli.parallel import ThreadMap
@@ -170,6 +170,14 @@ def test_refits_side_by_side_confirm_as_one_after_the_other_bit_for_bit(side_by_
         for ha, hb in zip(a.confirmation.heldout, b.confirmation.heldout):
             assert np.array_equal(ha.baseline, hb.baseline) and np.array_equal(ha.extended, hb.extended)
     assert abs(got["side"][0].refit.theta[0] - 0.2) < 0.02             # the asymmetry found, not a no-op
+    # one lead: its held-out fits side by side instead (two per split, two across instruments)
+    from vfcli.diagnose.confirm import confirm_run
+
+    one = confirm_run(base, StiffnessAsymmetry(), phase,
+                      map={"ForkMap": ForkMap, "ThreadMap": ThreadMap}[side_by_side](2))
+    for ha, hb in zip(got["serial"][0].confirmation.heldout, one.confirmation.heldout):
+        assert ha.kind == hb.kind and np.array_equal(ha.baseline, hb.baseline)
+        assert np.array_equal(ha.extended, hb.extended) and np.array_equal(ha.theta, hb.theta)
 
 
 def test_prediction_error_is_the_rms_of_the_held_out_rows():

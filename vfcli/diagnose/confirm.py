@@ -101,7 +101,7 @@ def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:
 
 def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=None,
                 max_iterations: int = 8, heldout_iterations: int = 3, max_splits: int = 4,
-                own_bound: bool = False) -> Confirmed:
+                own_bound: bool = False, map=None) -> Confirmed:
     """Refit ``candidate`` on the whole window, then the held-out comparisons and the "after" Locate.
 
     window_phase : (F,) glottal cycle phase of the window's frames.
@@ -111,6 +111,8 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
         candidate with its own response is then refitted under its own corner
         (:func:`vfcli.diagnose.bound.refit_at_own_bound`), and its held-out fits use that weight. Whether it
         lowers E is judged under the baseline's weight (:meth:`RefitResult.total_at`).
+    map : runs the held-out fits (:mod:`vfcli.diagnose.heldout`: two per split, two across instruments; an in-process
+        map, :func:`vfcli.parallel.local_map`), default one after the other; the same results whatever the map.
     """
     t0 = time.perf_counter()
     result = refit(baseline, candidate, max_iterations=max_iterations)
@@ -122,9 +124,9 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
                      candidate.name, result.ridge_weight, baseline.problem.settings.ridge_weight)
     t1 = time.perf_counter()
     groups = cycle_groups(window_phase)
-    cyc = leave_cycles_out(baseline, candidate, result, groups, max_splits, heldout_iterations, problem)
+    cyc = leave_cycles_out(baseline, candidate, result, groups, max_splits, heldout_iterations, problem, map)
     t2 = time.perf_counter()
-    inst = across_instruments(baseline, candidate, result, groups, heldout_iterations + 1, problem)
+    inst = across_instruments(baseline, candidate, result, groups, heldout_iterations + 1, problem, map)
     t3 = time.perf_counter()
     log.info("refit of %s: %.0f s (%d iterations); held out cycles %.0f s, instruments %.0f s", candidate.name,
              t1 - t0, len(result.history["iteration"]) - 1, t2 - t1, t3 - t2)

@@ -29,6 +29,8 @@ baseline: its errors are the baseline's.
 """
 from __future__ import annotations
 
+import builtins
+
 import numpy as np
 
 from vfcli.diagnose.confirmation import HeldOutError
@@ -97,57 +99,75 @@ def _pick(groups: np.ndarray, max_splits: int) -> np.ndarray:
 
 
 def leave_cycles_out(baseline, candidate, extended: RefitResult, groups: np.ndarray, max_splits: int = 4,
-                     max_iterations: int = 3, extended_problem=None) -> HeldOutError | None:
+                     max_iterations: int = 3, extended_problem=None, map=None) -> HeldOutError | None:
     """Leave-cycles-out errors of the baseline and of ``candidate``'s extension (module docstring).
 
     extended : the extended model's refit on the whole window (its start).  groups : (F,) from
     :func:`cycle_groups`.  extended_problem : the problem the extension is fitted under (its own ridge weight,
-    :func:`vfcli.diagnose.bound.refit_at_own_bound`); default the baseline's.  Returns None when fewer than two
-    groups exist.
+    :func:`vfcli.diagnose.bound.refit_at_own_bound`); default the baseline's.  map : runs the fits (two per split,
+    independent; an in-process map, :func:`vfcli.parallel.local_map`), default one after the other; the same errors
+    whatever the map.  Returns None when fewer than two groups exist.
     """
     ids = _pick(np.asarray(groups), max_splits)
     if len(ids) < 2:
         return None
     model = getattr(baseline, "model", None)
     ext_problem = baseline.problem if extended_problem is None else extended_problem
-    base_err, ext_err, thetas = [], [], []
-    for g in ids:
+
+    def fit(item):
+        """(held-out error, theta) of one model fitted without group g; the error None where the extension's fit
+        switched it off (the baseline's error is then its)."""
+        g, extend = item
         held = np.flatnonzero(groups == g)
         keep = np.ones(len(groups), bool)
         keep[held] = False
-        b = joint_fit(baseline.problem, baseline.x, None, baseline.f0_hz, keep=keep,
-                      max_iterations=max_iterations, model=model, stated=False, frozen=True)
+        if not extend:
+            b = joint_fit(baseline.problem, baseline.x, None, baseline.f0_hz, keep=keep,
+                          max_iterations=max_iterations, model=model, stated=False, frozen=True)
+            return prediction_error(baseline, b.displacements, held), None
         e = joint_fit(ext_problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta, keep=keep,
                       max_iterations=max_iterations, model=model, stated=False, frozen=True)
-        base_err.append(prediction_error(baseline, b.displacements, held))
-        ext_err.append(base_err[-1] if switched_off(candidate, e.theta)
-                       else prediction_error(baseline, e.displacements, held))
-        thetas.append(e.theta)
+        off = switched_off(candidate, e.theta)
+        return (None if off else prediction_error(baseline, e.displacements, held)), np.asarray(e.theta, float)
+
+    got = list((map or builtins.map)(fit, [(g, extend) for g in ids for extend in (False, True)]))
+    base_err = [got[2 * k][0] for k in range(len(ids))]
+    ext_err = [b if e is None else e for b, (e, _) in zip(base_err, got[1::2])]
+    thetas = [t for _, t in got[1::2]]
     return HeldOutError("cycles", "mm/s", np.array(base_err), np.array(ext_err), np.array(thetas, float))
 
 
 def across_instruments(baseline, candidate, extended: RefitResult, groups: np.ndarray,
-                       max_iterations: int = 4, extended_problem=None) -> HeldOutError | None:
+                       max_iterations: int = 4, extended_problem=None, map=None) -> HeldOutError | None:
     """Fit camera + gap + pressure, predict the vertical velocity, per cycle group (module docstring).
 
-    extended_problem : as :func:`leave_cycles_out`'s.  Returns None when fewer than two groups exist or no compared
-    pixel carries a vertical velocity.
+    extended_problem, map : as :func:`leave_cycles_out`'s (here two fits: the baseline's and the extension's).
+    Returns None when fewer than two groups exist or no compared pixel carries a vertical velocity.
     """
     ids = np.unique(np.asarray(groups)[np.asarray(groups) >= 0])
     if len(ids) < 2:
         return None
     if not any(np.any(fr.v_both[:, 2] != 0) for fr in baseline.frames if fr.m_both.shape[0]):
         return None
-    problem = baseline.problem.with_weights(component_weights=CAMERA_ONLY)
     model = getattr(baseline, "model", None)
-    b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model, stated=False,
-                  frozen=True)
-    ext_problem = (baseline.problem if extended_problem is None else extended_problem).with_weights(
-        component_weights=CAMERA_ONLY)
-    e = joint_fit(ext_problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta,
-                  max_iterations=max_iterations, model=model, stated=False, frozen=True)
-    base_err = [prediction_error(baseline, b.displacements, np.flatnonzero(groups == g), (2,)) for g in ids]
-    ext_err = (list(base_err) if switched_off(candidate, e.theta) else
-               [prediction_error(baseline, e.displacements, np.flatnonzero(groups == g), (2,)) for g in ids])
-    return HeldOutError("instruments", "mm/s", np.array(base_err), np.array(ext_err),
-                        np.asarray(e.theta, float)[None])
+
+    def fit(extend: bool):
+        """(per-group vertical errors, theta) of the camera-only fit; the errors None where the extension's fit
+        switched it off."""
+        if not extend:
+            problem = baseline.problem.with_weights(component_weights=CAMERA_ONLY)
+            b = joint_fit(problem, baseline.x, None, baseline.f0_hz, max_iterations=max_iterations, model=model,
+                          stated=False, frozen=True)
+            return [prediction_error(baseline, b.displacements, np.flatnonzero(groups == g), (2,)) for g in ids], None
+        problem = (baseline.problem if extended_problem is None else extended_problem).with_weights(
+            component_weights=CAMERA_ONLY)
+        e = joint_fit(problem, extended.x, candidate, baseline.f0_hz, theta0=extended.theta,
+                      max_iterations=max_iterations, model=model, stated=False, frozen=True)
+        if switched_off(candidate, e.theta):
+            return None, np.asarray(e.theta, float)
+        return ([prediction_error(baseline, e.displacements, np.flatnonzero(groups == g), (2,)) for g in ids],
+                np.asarray(e.theta, float))
+
+    (base_err, _), (ext_err, theta) = (map or builtins.map)(fit, [False, True])
+    return HeldOutError("instruments", "mm/s", np.array(base_err),
+                        np.array(base_err if ext_err is None else ext_err), np.asarray(theta, float)[None])

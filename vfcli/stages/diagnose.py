@@ -363,7 +363,7 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     :class:`vfcli.diagnose.confirmation.Confirmation` made; their words are appended to ``d.lines``.  phases : the
     stage's bar (:class:`vfcli.progress.Phases`): each refit is a phase of its own, ``refit <candidate>``, or, refitted
     side by side through ``local_map`` (an in-process map, :func:`vfcli.parallel.local_map`), one phase for them all,
-    ``refit <candidate>, <candidate>``."""
+    ``refit <candidate>, <candidate>``; a single lead's held-out fits take ``local_map`` instead."""
     import dataclasses
 
     from vfcli.diagnose.confirm import confirm_all, confirm_run, words
@@ -384,12 +384,12 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
             phases("refit " + ", ".join(c.name for c in cands))
         tried = list(zip(cands, confirm_all(b, cands, window_phase, after, own, local_map)))
     else:
-        tried = []
+        tried = []                                      # one lead: its held-out fits side by side
         for cand in cands:
             if phases is not None:
                 phases.expect(1)
                 phases(f"refit {cand.name}")
-            tried.append((cand, confirm_run(b, cand, window_phase, after, own_bound=own)))
+            tried.append((cand, confirm_run(b, cand, window_phase, after, own_bound=own, map=local_map)))
     cand, got = tried[best_confirmed([g.confirmation for _, g in tried])]
     name = refit_run_name(run, cand.name)
     conf = dataclasses.replace(got.confirmation, run=name)
