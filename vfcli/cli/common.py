@@ -54,9 +54,10 @@ def jobs_option(func: Callable[..., Any]) -> Callable[..., Any]:
     return click.option(
         "--jobs", "-j", "jobs", type=click.IntRange(min=1), default=None, metavar="N",
         help="Processes for the diagnosis's independent pieces (its profile values, its modal reduction's "
-             "factorisations, its refits or a single refit's held-out fits), forked from this one (threads where there is no fork); default: the "
-             "cores this process may use, e.g. a SLURM allotment; 1: one after the other. The results are the "
-             "same whatever N; each piece running beside another holds its own working memory.")(func)
+             "factorisations, its refits or a single refit's held-out fits), forked from this one (threads where "
+             "there is no fork); default: the cores this process may use, e.g. a SLURM allotment; 1: one after the "
+             "other. The results are the same whatever N; each piece running beside another holds its own working "
+             "memory.")(func)
 
 
 def store_command(func: Callable[..., Any]) -> Callable[..., Any]:
