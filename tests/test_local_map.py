@@ -195,9 +195,10 @@ def _alive(pid: int) -> bool:
 
 
 def test_no_second_child_is_forked_while_the_memory_holds_none_and_the_first_always_is():
-    """``room`` says whether one more child fits in the memory available: while it says no, the pieces run one at a
-    time (no two children alive at once), and still every piece runs; the machine's own figure reads /proc
-    (MemAvailable against CHILD_SHARE of this process's resident memory)."""
+    """``room`` says whether one more child fits in the memory available beside the running ones: while it says no,
+    the pieces run one at a time (no two children alive at once), and still every piece runs; the machine's own
+    figure reads /proc (MemAvailable against CHILD_SHARE of this process's resident memory per child, the running
+    ones counted)."""
     import os
 
     from vfcli.fork_map import ForkMap, _kb, room_for_a_child
@@ -207,14 +208,15 @@ def test_no_second_child_is_forked_while_the_memory_holds_none_and_the_first_alw
         time.sleep(0.15)
         return os.getpid(), start, time.time()
 
-    got = ForkMap(3, room=lambda: False)(piece, range(3))
+    got = ForkMap(3, room=lambda running: False)(piece, range(3))
     spans = sorted((s, e) for _, s, e in got)
     assert all(spans[k][1] <= spans[k + 1][0] for k in range(2)), spans          # never two at once
-    both = ForkMap(3, room=lambda: True)(piece, range(3))
+    both = ForkMap(3, room=lambda running: True)(piece, range(3))
     spans = sorted((s, e) for _, s, e in both)
     assert spans[1][0] < spans[0][1]                                            # side by side when there is room
     available, rss = _kb("/proc/meminfo", "MemAvailable"), _kb("/proc/self/status", "VmRSS")
     assert 0 < rss < available < _kb("/proc/meminfo", "MemTotal") and room_for_a_child()   # a test process fits
+    assert not room_for_a_child(int(2 * available / rss))     # nor beside as many as would take all that memory
 
 
 def test_a_forked_piece_s_warning_is_logged_by_the_caller_so_a_stage_stores_it():

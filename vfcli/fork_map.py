@@ -140,11 +140,13 @@ def _kb(path: str, key: str) -> float:
     return float("nan")
 
 
-def room_for_a_child() -> bool:
-    """Whether the machine's available memory (``MemAvailable``) holds one more child: :data:`CHILD_SHARE` of this
-    process's resident memory (``VmRSS``).  True where Linux's /proc cannot be read (the limit is then --jobs)."""
+def room_for_a_child(running: int = 0) -> bool:
+    """Whether the machine's available memory (``MemAvailable``) holds one more child beside the ``running`` ones:
+    :data:`CHILD_SHARE` of this process's resident memory (``VmRSS``) for each of them, the running ones included
+    (a child just forked has not yet taken the memory it will).  True where Linux's /proc cannot be read (the limit
+    is then --jobs)."""
     available, rss = _kb("/proc/meminfo", "MemAvailable"), _kb("/proc/self/status", "VmRSS")
-    return not (available < CHILD_SHARE * rss)        # NaN: no figure, no limit
+    return not (available < CHILD_SHARE * rss * (running + 1))        # NaN: no figure, no limit
 
 
 def _describe(status: int) -> str:
@@ -159,12 +161,12 @@ def _describe(status: int) -> str:
 class ForkMap:
     """A :class:`vfcli.parallel.Mapper` over at most ``n`` children at once, each forked for one piece (module
     docstring); the results in the items' order, each as pickled and unpickled.  A child is forked beside the
-    running ones only while ``room()`` says the memory holds it (default :func:`room_for_a_child`); the first
+    running ones only while ``room(n_running)`` says the memory holds it (default :func:`room_for_a_child`); the first
     always is.  The first error of a piece (in the items' order) is raised, its child's traceback its cause, once
     every piece has ended; a child that dies without a result raises :class:`PieceDied`.  When the caller is
     interrupted (Ctrl-C) or fails, the children still running are killed and reaped before the exception goes on."""
 
-    def __init__(self, n: int, room: Callable[[], bool] = room_for_a_child) -> None:
+    def __init__(self, n: int, room: Callable[[int], bool] = room_for_a_child) -> None:
         self.n = int(n)
         self.room = room
         if self.n < 1:
@@ -181,7 +183,7 @@ class ForkMap:
         try:
             while nxt < len(todo) or running:
                 while nxt < len(todo) and len(running) < self.n:
-                    if running and not self.room():          # one more child would not fit in memory: wait
+                    if running and not self.room(len(running)):   # one more would not fit in memory: wait
                         if not held:
                             log.info("%d pieces at once, not %d: the memory available holds no more",
                                      len(running), self.n)
