@@ -221,14 +221,15 @@ def test_no_second_child_is_forked_while_the_memory_holds_none_and_the_first_alw
 
 def test_a_forked_piece_s_warning_is_logged_by_the_caller_so_a_stage_stores_it():
     """A warning a piece logs in its child is logged again by the caller, under the piece's logger, once: where a
-    stage captures its warnings to store them (vfcli.stages.base.captured_warnings), the piece's warning is among
-    them, as it is when the piece runs in the caller itself."""
+    stage captures its warnings to store them (vfcli.stages.base.captured_warnings), the pieces' warnings are among
+    them in the pieces' order, as when the pieces run in the caller itself."""
     import logging
 
     from vfcli.fork_map import ForkMap
     from vfcli.stages.base import captured_warnings
 
     def piece(i):
+        time.sleep(0.2 * (1 - i))                         # the first piece ends last: its warning still comes first
         logging.getLogger("vfcli.diagnose.somewhere").warning("piece %d: the corner is at the end", i)
         return i
 

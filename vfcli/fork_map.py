@@ -6,7 +6,7 @@ their time in small numpy calls that hold the GIL: in threads two refits ran 1.3
 other, not twice (docs/diagnose.md, "Session 62"). A child forked when its piece starts sees this process's memory
 as it is then, copy-on-write: nothing is pickled on the way in, and the piece runs on its own core. Only its result
 travels back, pickled through a pipe, so a piece should return what the caller needs and no more; with it come the
-log records the piece made, which the caller logs as its own (a stage stores its warnings).
+log records the piece made, which the caller logs as its own, in the pieces' order (a stage stores its warnings).
 
 POSIX only (``os.fork``); on Linux by default (:func:`vfcli.parallel.local_map`), where forking a process whose
 only thread is the caller's is safe for numpy, scipy and h5py: the child reads the store through the inherited
@@ -152,7 +152,10 @@ def room_for_a_child(running: int = 0) -> bool:
 def _describe(status: int) -> str:
     if os.WIFSIGNALED(status):
         sig = os.WTERMSIG(status)
-        name = signal.Signals(sig).name if sig in signal.Signals._value2member_map_ else str(sig)
+        try:
+            name = signal.Signals(sig).name
+        except ValueError:          # a number Python names no signal for
+            name = str(sig)
         hint = " (SIGKILL: the out-of-memory killer? try --jobs 1)" if sig == signal.SIGKILL else ""
         return f"killed by {name}{hint}"
     return f"exit status {os.WEXITSTATUS(status)}"
@@ -180,6 +183,8 @@ class ForkMap:
         sel = selectors.DefaultSelector()
         parent = os.getpid()
         nxt, held = 0, False
+        logs: dict[int, list] = {}              # a piece's log records, kept until those of the pieces before it are out
+        said = 0                                # the pieces whose records are logged
         try:
             while nxt < len(todo) or running:
                 while nxt < len(todo) and len(running) < self.n:
@@ -213,16 +218,18 @@ class ForkMap:
                     del running[fd]
                     _, status = os.waitpid(pid, 0)
                     if not buf:
-                        errors[i] = PieceDied(f"piece {i + 1} of {len(todo)}: its process ended without a result "
-                                              f"({_describe(status)})")
-                        continue
-                    ok, value, text, records = pickle.loads(bytes(buf))
-                    relog(records)
-                    if ok:
-                        out[i] = value
+                        errors[i], logs[i] = PieceDied(f"piece {i + 1} of {len(todo)}: its process ended without a "
+                                                       f"result ({_describe(status)})"), []
                     else:
-                        value.__cause__ = RemoteTraceback(text)
-                        errors[i] = value
+                        ok, value, text, logs[i] = pickle.loads(bytes(buf))
+                        if ok:
+                            out[i] = value
+                        else:
+                            value.__cause__ = RemoteTraceback(text)
+                            errors[i] = value
+                    while said in logs:                 # in the items' order, as one after the other would log them
+                        relog(logs.pop(said))
+                        said += 1
         except BaseException:
             for fd, (_, pid, _) in running.items():
                 try:

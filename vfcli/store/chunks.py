@@ -397,12 +397,10 @@ def encode_chunk(chunk: np.ndarray, codec: ChunkCodec) -> bytes | np.ndarray:
 
 
 def default_workers() -> int:
-    """Encoding threads: one per core available to this process, at most 4."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(4, cores))
+    """Encoding threads: one per core available to this process (:func:`vfcli.parallel.available_cores`), at most 4."""
+    from vfcli.parallel import available_cores
+
+    return min(4, available_cores())
 
 
 def encode_frame(batch: FrameBatch, i: int, dtype: np.dtype, codec: ChunkCodec) -> bytes | np.ndarray:
