@@ -413,7 +413,9 @@ def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> fl
     gap, and searched) on the :data:`EDGE_READING_FRAMES` sampled frames with the largest rough gaps (``masks``);
     these are fitted again, apart from the segmentation's own fits, which are not held; logs it, and warns when it
     exceeds :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` (the gap masks, the glottal area and the gap term
-    are then doubtful by about that share)."""
+    are then doubtful; the share is no bound on their error: on fresh widened seeds 4210 and 4213, a slit of 1-2 px
+    beside a wall in shade that both readings take for gap, the readings differed by 13 and 7 % and the area read
+    +238 and +150 %, docs/benchmarks.md "Proof panel: widened phantoms 4207-4210" and "4211-4214")."""
     widest = _widest_sampled(masks, EDGE_READING_FRAMES)
     frames = [sample[i] for i in widest]
     share = area_disagreement(*ray_fits_twice(frames, gap, SEARCH_REACH_PX, held=True))
@@ -423,9 +425,11 @@ def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> fl
         log.warning("flow: the video does not pin the gap's edges: in the %d sampled frames with the widest gap the "
                     "glottal area read with the edges held beyond the pixels surely in the gap and the one the edge "
                     "fit finds searching %.0f px around each edge differ by %.0f %% (more than %.0f %%), so the gap "
-                    "masks, the glottal area and the gap term are doubtful by about that much. Check the video beside "
-                    "the gap: a medial wall in shade (a dark band between the gap and the lit fold) is told from the "
-                    "gap by its level only; light the folds along the camera's axis if you can",
+                    "masks, the glottal area and the gap term are doubtful. That difference is no bound on the error: "
+                    "a medial wall in shade (a dark band between the gap and the lit fold) that both readings take "
+                    "for gap makes the area too large by more, up to several times on a slit a few pixels wide. Check "
+                    "the video beside the gap: such a wall is told from the gap by its level only; light the folds "
+                    "along the camera's axis if you can",
                     len(frames), SEARCH_REACH_PX, 100 * share, 100 * AMBIGUOUS_AREA)
     else:
         log.info("flow: the two readings of the gap's edges agree: the sampled glottal area differs by %.1f %%",
