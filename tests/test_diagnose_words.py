@@ -59,3 +59,51 @@ def test_a_doubtful_gap_is_said_with_its_figure_and_what_it_may_carry():
     assert line.startswith(GAP_DOUBT_START) and "differ by 18 % of its area" in line and "more than 5 %" in line
     assert "contact" in line and "offset" in line and "asymmetry" in line
     assert gap_doubt_words(AMBIGUOUS_AREA) == "" and gap_doubt_words(0.039) == "" and gap_doubt_words(float("nan")) == ""
+
+
+def _rest_glottis(params) -> tuple[float, float]:
+    """(width, midline) of the glottis at rest, mm: the folds' least lateral distance and the y half-way between
+    them, from the M5 profile each fold is placed with (:meth:`vfcli.model.m5.M5Params.place`)."""
+    pts, _ = params.contour(0.05)
+    prism = np.column_stack([np.zeros(len(pts)), pts])          # (x, s, z) at x = 0: the profile is a prism
+    left, right = (params.place(prism, fold)[:, 1] for fold in (0, 1))
+    return float(right.min() - left.max()), 0.5 * float(right.min() + left.max())
+
+
+@pytest.mark.parametrize("left, right", [(0.18, -0.179), (-0.05, 0.07), (0.1, 0.1), (0.3, -0.1)])
+def test_the_mounting_offsets_are_read_as_the_mount_the_mesh_would_need(left, right):
+    """The mounting offset's two parameters (each fold along +y) said as the folds' mounting: the glottis at rest
+    narrower or wider, and the pair shifted toward one fold's side, by what the M5 geometry placed with those offsets
+    gives against the same geometry without them (widened phantom 4215's one-step estimate was +0.18 and -0.179 mm
+    for folds 0.32 mm nearer than the config said, docs/benchmarks.md "Session 63: frames that are not square ...")."""
+    from vfcli.diagnose.candidates import MountingOffset
+    from vfcli.model.m5 import M5Params
+
+    line = MountingOffset().reading(np.array([left, right]))
+    w0, m0 = _rest_glottis(M5Params(gap_mm=0.4))
+    w1, m1 = _rest_glottis(M5Params(gap_mm=0.4, offset_y_mm=(left, right)))
+    narrower = re.search(r"the glottis (\d+\.\d+) mm (narrower|wider) at rest", line)
+    said = float(narrower.group(1)) * (1 if narrower.group(2) == "narrower" else -1)
+    assert said == pytest.approx(w0 - w1, abs=0.006)
+    shift = re.search(r"the pair (\d+\.\d+) mm toward the (left|right) fold's side", line)
+    toward_right = float(shift.group(1)) * (1 if shift.group(2) == "right" else -1)
+    right_side = np.sign(_rest_glottis(M5Params(gap_mm=0.4, offset_y_mm=(0.0, 1.0)))[1] - m0)   # where fold 1 lies
+    assert toward_right == pytest.approx(right_side * (m1 - m0), abs=0.006)
+    each = re.search(r"each fold (\d+\.\d+) mm (nearer|further from) the midplane", line)
+    assert float(each.group(1)) == pytest.approx(abs(w0 - w1) / 2, abs=0.006)
+    assert "mesh.offset_y_mm" in line and "camera.offset_px" in line
+
+
+def test_a_refit_of_the_offset_says_its_estimate_as_the_mounting_too():
+    """The refit's line (:func:`vfcli.diagnose.confirm.words`) carries the offset's reading after its estimate when
+    it is given the refitted term, and only the estimate without it."""
+    from vfcli.diagnose.candidates import MountingOffset
+    from vfcli.diagnose.confirm import words
+    from vfcli.diagnose.confirmation import Confirmation
+
+    term = MountingOffset()
+    conf = Confirmation("offset", term.parameter_names, np.array([0.12, -0.1]), np.array([0.02, 0.02]), run="r+offset")
+    line = words(conf, term)[0]
+    assert line.startswith("refit with offset (run r+offset): offset_y_left_mm = 0.12")
+    assert line.endswith(term.reading(conf.estimate)) and "each fold 0.11 mm nearer the midplane" in line
+    assert "read as the folds' mounting" not in words(conf)[0]

@@ -143,6 +143,10 @@ class Candidate(Protocol):
     one_sided : optional (default False): True when the term's one parameter is physical only when
         positive (a retardation time): the calibrated screening counts only evidence for a positive
         value (:mod:`vfcli.diagnose.calibrate`).
+    evidence : optional ``evidence(baseline) -> str``: what the baseline shows of the signature (contact's midplane
+        crossing), said after the screening line.
+    reading : optional ``reading(theta) -> str``: an estimate of theta in the lab's terms (the mounting offsets as
+        the folds' mounting), said after the screening's one-step estimate and the refit's estimate.
     """
 
     name: str
@@ -204,7 +208,8 @@ def screenings(candidates: Sequence[Candidate], tests, baseline: Baseline) -> li
 
     return [Screening(c.name, t.statistic, t.p_value, t.identifiability.identifiable, t.estimate,
                       np.column_stack([t.estimate - 1.96 * t.std, t.estimate + 1.96 * t.std]),
-                      _with_evidence(words(c, t, len(candidates)), c, baseline)) for c, t in zip(candidates, tests)]
+                      _with_evidence(_with_reading(words(c, t, len(candidates)), c, t), c, baseline))
+            for c, t in zip(candidates, tests)]
 
 
 def _with_evidence(line: str, candidate, baseline) -> str:
@@ -212,6 +217,14 @@ def _with_evidence(line: str, candidate, baseline) -> str:
     candidate states it (an optional ``evidence(baseline) -> str``, e.g. contact's midplane crossing)."""
     evidence = getattr(candidate, "evidence", None)
     return f"{line}; {evidence(baseline)}" if callable(evidence) else line
+
+
+def _with_reading(line: str, candidate, test) -> str:
+    """The screening line, followed by the one-step estimate in the lab's terms when the candidate reads it (an
+    optional ``reading(theta) -> str``) and the term acts and is identifiable (else there is no estimate)."""
+    reading = getattr(candidate, "reading", None)
+    acts = np.any(test.identifiability.own_information) and test.identifiability.identifiable
+    return f"{line}; {reading(test.estimate)}" if callable(reading) and acts else line
 
 
 #: the package of candidate terms; it exposes ``CANDIDATES``: a sequence of :class:`Candidate` instances

@@ -155,10 +155,14 @@ def confirm_all(baseline: Baseline, candidates, window_phase: np.ndarray, locate
         lambda c: confirm_run(baseline, c, window_phase, locate, own_bound=own_bound), candidates))
 
 
-def words(conf: Confirmation) -> list[str]:
-    """Plain lines: the estimate with its interval, the held-out errors before and after."""
+def words(conf: Confirmation, candidate=None) -> list[str]:
+    """Plain lines: the estimate with its interval (and, when ``candidate``, the refitted term, reads it: its
+    ``reading(theta)``, in the lab's terms), the held-out errors before and after."""
     est = ", ".join(f"{n} = {e:.3g} (95 % interval {a:.3g} .. {b:.3g}, {conf.uncertainty})"
                     for n, e, (a, b) in zip(conf.parameter_names, conf.estimate, conf.interval))
+    reading = getattr(candidate, "reading", None)
+    if callable(reading):
+        est += f"; {reading(conf.estimate)}"
     out = [f"refit with {conf.candidate}{f' (run {conf.run})' if conf.run else ''}: {est}"]
     if not conf.moved:
         off = " (the term switched off)" if not np.any(np.asarray(conf.estimate, float)) else ""

@@ -399,10 +399,11 @@ def confirm_and_write(s: StageWriter, inputs: DiagnoseInputs, d: Diagnosis, cand
     residual_map(got.after.located, got.after.residual, paths["after"], f"residual of run {name}")
     velocity_at_points(b, b.displacements, got.refit.displacements, paths["points"],
                        f"velocity at points: measured, run {run}, run {name}", name)
-    others = [g.confirmation for c, g in tried if g is not got]
-    for other in others:
-        d.lines.extend(words(other))
-    d.lines.extend(words(conf))
+    pairs = [(c, g.confirmation) for c, g in tried if g is not got]
+    for c, other in pairs:
+        d.lines.extend(words(other, c))
+    d.lines.extend(words(conf, cand))
+    others = [other for _, other in pairs]
     p = b.problem
     # the extended run states the same uncertainty as the diagnosis (with the held-out fits' disagreement)
     done.update(refit=dataclasses.replace(got.refit, sd=np.asarray(conf.sd, float), uncertainty=conf.uncertainty),

@@ -47,6 +47,24 @@ class MountingOffset(DisplacementTerm):
     signature = ("the medial edges sit off their fitted places by a constant in every frame "
                  "(gap silhouettes), with no trace in the velocity")
 
+    def reading(self, theta) -> str:
+        """The two offsets read as the folds' mounting, in the lab's terms.
+
+        In the model frame the left fold (fold 0) lies at y < 0 and the right one (fold 1) at y > 0
+        (:mod:`vfcli.model.m5`), so offsets ``(l, r)`` (mm, along +y) move the folds ``(l - r) / 2`` each toward the
+        midplane (a glottis ``l - r`` narrower at rest than the mesh's: ``mesh.gap_mm``, ``mesh.offset_y_mm``) and the
+        pair ``(l + r) / 2`` toward the right fold's side (the midline of the pose: ``camera.offset_px``). A mounting
+        the config does not state, or states wrong, reads so (widened phantom 4215 fitted with its folds 0.32 mm
+        further apart than they are: one-step estimate +0.18 and -0.18 mm, docs/benchmarks.md "Session 63: frames
+        that are not square ...")."""
+        left, right = (float(v) for v in np.asarray(theta, dtype=float).reshape(-1)[:2])
+        inward, shift = 0.5 * (left - right), 0.5 * (left + right)
+        return (f"read as the folds' mounting: each fold {abs(inward):.2f} mm "
+                f"{'nearer the midplane' if inward >= 0 else 'further from the midplane'} than the mesh puts it (the "
+                f"glottis {2 * abs(inward):.2f} mm {'narrower' if inward >= 0 else 'wider'} at rest: mesh.gap_mm, "
+                f"mesh.offset_y_mm), and the pair {abs(shift):.2f} mm toward the "
+                f"{'right' if shift >= 0 else 'left'} fold's side (the pose's midline: camera.offset_px)")
+
     def displacement_jacobian(self, baseline) -> np.ndarray:
         u = baseline.displacements
         out = np.zeros(u.shape + (2,))
