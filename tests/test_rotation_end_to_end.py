@@ -140,3 +140,30 @@ def test_a_configured_rotation_of_the_wrong_sign_is_a_stored_warning_of_flow(tur
     assert len(hit) == 1, hit
     found = float(re.search(r"the sampled gap runs at ([-0-9.]+) deg in the image, (\d+) deg from", hit[0]).group(1))
     assert abs((found - angle + 90) % 180 - 90) < 1.0 and "60 deg from camera.rotation_deg -30.0 deg" in hit[0]
+
+
+@pytest.mark.parametrize("turned", [30.0], indirect=True)
+@pytest.mark.parametrize("rotation, warned", [(50.0, False), (58.0, True)])
+def test_near_a_diagonal_optimize_reads_the_gap_along_flows_axis_and_says_nothing(turned, caplog, rotation, warned):
+    """A pose whose rotation lies across a diagonal from the axis /flow measured the gap along: within
+    MEASURED_AXIS_TOLERANCE_DEG of the diagonal optimize reads the gap along /flow's axis and does not warn (widened
+    seed 4229: the pose -46.6 deg, /flow's masks the other side of the diagonal; optimize advised setting the rotation,
+    which changed nothing); further off it still warns, and its advice no longer sends the user to camera.pose =
+    'config' without camera.offset_px."""
+    import logging
+
+    from vfcli.camera.pose import MEASURED_AXIS_TOLERANCE_DEG, lateral_axis_for
+
+    angle, store, config, _ = turned
+    with Store(store).read() as r:
+        measured = int(r.attrs("flow")["lateral_axis"])
+    assert lateral_axis_for(rotation) != measured and (abs(rotation - 45.0) <= MEASURED_AXIS_TOLERANCE_DEG) != warned
+    turned_cfg = config.model_copy(update={"camera": config.camera.model_copy(update={"rotation_deg": rotation})})
+    with Store(store).read() as r, caplog.at_level(logging.WARNING, logger="vfcli"):
+        problem, setup = problem_of_store(r, turned_cfg)
+    hits = [rec.getMessage() for rec in caplog.records if "makes image axis" in rec.getMessage()]
+    assert setup.rotation_deg == pytest.approx(rotation)
+    assert len(hits) == int(warned)
+    assert problem.settings.lateral_axis == (lateral_axis_for(rotation) if warned else measured)
+    if warned:
+        assert f"about {rotation:.0f} deg" in hits[0] and "camera.offset_px" in hits[0]

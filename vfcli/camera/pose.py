@@ -352,6 +352,15 @@ def lateral_axis_for(rotation_deg: float) -> int:
 #: stands
 DIAGONAL_TOLERANCE_DEG = 1.0
 
+#: Within this many degrees of a diagonal optimize reads the gap along the image axis /flow measured it along (the
+#: axis of flow's sub-pixel edges), where the pose's rotation makes the other axis lateral, and says nothing: both axes
+#: cross the glottis at 35-55 deg there, and the axis of a gap's masks is known to a few degrees only where the gap is
+#: never resolved (widened seed 4229, the glottis at -46.7 deg under a 2.8 px blur: the pose read -46.6 deg, /flow's
+#: masks the other side of the diagonal, and setting camera.rotation_deg as optimize advised changed nothing;
+#: docs/benchmarks.md "Session 63: the glottis near a diagonal"). The same figure as flow's warning of a configured
+#: rotation off the gap's axis (:data:`vfcli.flow.pipeline.ROTATION_WARN_DEG`).
+MEASURED_AXIS_TOLERANCE_DEG = 10.0
+
 
 def gap_ray_axis(rotation_deg: float, measured_axis: int, tolerance_deg: float = DIAGONAL_TOLERANCE_DEG
                  ) -> tuple[int, bool]:

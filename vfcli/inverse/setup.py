@@ -17,7 +17,8 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from vfcli.camera.camera import Camera
-from vfcli.camera.pose import gap_ray_axis, locate, model_axes_velocity, motion_amplitude
+from vfcli.camera.pose import (MEASURED_AXIS_TOLERANCE_DEG, gap_ray_axis, locate, model_axes_velocity,
+                               motion_amplitude)
 from vfcli.config import OptimizeConfig
 from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.inverse.problem import Measurement, ObjectiveSettings, Problem
@@ -195,11 +196,12 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     rotation, offset, pose_source = camera_pose(inputs, pose)
     velocity = np.array(inputs.velocity, dtype=np.float64)
     velocity[..., :2] = model_axes_velocity(velocity[..., :2], inputs.velocity_rotation_deg, rotation)
-    lateral, disagrees = gap_ray_axis(rotation, inputs.lateral_axis)
+    lateral, disagrees = gap_ray_axis(rotation, inputs.lateral_axis, MEASURED_AXIS_TOLERANCE_DEG)
     if disagrees:
         log.warning("optimize: the camera rotation %.1f deg makes image axis %d lateral but /flow measured the gap "
-                    "along axis %d; set camera.rotation_deg (and camera.pose = 'config') and rerun ingest-hsc and flow",
-                    rotation, lateral, inputs.lateral_axis)
+                    "along axis %d; set camera.rotation_deg to about %.0f deg (with camera.pose = 'estimate' the "
+                    "rotation is the pose search's prior; 'config' needs camera.offset_px as well) and rerun ingest-hsc "
+                    "and flow", rotation, lateral, inputs.lateral_axis, rotation)
     h, w = inputs.gap_masks.shape[1:]
     camera = Camera(inputs.px_per_mm, rotation, offset, w, h)
     times = inputs.times
