@@ -111,8 +111,10 @@ def test_a_fit_whose_gap_term_is_empty_says_so(turned):
     assert res.returncode == 0, res.stderr
     with Store(store).read() as r:
         warnings = r.summary("optimize", "beside")["warnings"]
+        axis, flow_axis = r.attrs("optimize", "beside")["gap_lateral_axis"], r.attrs("flow")["lateral_axis"]
     hit = [w for w in warnings if "the gap term has no rays" in w]
     assert len(hit) == 1 and "camera.rotation_deg" in hit[0]
+    assert int(axis) == int(flow_axis)         # the run states the image axis of its gap rays (diagnose rebuilds it)
 
 
 @pytest.mark.parametrize("turned", [30.0], indirect=True)
@@ -164,6 +166,19 @@ def test_near_a_diagonal_optimize_reads_the_gap_along_flows_axis_and_says_nothin
     hits = [rec.getMessage() for rec in caplog.records if "makes image axis" in rec.getMessage()]
     assert setup.rotation_deg == pytest.approx(rotation)
     assert len(hits) == int(warned)
-    assert problem.settings.lateral_axis == (lateral_axis_for(rotation) if warned else measured)
+    assert problem.settings.lateral_axis == setup.lateral_axis == (lateral_axis_for(rotation) if warned else measured)
     if warned:
         assert f"about {rotation:.0f} deg" in hits[0] and "camera.offset_px" in hits[0]
+
+
+def test_a_run_stored_before_the_diagonal_rule_is_rebuilt_with_the_axis_it_was_fitted_on():
+    """diagnose rebuilds a run's problem with the gap rays' image axis the run states (``gap_lateral_axis``); a run
+    stored before session 63 states none and ran them along its rotation's axis unless within 1 deg of a diagonal, so
+    its rebuild does the same, not today's rule (a pose at 50 deg for a gap /flow read along axis 0: axis 1 then)."""
+    from vfcli.camera.pose import lateral_axis_for
+    from vfcli.stages.diagnose import run_gap_axis
+
+    assert run_gap_axis({"gap_lateral_axis": 0, "camera_rotation_deg": 50.0}, {"lateral_axis": 0}) == 0
+    assert run_gap_axis({"camera_rotation_deg": 50.0}, {"lateral_axis": 0}) == lateral_axis_for(50.0) == 1
+    assert run_gap_axis({"camera_rotation_deg": 45.5}, {"lateral_axis": 0}) == 0     # within 1 deg: /flow's then too
+    assert run_gap_axis({"camera_rotation_deg": 20.0}, {"lateral_axis": lateral_axis_for(20.0)}) == lateral_axis_for(20.0)

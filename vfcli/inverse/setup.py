@@ -108,6 +108,8 @@ class Setup:
         The load model.
     lcurve : LCurve or None
         The L-curve that chose the ridge weight (None: the weight was given).
+    lateral_axis : int
+        The image axis the gap term's rays run along (0: each column is a ray, 1: each row).
     """
 
     rotation_deg: float
@@ -115,6 +117,7 @@ class Setup:
     pose_source: str
     field: LoadModel
     lcurve: LCurve | None
+    lateral_axis: int
 
 
 def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] | None
@@ -174,7 +177,8 @@ def near_gap(gap_masks: np.ndarray, margin_px: float) -> np.ndarray:
 
 def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
                   pose: tuple[float, tuple[float, float]] | None, *,
-                  map: Callable[..., Iterable[Any]] | None = None) -> tuple[Problem, Setup]:
+                  map: Callable[..., Iterable[Any]] | None = None,
+                  lateral_axis: int | None = None) -> tuple[Problem, Setup]:
     """The optimisation problem: mesh, elastic model, load model, camera, measurement, weights.
 
     Parameters
@@ -188,6 +192,10 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     map : callable, optional
         Runs the response's basis solves (:class:`QuasiStaticResponse`'s ``map``): a thread
         pool's or a Dask client's map; default one after the other.
+    lateral_axis : {0, 1}, optional
+        The image axis of the gap term's rays, as a stored run had it (its ``gap_lateral_axis``); None: the pose's
+        rotation's axis, or /flow's within :data:`vfcli.camera.pose.MEASURED_AXIS_TOLERANCE_DEG` of a diagonal
+        (:func:`vfcli.camera.pose.gap_ray_axis`; warned where they disagree further off).
 
     Returns
     -------
@@ -197,6 +205,8 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     velocity = np.array(inputs.velocity, dtype=np.float64)
     velocity[..., :2] = model_axes_velocity(velocity[..., :2], inputs.velocity_rotation_deg, rotation)
     lateral, disagrees = gap_ray_axis(rotation, inputs.lateral_axis, MEASURED_AXIS_TOLERANCE_DEG)
+    if lateral_axis is not None:
+        lateral, disagrees = int(lateral_axis), False
     if disagrees:
         log.warning("optimize: the camera rotation %.1f deg makes image axis %d lateral but /flow measured the gap "
                     "along axis %d; set camera.rotation_deg to about %.0f deg (with camera.pose = 'estimate' the "
@@ -229,7 +239,7 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
         if cfg.loads == "pressure" and curve.unbounded:
             warn_unbounded_correction(curve)
         problem = Problem(inputs.mesh, camera, response, measurement, replace(settings, ridge_weight=curve.chosen))
-    return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve)
+    return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve, lateral)
 
 
 def warn_unbounded_correction(curve) -> None:
@@ -247,6 +257,6 @@ def warn_unbounded_correction(curve) -> None:
 
 
 def setup_summary(setup: Setup) -> dict[str, Any]:
-    """The stage attributes of a :class:`Setup` (camera pose and its source)."""
+    """The stage attributes of a :class:`Setup` (camera pose and its source, the gap rays' image axis)."""
     return {"camera_rotation_deg": setup.rotation_deg, "camera_offset_px": np.asarray(setup.offset_px),
-            "pose_source": setup.pose_source}
+            "pose_source": setup.pose_source, "gap_lateral_axis": int(setup.lateral_axis)}

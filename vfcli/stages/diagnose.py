@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from vfcli.camera.pose import gap_ray_axis
 from vfcli.config import RecordingConfig
 from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.cycles import TooFewCycles, too_few_advice
@@ -75,6 +76,15 @@ def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], at
     return RecordingConfig.model_validate(data)
 
 
+def run_gap_axis(attrs: dict[str, Any], flow_attrs: dict[str, Any]) -> int:
+    """The image axis a run's gap rays ran along: its ``gap_lateral_axis``; a run stored before session 63 has none and
+    ran them along its rotation's axis unless within :data:`vfcli.camera.pose.DIAGONAL_TOLERANCE_DEG` of a diagonal
+    (the rule then; since, /flow's axis within :data:`vfcli.camera.pose.MEASURED_AXIS_TOLERANCE_DEG`)."""
+    if "gap_lateral_axis" in attrs:
+        return int(attrs["gap_lateral_axis"])
+    return gap_ray_axis(float(attrs["camera_rotation_deg"]), int(flow_attrs.get("lateral_axis", 0)))[0]
+
+
 def motion_stride(valid: np.ndarray, max_rows: int) -> int:
     """The smallest pixel stride s whose grid (every s-th pixel of every s-th row) leaves at most ``max_rows``
     motion rows (3 per valid pixel and frame) of the window's ``valid`` (F, H, W) bool."""
@@ -106,7 +116,7 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
     flow_attrs = reader.attrs("flow")
     roi = np.asarray(flow_attrs.get("roi_origin_px", (0.0, 0.0)), dtype=float)
     cfg = run_recording_config(config, stored.config, stored.attrs, roi)
-    problem, _ = problem_of_store(reader, cfg)
+    problem, _ = problem_of_store(reader, cfg, lateral_axis=run_gap_axis(stored.attrs, flow_attrs))
     # a large window (many frames of large images) is compared on a coarser pixel grid: the diagnosis holds
     # several row-length vectors per candidate, which outgrew 23 GB at 101.6 M rows (docs/diagnose.md)
     problem = problem.thinned(motion_stride(problem.meas.valid, config.diagnose.max_motion_rows))

@@ -143,10 +143,13 @@ def configured_pose(config: RecordingConfig) -> tuple[float, tuple[float, float]
     return (cam.rotation_deg, tuple(cam.offset_px)) if cam.pose == "config" else None
 
 
-def problem_of_store(reader: StoreReader, config: RecordingConfig, map: Mapper | None = None) -> tuple[Problem, Setup]:
+def problem_of_store(reader: StoreReader, config: RecordingConfig, map: Mapper | None = None,
+                     lateral_axis: int | None = None) -> tuple[Problem, Setup]:
     """The optimisation problem of a store under ``config`` (what a run fits; benchmarks use it);
-    ``map`` runs the response's basis solves (:mod:`vfcli.parallel`; default one after the other)."""
-    return build_problem(read_optimize_inputs(reader, config), config.optimize, configured_pose(config), map=map)
+    ``map`` runs the response's basis solves (:mod:`vfcli.parallel`; default one after the other);
+    ``lateral_axis``: the gap rays' image axis a stored run had (:func:`vfcli.inverse.setup.build_problem`)."""
+    return build_problem(read_optimize_inputs(reader, config), config.optimize, configured_pose(config), map=map,
+                         lateral_axis=lateral_axis)
 
 
 def run_model(reader: StoreReader) -> ElasticModel:

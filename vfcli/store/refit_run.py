@@ -41,7 +41,7 @@ def write_refit_run(s: StageWriter, result, sim_time: np.ndarray, parameter_name
     s.put("history_theta", np.asarray(h["theta"], dtype=np.float64))
     write_refit_params(s, result.parameter_names, result.theta, result.sd)
     keep = ("setup", "loads", "ridge_weight", "motion_outside", "px_per_mm", "camera_rotation_deg",
-            "camera_offset_px", "pose_source", "pixel_stride")
+            "camera_offset_px", "pose_source", "gap_lateral_axis", "pixel_stride")
     theta = ", ".join(f"{n} = {t:.4g} +- {d:.2g}" for n, t, d in zip(result.parameter_names, result.theta, result.sd))
     s.set_attrs(**{k: source_attrs[k] for k in keep if k in source_attrs}, method="refit (joint Gauss-Newton)",
                 converged=bool(result.converged), message=f"extends run {of_run} by {result.candidate}: {theta}",
