@@ -108,8 +108,6 @@ class Setup:
         The load model.
     lcurve : LCurve or None
         The L-curve that chose the ridge weight (None: the weight was given).
-    lateral_axis : int
-        The image axis the gap term's rays run along (0: each column is a ray, 1: each row).
     """
 
     rotation_deg: float
@@ -117,7 +115,6 @@ class Setup:
     pose_source: str
     field: LoadModel
     lcurve: LCurve | None
-    lateral_axis: int
 
 
 def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] | None
@@ -204,14 +201,15 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     rotation, offset, pose_source = camera_pose(inputs, pose)
     velocity = np.array(inputs.velocity, dtype=np.float64)
     velocity[..., :2] = model_axes_velocity(velocity[..., :2], inputs.velocity_rotation_deg, rotation)
-    lateral, disagrees = gap_ray_axis(rotation, inputs.lateral_axis, MEASURED_AXIS_TOLERANCE_DEG)
-    if lateral_axis is not None:
+    if lateral_axis is None:
+        lateral, disagrees = gap_ray_axis(rotation, inputs.lateral_axis, MEASURED_AXIS_TOLERANCE_DEG)
+    else:
         lateral, disagrees = int(lateral_axis), False
     if disagrees:
         log.warning("optimize: the camera rotation %.1f deg makes image axis %d lateral but /flow measured the gap "
                     "along axis %d; set camera.rotation_deg to about %.0f deg (with camera.pose = 'estimate' the "
-                    "rotation is the pose search's prior; 'config' needs camera.offset_px as well) and rerun ingest-hsc "
-                    "and flow", rotation, lateral, inputs.lateral_axis, rotation)
+                    "rotation is the pose search's prior; 'config' needs camera.offset_px as well) and rerun "
+                    "ingest-hsc and flow", rotation, lateral, inputs.lateral_axis, rotation)
     h, w = inputs.gap_masks.shape[1:]
     camera = Camera(inputs.px_per_mm, rotation, offset, w, h)
     times = inputs.times
@@ -239,7 +237,7 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
         if cfg.loads == "pressure" and curve.unbounded:
             warn_unbounded_correction(curve)
         problem = Problem(inputs.mesh, camera, response, measurement, replace(settings, ridge_weight=curve.chosen))
-    return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve, lateral)
+    return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve)
 
 
 def warn_unbounded_correction(curve) -> None:
@@ -256,7 +254,8 @@ def warn_unbounded_correction(curve) -> None:
                 "anew", curve.chosen, float(np.log10(curve.reference / curve.chosen)), curve.reference)
 
 
-def setup_summary(setup: Setup) -> dict[str, Any]:
-    """The stage attributes of a :class:`Setup` (camera pose and its source, the gap rays' image axis)."""
+def setup_summary(setup: Setup, problem: Problem) -> dict[str, Any]:
+    """The stage attributes of a :class:`Setup` and its problem (camera pose and its source, the image axis of the gap
+    term's rays)."""
     return {"camera_rotation_deg": setup.rotation_deg, "camera_offset_px": np.asarray(setup.offset_px),
-            "pose_source": setup.pose_source, "gap_lateral_axis": int(setup.lateral_axis)}
+            "pose_source": setup.pose_source, "gap_lateral_axis": int(problem.settings.lateral_axis)}

@@ -243,7 +243,8 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
                     setup=cfg.setup if cfg.loads != "pressure" else "pressure", loads=cfg.loads,
                     ridge_weight=problem.settings.ridge_weight, motion_outside=problem.settings.outside,
                     method=cfg.method, converged=bool(result.converged),
-                    message=str(result.message), px_per_mm=problem.camera.px_per_mm, **setup_summary(setup), **unc)
+                    message=str(result.message), px_per_mm=problem.camera.px_per_mm,
+                    **setup_summary(setup, problem), **unc)
         if plot is not None:
             convergence_plot(h, plot, label)
         # the whole stage: setup (the L-curve's fits), the fit, the stated uncertainty; the history's wall time is the fit's
