@@ -136,10 +136,12 @@ def test_ctrl_c_while_forked_pieces_run_kills_and_reaps_them_at_once():
     import subprocess
     import sys
 
-    from conftest import ROOT
+    from conftest import ROOT, sigint_default
 
+    # SIGINT at its default in the child: a suite started where SIGINT is ignored (a script's background job) passed
+    # that on, Python then raised no KeyboardInterrupt and the children slept their minute (session 64, `-n 3`)
     proc = subprocess.Popen([sys.executable, "-c", _INTERRUPTED], stdout=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}, preexec_fn=sigint_default)
     pids = [int(proc.stdout.readline()) for _ in range(2)]
     t0 = time.perf_counter()
     proc.send_signal(signal.SIGINT)
