@@ -36,6 +36,7 @@ browser:
 	  else echo "error: $(CHROMIUM) missing; install Debian's chromium package as root (apt-get install chromium)" >&2; exit 2; fi; }
 
 # both cores, each test file on one worker (its fixtures built once); the 15 slowest steps listed.
+# A third worker gains 2-3 % (docs/benchmarks.md, "Session 64: the suite's time, two workers or three").
 # One BLAS thread per process: two workers already fill two cores, and OpenBLAS's threads beside
 # other busy processes made a diagnose test file 1.6x slower (docs/benchmarks.md, "The suite's
 # time and diagnose's kernels").
