@@ -71,6 +71,23 @@ def test_report_names_every_stage_and_run(report):
     assert "Diagnosis" in text
 
 
+def test_the_gap_frames_captions_name_the_frame_its_time_and_the_gap_the_store_holds(report):
+    """Each of the four outlined frames is captioned in the page's text with its frame, time and the detected
+    gap's size, as /flow stores them (the same words burned into the thumbnail were a few pixels high)."""
+    gap = _section(report.read_text(), "Glottal gap and flow")
+    captions = re.findall(r"<figcaption>frame (\d+), t = ([\d.]+) ms: (?:the detected gap \((\d+) px\) outlined in red|"
+                          r"(no gap detected))</figcaption>", gap)
+    assert len(captions) == 4
+    with Store(report.with_name("rec.h5")).read() as r:
+        masks = r.read("flow", "gap_mask")
+        times = r.read("flow", "frame_time")
+    for frame, ms, px, none in captions:
+        k = int(frame)
+        assert float(ms) == pytest.approx(1e3 * times[k], abs=0.006)
+        assert (int(px) if px else 0) == int(masks[k].sum()) and bool(none) == (masks[k].sum() == 0)
+    assert any(px for _, _, px, _ in captions) and len({c[0] for c in captions}) == 4
+
+
 def _section(page: str, title: str) -> str:
     """The text of the page's section ``title`` (from its heading to the next <h2>), entities unescaped."""
     return html.unescape(page.split(f"<h2>{title}</h2>", 1)[1].split("<h2>", 1)[0])

@@ -129,8 +129,10 @@ def _at_a_glance(reader: StoreReader, glance: dict[str, list], missing: list[str
     return "\n".join(out)
 
 
-def _gap_frames(job: ExportJob, d: Path) -> list[Path]:
-    """Four frames over one cycle with the detected glottal gap outlined (PNG)."""
+def _gap_frames(job: ExportJob, d: Path) -> list[tuple[Path, str]]:
+    """Four frames over one cycle with the detected glottal gap outlined (JPEG), each with its caption: the
+    frame, its time and the gap's size in the page's own text (burned into a 2x thumbnail shown at a quarter
+    of the page's width, the same words were a few pixels high)."""
     import cv2
 
     masks = job.r.frames("flow", "gap_mask")
@@ -148,12 +150,14 @@ def _gap_frames(job: ExportJob, d: Path) -> list[Path]:
     scale = 2
     for i, k in enumerate(idx):
         img = video.gray_to_rgb(frames[i], lo, hi, scale)
-        m = cv2.resize(masks[int(k)].astype(np.uint8), None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
+        mask = masks[int(k)]
+        m = cv2.resize(mask.astype(np.uint8), None, fx=scale, fy=scale, interpolation=cv2.INTER_NEAREST)
         contours, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         cv2.drawContours(img, contours, -1, (255, 40, 40), 1, cv2.LINE_AA)
-        img = video.annotate(img, [f"frame {int(k)}", f"t = {1e3 * job.frame_time[int(k)]:.2f} ms",
-                                   f"gap {int(masks[int(k)].sum())} px"], 0.0, "")[:, :-30]
-        out.append(video.write_jpeg(d / f"gap_{int(k):05d}.jpg", img))
+        px = int(mask.sum())
+        gap = f"the detected gap ({px} px) outlined in red" if px else "no gap detected"
+        caption = f"frame {int(k)}, t = {1e3 * job.frame_time[int(k)]:.2f} ms: {gap}"
+        out.append((video.write_jpeg(d / f"gap_{int(k):05d}.jpg", img), caption))
     return out
 
 
@@ -281,8 +285,8 @@ def _build_report(reader: StoreReader, work: Path, stack: contextlib.ExitStack) 
         parts.append(f"<p>Glottal area {area.min():.3f}-{area.max():.3f} mm²; gap open in {int((area > 0).sum())} "
                      f"of {len(area)} frames.</p>")
         parts.append(figure(figures.glottal_area(t, area, windows, d / "area", PNG)[0], "Glottal area waveform", 800))
-        parts.append('<div class="grid">' + "".join(figure(p, p.stem.replace("_", " ") + ": detected gap in red", 400)
-                                                    for p in _gap_frames(job, d)) + "</div>")
+        parts.append('<div class="grid">' + "".join(figure(p, caption, 400)
+                                                    for p, caption in _gap_frames(job, d)) + "</div>")
         ky = job._kymogram(d, PNG)
         if ky:
             parts.append(figure(ky[0], "Kymogram across the glottis at three positions along it", 800))
