@@ -233,3 +233,17 @@ def test_unknown_run_and_unknown_item_are_one_line_errors(exported, tmp_path):
     res = run_vfcli("export", store, "--to", tmp_path / "o", "--point", "5000,3")
     assert res.returncode == 2 and "5000,3" in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_the_convergence_figure_ticks_whole_iterations_on_a_short_run(tmp_path, monkeypatch):
+    """A run of two iterations was drawn on ticks 0, 0.25, ..., 2 (fractional iterations); the ticks are whole."""
+    import matplotlib.pyplot as plt
+
+    from vfcli.export import figures
+
+    ticks = []
+    monkeypatch.setattr(plt.Figure, "savefig", lambda fig, *a, **k: ticks.append(fig.axes[0].get_xticks()))
+    figures.convergence({"default": {"iteration": np.arange(3), "total": np.array([35.7, 1.1, 0.88])}},
+                        tmp_path / "fig7", formats=("png",))
+    shown = [t for t in ticks[0] if -0.5 <= t <= 2.5]
+    assert shown and all(float(t).is_integer() for t in shown), shown

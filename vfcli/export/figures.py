@@ -54,6 +54,9 @@ def convergence(histories: dict[str, dict[str, np.ndarray]], base: str | Path,
         it, e = np.asarray(h["iteration"]), np.asarray(h["total"])
         label = run + (f" ({float(h['wall_time'][-1]):.0f} s)" if "wall_time" in h and len(h["wall_time"]) else "")
         ax.semilogy(it, np.maximum(e, 1e-12), "o-", ms=3, label=label)
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))   # iterations are whole: no 0.25 ticks on a short run
     ax.set_xlabel("iteration")
     ax.set_ylabel("error E (dimensionless)")
     ax.set_title("Convergence of each optimisation run (paper, fig. 7)")
