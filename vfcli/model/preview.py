@@ -54,7 +54,7 @@ for col, (name, direction) in enumerate(views):
                     line_width=0.5, label=str(label), ambient=0.35, diffuse=0.7)
     if col == 0:
         pl.add_legend(bcolor="white", face="rectangle", size=(0.36, 0.16), loc="lower left")
-    pl.add_text(name + ("" if col else "   (" + str(data["title"]) + ")"), font_size=10, color="black",
+    pl.add_text(name if col else name + "\n" + str(data["title"]), font_size=10, color="black",
                 position="upper_left")
     if col == 1:
         pl.add_axes(xlabel="x", ylabel="y", zlabel="z")
