@@ -7,6 +7,7 @@ import html
 import json
 import re
 import shutil
+from pathlib import Path
 from html.parser import HTMLParser
 
 import numpy as np
@@ -155,6 +156,35 @@ def test_a_diagnosis_verdict_is_shown_at_a_glance_and_its_stored_json_is_folded_
     # where the diagnosis' time went, step by step, shown beside its figures (not folded away)
     shown = diagnosis.index("time by step")
     assert shown < folded and diagnosis[shown:folded].split("</tr>")[0].count(" s, ") >= 3
+
+
+def test_the_diagnosis_pictures_are_in_the_page_and_a_moved_one_is_named(tmp_path_factory, tmp_path):
+    """The page showed the diagnosis' words only: its residual maps and velocity plots were files beside the store
+    or its --map. Now: the RMS residual of the diagnosed run, drawn from the stored /diagnose/<run>/rms_residual,
+    and every picture the diagnosis names in its stored "images" (--map's first), embedded byte for byte; a
+    picture no longer where the diagnosis wrote it is named as missing."""
+    from vfcli.stages.report import _diagnosis_pictures
+
+    seed, synth = CONTACT_PHANTOM
+    folder = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
+    res = run_vfcli("report", folder / "rec.h5", "--out", tmp_path / "r.html")
+    assert res.returncode == 0, res.stderr
+    diagnosis = html.unescape((tmp_path / "r.html").read_text().split("<h2>Diagnosis</h2>", 1)[1])
+    with Store(folder / "rec.h5").read() as r:
+        images = json.loads(r.attrs("diagnose", "fit")["summary_json"])["figures"]["images"]
+        assert Path(images["before"]) == folder / "maps" / "map.png"
+        # the --map picture in the page, the very file
+        uri = "data:image/png;base64," + base64.b64encode((folder / "maps" / "map.png").read_bytes()).decode()
+        assert uri in diagnosis and "Residual map of the fitted run (where, and when in the cycle" in diagnosis
+        rms = re.search(r'<img src="data:image/png;base64,([^"]+)" alt="Where run fit and the recording disagree', diagnosis)
+        import cv2
+        img = cv2.imdecode(np.frombuffer(base64.b64decode(rms.group(1)), np.uint8), cv2.IMREAD_COLOR)
+        assert img is not None and min(img.shape[:2]) > 300
+        gone = tmp_path / "moved" / "map_refit.png"
+        page = _diagnosis_pictures(r, "/diagnose/fit", {"before": str(folder / "maps" / "map.png"), "after": str(gone)},
+                                   tmp_path)
+    assert "no longer there (moved or deleted): " + str(gone) in html.unescape(page)
+    assert page.count("<img") == 2
 
 
 def test_a_stages_time_by_step_reads_in_the_order_run_with_its_sum():

@@ -45,13 +45,13 @@ def residual_map(located: Located, residual: WindowResidual, path: str | Path, t
     import matplotlib.pyplot as plt
 
     d = located.families["motion"]
-    fig, axes = plt.subplots(2, 3, figsize=(13, 8), dpi=100)
+    fig, axes = plt.subplots(2, 3, figsize=(14, 9), dpi=100, layout="constrained")   # titles clear of colour bars
     ax = axes[0, 0]
     im = ax.imshow(rms_map(residual), cmap="magma")
-    ax.set_title("RMS residual over the window (mm/s)")
+    ax.set_title("RMS residual over the window")
     ax.set_xlabel("column (px)")
     ax.set_ylabel("row (px)")
-    fig.colorbar(im, ax=ax, shrink=0.8)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="mm/s")
     ratio = region_ratio(located).reshape(2, 3, 3)
     vmax = max(3.0, float(np.nanmax(np.where(np.isfinite(ratio), ratio, 0.0))))
     for fold in range(2):
@@ -76,6 +76,5 @@ def residual_map(located: Located, residual: WindowResidual, path: str | Path, t
         ax.set_title(f"{d.component_names[c]}: phase mean / noise floor")
         fig.colorbar(im, ax=ax, shrink=0.8)
     fig.suptitle(title)
-    fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

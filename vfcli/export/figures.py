@@ -6,6 +6,7 @@ returns the paths written.
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -210,4 +211,25 @@ def uncertainty_on_folds(mesh: FoldMesh, std: np.ndarray, run: str, base: str | 
     axes[0].set_ylabel("y, lateral (mm)")
     fig.colorbar(tpc, ax=axes, shrink=0.85, label="RMS standard deviation over time (mm)")
     fig.suptitle(f"Stated uncertainty of run {run} on the fold geometry", fontsize=10)
+    return _save(fig, base, formats)
+
+
+def residual_rms(rms: np.ndarray, run: str, base: str | Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
+    """Where a fitted run and the recording disagree: the RMS residual over the window as the camera sees the folds.
+
+    rms : (H, W, 3) RMS over the window of the measured minus simulated velocity per component, mm/s (NaN where the
+        model shows no surface); the picture is the RMS over the three components, ``sqrt(mean_c rms_c^2)``, the
+        residual map's first panel (:func:`vfcli.diagnose.maps.residual_map`).
+    """
+    plt = _pyplot()
+    r = np.asarray(rms, float)
+    with warnings.catch_warnings():   # a pixel the model never shows is NaN in every component: NaN here too
+        warnings.simplefilter("ignore", RuntimeWarning)
+        both = np.sqrt(np.nanmean(r**2, axis=2)) if r.ndim == 3 and np.isfinite(r).any() else np.full(r.shape[:2], np.nan)
+    fig, ax = plt.subplots(figsize=(5.6, 4.6), dpi=110, layout="constrained")
+    im = ax.imshow(both, cmap="magma")
+    ax.set_xlabel("column (px)")
+    ax.set_ylabel("row (px)")
+    ax.set_title(f"RMS residual of run {run} over its window", fontsize=10)
+    fig.colorbar(im, ax=ax, shrink=0.85, label="measured minus simulated velocity, RMS (mm/s)")
     return _save(fig, base, formats)

@@ -328,6 +328,10 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
             extra, confs = confirm_and_write(s, inputs, d, tries, run, settings,
                                              figure_paths(reader.path, run, map_path), done, phases, ctx.local_map)
             d = redecide(d, {c.candidate: c for c in confs})
+        # the pictures the diagnosis wrote, --map's first, by absolute path: the report embeds them from anywhere
+        images = {**({"before": map_path} if map_path is not None else {}), **extra.get("images", {})}
+        if images:
+            extra["images"] = {k: str(Path(v).absolute()) for k, v in images.items()}
         phases("write")
         write_diagnosis(s, d, inputs.baseline.problem.meas.times)
         seconds = phases.close()

@@ -104,6 +104,37 @@ def _diagnosis_fields(fields: dict[str, Any]) -> tuple[dict[str, Any], dict[str,
     return short, long_
 
 
+#: the pictures a diagnosis writes beside the store or its --map (its stored "images"), in the page's order
+_DIAGNOSIS_IMAGES = {"before": "Residual map of the fitted run (where, and when in the cycle, against the noise floor)",
+                     "after": "Residual map of the refit with the named physics",
+                     "points": "Velocity at points: measured, the fitted run and its refit"}
+
+
+def _diagnosis_pictures(reader: StoreReader, path: str, images: Any, d: Path) -> str:
+    """The diagnosis' pictures in the page: the RMS residual of the run it diagnosed (drawn from the stored
+    ``rms_residual``), then each picture it wrote and named in its stored "images" (residual maps before and after
+    its refit, the velocity at points), embedded when the file is still where it wrote it, else named as missing."""
+    run = path.strip("/").split("/", 1)[1]
+    out = []
+    if "rms_residual" in reader.group("diagnose", run):
+        png = figures.residual_rms(reader.read("diagnose", "rms_residual", run), run, d / f"rms_{run.replace('/', '_')}", PNG)[0]
+        out.append(figure(png, f"Where run {run} and the recording disagree: RMS residual over its window (mm/s)", 650))
+    missing = []
+    for key, caption in _DIAGNOSIS_IMAGES.items():
+        name = images.get(key) if isinstance(images, dict) else None
+        if not name:
+            continue
+        f = Path(str(name))
+        if f.is_file():
+            out.append(figure(f, f"{caption} ({f.name})", 900))
+        else:
+            missing.append(str(f))
+    if missing:
+        out.append(f'<p class="muted">Pictures the diagnosis wrote and that are no longer there (moved or deleted): '
+                   f'{esc(", ".join(missing))}.</p>')
+    return "".join(out)
+
+
 def _at_a_glance(reader: StoreReader, glance: dict[str, list], missing: list[str]) -> str:
     """The section at the top of the page: every stored warning (with its stage), the stages that are stale,
     interrupted or not written yet, and each diagnosis' verdict, so nothing needs unfolding to be seen."""
@@ -321,7 +352,9 @@ def _build_report(reader: StoreReader, work: Path, stack: contextlib.ExitStack) 
             verdict = _verdict(plain)
             parts.append(f"<h3>{esc(p)}</h3>"
                          + (f"<p><strong>{esc(verdict)}</strong></p>" if verdict else "")
-                         + (f"<ul>{words}</ul>" if words else "") + kv_table(figures_)
+                         + (f"<ul>{words}</ul>" if words else "")
+                         + _diagnosis_pictures(reader, p, (summary.get("figures") or {}).get("images"), d)
+                         + kv_table(figures_)
                          + "<details><summary>Everything the diagnosis stored (JSON)</summary>"
                          + kv_table(stored) + "</details>")
     else:
