@@ -226,6 +226,46 @@ def test_index_links_the_reports_of_many_recordings(report, tmp_path):
     assert "b/other.h5" in text and "no report" in text and "2 store(s)" in text
 
 
+def test_index_says_per_recording_its_warnings_stale_stages_and_diagnosis(report, tmp_path):
+    """The overview listed stages and runs only: a lab scanning fifty recordings could not see which ones warned,
+    went stale or were diagnosed with missing physics without opening every page. Its warnings by stage are the
+    report page's, its stale stages `vfcli info`'s, its verdict the page's "At a glance"."""
+    copy_store(report.with_name("rec.h5"), tmp_path / "a" / "rec.h5")
+    copy_store(report.with_name("rec.h5"), tmp_path / "b" / "rec.h5")
+    assert run_vfcli("config", tmp_path / "b" / "rec.h5", "--set", "sync.n_harmonics=8").returncode == 0
+    res = run_vfcli("report", "--index", tmp_path)
+    assert res.returncode == 0, res.stderr
+    rows = re.findall(r"<tr>(.*?)</tr>", html.unescape((tmp_path / "index.html").read_text()), re.S)
+    cells = {re.sub(r"<.*?>", "", r.split("</td>")[0]).split(" ")[0].removeprefix("<td>"):
+             [re.sub(r"<.*?>", "", c) for c in re.findall(r"<td>(.*?)</td>", r, re.S)] for r in rows[1:]}
+    assert sorted(cells) == ["a/rec.h5", "b/rec.h5"]
+    page = report.read_text()
+    stages = re.findall(r"<tr><td>(/[\w/+]+)</td>(?:<td>.*?</td>){5}<td>(\d+)</td></tr>", page)
+    warned = [f"{path.strip('/')} {n}" for path, n in stages if int(n)]
+    assert warned, "the shared store's stages store warnings"
+    expected = f"{sum(int(n) for _, n in stages)}: {', '.join(warned)}"
+    assert cells["a/rec.h5"][4] == cells["b/rec.h5"][4] == expected
+    for rec in ("a", "b"):   # (the shared store's mesh is stale already: made at 2.5 mm, its config says 1.5)
+        info = json.loads(run_vfcli("info", "--json", tmp_path / rec / "rec.h5").stdout)
+        assert cells[f"{rec}/rec.h5"][5] == ", ".join(st["path"].strip("/") for st in info["stages"] if st["stale"])
+    assert "sync" in cells["b/rec.h5"][5].split(", ") and "sync" not in cells["a/rec.h5"][5].split(", ")
+    assert cells["a/rec.h5"][6] == "not diagnosed"
+
+
+def test_index_says_a_diagnosed_recordings_verdict(tmp_path_factory, tmp_path):
+    seed, synth = CONTACT_PHANTOM
+    folder = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
+    copy_store(folder / "rec.h5", tmp_path / "c" / "rec.h5")
+    res = run_vfcli("report", "--index", tmp_path)
+    assert res.returncode == 0, res.stderr
+    text = html.unescape((tmp_path / "index.html").read_text())
+    with Store(folder / "rec.h5").read() as r:
+        words = json.loads(r.attrs("diagnose", "fit")["words_json"])
+    # this short phantom holds too few cycles to calibrate: its verdict is the line saying so, as at a glance
+    verdict = next(w for w in words if w.startswith("decision: not calibrated"))[len("decision: "):]
+    assert f"<td>fit: {verdict}</td>" in text
+
+
 def test_report_without_file_or_with_both_is_a_usage_error(tmp_path):
     res = run_vfcli("report")
     assert res.returncode == 2 and "Traceback" not in res.stderr

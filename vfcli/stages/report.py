@@ -62,6 +62,14 @@ def _stage_attrs(reader: StoreReader, path: str) -> tuple[dict[str, Any], list[s
     return plain, plain_warnings(notes), summary
 
 
+def _statuses(reader: StoreReader):
+    """(status, plain attributes, warnings, stored summary) of every stage group, staleness as `vfcli info` says it:
+    config changes and stale upstream stages count (transitively); an interrupted group has no attributes to show."""
+    config_json = reader.recording_config_json()
+    for st in reader.statuses(expected_configs(config_json) if config_json is not None else None, default_settings):
+        yield (st, *(_stage_attrs(reader, st.path) if st.complete else ({}, [], {})))
+
+
 def _words(diag_attrs: dict[str, Any]) -> list[str]:
     """The lines a diagnosis printed (its ``words_json``; none when unreadable)."""
     try:
@@ -267,11 +275,8 @@ def _build_report(reader: StoreReader, work: Path, stack: contextlib.ExitStack) 
     rows = []
     details = []
     glance: dict[str, list] = {"notes": [], "stale": [], "incomplete": []}
-    # staleness as `vfcli info` says it: config changes and stale upstream stages count (transitively)
-    config_json = reader.recording_config_json()
-    for st in reader.statuses(expected_configs(config_json) if config_json is not None else None, default_settings):
+    for st, plain, notes, summary in _statuses(reader):
         path = st.path
-        plain, notes, summary = _stage_attrs(reader, path) if st.complete else ({}, [], {})
         glance["notes"] += [(path, n) for n in notes]
         if not st.complete:
             glance["incomplete"].append(path)
@@ -400,14 +405,27 @@ def write_index(folder: str | Path, out: str | Path | None = None) -> ExportResu
                     e = r.read("optimize", "history_total", n)
                     best.append(f"{n}: E {float(e[-1]):.3g}")
                 created = r.root_attrs().get("created_utc", "")
+                warned, stale = [], []
+                for st, _, notes, _ in _statuses(r):
+                    name = st.path.strip("/")
+                    if notes:
+                        warned.append(f"{name} {len(notes)}")
+                    if not st.complete:
+                        stale.append(f"{name} (interrupted)")
+                    elif st.stale_because:
+                        stale.append(name)
+                verdicts = [f"{run}: {_verdict(r.attrs('diagnose', run)) or 'no verdict'}" for run in stage_runs(r, "diagnose")]
         except VfcliError:
             continue
         rep = _report_of(p)
         link = (f'<a href="{esc(os.path.relpath(rep, out.parent))}">{esc(p.relative_to(folder))}</a>' if rep
                 else f"{esc(p.relative_to(folder))} <span class=\"muted\">(no report: vfcli report {esc(p.name)})</span>")
-        rows.append([link, esc(created), esc(", ".join(s.strip("/") for s in paths)), esc("; ".join(best) or "no run")])
+        rows.append([link, esc(created), esc(", ".join(s.strip("/") for s in paths)), esc("; ".join(best) or "no run"),
+                     esc(f"{sum(int(w.rsplit(' ', 1)[1]) for w in warned)}: {', '.join(warned)}" if warned else "none"),
+                     esc(", ".join(stale) or "none"), esc("; ".join(verdicts) or "not diagnosed")])
     body = (f"<h1>Recordings under {esc(folder.resolve())}</h1><p class=\"muted\">{len(rows)} store(s); "
             f"index by vfcli {esc(__version__)}</p>"
-            + table(rows, ["recording", "created (UTC)", "stages", "runs"], raw=True))
+            + table(rows, ["recording", "created (UTC)", "stages", "runs", "warnings (by stage)", "stale", "diagnosis"],
+                    raw=True))
     out.write_text(page(f"vfcli recordings: {folder.name}", body), encoding="utf-8")
     return ExportResult(str(out), "written", {"recordings": len(rows)}, [out])
