@@ -133,12 +133,21 @@ def test_a_stage_made_stale_by_a_config_change_is_named_at_a_glance(report, tmp_
     assert stale == {st["path"]: "; ".join(st["stale_because"]) for st in info["stages"] if st["stale"]}
 
 
-def test_a_diagnosis_verdict_is_shown_at_a_glance_and_its_stored_json_is_folded_away(tmp_path_factory, tmp_path):
+@pytest.fixture(scope="module")
+def diagnosed_report(tmp_path_factory):
+    """(folder of the shared diagnosed contact phantom (:func:`_diagnose_phantom.shared_diagnosed_phantom`, read-only),
+    the page `vfcli report` writes of its store)."""
     seed, synth = CONTACT_PHANTOM
-    store = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth) / "rec.h5"
-    res = run_vfcli("report", store, "--out", tmp_path / "r.html")
+    folder = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
+    out = tmp_path_factory.mktemp("diagnosed_report") / "r.html"
+    res = run_vfcli("report", folder / "rec.h5", "--out", out)
     assert res.returncode == 0, res.stderr
-    page = (tmp_path / "r.html").read_text()
+    return folder, out
+
+
+def test_a_diagnosis_verdict_is_shown_at_a_glance_and_its_stored_json_is_folded_away(diagnosed_report):
+    store = diagnosed_report[0] / "rec.h5"
+    page = diagnosed_report[1].read_text()
     with Store(store).read() as r:
         attrs = r.attrs("diagnose", "fit")
     words = json.loads(attrs["words_json"])
@@ -158,18 +167,15 @@ def test_a_diagnosis_verdict_is_shown_at_a_glance_and_its_stored_json_is_folded_
     assert shown < folded and diagnosis[shown:folded].split("</tr>")[0].count(" s, ") >= 3
 
 
-def test_the_diagnosis_pictures_are_in_the_page_and_a_moved_one_is_named(tmp_path_factory, tmp_path):
+def test_the_diagnosis_pictures_are_in_the_page_and_a_moved_one_is_named(diagnosed_report, tmp_path):
     """The page showed the diagnosis' words only: its residual maps and velocity plots were files beside the store
     or its --map. Now: the RMS residual of the diagnosed run, drawn from the stored /diagnose/<run>/rms_residual,
     and every picture the diagnosis names in its stored "images" (--map's first), embedded byte for byte; a
     picture no longer where the diagnosis wrote it is named as missing."""
     from vfcli.stages.report import _diagnosis_pictures
 
-    seed, synth = CONTACT_PHANTOM
-    folder = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
-    res = run_vfcli("report", folder / "rec.h5", "--out", tmp_path / "r.html")
-    assert res.returncode == 0, res.stderr
-    diagnosis = html.unescape((tmp_path / "r.html").read_text().split("<h2>Diagnosis</h2>", 1)[1])
+    folder, page = diagnosed_report
+    diagnosis = html.unescape(page.read_text().split("<h2>Diagnosis</h2>", 1)[1])
     with Store(folder / "rec.h5").read() as r:
         images = json.loads(r.attrs("diagnose", "fit")["summary_json"])["figures"]["images"]
         assert Path(images["before"]) == folder / "maps" / "map.png"
@@ -181,10 +187,10 @@ def test_the_diagnosis_pictures_are_in_the_page_and_a_moved_one_is_named(tmp_pat
         img = cv2.imdecode(np.frombuffer(base64.b64decode(rms.group(1)), np.uint8), cv2.IMREAD_COLOR)
         assert img is not None and min(img.shape[:2]) > 300
         gone = tmp_path / "moved" / "map_refit.png"
-        page = _diagnosis_pictures(r, "/diagnose/fit", {"before": str(folder / "maps" / "map.png"), "after": str(gone)},
+        part = _diagnosis_pictures(r, "/diagnose/fit", {"before": str(folder / "maps" / "map.png"), "after": str(gone)},
                                    tmp_path)
-    assert "no longer there (moved or deleted): " + str(gone) in html.unescape(page)
-    assert page.count("<img") == 2
+    assert "no longer there (moved or deleted): " + str(gone) in html.unescape(part)
+    assert part.count("<img") == 2          # the RMS residual and the --map picture
 
 
 def test_a_stages_time_by_step_reads_in_the_order_run_with_its_sum():
