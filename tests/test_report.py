@@ -181,7 +181,7 @@ def test_the_diagnosis_pictures_are_in_the_page_and_a_moved_one_is_named(diagnos
         assert Path(images["before"]) == folder / "maps" / "map.png"
         # the --map picture in the page, the very file
         uri = "data:image/png;base64," + base64.b64encode((folder / "maps" / "map.png").read_bytes()).decode()
-        assert uri in diagnosis and "Residual map of the fitted run (where, and when in the cycle" in diagnosis
+        assert uri in diagnosis and "Residual map of run fit (where, and when in the cycle" in diagnosis
         rms = re.search(r'<img src="data:image/png;base64,([^"]+)" alt="Where run fit and the recording disagree', diagnosis)
         import cv2
         img = cv2.imdecode(np.frombuffer(base64.b64decode(rms.group(1)), np.uint8), cv2.IMREAD_COLOR)

@@ -112,10 +112,11 @@ def _diagnosis_fields(fields: dict[str, Any]) -> tuple[dict[str, Any], dict[str,
     return short, long_
 
 
-#: the pictures a diagnosis writes beside the store or its --map (its stored "images"), in the page's order
-_DIAGNOSIS_IMAGES = {"before": "Residual map of the fitted run (where, and when in the cycle, against the noise floor)",
-                     "after": "Residual map of the refit with the named physics",
-                     "points": "Velocity at points: measured, the fitted run and its refit"}
+#: the pictures a diagnosis writes beside the store or its --map (its stored "images"), in the page's order, and their
+#: captions ({run}: the diagnosed run; {refit}: its refit's run, {candidate}: the term the refit added, confirmed or not)
+_DIAGNOSIS_IMAGES = {"before": "Residual map of run {run} (where, and when in the cycle, against the noise floor)",
+                     "after": "Residual map of run {refit}: run {run} refitted with {candidate}",
+                     "points": "Velocity at points: measured, run {run} and run {refit}"}
 
 
 def _diagnosis_pictures(reader: StoreReader, path: str, images: Any, d: Path) -> str:
@@ -123,6 +124,8 @@ def _diagnosis_pictures(reader: StoreReader, path: str, images: Any, d: Path) ->
     ``rms_residual``), then each picture it wrote and named in its stored "images" (residual maps before and after
     its refit, the velocity at points), embedded when the file is still where it wrote it, else named as missing."""
     run = path.strip("/").split("/", 1)[1]
+    attrs = reader.attrs("diagnose", run)
+    words = {"run": run, "refit": attrs.get("refit_run", "?"), "candidate": attrs.get("refit_candidate", "?")}
     out = []
     if "rms_residual" in reader.group("diagnose", run):
         png = figures.residual_rms(reader.read("diagnose", "rms_residual", run), run, d / f"rms_{run.replace('/', '_')}", PNG)[0]
@@ -134,7 +137,7 @@ def _diagnosis_pictures(reader: StoreReader, path: str, images: Any, d: Path) ->
             continue
         f = Path(str(name))
         if f.is_file():
-            out.append(figure(f, f"{caption} ({f.name})", 900))
+            out.append(figure(f, f"{caption.format(**words)} ({f.name})", 900))
         else:
             missing.append(str(f))
     if missing:
