@@ -284,6 +284,29 @@ def test_a_refit_that_kept_no_step_says_its_estimate_is_its_start():
     assert words(on)[0].endswith("this is the value it started from, not a fitted one")
 
 
+def test_a_refit_that_never_left_its_start_confirms_nothing_whatever_its_held_out_errors():
+    """Nulls 2061 (session 54) and 2139 (session 65): contact's calibrated lead, its refit at its start, the full
+    share 1 (interval -0.86 .. 2.86), E below the baseline's there, its held-out fits 3.5 % (cycles) and 0.82 %
+    (the vibrometer from the camera) better beyond their spread: "missing physics: contact" on a null. A value the
+    refit was given is no estimate; the same refit that moved is a finding."""
+    from vfcli.diagnose.decide import decide
+
+    cycles = HeldOutError("cycles", "mm/s", np.array([37.50, 45.53, 36.93, 15.68]),
+                          np.array([36.13, 44.44, 34.87, 15.59]))          # 2139's stored held-out errors
+    camera = HeldOutError("instruments", "mm/s", np.array([130.90, 151.35, 173.47, 64.67]),
+                          np.array([130.67, 150.62, 171.13, 63.67]))
+    assert cycles.beyond_spread() and camera.beyond_spread()
+    still = Confirmation("contact", ("contact_share",), np.array([1.0]), np.array([0.949]), heldout=(cycles, camera),
+                         moved=False)
+    fitted = dataclasses.replace(still, estimate=np.array([0.8]), moved=True)
+    assert fitted.improves and not still.improves
+    d = decide(["contact"], np.array([0.005]), [True], 199, confirmations={"contact": still})
+    assert d.findings == () and d.verdict == "no missing physics detected"
+    assert ("contact: a calibrated lead (family-wise p <= 0.005), its refit never left the value it started from, so "
+            "it estimates nothing") in d.lines, d.lines
+    assert decide(["contact"], np.array([0.005]), [True], 199, confirmations={"contact": fitted}).findings == ("contact",)
+
+
 def test_a_lead_whose_refit_does_not_lower_e_says_so_not_that_its_held_out_fits_failed():
     """Null 2027 (session 53): contact's refit stayed at share 0 with E not below the baseline's; the decision read
     "its refit does not predict held-out data better beyond the spread" whatever its held-out fits did."""

@@ -172,9 +172,13 @@ class Confirmation:
         held-out groups set it, :func:`heldout_sd`): the interval is Student's.
     moved : False when the refit kept no step from a start value it did not fit (its history holds its start only,
         and the start is not a profile search's minimum, :attr:`vfcli.diagnose.refit.RefitResult.profiled`): the
-        estimate is a value it was given (the term switched off, or contact's full share), not a fitted one.  Not a
-        condition of a finding: contact's full share is the rigid contact itself, which no step improves where the
-        folds do collide (docs/benchmarks.md, "Session 54").
+        estimate is a value it was given (the term switched off, or contact's full share), not a fitted one.  A
+        condition of a finding since session 65: a finding states its estimated parameter with its interval (issue
+        16, item 5), which a given value is not.  Only contact starts at a value it was given (inertia and damping
+        start at their profile's minimum, asymmetry and offset at zero, where an unmoved refit has the baseline's
+        E); both false findings of 129 nulls (2061, 2139) were contact at its unmoved full share, and no contact
+        finding on the default options was a true one (docs/benchmarks.md, "Session 54" and "Session 65: twenty
+        fresh nulls"; docs/diagnose.md, "Left to do").
     lowers_e : False when the refit's final E (re-rasterised, the whole window) is not below the baseline's: the
         extended model explains nothing of the window the baseline did not, whatever the held-out fits (frozen
         rasters, linear in the step) say; then it is no finding.
@@ -206,9 +210,9 @@ class Confirmation:
 
     @property
     def improves(self) -> bool:
-        """The refit lowers E below the baseline's and every held-out comparison made improves beyond its spread
-        (False when none could be made)."""
-        return self.lowers_e and bool(self.heldout) and all(h.beyond_spread() for h in self.heldout)
+        """The refit left its start (``moved``), lowers E below the baseline's and every held-out comparison made
+        improves beyond its spread (False when none could be made)."""
+        return self.moved and self.lowers_e and bool(self.heldout) and all(h.beyond_spread() for h in self.heldout)
 
     @property
     def shortfall(self) -> str:
@@ -217,6 +221,8 @@ class Confirmation:
             return ""
         if not self.lowers_e:
             return "its refit explains nothing the baseline did not (E not below the baseline's)"
+        if not self.moved:
+            return "its refit never left the value it started from, so it estimates nothing"
         return NOT_BEYOND_SPREAD
 
     @property

@@ -335,7 +335,7 @@ STAGES: dict[str, Stage] = {
             "bootstrap calibration, and the decision (attrs decision, alpha_family).",
             reads=("optimize", "mesh", "fields", "flow", "ldv", "sync"),
             has_runs=True,
-            method=7,
+            method=8,
             method_changes={2: "the model's velocity at the frame times in every motion row (vfcli 2c4c8b6)",
                             3: "a refit confirms a finding only when it lowers E below the baseline's (a refit that "
                                "kept no step had confirmed on its held-out fits alone; session 51)",
@@ -350,7 +350,10 @@ STAGES: dict[str, Stage] = {
                             7: "the refit of a term with its own response (inertia, damping) bounds the loads' free "
                                "correction at its own L-curve corner where optimize chose the baseline's so (an "
                                "inertia refit kept its quasi-static baseline's near-zero bound and lost the static "
-                               "shape; session 55)"},
+                               "shape; session 55)",
+                            8: "a refit that never left the value it started from (contact's full share) confirms no "
+                               "finding: it estimates nothing (nulls 2061 and 2139 had been named contact on its "
+                               "held-out fits; session 65)"},
             datasets={
                 "frame_time": D("s", "Times of the run's window frames", ("frame_time",)),
                 "frame_phase": D("cycles", "Glottal cycle phase of each window frame (from the gap area)", ("frame_time",)),
