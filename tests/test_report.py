@@ -258,9 +258,8 @@ def test_index_says_per_recording_its_warnings_stale_stages_and_diagnosis(report
     assert cells["a/rec.h5"][6] == "not diagnosed"
 
 
-def test_index_says_a_diagnosed_recordings_verdict(tmp_path_factory, tmp_path):
-    seed, synth = CONTACT_PHANTOM
-    folder = shared_diagnosed_phantom(tmp_path_factory, seed, ONE_SIDED_FIT, synth)
+def test_index_says_a_diagnosed_recordings_verdict(diagnosed_report, tmp_path):
+    folder = diagnosed_report[0]
     copy_store(folder / "rec.h5", tmp_path / "c" / "rec.h5")
     res = run_vfcli("report", "--index", tmp_path)
     assert res.returncode == 0, res.stderr

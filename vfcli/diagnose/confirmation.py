@@ -178,7 +178,7 @@ class Confirmation:
         start at their profile's minimum, asymmetry and offset at zero, where an unmoved refit has the baseline's
         E); both false findings of 129 nulls (2061, 2139) were contact at its unmoved full share, and no contact
         finding on the default options was a true one (docs/benchmarks.md, "Session 54" and "Session 65: twenty
-        fresh nulls"; docs/diagnose.md, "Left to do").
+        fresh nulls"; docs/diagnose.md, "Session 65: a refit that never left its start confirms nothing").
     lowers_e : False when the refit's final E (re-rasterised, the whole window) is not below the baseline's: the
         extended model explains nothing of the window the baseline did not, whatever the held-out fits (frozen
         rasters, linear in the step) say; then it is no finding.

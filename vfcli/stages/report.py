@@ -412,7 +412,7 @@ def write_index(folder: str | Path, out: str | Path | None = None) -> ExportResu
                 for st, _, notes, _ in _statuses(r):
                     name = st.path.strip("/")
                     if notes:
-                        warned.append(f"{name} {len(notes)}")
+                        warned.append((name, len(notes)))
                     if not st.complete:
                         stale.append(f"{name} (interrupted)")
                     elif st.stale_because:
@@ -424,7 +424,7 @@ def write_index(folder: str | Path, out: str | Path | None = None) -> ExportResu
         link = (f'<a href="{esc(os.path.relpath(rep, out.parent))}">{esc(p.relative_to(folder))}</a>' if rep
                 else f"{esc(p.relative_to(folder))} <span class=\"muted\">(no report: vfcli report {esc(p.name)})</span>")
         rows.append([link, esc(created), esc(", ".join(s.strip("/") for s in paths)), esc("; ".join(best) or "no run"),
-                     esc(f"{sum(int(w.rsplit(' ', 1)[1]) for w in warned)}: {', '.join(warned)}" if warned else "none"),
+                     esc(f"{sum(n for _, n in warned)}: {', '.join(f'{w} {n}' for w, n in warned)}" if warned else "none"),
                      esc(", ".join(stale) or "none"), esc("; ".join(verdicts) or "not diagnosed")])
     body = (f"<h1>Recordings under {esc(folder.resolve())}</h1><p class=\"muted\">{len(rows)} store(s); "
             f"index by vfcli {esc(__version__)}</p>"
