@@ -13,6 +13,17 @@ from pathlib import Path
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+# Python's bytecode cache for every process the suite starts, as `make test` keeps it (the Makefile's head), when
+# pytest is typed by hand in an environment that turns the cache off (PYTHONDONTWRITEBYTECODE=1, as many container
+# images set it): the examples' make and snakemake, the batch workers, the crash tests' subprocesses and the vfcli
+# helper otherwise compile vfcli and its libraries again each (9 min 53 s against make test's 8 min 7 s on session
+# 66's machine: docs/benchmarks.md "Session 66: the suite's time as `make test` runs it"). This process keeps its
+# own setting (read at its start); inside a venv only, whose pycache folder is make's.
+if (os.environ.get("PYTHONDONTWRITEBYTECODE") and "PYTHONPYCACHEPREFIX" not in os.environ
+        and sys.prefix != sys.base_prefix):
+    del os.environ["PYTHONDONTWRITEBYTECODE"]
+    os.environ["PYTHONPYCACHEPREFIX"] = str(Path(sys.prefix) / "pycache")
+
 import pytest  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
