@@ -133,7 +133,7 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     held = tuple(h for h in (cyc, inst) if h is not None)
     mesh_sd = getattr(candidate, "mesh_sd", None)
     t4 = time.perf_counter()
-    mesh = mesh_sd(baseline, result.theta) if callable(mesh_sd) else None
+    mesh = mesh_sd(baseline, result.theta, result.x) if callable(mesh_sd) else None
     if mesh is not None:
         log.info("mesh part of %s: %s (%.0f s)", candidate.name, np.round(mesh, 6), time.perf_counter() - t4)
     sd, name, dof, _ = heldout_sd(result.theta, result.sd, held, mesh)
