@@ -120,7 +120,8 @@ def heldout_sd(theta: np.ndarray, sd: np.ndarray, heldout, mesh_sd: np.ndarray |
     nothing added: -+ 3.18 sd, not -+ 1.96 sd) with the effective degrees of freedom of the sum,
     ``(G - 1) sd^4 / var_J^2`` (Welch-Satterthwaite, as the GUM combines a part estimated from few samples
     with parts taken as known): a mesh part ten times the jackknife's leaves it practically normal (before
-    session 67 it stayed G - 1, and widened phantom 2002's density interval was -+ 7.8 % for an sd of 2.5 %).
+    session 67 it stayed G - 1, which with the new mesh part made widened phantom 2002's density interval
+    -+ 7.8 % for an sd of 2.5 %).
 
     Returns
     -------
