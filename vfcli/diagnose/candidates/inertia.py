@@ -78,6 +78,15 @@ def term_model(term, baseline):
     return term._own[1]
 
 
+def load_harmonics(baseline, x: np.ndarray, n_harmonics: int) -> np.ndarray:
+    """(n_harmonics + 1, S) complex one-sided harmonics of ``baseline.f0_hz`` of the load pattern amplitudes
+    ``C(x) b(t)`` over the window's simulated times (:func:`vfcli.model.response.modal.harmonic_fit`)."""
+    p = baseline.problem
+    load_model = p.response.load_model
+    amp = load_model.time_basis(p.sim_times) @ load_model.control_matrix(np.asarray(x, dtype=float)).T   # (T, S)
+    return harmonic_fit(amp, p.sim_times, baseline.f0_hz, n_harmonics)
+
+
 class Inertia(DisplacementTerm):
     """Density factor rho of the folds (1 = tissue density of the elastic model), one parameter.
 
@@ -263,12 +272,8 @@ class Inertia(DisplacementTerm):
             return None
         model = self._model(baseline)
         p = baseline.problem
-        load_model = p.response.load_model
-        controls = baseline.x if x is None else np.asarray(x, dtype=float)
-        amp = load_model.time_basis(p.sim_times) @ load_model.control_matrix(controls).T     # (T, S)
-        spec = harmonic_fit(amp, p.sim_times, f0, self.n_harmonics)                          # (K + 1, S)
-        loads = load_model.spatial_loads(model)
-        forces = np.asarray(loads @ spec.T)                                                   # (n_dofs, K + 1)
+        spec = load_harmonics(baseline, baseline.x if x is None else x, self.n_harmonics)     # (K + 1, S)
+        forces = np.asarray(p.response.load_model.spatial_loads(model) @ spec.T)              # (n_dofs, K + 1)
         folds = (1,) if model.is_mirrored and fine.is_mirrored else (0, 1)      # mirror images: one is enough
         rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
         delta = density_shift(model, fine, forces, f0, rho, np.unique(p.tri), loss=self.loss,
@@ -295,9 +300,7 @@ class Inertia(DisplacementTerm):
         p = baseline.problem
         if not np.isfinite(baseline.f0_hz) or baseline.f0_hz <= 0:
             raise ValueError(f"the inertia steady state needs the baseline's f0, got {baseline.f0_hz!r}")
-        load_model = p.response.load_model
         if reduction is None:
             reduction = self.reduction(baseline, n_harmonics)
-        amp = load_model.time_basis(p.sim_times) @ load_model.control_matrix(baseline.x).T   # (T, S)
-        spec = harmonic_fit(amp, p.sim_times, baseline.f0_hz, n_harmonics)
+        spec = load_harmonics(baseline, baseline.x, n_harmonics)
         return reduction.steady_state(spec, baseline.f0_hz, p.sim_times, density, retardation_s, loss)
