@@ -59,6 +59,11 @@ def test_a_doubtful_gap_is_said_with_its_figure_and_what_it_may_carry():
     assert line.startswith(GAP_DOUBT_START) and "differ by 18 % of its area" in line and "more than 5 %" in line
     assert "contact" in line and "offset" in line and "asymmetry" in line
     assert gap_doubt_words(AMBIGUOUS_AREA) == "" and gap_doubt_words(0.039) == "" and gap_doubt_words(float("nan")) == ""
+    # the reading with the gap level free (/flow level_disagreement): said when it alone is above the line
+    level = gap_doubt_words(0.02, 0.13)
+    assert level.startswith(GAP_DOUBT_START) and "level_disagreement" in level and "differs by 13 %" in level
+    assert "contact" in level and gap_doubt_words(0.175, 0.13) == line
+    assert gap_doubt_words(0.02, AMBIGUOUS_AREA) == "" and gap_doubt_words(float("nan"), float("nan")) == ""
 
 
 def _rest_glottis(params) -> tuple[float, float]:

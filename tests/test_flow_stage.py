@@ -164,6 +164,8 @@ def test_gap_iou_and_area_against_the_exact_slit(recording):
     assert attrs["gap_level_resolved"]          # a 24 px slit shows its own level (tests/test_gap_blur.py: one that does not)
     # the two readings of the edges (vfcli.flow.pipeline.edge_readings) agree on an exact slit: measured 0.03 %
     assert 0.0 <= attrs["edge_disagreement"] < 0.005
+    # ... and so does the reading with the gap level free where a slit rejects it (level_reading): measured 0.16 %
+    assert 0.0 <= attrs["level_disagreement"] < 0.005
     assert attrs["edge_window_px"] == 15.0 and attrs["edge_window_frames"] == 2  # 1 mm at 15 px/mm, 0.2 ms at 10 kHz
 
 

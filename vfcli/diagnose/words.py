@@ -104,23 +104,31 @@ MEANING = ("parts above the noise floor are where the fit and the recording diff
 GAP_DOUBT_START = "the gap this run was fitted to is doubtful"
 
 
-def gap_doubt_words(edge_disagreement: float) -> str:
+def gap_doubt_words(edge_disagreement: float, level_disagreement: float = float("nan")) -> str:
     """The line on a doubtful gap ("" when the gap is not doubtful).
 
     ``vfcli flow`` reads the gap's edges two ways and warns when the sampled glottal area moves by more than
     :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` between them (a medial wall in shade beside one edge:
-    that fold's side of the gap read too wide, widened seeds 4112 and 4165 by 55 and 40 %).  The run was fitted to
+    that fold's side of the gap read too wide, widened seeds 4112 and 4165 by 55 and 40 %), and again with the gap level
+    free where a slit rejects the level the gap shows elsewhere (a channel brighter in one part of the glottis: that
+    part read too narrow, widened seed 4279 by 25 % over the glottis).  The run was fitted to
     that gap, so what the gap carries (the closure, for contact; one fold's share of the gap, for a mounting offset
     or a softer fold) may be the gap's error rather than missing physics; the diagnosis says so beside its verdict.
 
-    edge_disagreement : the ``/flow`` attribute ``edge_disagreement`` (NaN: not measured, e.g. a gap never resolved).
+    edge_disagreement, level_disagreement : the ``/flow`` attributes ``edge_disagreement`` and ``level_disagreement``
+        (NaN: not measured, e.g. a gap never resolved).
     """
     from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA
 
-    x = float(edge_disagreement)
-    if not np.isfinite(x) or x <= AMBIGUOUS_AREA:
-        return ""
-    return (f"{GAP_DOUBT_START}: flow's two readings of its edges differ by {percent_size(x)} % of its area (more than "
-            f"{percent_size(AMBIGUOUS_AREA)} %; /flow edge_disagreement), as beside a medial wall in shade; what the "
-            "gap carries (the closure, for contact; one fold's share of the gap, for an offset or an asymmetry) may be "
-            "the gap's error rather than missing physics")
+    carries = ("what the gap carries (the closure, for contact; one fold's share of the gap, for an offset or an "
+               "asymmetry) may be the gap's error rather than missing physics")
+    x, y = float(edge_disagreement), float(level_disagreement)
+    if np.isfinite(x) and x > AMBIGUOUS_AREA:
+        return (f"{GAP_DOUBT_START}: flow's two readings of its edges differ by {percent_size(x)} % of its area (more "
+                f"than {percent_size(AMBIGUOUS_AREA)} %; /flow edge_disagreement), as beside a medial wall in shade; "
+                f"{carries}")
+    if np.isfinite(y) and y > AMBIGUOUS_AREA:
+        return (f"{GAP_DOUBT_START}: read with the gap level free where a slit rejects the level the gap shows "
+                f"elsewhere, its area differs by {percent_size(y)} % (more than {percent_size(AMBIGUOUS_AREA)} %; /flow "
+                f"level_disagreement), as where the channel below looks brighter in one part of the glottis; {carries}")
+    return ""

@@ -39,7 +39,7 @@ from vfcli.flow.gap.rays import as_rays
 from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, flat_floor,
                                                ray_gap_levels, resolved_width_px)
 from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA, SEARCH_REACH_PX, area_disagreement
-from vfcli.flow.gap.subpixel.segment import ray_fits, ray_fits_twice
+from vfcli.flow.gap.subpixel.segment import ray_fits, ray_fits_level_free, ray_fits_many, ray_fits_twice
 from vfcli.flow.gap.subpixel.taper import taper_limits
 from vfcli.flow.optical_flow import FlowEstimator, FlowFrame, flow_stream, intensity_range
 from vfcli.flow.plausibility import GAP_END_PX, GAP_LENGTH_WARN, GAP_LONGER_WARN, gap_length_share
@@ -227,6 +227,10 @@ class FlowCalibration:
         How far the video pins the gap's edges (:func:`edge_readings`): the relative difference of the sampled
         gap's area read with the edges held beyond the pixels surely in the gap and searched over each edge's
         neighbourhood; NaN when the gap is not resolved or without sub-pixel edges.
+    level_disagreement : float
+        How far the video pins the gap's level along the glottis (:func:`level_reading`): the relative difference of
+        the sampled gap's area read as the product reads it and with the level free on the rays whose data reject
+        their prior level; NaN when the gap is not resolved or without sub-pixel edges.
     """
 
     threshold: float
@@ -242,6 +246,7 @@ class FlowCalibration:
     median_along_slit: bool = False
     surround: np.ndarray | None = None
     edge_disagreement: float = float("nan")
+    level_disagreement: float = float("nan")
 
 
 def _gap_agrees(masks: np.ndarray, lateral: int) -> bool:
@@ -297,7 +302,7 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
         line = midline_line(centre)
     seen = np.isfinite(centre)
     midline = float(np.median(centre[seen])) if seen.any() else None
-    gap, model, resolved, disagreement = None, None, False, float("nan")
+    gap, model, resolved, disagreement, level_share = None, None, False, float("nan"), float("nan")
     if cfg.subpixel_edges:
         model = estimate_edge_model(sample, masks, lateral)
         if model is None:
@@ -325,11 +330,12 @@ def calibrate(sample: np.ndarray, cfg: FlowConfig, fps: float, px_per_mm: float,
                               half_window_px=cfg.edge_window_mm * px_per_mm,
                               half_window_frames=int(round(cfg.edge_window_ms * 1e-3 * fps)), ray_levels=ray_levels,
                               ray_crease=ray_crease, ray_closed_floor=ray_floor, exclude=surround)
-            gap, resolved = _with_ray_gap_levels(sample, masks, gap)
+            gap, resolved, noise = _with_ray_gap_levels(sample, masks, gap)
             if resolved:
                 disagreement = edge_readings(sample, masks, gap)
+                level_share = level_reading(sample, masks, gap, noise)
     return FlowCalibration(threshold, auto, counts_range, lateral, centre if seen.any() else None, midline, model, gap,
-                           line, resolved, along, surround, disagreement)
+                           line, resolved, along, surround, disagreement, level_share)
 
 
 def _sampled_masks(sample: np.ndarray, threshold: float, median_px: int, lateral: int, axis_from_gap: bool,
@@ -378,14 +384,16 @@ def _widest_sampled(masks: np.ndarray, n: int = RAY_GAP_FRAMES) -> np.ndarray:
     return np.sort(np.argsort(-np.asarray(masks, bool).sum(axis=(1, 2)), kind="stable")[:n])
 
 
-def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> tuple[SubpixelGap, bool]:
+def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap
+                         ) -> tuple[SubpixelGap, bool, float]:
     """``gap`` with the gap level of each ray (:func:`ray_gap_levels`) from the edge fits of the sampled
     frames with the largest rough gaps (``masks``, :data:`RAY_GAP_FRAMES`): the edge fit's prior and rule (b)'s
     reference on that ray; and, from the same fits, the widest gap each ray may show (:func:`taper_limits`). The
     detection levels keep the recording's one level (set from the rays' own, in a trial with an earlier form of
     these levels, the 52 widened seeds of docs/benchmarks.md moved by at most 0.006 in IoU).
 
-    Returns (gap, resolved). Where the slit is never resolved (wide enough to show the gap's own level, with a flat
+    Returns (gap, resolved, noise), noise the median RMS misfit of those fits (one pixel's noise about the model,
+    counts). Where the slit is never resolved (wide enough to show the gap's own level, with a flat
     floor at it (:func:`flat_floor`, against the fits' median misfit), in two of those frames on fewer than
     :data:`vfcli.flow.gap.subpixel.gap_level.MIN_RAYS` rays: no per-ray level),
     ``gap`` has no per-ray levels (its widths' limits only), ``resolved`` is False and it warns
@@ -403,8 +411,8 @@ def _with_ray_gap_levels(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap
     gap = replace(gap, ray_max_width=taper_limits(widths))
     if levels is None:
         warn_unresolved_gap(np.where(flat, widths, np.nan), gap.model, len(fits))
-        return gap, False
-    return replace(gap, ray_gap=levels), True
+        return gap, False, noise
+    return replace(gap, ray_gap=levels), True, noise
 
 
 def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> float:
@@ -434,6 +442,40 @@ def edge_readings(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap) -> fl
     else:
         log.info("flow: the two readings of the gap's edges agree: the sampled glottal area differs by %.1f %%",
                  100 * share)
+    return share
+
+
+def level_reading(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap, noise: float) -> float:
+    """The relative difference of the sampled gap's area as the flow step reads it and read with the gap level free on
+    the rays whose data reject their prior level (:func:`vfcli.flow.gap.subpixel.segment.ray_fits_level_free`), on
+    the :data:`EDGE_READING_FRAMES` sampled frames with the largest rough gaps (``masks``); ``noise``: one pixel's
+    noise about the model, counts (:func:`_with_ray_gap_levels`). Logs it, and warns when it exceeds
+    :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA`.
+
+    The product fits every ray with a prior at the recording's gap level, or at the ray's own where the gap shows it
+    (:mod:`vfcli.flow.gap.subpixel.gap_level`). Where the channel seen through the gap is brighter in a part of the
+    glottis the gap never opens wide enough to show it, that prior reads the slit there too narrow, or closed, and
+    the two readings of the edges (:func:`edge_readings`), both at that prior, agree: widened seed 4279 read its
+    glottal area 25 % low with its edge readings 2 % apart and no warning; this reading differs by 13 %
+    (docs/benchmarks.md, "Session 68")."""
+    if not np.isfinite(noise) or noise <= 0:
+        return float("nan")
+    widest = _widest_sampled(masks, EDGE_READING_FRAMES)
+    frames = [sample[i] for i in widest]
+    share = area_disagreement(ray_fits_many(frames, gap), ray_fits_level_free(frames, gap, noise))
+    if not np.isfinite(share):
+        return share
+    if share > AMBIGUOUS_AREA:
+        log.warning("flow: the video does not pin the gap's level along the glottis: in the %d sampled frames with the "
+                    "widest gap, read with the gap level free where a slit's darkness rejects the level the gap shows "
+                    "elsewhere, the glottal area differs by %.0f %% (more than %.0f %%), so the gap masks, the glottal "
+                    "area and the gap term are doubtful. The channel seen through the gap looks brighter (or darker) "
+                    "in a part of the glottis that never opens wide enough to show its own darkness; the glottal area "
+                    "then reads low where it is brighter. Check the video along the glottis; light the channel below "
+                    "the folds evenly if you can", len(frames), 100 * share, 100 * AMBIGUOUS_AREA)
+    else:
+        log.info("flow: read with the gap level free where the slit rejects it, the sampled glottal area differs by "
+                 "%.1f %%", 100 * share)
     return share
 
 

@@ -46,8 +46,8 @@ _REBUILD_TOL_MM = 1e-4
 class DiagnoseInputs:
     """baseline : the run's fitted model.  recording : the whole recording.  run_config : the run's settings.
     run_attrs : the run's attributes.  roi_origin_px : (col, row) of the stored frames' first pixel in the video.
-    gap_edge_disagreement : /flow's ``edge_disagreement`` (NaN: not stored;
-    :func:`vfcli.diagnose.words.gap_doubt_words`)."""
+    gap_edge_disagreement, gap_level_disagreement : /flow's ``edge_disagreement`` and ``level_disagreement`` (NaN: not
+    stored; :func:`vfcli.diagnose.words.gap_doubt_words`)."""
 
     baseline: Baseline
     recording: Recording
@@ -55,6 +55,7 @@ class DiagnoseInputs:
     run_attrs: dict[str, Any] | None = None
     roi_origin_px: tuple[float, float] = (0.0, 0.0)
     gap_edge_disagreement: float = float("nan")
+    gap_level_disagreement: float = float("nan")
 
 
 def run_recording_config(config: RecordingConfig, run_config: dict[str, Any], attrs: dict[str, Any],
@@ -149,7 +150,8 @@ def read_inputs(reader: StoreReader, config: RecordingConfig, run: str) -> Diagn
                     velocity_rotation_deg=float(flow_attrs.get("rotation_deg", 0.0)),
                     window_start=int(cfg.optimize.first_frame), **ldv)
     return DiagnoseInputs(baseline, rec, stored.config, dict(stored.attrs), (float(roi[0]), float(roi[1])),
-                          float(flow_attrs.get("edge_disagreement", float("nan"))))
+                          float(flow_attrs.get("edge_disagreement", float("nan"))),
+                          float(flow_attrs.get("level_disagreement", float("nan"))))
 
 
 class ContextLines(NamedTuple):
@@ -176,7 +178,7 @@ def context_lines(inputs: DiagnoseInputs, max_rows: int) -> ContextLines:
     pose_source = str((inputs.run_attrs or {}).get("pose_source", "config"))
     return ContextLines(stride_words(stride, max_rows) if stride > 1 else "",
                         fold_side_words(problem.camera, problem.mesh, pose_source, inputs.roi_origin_px),
-                        gap_doubt_words(inputs.gap_edge_disagreement))
+                        gap_doubt_words(inputs.gap_edge_disagreement, inputs.gap_level_disagreement))
 
 
 def stride_words(stride: int, max_rows: int) -> str:

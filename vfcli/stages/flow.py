@@ -118,6 +118,7 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         psf_sigma_px=np.nan if model is None else model.psf_sigma_px,
         gap_level_resolved=calib.gap_resolved,
         edge_disagreement=calib.edge_disagreement,
+        level_disagreement=calib.level_disagreement,
         median_along_slit=calib.median_along_slit,
         surround_fraction=surround,
         edge_window_px=np.nan if gap is None else float(gap.half_window_px),
@@ -132,6 +133,8 @@ def _write_flow(ctx: RunContext, cfg: FlowConfig, reader: StoreReader, s: StageW
         "gap_resolved": calib.gap_resolved,
         "edge_disagreement": (None if not np.isfinite(calib.edge_disagreement)
                               else round(calib.edge_disagreement, 4)),
+        "level_disagreement": (None if not np.isfinite(calib.level_disagreement)
+                               else round(calib.level_disagreement, 4)),
         "surround_fraction": round(surround, 3),
         "open_frames": int((area > 0).sum()),
         "max_area_mm2": round(float(area.max()), 3),

@@ -27,6 +27,15 @@ resolved seeds' mean area error fell from 12.0 to 6.7 %, the targets met on 12 s
 "Session 59").  Compared free, the two readings agree where the held one went astray and the warning lost the seeds it
 was made for (4149 +26 % unwarned); the held reading stays the first of the two compared: a minimum of the same
 misfit under a constraint the pixels suggest, so where it and the search disagree the video admits more than one gap.
+
+Both readings fit each ray with a prior at the recording's gap level (or the ray's own, where the gap shows it), so
+they agree where that prior is what misleads them: a channel seen through the gap that is brighter in a part of the
+glottis never open wide enough to show its own level is read there too narrow, or closed (widened seed 4279: the
+glottal area 25 % low, the readings 2 % apart, no warning).  Since session 68 a third reading frees the level on the
+rays whose data reject the prior (:func:`vfcli.flow.gap.subpixel.profile.free_level_where_rejected`) and the flow step
+compares it with its product on the same frames (:func:`vfcli.flow.pipeline.level_reading`, ``/flow``
+``level_disagreement``), with the same line: on 4279 they differ by 13 %; on 49 other widened stores by at most 4.8 %
+but on 4268 (9.6 %, which the edge readings already doubt).
 """
 from __future__ import annotations
 

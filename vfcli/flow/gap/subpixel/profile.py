@@ -40,6 +40,15 @@ WINDOW_SIGMAS = 2.0
 #: with two).
 MIN_WINDOW_PX = 2
 
+#: A ray's data reject its prior gap level when freeing the level lowers the fit's summed squared residual by more
+#: than this many times the pixels' noise variance: the chi-square quantile of one degree of freedom (the level) at
+#: 0.999 (:func:`free_level_where_rejected`)
+LEVEL_REJECT_CHI2 = 10.83
+
+#: Weight of the gap-level prior in a fit with the level free, in samples: enough to keep the linear solve regular
+#: on a slit too narrow to show its level, too little to move a level the data show
+FREE_LEVEL_WEIGHT = 1e-6
+
 
 @dataclass(frozen=True)
 class EdgeModel:
@@ -282,7 +291,8 @@ SECOND_START_PX = 1.0
 
 
 def _fit_from_either_start(prof: np.ndarray, rows: np.ndarray, start0: np.ndarray, start1: np.ndarray, sigma: float,
-                           prior: np.ndarray, inner: tuple[np.ndarray, np.ndarray], held: bool = False) -> SlitFit:
+                           prior: np.ndarray, inner: tuple[np.ndarray, np.ndarray], held: bool = False,
+                           free_level_noise: float = 0.0) -> SlitFit:
     """:func:`fit_slit_profiles` from the given starts and, on the rays whose inner bounds (the pixels surely in the
     gap) lie more than :data:`SECOND_START_PX` inside them, again from those bounds, on the same window; each ray
     keeps the fit of lower cost.  With ``held`` the edges also stay at or beyond those bounds (the reading
@@ -294,7 +304,11 @@ def _fit_from_either_start(prof: np.ndarray, rows: np.ndarray, start0: np.ndarra
 
     Held, the bounds kept wall pixels as gap where a medial wall in shade is darker than they allow: on the 41 seeds
     of the regression set under Lambert shading the glottal area of the resolved seeds was 12.0 % off on average
-    (4165 +40 %, 4112 +55 %), free 6.7 % (+16, +40 %; docs/benchmarks.md, "Session 59")."""
+    (4165 +40 %, 4112 +55 %), free 6.7 % (+16, +40 %; docs/benchmarks.md, "Session 59").
+
+    With ``free_level_noise`` (counts, > 0) each ray whose data reject its prior gap level is fitted again with the
+    level free (:func:`free_level_where_rejected`): the reading :mod:`vfcli.flow.gap.subpixel.ambiguity` compares
+    with the product's."""
     bound = inner if held else None
     fit = fit_slit_profiles(prof, rows, start0, start1, sigma, prior, inner=bound)
     lo, hi = (np.asarray(v, float) for v in inner)
@@ -306,7 +320,45 @@ def _fit_from_either_start(prof: np.ndarray, rows: np.ndarray, start0: np.ndarra
                                                  inner=None if bound is None else (lo[again], hi[again])), again)
     if not held:
         fit = _open_where_surely_gap(fit, prof, rows, sigma, prior, (lo, hi))
+    if free_level_noise > 0:
+        fit = free_level_where_rejected(fit, prof, rows, start0, start1, sigma, prior, free_level_noise)
     return fit
+
+
+def free_level_where_rejected(fit: SlitFit, prof: np.ndarray, rows: np.ndarray, start0: np.ndarray,
+                              start1: np.ndarray, sigma: float, prior: np.ndarray, noise: float) -> SlitFit:
+    """``fit`` with each ray whose data reject its prior gap level taken from a fit with the level free.
+
+    The prior (:data:`GAP_LEVEL_WEIGHT`, one pixel's worth at the recording's or the ray's level) pins the level of
+    a slit too narrow to show it, and so claims the level is known to within a pixel's noise. Where the channel seen
+    through the gap is brighter in one part of the glottis than where the level was measured, and the slit there is
+    never wide enough to show its own level (:mod:`vfcli.flow.gap.subpixel.gap_level`), the prior makes the fit
+    read it narrower, or closed: the tissue ramps take the dip for a crease (widened seed 4279, blur 0.91 px, its
+    channel 310-376 counts toward the glottis' ends beside 142 in the middle: the glottal area read 25 % low with
+    the edge readings 2 % apart, unwarned; docs/benchmarks.md, "Session 68"). Each ray is fitted again from the same
+    start (``start0``, ``start1``, px) with the level free (:data:`FREE_LEVEL_WEIGHT`); where that lowers the summed
+    squared residual by more than :data:`LEVEL_REJECT_CHI2` times ``noise`` squared and the free fit is open, it
+    replaces the ray's fit. A narrow slit at the prior's level fits about as well with the level free (its width
+    and level trade against each other), so it keeps its fit.
+
+    Parameters
+    ----------
+    fit : SlitFit of the n rays.
+    prof, rows : (n, L) the rays' windows, counts and px (:func:`fit_slit_profiles`).
+    start0, start1 : (n,) float, the starts ``fit`` came from, px.
+    sigma : float, PSF standard deviation, px.
+    prior : (n,) float, the prior gap levels, counts.
+    noise : float, one pixel's noise about the model, counts.
+
+    Returns
+    -------
+    SlitFit of the n rays.
+    """
+    free = fit_slit_profiles(prof, rows, start0, start1, sigma, prior, gap_weight=FREE_LEVEL_WEIGHT)
+    n = np.isfinite(np.asarray(prof, float)).sum(axis=1)
+    drop = (fit.rms ** 2 - free.rms ** 2) * n
+    pick = (drop > LEVEL_REJECT_CHI2 * float(noise) ** 2) & (free.e1 > free.e0)
+    return _replaced(fit, free, np.arange(len(fit.e0)), pick)
 
 
 def _open_where_surely_gap(fit: SlitFit, prof: np.ndarray, rows: np.ndarray, sigma: float, prior: np.ndarray,
@@ -470,7 +522,7 @@ def fit_ray_edges(
 
 def fit_ray_edges_many(
     frames: list, e0s: list, e1s: list, model: EdgeModel, lateral_axis: int = 0, passes: int = 2,
-    inners: list | None = None, gap_counts: list | None = None, held: bool = False,
+    inners: list | None = None, gap_counts: list | None = None, held: bool = False, free_level_noise: float = 0.0,
 ) -> list[SlitFit]:
     """:func:`fit_ray_edges` of several frames in one :func:`fit_slit_profiles` call per pass (their rays stacked,
     each frame's windows padded to the longest with samples of no weight): every ray is fitted on its own, so the
@@ -478,9 +530,12 @@ def fit_ray_edges_many(
     (:data:`vfcli.flow.gap.subpixel.segment.FIT_BATCH_FRAMES`).
 
     frames : K (H, W) arrays of counts.  e0s, e1s : K (n_rays,) float.  inners : K pairs or None.
-    gap_counts : K (n_rays,) float or None.  held : as :func:`fit_ray_edges`'s.  Returns K :class:`SlitFit`.
+    gap_counts : K (n_rays,) float or None.  held : as :func:`fit_ray_edges`'s.  free_level_noise : counts; > 0: each
+    ray whose data reject its prior gap level is fitted with the level free (:func:`free_level_where_rejected`).
+    Returns K :class:`SlitFit`.
     """
-    return _fit_passes(frames, e0s, e1s, model, lateral_axis, passes, inners, gap_counts, held=held)[0]
+    return _fit_passes(frames, e0s, e1s, model, lateral_axis, passes, inners, gap_counts, held=held,
+                       free_level_noise=free_level_noise)[0]
 
 
 def fit_ray_edges_twice(
@@ -498,8 +553,8 @@ def fit_ray_edges_twice(
 
 
 def _fit_passes(frames: list, e0s: list, e1s: list, model: EdgeModel, lateral_axis: int, passes: int,
-                inners: list | None, gap_counts: list | None, search_px: float = 0.0, held: bool = False
-                ) -> tuple[list[SlitFit], list[SlitFit]]:
+                inners: list | None, gap_counts: list | None, search_px: float = 0.0, held: bool = False,
+                free_level_noise: float = 0.0) -> tuple[list[SlitFit], list[SlitFit]]:
     """The pass loop of :func:`fit_ray_edges_many`: (fits, the last pass's fits before the search); with ``search_px``
     = 0 the two are the same."""
     margin = max(MIN_WINDOW_PX, int(np.ceil(WINDOW_SIGMAS * model.psf_sigma_px)))
@@ -539,7 +594,8 @@ def _fit_passes(frames: list, e0s: list, e1s: list, model: EdgeModel, lateral_ax
             rows[at[k]:at[k + 1], n:] = rk[sel][:, -1:] + np.arange(1, length - n + 1)
         start0 = np.concatenate([e0[sel] for e0, sel in zip(e0s, sels)])
         start1 = np.concatenate([e1[sel] for e1, sel in zip(e1s, sels)])
-        fit = started = _fit_from_either_start(prof, rows, start0, start1, model.psf_sigma_px, prior, inner, held)
+        fit = started = _fit_from_either_start(prof, rows, start0, start1, model.psf_sigma_px, prior, inner, held,
+                                               free_level_noise)
         if search_px > 0 and k_pass == max(1, passes) - 1:
             fit = _lower_cost(started, searched_edges(prof, rows, started.e0, started.e1, model.psf_sigma_px, prior,
                                                       search_px), np.arange(len(started.e0)))

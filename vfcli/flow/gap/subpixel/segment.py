@@ -10,7 +10,7 @@ import numpy as np
 from vfcli.flow.gap.detect import gap_mask
 from vfcli.flow.gap.rays import as_rays, outermost_silhouette
 from vfcli.flow.gap.subpixel.area import GapSegmentation, mask_from_edges
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges_twice
+from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges_many, fit_ray_edges_twice
 from vfcli.flow.gap.subpixel.smoothing import robustness_weights, smooth_edges
 
 
@@ -175,6 +175,19 @@ def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float, held: bool 
         gap_counts=[found[k][4] for k in todo], held=held) if todo else ([], [])
     first = _ray_fits(found, todo, started, gap)
     return first, (first if search_px <= 0 else _ray_fits(found, todo, searched, gap))
+
+
+def ray_fits_level_free(frames: list, gap: SubpixelGap, noise: float) -> list[RayFit]:
+    """:func:`ray_fits_many` with each ray whose data reject its prior gap level fitted with the level free
+    (:func:`vfcli.flow.gap.subpixel.profile.free_level_where_rejected`; ``noise``: one pixel's noise about the
+    model, counts): the reading :mod:`vfcli.flow.gap.subpixel.ambiguity` compares with the product's."""
+    found = [_detected(frame, gap) for frame in frames]
+    todo = [k for k, d in enumerate(found) if d[3] is not None]
+    fits = fit_ray_edges_many(
+        [frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo], gap.model,
+        gap.lateral_axis, inners=[found[k][3] for k in todo], gap_counts=[found[k][4] for k in todo],
+        free_level_noise=noise) if todo else []
+    return _ray_fits(found, todo, fits, gap)
 
 
 def _ray_fits(found: list, todo: list, fits: list, gap: SubpixelGap) -> list[RayFit]:
