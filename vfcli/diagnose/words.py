@@ -129,6 +129,7 @@ def gap_doubt_words(edge_disagreement: float, level_disagreement: float = float(
                 f"{carries}")
     if np.isfinite(y) and y > AMBIGUOUS_AREA:
         return (f"{GAP_DOUBT_START}: read with the gap level free where a slit rejects the level the gap shows "
-                f"elsewhere, its area differs by {percent_size(y)} % (more than {percent_size(AMBIGUOUS_AREA)} %; /flow "
-                f"level_disagreement), as where the channel below looks brighter in one part of the glottis; {carries}")
+                f"elsewhere, its area differs by {percent_size(y)} % (more than {percent_size(AMBIGUOUS_AREA)} %; "
+                "/flow level_disagreement), as where the channel below looks brighter in one part of the glottis; "
+                f"{carries}")
     return ""
