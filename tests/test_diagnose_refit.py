@@ -268,6 +268,29 @@ def test_heldout_sd_adds_the_camera_only_fits_difference_and_keeps_the_sandwich_
     np.testing.assert_array_equal(parts["mesh"], mesh)
 
 
+def test_the_estimate_is_corrected_by_the_mesh_shift_and_says_what_the_fit_mesh_found():
+    """A stated mesh shift (the fit mesh's estimate 2.1 % above a finer mesh's) divides the estimate and its sd by
+    1 + shift; the record keeps the fit mesh's value (the stored run's) beside it, and without a shift nothing moves."""
+    from vfcli.diagnose.confirm import words
+    from vfcli.diagnose.confirmation import mesh_corrected
+
+    theta, sd, shift = np.array([1.0057]), np.array([0.0215]), np.array([0.0213])
+    est, sd_c = mesh_corrected(theta, sd, shift)
+    np.testing.assert_allclose(est, theta / 1.0213, rtol=1e-12)
+    np.testing.assert_allclose(sd_c, sd / 1.0213, rtol=1e-12)
+    same = mesh_corrected(theta, sd, None)
+    np.testing.assert_array_equal(same[0], theta) and np.testing.assert_array_equal(same[1], sd)
+    conf = Confirmation("inertia", ("density_factor",), est, sd_c, "sandwich and mesh", mesh_shift=shift)
+    np.testing.assert_allclose(conf.fit_mesh_estimate, theta, rtol=1e-12)
+    par = conf.as_dict()["parameters"]["density_factor"]
+    assert par["estimate"] == pytest.approx(0.98472, abs=1e-5) and par["fit_mesh_estimate"] == pytest.approx(1.0057)
+    assert par["mesh_shift"] == pytest.approx(0.0213) and par["interval"][0] < par["estimate"] < par["interval"][1]
+    line = words(conf)[0]
+    assert "density_factor = 0.985" in line and "the fit mesh's 1.006 less the 2.1 % its discretisation adds" in line
+    plain = Confirmation("inertia", ("density_factor",), theta, sd, "sandwich").as_dict()["parameters"]
+    assert "fit_mesh_estimate" not in plain["density_factor"]
+
+
 def test_confirmation_records_say_beyond_spread_only_when_it_is():
     h = HeldOutError("cycles", "mm/s", np.array([2.0, 2.2, 1.8]), np.array([1.0, 1.2, 0.9]))
     assert h.beyond_spread() and h.reduction == pytest.approx(1 - np.sqrt(np.mean([1, 1.44, .81]) / np.mean([4, 4.84, 3.24])))
@@ -467,7 +490,8 @@ def test_inertia_mesh_part_predicts_the_density_a_finer_meshs_data_move_the_refi
     refitted density comes out high by the stiffness the coarser mesh adds (measured 1.0742 +- 0.0032), and the
     mesh part of its stated sd, Inertia.mesh_sd, says how much: 0.0733 (0.99 of the shift; the lowest six
     modes' mean, the mesh part until session 67, said 0.023).  The mesh part predicts, from the two meshes'
-    spectra, a refit on the finer mesh it does not run."""
+    spectra, a refit on the finer mesh it does not run; corrected by it (the diagnosis's estimate since session
+    68) the density is 1.0056."""
     from types import SimpleNamespace
 
     from vfcli.config import MeshConfig
@@ -491,10 +515,14 @@ def test_inertia_mesh_part_predicts_the_density_a_finer_meshs_data_move_the_refi
     base.finer_model = lambda: fine
     r = refit(base, cand, max_iterations=10)
     shift = r.theta[0] - 1.0
-    (part,) = cand.mesh_sd(base, r.theta, r.x)
-    print(f"density {r.theta[0]:.4f} +- {r.sd[0]:.4f}: shift {shift:.4f}, mesh part {part:.4f} ({part / shift:.2f})")
+    (delta,) = cand.mesh_shift(base, r.theta, r.x)
+    part = abs(r.theta[0] * delta)                                # Inertia.mesh_sd
+    corrected = r.theta[0] / (1.0 + delta)                        # as the diagnosis states it (mesh_corrected)
+    print(f"density {r.theta[0]:.4f} +- {r.sd[0]:.4f}: shift {shift:.4f}, mesh part {part:.4f} ({part / shift:.2f}), "
+          f"corrected {corrected:.4f}")
     assert shift > 10 * r.sd[0]                                   # a mesh bias the noise-free refit's sd does not see
     assert 0.85 < part / shift < 1.15                             # measured 0.99
+    assert abs(corrected - 1.0) < 0.15 * shift                    # measured 1.0056: 0.08 of the shift left
 
 
 @pytest.mark.parametrize("term, truth", [("inertia", 1.0), ("damping", 0.2)])

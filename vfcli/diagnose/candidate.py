@@ -48,7 +48,7 @@ class Baseline:
         candidate that needs K or M builds a default-material model of the mesh, which scales its columns).
     finer_model : None, or a callable returning the run's folds and material on a finer mesh
         (:func:`vfcli.model.refine.finer_model`; the stage sets it): a term states from it how far the fit
-        mesh's discretisation moves its parameter (:meth:`vfcli.diagnose.candidates.inertia.Inertia.mesh_sd`).
+        mesh's discretisation moves its parameter (:meth:`vfcli.diagnose.candidates.inertia.Inertia.mesh_shift`).
     """
 
     problem: object

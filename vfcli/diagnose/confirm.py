@@ -18,7 +18,7 @@ import numpy as np
 
 from vfcli.diagnose.bound import refit_at_own_bound
 from vfcli.diagnose.candidate import Baseline
-from vfcli.diagnose.confirmation import Confirmation, heldout_sd
+from vfcli.diagnose.confirmation import Confirmation, heldout_sd, mesh_corrected
 from vfcli.diagnose.heldout import across_instruments, cycle_groups, leave_cycles_out
 from vfcli.diagnose.refit import RefitResult, refit, with_displacements
 from vfcli.diagnose.words import percent_size
@@ -131,17 +131,20 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     log.info("refit of %s: %.0f s (%d iterations); held out cycles %.0f s, instruments %.0f s", candidate.name,
              t1 - t0, len(result.history["iteration"]) - 1, t2 - t1, t3 - t2)
     held = tuple(h for h in (cyc, inst) if h is not None)
-    mesh_sd = getattr(candidate, "mesh_sd", None)
+    mesh_shift = getattr(candidate, "mesh_shift", None)
     t4 = time.perf_counter()
-    mesh = mesh_sd(baseline, result.theta, result.x) if callable(mesh_sd) else None
+    shift = mesh_shift(baseline, result.theta, result.x) if callable(mesh_shift) else None
+    mesh = None if shift is None else np.abs(np.asarray(result.theta, float) * shift)
     if mesh is not None:
-        log.info("mesh part of %s: %s (%.0f s)", candidate.name, np.round(mesh, 6), time.perf_counter() - t4)
+        log.info("mesh part of %s: shift %s, sd part %s (%.0f s)", candidate.name, np.round(shift, 6),
+                 np.round(mesh, 6), time.perf_counter() - t4)
     sd, name, dof, _ = heldout_sd(result.theta, result.sd, held, mesh)
+    estimate, sd = mesh_corrected(result.theta, sd, shift)
     e_base = float(baseline.problem.evaluate(baseline.x).total)
-    conf = Confirmation(candidate.name, tuple(candidate.parameter_names), result.theta, sd, name, held, dof=dof,
+    conf = Confirmation(candidate.name, tuple(candidate.parameter_names), estimate, sd, name, held, dof=dof,
                         moved=len(result.history["iteration"]) > 1 or result.profiled,
                         lowers_e=bool(result.total_at(baseline.problem.settings.ridge_weight)
-                                      < e_base * (1.0 - LOWER_RTOL)))
+                                      < e_base * (1.0 - LOWER_RTOL)), mesh_shift=shift)
     return Confirmed(result, conf, locate(extended_baseline(baseline, result)) if locate is not None else None)
 
 
@@ -161,6 +164,9 @@ def words(conf: Confirmation, candidate=None) -> list[str]:
     est = ", ".join(f"{n} = {e:.3g} (95 % interval {a:.3g} .. {b:.3g}, {conf.uncertainty})"
                     for n, e, (a, b) in zip(conf.parameter_names, conf.estimate, conf.interval))
     reading = getattr(candidate, "reading", None)
+    if conf.mesh_shift is not None:
+        est += "; " + ", ".join(f"the fit mesh's {f:.4g} less the {percent_size(m)} % its discretisation adds against "
+                                "a mesh 1.2 times finer" for f, m in zip(conf.fit_mesh_estimate, conf.mesh_shift))
     if callable(reading):
         est += f"; {reading(conf.estimate)}"
     out = [f"refit with {conf.candidate}{f' (run {conf.run})' if conf.run else ''}: {est}"]

@@ -7,7 +7,8 @@ uncertainty).  A term whose parameter trades against the stiffness (inertia's de
 resonances sit at omega^2 ~ K / (rho M)) inherits that bias, and no noise-based interval sees it.
 :func:`finer_model` builds the same folds with edges :data:`REFINEMENT` times shorter;
 :func:`density_shift` says how far the density a fit finds moves between the two
-(:meth:`vfcli.diagnose.candidates.inertia.Inertia.mesh_sd`).
+(:meth:`vfcli.diagnose.candidates.inertia.Inertia.mesh_shift`; the diagnosis corrects the estimate by it,
+:func:`vfcli.diagnose.confirmation.mesh_corrected`).
 """
 from __future__ import annotations
 

@@ -245,15 +245,21 @@ class Inertia(DisplacementTerm):
         self._centre = (baseline.problem.response, rho)
         return True
 
-    #: harmonics of f0, at the fitted density, up to which :meth:`mesh_sd` compares the two meshes' modes
+    #: harmonics of f0, at the fitted density, up to which :meth:`mesh_shift` compares the two meshes' modes
     mesh_band = 3.5
-    #: modes per fold :meth:`mesh_sd` starts from, and the most it takes
+    #: modes per fold :meth:`mesh_shift` starts from, and the most it takes
     mesh_modes = (60, 240)
 
     def mesh_sd(self, baseline, theta: np.ndarray, x: np.ndarray | None = None) -> np.ndarray | None:
-        """(1,) the mesh part of the density's stated sd, ``|theta| |delta|``: delta the relative shift of the
-        density a fit on the run's mesh makes against one on the same folds ``baseline.finer_model()`` (edges
-        1.2 times shorter, :mod:`vfcli.model.refine`), for the loads ``x`` (the refit's; default the
+        """(1,) the mesh part of the density's stated sd, ``|theta| |delta|`` (delta: :meth:`mesh_shift`); None
+        without a finer model or an f0."""
+        delta = self.mesh_shift(baseline, theta, x)
+        return None if delta is None else np.abs(np.asarray(theta, dtype=float).reshape(-1)[:1] * delta)
+
+    def mesh_shift(self, baseline, theta: np.ndarray, x: np.ndarray | None = None) -> np.ndarray | None:
+        """(1,) delta, the relative shift of the density a fit on the run's mesh makes against one on the same
+        folds ``baseline.finer_model()`` (edges 1.2 times shorter, :mod:`vfcli.model.refine`): the fit mesh's
+        estimate is about ``(1 + delta)`` times the finer mesh's. For the loads ``x`` (the refit's; default the
         baseline's) at the camera's visible vertices, the larger of their displacements' and velocities'
         (:func:`vfcli.model.refine.density_shift`); None without a finer model or an f0.
 
@@ -278,7 +284,7 @@ class Inertia(DisplacementTerm):
         rho = float(np.asarray(theta, dtype=float).reshape(-1)[0])
         delta = density_shift(model, fine, forces, f0, rho, np.unique(p.tri), loss=self.loss,
                               band=self.mesh_band, modes=self.mesh_modes, folds=folds)
-        return np.array([abs(rho) * abs(delta)])
+        return np.array([delta])
 
     def extension(self, baseline, theta: np.ndarray) -> np.ndarray:
         """(F + 1, N, 3) change at density factor theta[0], mm: the periodic steady state with that density
