@@ -163,7 +163,10 @@ _REFIT_PARAMS = {
     "refit_parameter_name": D("text", "Confirmation refit by `vfcli diagnose`: name (with units) of each "
                               "parameter of the candidate term (attribute refit_candidate names it)",
                               ("refit_param",)),
-    "refit_theta": D("1", "Confirmation refit: fitted value of each candidate parameter (units in its name)",
+    "refit_theta": D("1", "Confirmation refit: fitted value of each candidate parameter (units in its name); in "
+                     "/diagnose/<run> corrected for the fit mesh's discretisation where the term states it (inertia: "
+                     "confirmation_json's fit_mesh_estimate and mesh_shift, vfcli/diagnose/confirmation.py "
+                     "mesh_corrected), in the refit run the fit mesh's value its displacements are at",
                      ("refit_param",)),
     "refit_theta_sd": D("1", "Confirmation refit: stated standard deviation of each candidate parameter (the "
                         "sandwich over frames, vfcli/diagnose/refit.py, or the held-out fits' jackknife where larger, "
