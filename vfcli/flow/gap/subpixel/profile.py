@@ -354,11 +354,16 @@ def free_level_where_rejected(fit: SlitFit, prof: np.ndarray, rows: np.ndarray, 
     -------
     SlitFit of the n rays.
     """
-    free = fit_slit_profiles(prof, rows, start0, start1, sigma, prior, gap_weight=FREE_LEVEL_WEIGHT)
+    bound = LEVEL_REJECT_CHI2 * float(noise) ** 2
     n = np.isfinite(np.asarray(prof, float)).sum(axis=1)
-    drop = (fit.rms ** 2 - free.rms ** 2) * n
-    pick = (drop > LEVEL_REJECT_CHI2 * float(noise) ** 2) & (free.e1 > free.e0)
-    return _replaced(fit, free, np.arange(len(fit.e0)), pick)
+    # the drop cannot exceed the fit's own summed squares: only the rays misfitted by more than the bound are refitted
+    rays = np.flatnonzero(fit.rms ** 2 * n > bound)
+    if rays.size == 0:
+        return fit
+    free = fit_slit_profiles(prof[rays], rows[rays], start0[rays], start1[rays], sigma, prior[rays],
+                             gap_weight=FREE_LEVEL_WEIGHT)
+    drop = (fit.rms[rays] ** 2 - free.rms ** 2) * n[rays]
+    return _replaced(fit, free, rays, (drop > bound) & (free.e1 > free.e0))
 
 
 def _open_where_surely_gap(fit: SlitFit, prof: np.ndarray, rows: np.ndarray, sigma: float, prior: np.ndarray,
