@@ -35,7 +35,7 @@ def elastic_model(edge_mm: float = 2.0) -> ElasticModel:
 def direct_transfer(model: ElasticModel, loads: np.ndarray, omega: float, density: float, tau: float, loss: float,
                     folds: tuple[int, ...] = (0, 1)) -> np.ndarray:
     """(N, 3, S) complex: ((1 + i loss)(1 + i omega tau) K - density omega^2 M)^-1 F, the reference the
-    modal reduction and the inertia refit are checked against (tests/test_modal.py, tests/test_diagnose_refit.py).
+    modal reduction and the inertia refit are checked against (tests/test_modal.py, tests/test_diagnose_refit_inertia.py).
 
     loads : (n_dofs, S) load vectors F, Pa mm^2.  omega : rad/s.  density : factor on the mass matrix.
     A complex sparse LU (scipy's SuperLU with its symmetric ordering: the matrix is complex symmetric), fold by

@@ -68,8 +68,10 @@ def pytest_unconfigure(config):
 #: loadfile scheduling hands out files in collection order (see :func:`pytest_configure`), and with
 #: the slowest last one worker ran test_diagnose_refit_phantom.py alone for its last three minutes
 #: (10 min 8 s on a quiet machine). Ordered by the files' time in session 29's run (tests/_zygote.py
-#: in use), 84 s down to 26 s.
-SLOW_FIRST = ("test_diagnose_refit_phantom.py", "test_examples_batch.py", "test_diagnose_refit.py", "test_run.py",
+#: in use), 84 s down to 26 s; session 68 split inertia's refit tests (about 90 s, 46 s of them the mesh part's)
+#: out of test_diagnose_refit.py and put them second.
+SLOW_FIRST = ("test_diagnose_refit_phantom.py", "test_diagnose_refit_inertia.py", "test_examples_batch.py",
+              "test_diagnose_refit.py", "test_run.py",
               "test_hostile_fuzz_files.py", "test_batch.py", "test_store_commit.py", "test_rotation_end_to_end.py",
               "test_fem.py", "test_hostile_fuzz.py", "test_flow_stage.py", "test_diagnose_calibrate.py")
 

@@ -1,7 +1,7 @@
 """The extended model's own bound on the loads' free correction (vfcli.diagnose.bound).
 
 On the pressure-load case of tests/_candidates_case.py with the folds' own mass in the data (density factor 1,
-24 frames per cycle, as tests/test_diagnose_refit.py's inertia refit): the quasi-static model's L-curve puts its
+24 frames per cycle, as tests/test_diagnose_refit_inertia.py's inertia refit): the quasi-static model's L-curve puts its
 corner decades below the extended model's (the loads make up for the missing mass), the refit continued under the
 extended model's corner keeps its density, and it is judged against the baseline under the baseline's weight.
 """
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from _candidates_case import pressure_case, reduced_inertia
-from test_diagnose_refit import case_with
+from _refit_case import case_with
 from vfcli.diagnose.bound import extended_problem, own_ridge_weight, refit_at_own_bound
 from vfcli.diagnose.candidate import Baseline
 from vfcli.diagnose.candidates import StiffnessAsymmetry

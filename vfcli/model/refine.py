@@ -59,7 +59,7 @@ def density_shift(model: ElasticModel, fine: ElasticModel, forces: np.ndarray, f
     folds (with the same d_j for every mode, delta = d exactly: the scale takes ``1 / (1 + d)``), on the
     observed vertices' displacements (what the gap term sees) and on their velocities ``i W_k U_k`` (the
     camera's motion term); the larger of the two is returned: the fit weighs both, and neither alone
-    matched a refit on the finer mesh's data everywhere (tests/test_diagnose_refit.py; docs/diagnose.md).
+    matched a refit on the finer mesh's data everywhere (tests/test_diagnose_refit_inertia.py; docs/diagnose.md).
     Modes are taken up to ``band`` harmonics of f0 at the density, ``band sqrt(density) f0``, from
     ``modes[0]`` per fold up to ``modes[1]`` (Weyl's law, N(f) ~ f^3, sizes the second eigensolve); the
     modes near the harmonics with load weigh most (on widened phantom 2012 the estimate settled at 2.4
