@@ -162,7 +162,7 @@ def test_gap_iou_and_area_against_the_exact_slit(recording):
     assert attrs["subpixel_edges"] and 0.1 < attrs["psf_sigma_px"] < 0.5  # 2 x 2 samples, no optics blur: 0.21
     assert abs(attrs["gap_level_counts"] - ph.gap_counts) < 0.1 * ph.gap_counts
     assert attrs["gap_level_resolved"]          # a 24 px slit shows its own level (tests/test_gap_blur.py: one that does not)
-    # the two readings of the edges (vfcli.flow.pipeline.edge_readings) agree on an exact slit: measured 0.03 %
+    # the two readings of the edges (vfcli.flow.gap.subpixel.readings.edge_readings) agree on an exact slit: measured 0.03 %
     assert 0.0 <= attrs["edge_disagreement"] < 0.005
     # ... and so does the reading with the gap level free where a slit rejects it (level_reading): measured 0.16 %
     assert 0.0 <= attrs["level_disagreement"] < 0.005

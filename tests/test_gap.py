@@ -372,7 +372,7 @@ def test_median_along_the_slit_keeps_a_one_pixel_slit_a_square_median_erases():
 def test_rays_of_several_frames_fitted_together_give_each_frame_s_own_edges(narrow):
     """fit_ray_edges_many stacks the rays of frames whose windows differ in length (the shorter padded with samples
     of no weight): each frame's edges, levels and cost are those of its own fit_ray_edges call."""
-    from vfcli.flow.gap.subpixel.profile import fit_ray_edges, fit_ray_edges_many
+    from vfcli.flow.gap.subpixel.ray_edges import fit_ray_edges, fit_ray_edges_many
     from vfcli.flow.gap.subpixel.segment import _detected
 
     ph, frames, gap, _ = narrow

@@ -17,7 +17,8 @@ from scipy.ndimage import gaussian_filter
 
 from vfcli.config import FlowConfig
 from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA, area_disagreement
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges, fit_slit_profiles, searched_edges
+from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_slit_profiles, searched_edges
+from vfcli.flow.gap.subpixel.ray_edges import fit_ray_edges
 from vfcli.flow.pipeline import calibrate
 
 #: Ray 100 of frame 100 of widened seed 4165 under Lambert shading (bench/bench_gap_optics.py's render, lateral

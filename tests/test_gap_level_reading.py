@@ -17,7 +17,8 @@ from scipy.ndimage import gaussian_filter
 
 from vfcli.config import FlowConfig
 from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges, fit_ray_edges_many
+from vfcli.flow.gap.subpixel.profile import EdgeModel
+from vfcli.flow.gap.subpixel.ray_edges import fit_ray_edges, fit_ray_edges_many
 from vfcli.flow.pipeline import calibrate
 
 #: Ray 166 of frame 65 of widened seed 4279 (lateral px 130-155, counts): the gap's pixel centres 140-144 (the

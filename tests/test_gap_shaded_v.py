@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges
+from vfcli.flow.gap.subpixel.profile import EdgeModel
+from vfcli.flow.gap.subpixel.ray_edges import fit_ray_edges
 
 GAP_COUNTS = 243.0        # the recording's gap level, counts
 PSF_SIGMA_PX = 0.984      # its estimated blur

@@ -9,16 +9,18 @@ tissue" profile (:func:`fit_slit_profiles`; gap level and blur measured once per
 (:func:`smooth_edges`), and takes the pixels whose centres lie between them; the glottal area
 is the integral of the edge distance (:func:`area_from_edges`).
 
-Modules, one concern each: :mod:`.profile` (the slit model and its per-ray fit),
+Modules, one concern each: :mod:`.profile` (the slit model and its least-squares fit),
+:mod:`.ray_edges` (the fit of every open ray of frames: windows, starts, passes, the level-free reading),
 :mod:`.edge_model` (gap level and PSF of a recording), :mod:`.smoothing` (edges along the
 glottis and in time), :mod:`.area` (mask and area from edges), :mod:`.segment` (frames and
-streams), :mod:`.ambiguity` (how far the video pins the edges: two readings
-compared). The names below are the package's interface.
+streams), :mod:`.ambiguity` (how far the video pins the edges: readings compared), :mod:`.readings`
+(what the sampled frames say of the gap as a whole: the rays' levels, the readings' warnings). The names below
+are the package's interface.
 """
 from vfcli.flow.gap.subpixel.area import GapSegmentation, area_from_edges, mask_from_edges
 from vfcli.flow.gap.subpixel.edge_model import estimate_edge_model
-from vfcli.flow.gap.subpixel.profile import (EdgeModel, SlitFit, fit_ray_edges, fit_slit_profiles, ray_windows,
-                                             slit_profile_model)
+from vfcli.flow.gap.subpixel.profile import EdgeModel, SlitFit, fit_slit_profiles, slit_profile_model
+from vfcli.flow.gap.subpixel.ray_edges import fit_ray_edges, ray_windows
 from vfcli.flow.gap.subpixel.segment import SubpixelGap, raw_edges, segment_gap, segment_stream
 from vfcli.flow.gap.subpixel.smoothing import robustness_weights, smooth_edges
 

@@ -32,8 +32,8 @@ Both readings fit each ray with a prior at the recording's gap level (or the ray
 they agree where that prior is what misleads them: a channel seen through the gap that is brighter in a part of the
 glottis never open wide enough to show its own level is read there too narrow, or closed (widened seed 4279: the
 glottal area 25 % low, the readings 2 % apart, no warning).  Since session 68 a third reading frees the level on the
-rays whose data reject the prior (:func:`vfcli.flow.gap.subpixel.profile.free_level_where_rejected`) and the flow step
-compares it with its product on the same frames (:func:`vfcli.flow.pipeline.level_reading`, ``/flow``
+rays whose data reject the prior (:func:`vfcli.flow.gap.subpixel.ray_edges.free_level_where_rejected`) and the flow step
+compares it with its product on the same frames (:func:`vfcli.flow.gap.subpixel.readings.level_reading`, ``/flow``
 ``level_disagreement``), with the same line: on 4279 they differ by 13 %; on 49 other widened stores by at most 4.8 %
 but on 4268 (9.6 %, which the edge readings already doubt).
 """

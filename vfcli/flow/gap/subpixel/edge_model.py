@@ -6,7 +6,8 @@ import logging
 import numpy as np
 
 from vfcli.flow.gap.rays import outermost_silhouette
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_slit_profiles, ray_windows
+from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_slit_profiles
+from vfcli.flow.gap.subpixel.ray_edges import ray_windows
 
 log = logging.getLogger(__name__)
 

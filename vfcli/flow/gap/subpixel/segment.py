@@ -10,7 +10,8 @@ import numpy as np
 from vfcli.flow.gap.detect import gap_mask
 from vfcli.flow.gap.rays import as_rays, outermost_silhouette
 from vfcli.flow.gap.subpixel.area import GapSegmentation, mask_from_edges
-from vfcli.flow.gap.subpixel.profile import EdgeModel, fit_ray_edges_many, fit_ray_edges_twice
+from vfcli.flow.gap.subpixel.profile import EdgeModel
+from vfcli.flow.gap.subpixel.ray_edges import fit_ray_edges_many, fit_ray_edges_twice
 from vfcli.flow.gap.subpixel.smoothing import robustness_weights, smooth_edges
 
 
@@ -157,16 +158,16 @@ def ray_fits(frame: np.ndarray, gap: SubpixelGap) -> RayFit:
 
 def ray_fits_many(frames: list, gap: SubpixelGap) -> list[RayFit]:
     """:func:`ray_fits` of several frames, their sub-pixel fits in one call
-    (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges_many`)."""
+    (:func:`vfcli.flow.gap.subpixel.ray_edges.fit_ray_edges_many`)."""
     return ray_fits_twice(frames, gap, 0.0)[0]
 
 
 def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float, held: bool = False
                    ) -> tuple[list[RayFit], list[RayFit]]:
     """Two readings of :func:`ray_fits_many`: as it reads them, and with each edge also searched over ``search_px`` px
-    around it (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges_twice`); (started, searched), the same list when
+    around it (:func:`vfcli.flow.gap.subpixel.ray_edges.fit_ray_edges_twice`); (started, searched), the same list when
     ``search_px`` is 0.  ``held``: the started reading's edges kept at or beyond the pixels surely in the gap
-    (:func:`vfcli.flow.gap.subpixel.profile.fit_ray_edges`), as :mod:`vfcli.flow.gap.subpixel.ambiguity` compares."""
+    (:func:`vfcli.flow.gap.subpixel.ray_edges.fit_ray_edges`), as :mod:`vfcli.flow.gap.subpixel.ambiguity` compares."""
     found = [_detected(frame, gap) for frame in frames]
     todo = [k for k, d in enumerate(found) if d[3] is not None]
     started, searched = fit_ray_edges_twice(
@@ -179,7 +180,7 @@ def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float, held: bool 
 
 def ray_fits_level_free(frames: list, gap: SubpixelGap, noise: float) -> list[RayFit]:
     """:func:`ray_fits_many` with each ray whose data reject its prior gap level fitted with the level free
-    (:func:`vfcli.flow.gap.subpixel.profile.free_level_where_rejected`; ``noise``: one pixel's noise about the
+    (:func:`vfcli.flow.gap.subpixel.ray_edges.free_level_where_rejected`; ``noise``: one pixel's noise about the
     model, counts): the reading :mod:`vfcli.flow.gap.subpixel.ambiguity` compares with the product's."""
     found = [_detected(frame, gap) for frame in frames]
     todo = [k for k, d in enumerate(found) if d[3] is not None]
