@@ -19,8 +19,7 @@ from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA, SEARCH_REACH_PX, a
 from vfcli.flow.gap.subpixel.gap_level import (MIN_RAYS, RESOLVED_MIN_PX, RESOLVED_SIGMAS, flat_floor,
                                                ray_gap_levels, resolved_width_px)
 from vfcli.flow.gap.subpixel.profile import EdgeModel
-from vfcli.flow.gap.subpixel.segment import (SubpixelGap, ray_fits, ray_fits_level_free, ray_fits_many,
-                                             ray_fits_twice)
+from vfcli.flow.gap.subpixel.segment import SubpixelGap, ray_fits, ray_fits_level_free, ray_fits_twice
 from vfcli.flow.gap.subpixel.taper import taper_limits
 
 log = logging.getLogger(__name__)
@@ -121,7 +120,7 @@ def level_reading(sample: np.ndarray, masks: np.ndarray, gap: SubpixelGap, noise
         return float("nan")
     widest = widest_sampled(masks, EDGE_READING_FRAMES)
     frames = [sample[i] for i in widest]
-    share = area_disagreement(ray_fits_many(frames, gap), ray_fits_level_free(frames, gap, noise))
+    share = area_disagreement(*ray_fits_level_free(frames, gap, noise))
     if not np.isfinite(share):
         return share
     if share > AMBIGUOUS_AREA:

@@ -168,27 +168,35 @@ def ray_fits_twice(frames: list, gap: SubpixelGap, search_px: float, held: bool 
     around it (:func:`vfcli.flow.gap.subpixel.ray_edges.fit_ray_edges_twice`); (started, searched), the same list when
     ``search_px`` is 0.  ``held``: the started reading's edges kept at or beyond the pixels surely in the gap
     (:func:`vfcli.flow.gap.subpixel.ray_edges.fit_ray_edges`), as :mod:`vfcli.flow.gap.subpixel.ambiguity` compares."""
-    found = [_detected(frame, gap) for frame in frames]
-    todo = [k for k, d in enumerate(found) if d[3] is not None]
-    started, searched = fit_ray_edges_twice(
-        [frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo], gap.model, search_px,
-        gap.lateral_axis, inners=[found[k][3] for k in todo],
-        gap_counts=[found[k][4] for k in todo], held=held) if todo else ([], [])
+    found, todo, starts = _detections(frames, gap)
+    started, searched = (fit_ray_edges_twice(*starts[:3], gap.model, search_px, gap.lateral_axis, inners=starts[3],
+                                             gap_counts=starts[4], held=held) if todo else ([], []))
     first = _ray_fits(found, todo, started, gap)
     return first, (first if search_px <= 0 else _ray_fits(found, todo, searched, gap))
 
 
-def ray_fits_level_free(frames: list, gap: SubpixelGap, noise: float) -> list[RayFit]:
-    """:func:`ray_fits_many` with each ray whose data reject its prior gap level fitted with the level free
-    (:func:`vfcli.flow.gap.subpixel.ray_edges.free_level_where_rejected`; ``noise``: one pixel's noise about the
-    model, counts): the reading :mod:`vfcli.flow.gap.subpixel.ambiguity` compares with the product's."""
+def ray_fits_level_free(frames: list, gap: SubpixelGap, noise: float) -> tuple[list[RayFit], list[RayFit]]:
+    """Two readings of the same detections: :func:`ray_fits_many`'s, and with each ray whose data reject its prior gap
+    level fitted with the level free (:func:`vfcli.flow.gap.subpixel.ray_edges.free_level_where_rejected`;
+    ``noise``: one pixel's noise about the model, counts); (product, level-free), as
+    :mod:`vfcli.flow.gap.subpixel.ambiguity` compares them."""
+    found, todo, starts = _detections(frames, gap)
+    readings = []
+    for level_noise in (0.0, noise):
+        fits = (fit_ray_edges_many(*starts[:3], gap.model, gap.lateral_axis, inners=starts[3], gap_counts=starts[4],
+                                   free_level_noise=level_noise) if todo else [])
+        readings.append(_ray_fits(found, todo, fits, gap))
+    return readings[0], readings[1]
+
+
+def _detections(frames: list, gap: SubpixelGap) -> tuple[list, list, tuple]:
+    """Step 1 of :func:`raw_edges` for each frame (:func:`_detected`): (found, todo, starts), todo the indices of the
+    frames with rays to fit, starts their (frames, e0s, e1s, inners, gap_counts) lists for the edge fit."""
     found = [_detected(frame, gap) for frame in frames]
     todo = [k for k, d in enumerate(found) if d[3] is not None]
-    fits = fit_ray_edges_many(
-        [frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo], gap.model,
-        gap.lateral_axis, inners=[found[k][3] for k in todo], gap_counts=[found[k][4] for k in todo],
-        free_level_noise=noise) if todo else []
-    return _ray_fits(found, todo, fits, gap)
+    starts = ([frames[k] for k in todo], [found[k][0] for k in todo], [found[k][1] for k in todo],
+              [found[k][3] for k in todo], [found[k][4] for k in todo])
+    return found, todo, starts
 
 
 def _ray_fits(found: list, todo: list, fits: list, gap: SubpixelGap) -> list[RayFit]:
