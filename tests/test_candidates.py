@@ -74,7 +74,7 @@ def test_inertia_column_is_the_density_derivative_of_its_extension_with_a_noisy_
 
 @pytest.mark.parametrize("d", [0.03, -0.02])
 def test_inertia_mesh_part_of_a_uniformly_softer_fine_model_is_that_softening(d):
-    """Inertia.mesh_sd against a "finer" model that is the fit mesh with E / (1 + d): every mode's omega^2
+    """Inertia.mesh_shift (the mesh part of the stated sd is |theta shift|) against a "finer" model that is the fit mesh with E / (1 + d): every mode's omega^2
     falls by the same factor, which a density (1 + d) times the fit's puts back exactly (the loads' scale
     takes 1 / (1 + d)), so the mesh part is |theta d| to round-off whatever the harmonics and the modes
     they excite.  None without a finer model or without f0."""
@@ -91,12 +91,13 @@ def test_inertia_mesh_part_of_a_uniformly_softer_fine_model_is_that_softening(d)
     term = Inertia(model)
     term.mesh_modes = (30, 30)                   # exact with any modes: the full 240 cost 8 s a call here
     for theta in (1.0, 0.5):
-        (part,) = term.mesh_sd(base, [theta])
+        (shift,) = term.mesh_shift(base, [theta])
+        part = abs(theta * shift)
         print(f"d {d}: theta {theta} mesh part {part:.6g}")
         assert part == pytest.approx(abs(theta * d), rel=1e-6)
-    assert Inertia(model).mesh_sd(replace(base, finer_model=None), [1.0]) is None
-    assert Inertia(model).mesh_sd(replace(base, f0_hz=float("nan")), [1.0]) is None
-    assert Inertia(model).mesh_sd(SimpleNamespace(model=model), [1.0]) is None
+    assert Inertia(model).mesh_shift(replace(base, finer_model=None), [1.0]) is None
+    assert Inertia(model).mesh_shift(replace(base, f0_hz=float("nan")), [1.0]) is None
+    assert Inertia(model).mesh_shift(SimpleNamespace(model=model), [1.0]) is None
 
 
 def test_inertia_says_how_far_its_linearisation_reaches_in_density():

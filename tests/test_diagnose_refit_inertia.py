@@ -99,7 +99,7 @@ def test_inertia_mesh_part_predicts_the_density_a_finer_meshs_data_move_the_refi
     """Data made on the folds' 1.2 times finer mesh (vfcli.model.refine.finer_model; the pressure case's 2.5 mm
     mesh, density 1, the steady state by direct solves per harmonic) and fitted on the 2.5 mm mesh: the
     refitted density comes out high by the stiffness the coarser mesh adds (measured 1.0742 +- 0.0032), and the
-    mesh part of its stated sd, Inertia.mesh_sd, says how much: 0.0733 (0.99 of the shift; the lowest six
+    mesh part of its stated sd, |theta| times Inertia.mesh_shift, says how much: 0.0733 (0.99 of the shift; the lowest six
     modes' mean, the mesh part until session 67, said 0.023).  The mesh part predicts, from the two meshes'
     spectra, a refit on the finer mesh it does not run; corrected by it (the diagnosis's estimate since session
     68) the density is 1.0056."""
@@ -127,7 +127,7 @@ def test_inertia_mesh_part_predicts_the_density_a_finer_meshs_data_move_the_refi
     r = refit(base, cand, max_iterations=10)
     shift = r.theta[0] - 1.0
     (delta,) = cand.mesh_shift(base, r.theta, r.x)
-    part = abs(r.theta[0] * delta)                                # Inertia.mesh_sd
+    part = abs(r.theta[0] * delta)                                # the mesh part of the stated sd
     corrected = r.theta[0] / (1.0 + delta)                        # as the diagnosis states it (mesh_corrected)
     print(f"density {r.theta[0]:.4f} +- {r.sd[0]:.4f}: shift {shift:.4f}, mesh part {part:.4f} ({part / shift:.2f}), "
           f"corrected {corrected:.4f}")

@@ -250,12 +250,6 @@ class Inertia(DisplacementTerm):
     #: modes per fold :meth:`mesh_shift` starts from, and the most it takes
     mesh_modes = (60, 240)
 
-    def mesh_sd(self, baseline, theta: np.ndarray, x: np.ndarray | None = None) -> np.ndarray | None:
-        """(1,) the mesh part of the density's stated sd, ``|theta| |delta|`` (delta: :meth:`mesh_shift`); None
-        without a finer model or an f0."""
-        delta = self.mesh_shift(baseline, theta, x)
-        return None if delta is None else np.abs(np.asarray(theta, dtype=float).reshape(-1)[:1] * delta)
-
     def mesh_shift(self, baseline, theta: np.ndarray, x: np.ndarray | None = None) -> np.ndarray | None:
         """(1,) delta, the relative shift of the density a fit on the run's mesh makes against one on the same
         folds ``baseline.finer_model()`` (edges 1.2 times shorter, :mod:`vfcli.model.refine`): the fit mesh's
