@@ -1,11 +1,11 @@
 """## The cost of the flow step's second reading of the gap's edges (issue 15; session 58).
 
-``vfcli flow`` reads the sampled gap's edges twice (:func:`vfcli.flow.pipeline.edge_readings`): as the edge fit
+``vfcli flow`` reads the sampled gap's edges twice (:func:`vfcli.flow.gap.subpixel.readings.edge_readings`): as the edge fit
 places them from the detected edges held beyond the pixels surely in the gap (the product until session 59), and
 with each edge also searched over 4 px around it (:func:`vfcli.flow.gap.subpixel.profile.searched_edges`), and warns
 when the two glottal areas differ by more than 5 %.  For each widened seed (rendered as ``bench/bench_gap_optics.py``
 renders it, cached in ``--cache``) this times the flow step's calibration of the same sampled frames with the second
-reading and without it (the baseline, :func:`vfcli.flow.pipeline.edge_readings` replaced by a no-op for that call),
+reading and without it (the baseline, :func:`vfcli.flow.gap.subpixel.readings.edge_readings` replaced by a no-op for that call),
 in one process, and prints their ratio and the disagreement.  The calibration runs once per recording; the rest of ``vfcli flow`` (every frame's
 edges and optical flow) does not change.
 

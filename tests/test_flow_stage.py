@@ -271,8 +271,16 @@ def test_a_warning_of_the_flow_step_is_stored_with_the_stage(tmp_path):
     run_flow(RunContext.open(path, overrides=["flow.subpixel_edges=false"]))
     with Store(path).read() as r:
         summary = r.summary("flow")
+        area = r.read("flow", "glottal_area")
     assert summary["figures"]["open_frames"] == 12
-    assert any("a glottal gap in all 12 frames" in w and "flow.threshold" in w for w in summary["warnings"])
+    (line,) = [w for w in summary["warnings"] if "a glottal gap in all 12 frames" in w]
+    assert "flow.threshold" in line and "optimize.gap_weight=0" in line
+    # the narrowest frame's area, its share of the widest and the seam's area in every frame are the stored areas'
+    least, share, most, seam = (float(x) for x in re.search(
+        r"all 12 frames, ([0-9.e+-]+) mm\^2 in the narrowest \((\d+) % of the widest, ([0-9.e+-]+) mm\^2\).*about "
+        r"([0-9.e+-]+) mm\^2 of seam", line).groups())
+    assert least == pytest.approx(area.min(), rel=5e-3) and most == pytest.approx(area.max(), rel=5e-3)
+    assert share == pytest.approx(100 * area.min() / area.max(), abs=0.5) and seam == least
     # the gap spans cols 4-60 of the 64 px in view: no doubt about its length, short or long
     assert not any("was found over" in w or "times the folds' length" in w for w in summary["warnings"])
 

@@ -100,7 +100,8 @@ def check_sampled_gap(masks: np.ndarray, threshold: float, auto: bool, lateral_a
     if len(masks) >= 8 and (open_share == 1 or area_share > MAX_GAP_FRACTION):
         log.warning("flow: the %s threshold %.1f counts finds a gap in %.0f%% of the %d sampled frames, covering "
                     "%.1f%% of the image on average; the folds close every cycle and the gap is a slit, so it "
-                    "probably segments a dark fixture, shadow or texture: set flow.threshold (counts) by hand",
+                    "probably segments a dark fixture, shadow or texture (set flow.threshold, counts, by hand) or a "
+                    "seam where the folds meet in shade (which no threshold separates where it is as dark as the gap)",
                     how, threshold, 100 * open_share, len(masks), 100 * area_share)
     counts = masks.sum(axis=0)
     if (counts > 0).sum() >= 3:
@@ -128,8 +129,11 @@ _LATERAL = {0: "rows", 1: "columns"}
 def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_counts: np.ndarray | None = None,
                        length_px: float | None = None) -> None:
     """Check the glottal area of every frame (n,) mm^2: fail on no gap at all and on a gap in every frame that is
-    longer than the folds, warn on a gap in every frame, and (given the gap counts (H, W) over the frames and the
-    folds' length in px) warn when the gap was found
+    longer than the folds, warn on a gap in every frame (with its narrowest frame's area: on widened seed 4297, sharp
+    optics, the seam where the folds meet lay in shade as dark as the open gap, 121-146 counts against the gap's
+    98-413, and was read as gap in all 63 closed frames; fitted without the gap its inferior surface came out 2 %
+    off against 4 % with it, docs/benchmarks.md "Session 69"), and (given the gap counts (H, W) over the frames
+    and the folds' length in px) warn when the gap was found
     over less than :data:`vfcli.flow.plausibility.GAP_LENGTH_WARN` of the glottis in view, or over more than the
     folds' length (:data:`vfcli.flow.plausibility.GAP_LONGER_WARN`: the scale or the length is wrong).
 
@@ -166,9 +170,15 @@ def check_flow_product(area_mm2: np.ndarray, calib: "FlowCalibration", gap_count
             "fixture, shadow or texture), camera.px_per_mm (measured in the folds' plane, at this zoom) and "
             "mesh.length_mm")
     if every_frame:
-        log.warning("flow: a glottal gap in all %d frames; the folds close every cycle, so either they never close "
-                    "in this recording or the %s threshold %.1f counts segments a dark fixture or shadow: check "
-                    "flow.threshold (counts)", n, how, calib.threshold)
+        area = np.asarray(area_mm2, dtype=float)
+        least, most = float(area.min()), float(area.max())
+        log.warning("flow: a glottal gap in all %d frames, %.3g mm^2 in the narrowest (%.0f %% of the widest, %.3g "
+                    "mm^2); the folds close every cycle, so either they never close in this recording, or the %s "
+                    "threshold %.1f counts segments a dark fixture or shadow (check flow.threshold, counts), or the "
+                    "seam where the folds meet lies in shade as dark as the gap, which no threshold separates: the "
+                    "glottal area and the gap term then hold about %.3g mm^2 of seam in every frame (for a new "
+                    "recording light the folds along the camera's axis; `--set optimize.gap_weight=0` fits this one "
+                    "without the gap)", n, least, 100 * least / most, most, how, calib.threshold, least)
     if longer:
         log.warning("flow: the glottal gap spans %.0f px along the glottis, %.1f times the folds' length "
                     "(mesh.length_mm times camera.px_per_mm: %.0f px), which folds clamped at both ends cannot "
