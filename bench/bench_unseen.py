@@ -30,7 +30,11 @@ need it. Afterwards, and only then, truth.h5 is read and the products are scored
   model-origin error (mm), against the true pose or its 180-degree turn about the glottis centre
   (the same reconstruction of symmetric folds), whichever is nearer; the relative error of the motion data as optimize uses them
   (``/fields`` (u, v) turned by ``model_axes_velocity`` from /flow's rotation to the one it used) against the true
-  (x, y) velocity; the final gap term (0: no gap rays).
+  (x, y) velocity; the final gap term (0: no gap rays);
+* issue 15's targets per seed (:func:`targets`): gap IoU >= 0.9 and area within 5 %, the inferior surface
+  within 10 % (oscillating), the 90 % intervals covering 85-95 %, no empty product; with flow's doubt on the gap
+  as the store records it (:func:`gap_doubt`: never resolved, or a reading of the edges or of the level more than
+  5 % from the product's), so a missed target reads as warned or not; and the counts over the seeds.
 
 Reproduce::
 
@@ -61,6 +65,7 @@ sys.path.insert(0, str(ROOT))
 
 from vfcli.camera.camera import Camera  # noqa: E402
 from vfcli.camera.pose import model_axes_velocity  # noqa: E402
+from vfcli.flow.gap.subpixel.ambiguity import AMBIGUOUS_AREA  # noqa: E402
 from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
@@ -232,6 +237,7 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             open_ = ta > 0.1 * ta.max()
             s["area_median_err"] = float(np.median(np.abs(area[open_] - ta[open_]) / ta[open_])) if open_.any() else float("nan")
             s["frames_with_gap"] = f"{int(gap.any(axis=(1, 2)).sum())}/{len(gap)} (true {int(tg.any(axis=(1, 2)).sum())})"
+            s["gap_doubt"] = gap_doubt(r.attrs("flow"))
             px = r.read("fields", "ldv_px")
             s["ldv_on_image"] = float(np.mean(_on_image(px, w, h)))
             # which axes the flow's (u, v) are in: the model's (x, y) or the image's (col, row); streamed in slices
@@ -289,6 +295,42 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
     if stages["optimize"][0] == 0:
         s.update(score_inferior(t, mesh, disp, std, std_static, sim_time, s["pose_flipped"]))
     return s
+
+
+def gap_doubt(flow_attrs: dict) -> str:
+    """flow's doubt on the gap as its stage stored it: "never resolved" (``gap_level_resolved`` false), else the
+    readings more than :data:`vfcli.flow.gap.subpixel.ambiguity.AMBIGUOUS_AREA` from the product's
+    (``edge_disagreement``, ``level_disagreement``), else "none" with both readings' figures."""
+    edge = 100 * float(flow_attrs.get("edge_disagreement", np.nan))
+    level = 100 * float(flow_attrs.get("level_disagreement", np.nan))
+    if not bool(flow_attrs.get("gap_level_resolved", True)):
+        return "never resolved"
+    over = [f"{name} reading {v:.0f} % off" for name, v in (("edge", edge), ("level", level))
+            if v > 100 * AMBIGUOUS_AREA]
+    if over:
+        return "; ".join(over)
+    read = [f"{name} {v:.1f} %" for name, v in (("edges", edge), ("level", level)) if np.isfinite(v)]
+    return f"none ({', '.join(read)})" if read else "none"
+
+
+#: issue 15's proof targets: gap IoU at least, |area error| at most, inferior oscillating error at most, coverage range
+GAP_IOU, AREA_ERR, INFERIOR_ERR, COVERAGE = 0.9, 0.05, 0.10, (0.85, 0.95)
+
+
+def targets(s: dict, empty: list) -> dict:
+    """Which of issue 15's targets the seed's figures ``s`` (:func:`score`) meet: ``gap``, ``inferior``, ``coverage``
+    (True/False; None where not scored), ``no_empty`` (True when no stage exited 0 with an empty product); ``warned``:
+    flow stored a doubt on the gap (:func:`gap_doubt`)."""
+    def met(key, ok):
+        v = s.get(key)
+        return None if v is None or not np.isfinite(v) else bool(ok(v))
+    gap = met("gap_iou", lambda v: v >= GAP_IOU)
+    area = met("area_total_err", lambda v: abs(v) <= AREA_ERR)
+    return {"gap": None if gap is None or area is None else gap and area,
+            "inferior": met("inf_osc_err", lambda v: v <= INFERIOR_ERR),
+            "coverage": met("coverage90", lambda v: COVERAGE[0] <= v <= COVERAGE[1]),
+            "no_empty": not empty,
+            "warned": not str(s.get("gap_doubt", "none")).startswith("none")}
 
 
 def _on_image(px: np.ndarray, w: int, h: int) -> np.ndarray:
@@ -382,6 +424,24 @@ def main() -> None:
         print(f"| {seed} | {s.get('pose', '-')}{flip} | {_fmt(s.get('pose_rot_err_deg'), digits=1)} | "
               f"{_fmt(s.get('pose_origin_err_mm'))} | {_fmt(s.get('motion_data_err'), True, 2)} | "
               f"{_fmt(s.get('gap_term_final'), digits=3)} | {s.get('inf_nodes_scored', '-')} |")
+    print("\n| seed | gap IoU / area error | flow's doubt on the gap | gap target | inferior within 10 % | "
+          "coverage 85-95 % | no empty product |")
+    print("| ---: | --- | --- | --- | --- | --- | --- |")
+    yes = {True: "yes", False: "no", None: "-"}
+    met = []
+    for seed, _, empty, s in results:
+        t = targets(s, empty)
+        met.append(t)
+        gap = yes[t["gap"]] + (" (warned)" if t["gap"] is False and t["warned"] else
+                               " (unwarned)" if t["gap"] is False else "")
+        cov = yes[t["coverage"]] + ((" (too wide)" if s["coverage90"] > COVERAGE[1] else " (too narrow)")
+                                    if t["coverage"] is False else "")
+        print(f"| {seed} | {_fmt(s.get('gap_iou'), digits=3)} / {_fmt(s.get('area_total_err'), True, 3)} | "
+              f"{s.get('gap_doubt', '-')} | {gap} | {yes[t['inferior']]} | {cov} | {yes[t['no_empty']]} |")
+    count = lambda key: sum(t[key] is True for t in met)  # noqa: E731
+    unwarned = sum(t["gap"] is False and not t["warned"] for t in met)
+    print(f"\nTargets over {len(met)} seeds: gap {count('gap')} ({unwarned} of the misses unwarned), inferior "
+          f"{count('inferior')}, coverage {count('coverage')}, no empty product {count('no_empty')}.")
     print("\nWarnings and failures:")
     for seed, stages, _, _ in results:
         for k in [k for k in stages if k.split(" ")[0] in STAGES]:
