@@ -450,6 +450,42 @@ def test_uff_without_units_record_via_the_cli(tmp_path):
     assert "read as m" in r.stderr and "ingest_ldv.length_unit" in r.stderr
 
 
+def _points(scan: LdvScan, keep: np.ndarray) -> LdvScan:
+    return LdvScan(scan.node_ids[keep], scan.coords_mm[keep], scan.velocity_mm_s[keep], scan.fs,
+                   scan.reference[keep], scan.reference_unit, scan.t0[keep])
+
+
+def test_a_scan_with_points_left_out_is_read_on_its_grid_and_says_how_many(tmp_path):
+    """Points deselected in the vibrometer's software (off the sample, or failed) are not in its export. Before
+    session 69 such a scan was refused ("found 10 scan points (3x4), expected a 3 x 4 scan of 12; set
+    ingest_ldv.grid_rows/grid_cols for another rig", advice no setting could follow). Now the points there are keep the
+    cells they have in the whole scan, and the step says how many are missing."""
+    from vfcli.store.transaction import Store
+
+    scan = _scan()
+    full, part = tmp_path / "full.h5", tmp_path / "part.h5"
+    assert run_vfcli("ingest-ldv", full, _pyuff(tmp_path / "all.uff", scan), *_GRID).returncode == 0
+    keep = np.ones(scan.n_points, bool)
+    keep[[0, 6]] = False                                  # a corner and an inner point
+    r = run_vfcli("ingest-ldv", part, _pyuff(tmp_path / "part.uff", _points(scan, keep)), *_GRID)
+    assert r.returncode == 0, r.stderr
+    assert "part.uff: 2 of the 3 x 4 scan grid's points are not in the file" in r.stderr and "other 10" in r.stderr
+    with Store(full).read() as a, Store(part).read() as b:
+        np.testing.assert_array_equal(b.read("ldv", "node_id"), a.read("ldv", "node_id")[keep])
+        np.testing.assert_array_equal(b.read("ldv", "grid_index"), a.read("ldv", "grid_index")[keep])
+        np.testing.assert_array_equal(b.read("ldv", "velocity"), a.read("ldv", "velocity")[keep])
+        assert b.summary("ldv")["figures"]["points"] == 10 and b.summary("ldv")["figures"]["grid"] == "3x4"
+
+
+def test_a_scan_whose_points_share_grid_cells_is_refused_with_the_store_unchanged(tmp_path, hsc_store):
+    store, _, before = hsc_store
+    scan = _scan()
+    scan.coords_mm[5] = scan.coords_mm[4] + 0.05           # two points in one cell, a cell of the 3 x 4 grid empty
+    r = run_vfcli("ingest-ldv", "-q", store, _pyuff(tmp_path / "shared.uff", scan), *_GRID)
+    _assert_refused(r, 3, "shared.uff", "the 12 scan points fill only 11 cells of their 3 x 4 grid")
+    assert store.read_bytes() == before
+
+
 @pytest.mark.parametrize("name, scale, fs, says", [
     ("big.uff", 1e6, FS_P, "the scan points span 3"),
     ("slow.uff", 1.0, 1000.0, "vibrometer sampling rate 1000 Hz is impossible"),

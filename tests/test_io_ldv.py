@@ -288,6 +288,22 @@ def test_infer_grid_on_a_rotated_jittered_grid_with_the_expected_shape():
     assert np.array_equal(fit.index, np.column_stack([rr.ravel(), cc.ravel()])[perm])
 
 
+def test_a_grid_with_points_left_out_keeps_its_shape_and_cells_and_shared_cells_are_named():
+    rng = np.random.default_rng(2)
+    rr, cc = np.meshgrid(np.arange(17), np.arange(22), indexing="ij")
+    pts = np.column_stack([cc.ravel() * 0.3, rr.ravel() * 0.3]) + rng.normal(0, 0.02, (374, 2))
+    keep = np.ones(374, bool)
+    keep[[0, 21, 200, 373]] = False                        # three corners and an inner point
+    fit = infer_grid(pts[keep])
+    assert fit.shape == (17, 22) and not fit.complete and fit.message == ""
+    assert np.array_equal(fit.index, np.column_stack([rr.ravel(), cc.ravel()])[keep])
+    shared = pts.copy()
+    shared[201] = shared[200] + 0.03
+    fit = infer_grid(shared)
+    assert fit.shape == (17, 22) and not fit.complete
+    assert fit.message == "scan grid 17 x 22 has shared cells (374 points, 373 distinct cells)"
+
+
 @pytest.mark.parametrize("angle", [90.0, -90.0, 60.0, -120.0, 150.0, 170.0])
 def test_a_grid_turned_by_more_than_45_deg_reads_in_the_expected_shape_as_a_rotation(angle):
     # a 17 x 22 scan registered to a camera turned about its axis: modulo 90 deg its rows are the columns

@@ -215,11 +215,24 @@ def run_ingest_ldv(ctx: RunContext, scan_path: str | Path) -> StageResult:
         if scan.reference is None:
             raise InputDataError("the scan has no reference (pressure) channel; sync needs it", scan_path)
         expected = cfg.grid_rows * cfg.grid_cols
-        if scan.n_points != expected or scan.grid_shape != (cfg.grid_rows, cfg.grid_cols):
+        cells = (np.unique(scan.grid_index[:, 0] * cfg.grid_cols + scan.grid_index[:, 1]).size
+                 if scan.grid_index is not None else 0)
+        if scan.grid_shape != (cfg.grid_rows, cfg.grid_cols):
             found = "x".join(map(str, scan.grid_shape)) if scan.grid_shape else "no regular grid"
             raise InputDataError(
                 f"found {scan.n_points} scan points ({found}), expected a {cfg.grid_rows} x {cfg.grid_cols} scan "
                 f"of {expected}; set ingest_ldv.grid_rows/grid_cols for another rig", scan_path)
+        if cells != scan.n_points:             # (so at most one point per cell: no more than the grid holds)
+            raise InputDataError(
+                f"the {scan.n_points} scan points fill only {cells} cells of their {cfg.grid_rows} x {cfg.grid_cols} "
+                "grid: some lie closer together than half the grid's spacing, which a regular scan grid does not; "
+                "check the file's coordinates", scan_path)
+        if scan.n_points < expected:
+            # points deselected in the vibrometer's software (off the sample, or failed) are left out of its export:
+            # sync, fields and optimize use the points there are (refused until session 69)
+            log.warning("%s: %d of the %d x %d scan grid's points are not in the file (deselected or not exported); "
+                        "the other %d are used", scan_path, expected - scan.n_points, cfg.grid_rows, cfg.grid_cols,
+                        scan.n_points)
         for note in scan.notes:
             log.warning("%s: %s", scan_path, note)
         ref_unit = scan.reference_unit or "V"

@@ -39,7 +39,8 @@ class GridFit:
     complete : bool
         Every (row, col) cell holds exactly one point.
     message : str
-        Empty when the grid has the expected shape and is complete, else what was found.
+        Empty when the grid has the expected shape and no two points share a cell (points may be missing:
+        ``complete`` says whether any is), else what was found.
     turned : bool
         The rows and columns first found were the expected shape's columns and rows, and the grid
         was read 90 degrees on (module docstring).
@@ -118,8 +119,8 @@ def infer_grid(coords: np.ndarray, expected: tuple[int, int] | None = (17, 22)) 
     if expected is not None and tuple(expected) != shape:
         msg = (f"scan grid is {shape[0]} rows x {shape[1]} cols ({p} points), expected "
                f"{expected[0]} x {expected[1]} = {expected[0] * expected[1]}")
-    elif not complete:
-        msg = (f"scan grid {shape[0]} x {shape[1]} is incomplete or has shared cells "
+    elif np.unique(cells).size < p:
+        msg = (f"scan grid {shape[0]} x {shape[1]} has shared cells "
                f"({p} points, {np.unique(cells).size} distinct cells)")
     return GridFit(np.column_stack([row, col]), shape, spacing, float(np.degrees(theta)),
                    bool(complete), msg, bool(turned))
