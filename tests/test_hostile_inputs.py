@@ -296,6 +296,34 @@ def test_a_pressure_without_a_unit_is_a_stored_warning_and_pressure_unit_reads_i
     assert not (tmp_path / "c.h5").exists()
 
 
+def test_a_pressure_recorded_as_the_transducers_voltage_is_read_through_its_calibration(tmp_path, hsc_store):
+    """A DAQ's raw channel in V (npTDMS, unit_string "V"): refused in one line that names the two settings, the store
+    unchanged; with them, /hsc/pressure holds the pressure in Pa as the store of the same pressure in Pa does, and
+    the calibration beside it. Before session 69: "'V' is not a pressure unit vfcli knows", no setting to read it."""
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    from vfcli.store.transaction import Store
+
+    store, video, before = hsc_store
+    path = tmp_path / "volts.tdms"
+    with TdmsWriter(path) as w:
+        w.write_segment([RootObject(), GroupObject("daq"), ChannelObject(
+            "daq", "ai0", 0.25 + _pressure_samples() / 4000.0, properties={"wf_increment": 1 / FS_P,
+                                                                           "unit_string": "V"})])
+    r = run_vfcli("ingest-hsc", "-q", "--force", store, video, "--pressure", path)
+    _assert_refused(r, 3, "volts.tdms", "recorded in V", "ingest_hsc.pressure_pa_per_volt",
+                    "ingest_hsc.pressure_zero_volts")
+    assert store.read_bytes() == before
+    volt_store = tmp_path / "v.h5"
+    r = run_vfcli("ingest-hsc", "-q", volt_store, video, "--pressure", path, "--set",
+                  "ingest_hsc.pressure_pa_per_volt=4000", "--set", "ingest_hsc.pressure_zero_volts=0.25")
+    assert r.returncode == 0, r.stderr
+    with Store(store).read() as a, Store(volt_store).read() as b:
+        np.testing.assert_allclose(b.read("hsc", "pressure"), a.read("hsc", "pressure"), rtol=0, atol=1e-9)
+        attrs = dict(b.group("hsc")["pressure"].attrs)
+    assert attrs["unit_in_file"] == "V" and attrs["pa_per_volt"] == 4000.0 and attrs["zero_volts"] == 0.25
+
+
 def test_a_pressure_sampled_too_slowly_for_the_f0_range_is_refused_at_ingest_hsc(tmp_path, hsc_store):
     """A pressure sampled at 100 Hz (a CSV whose ms column was read as s, or a slow DAQ) was stored, and
     ingest-ldv then crashed with a traceback in the f0 search (argmax of an empty sequence)."""

@@ -73,11 +73,39 @@ def test_tdms_unit_mismatch_with_the_config(tmp_path):
         read_pressure(path, unit="Pa")
 
 
-def test_tdms_with_a_non_pressure_unit(tmp_path):
+def test_tdms_with_a_unit_that_is_neither_a_pressure_nor_a_voltage(tmp_path):
     path = _tdms_with(tmp_path, [("p_sub", _signal(10), {"wf_increment": 1 / FS,
-                                                         "unit_string": "V"})])
-    with pytest.raises(InputDataError, match="'V' is not a pressure unit"):
+                                                         "unit_string": "A"})])
+    with pytest.raises(InputDataError, match="'A' is not a unit vfcli knows \\(pa, .*mmhg; a transducer's output in v, mv"):
         read_pressure(path)
+
+
+@pytest.mark.parametrize("unit, volts_per_unit", [("V", 1.0), ("mV", 1e-3)])
+def test_a_transducers_voltage_reads_in_pa_through_its_calibration_and_is_refused_without(tmp_path, unit,
+                                                                                           volts_per_unit):
+    """A DAQ's raw channel: the transducer's output, 0.5 V at zero pressure and 1 V per 2 kPa. Before session 69 such
+    a TDMS or CSV was refused ("'V' is not a pressure unit") and no setting could read it."""
+    x = _signal()
+    volts = (0.5 + x / 2000.0) / volts_per_unit
+    from vfcli.io.pressure import Transducer
+
+    tdms = _tdms_with(tmp_path, [("ai0", volts, {"wf_increment": 1 / FS, "unit_string": unit})])
+    csv = tmp_path / "daq.csv"
+    csv.write_text(f"# fs = {FS:g}\np_sub [{unit}]\n" + "\n".join(f"{v:.17g}" for v in volts) + "\n")
+    for path in (tdms, csv):
+        with pytest.raises(InputDataError, match=f"recorded in {unit} .*ingest_hsc.pressure_pa_per_volt.*"
+                                                 "ingest_hsc.pressure_zero_volts"):
+            read_pressure(path)
+        rec = read_pressure(path, transducer=Transducer(2000.0, 0.5))
+        np.testing.assert_allclose(rec.samples, x, rtol=0, atol=1e-9)
+        assert rec.unit == unit and rec.unit_source == "file"
+    # a file without a unit, stated in the config
+    bare = _tdms_with(tmp_path, [("p_sub", volts, {"wf_increment": 1 / FS})], name="bare.tdms")
+    rec = read_pressure(bare, unit=unit, transducer=Transducer(2000.0, 0.5))
+    np.testing.assert_allclose(rec.samples, x, rtol=0, atol=1e-9)
+    assert rec.unit_source == "config"
+    with pytest.raises(InputDataError, match=f"unit mismatch: the file says '{unit}'.*'kPa'"):
+        read_pressure(tdms, unit="kPa", transducer=Transducer(2000.0, 0.5))
 
 
 def test_tdms_nan_samples(tmp_path):

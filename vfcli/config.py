@@ -108,7 +108,14 @@ class IngestHscConfig(_Section):
     pressure_unit: str | None = Field(
         None, description="Unit of the pressure values where the file states none (a TDMS channel without unit_string "
         "or NI_UnitDescription, a CSV without a unit in its header or '# unit'): Pa, hPa, kPa, mbar, bar, psi, cmH2O, "
-        "mmH2O, inH2O, mmHg; where the file states one, it must agree; null: Pa, with a stored warning")
+        "mmH2O, inH2O, mmHg, or V, mV (a transducer's output: set pressure_pa_per_volt); where the file states one, "
+        "it must agree; null: Pa, with a stored warning")
+    pressure_pa_per_volt: float | None = Field(
+        None, gt=0, le=1e9, description="Sensitivity of the pressure transducer, Pa per V, for a pressure recorded as "
+        "its output voltage (a file or pressure_unit in V or mV): Pa = (V - pressure_zero_volts) * this; null: such "
+        "a record is refused")
+    pressure_zero_volts: float = Field(
+        0.0, ge=-1000, le=1000, description="The transducer's output at zero pressure, V (with pressure_pa_per_volt)")
     compression: Literal["auto", "nbit", "gzip", "gzip4", "none"] = Field(
         "auto",
         description="Filter of the stored frames, all standard HDF5: auto (nbit for a 12-bit packed MRAW, else "
@@ -121,10 +128,12 @@ class IngestHscConfig(_Section):
     @field_validator("pressure_unit")
     @classmethod
     def _known_pressure_unit(cls, v: str | None) -> str | None:
-        from vfcli.io.pressure.record import PA_PER_UNIT, is_pressure_unit   # numpy: only when a unit is set
+        from vfcli.io.pressure.record import (PA_PER_UNIT, VOLTS_PER_UNIT,   # numpy: only when a unit is set
+                                             is_pressure_unit, is_voltage_unit)
 
-        if v is not None and not is_pressure_unit(v):
-            raise ValueError(f"{v!r} is not a pressure unit vfcli knows ({', '.join(PA_PER_UNIT)})")
+        if v is not None and not (is_pressure_unit(v) or is_voltage_unit(v)):
+            raise ValueError(f"{v!r} is not a pressure unit vfcli knows ({', '.join(PA_PER_UNIT)}; a transducer's "
+                             f"output in {', '.join(VOLTS_PER_UNIT)})")
         return v
 
     @field_validator("pressure_channel", mode="before")

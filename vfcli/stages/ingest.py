@@ -14,7 +14,8 @@ from vfcli.errors import ConfigError, InputDataError
 from vfcli.flow.plausibility import SCAN_FRAME_ADVICE, points_on_image, scan_beyond_frames
 from vfcli.store.chunks import NBIT_BITS, ValueRangeError
 from vfcli.io.ldv.read import LdvChannels, LdvScan, read_ldv
-from vfcli.io.pressure import PA_PER_UNIT, read_pressure
+from vfcli.io.pressure import PA_PER_UNIT, Transducer, read_pressure
+from vfcli.io.pressure.record import is_voltage_unit
 from vfcli.io.pressure.plausibility import check_pressure_rate, pressure_unit_warnings
 from vfcli.io.video.base import VideoMeta, open_video
 from vfcli.store import StageWriter, StoreReader
@@ -122,8 +123,10 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
         summary: dict[str, Any] = {"frames": n, "height": h, "width": w, "fps_hz": fps, "bit_depth": meta.bit_depth,
                                    "compression": compression}
         if pressure is not None:
+            transducer = (Transducer(cfg.pressure_pa_per_volt, cfg.pressure_zero_volts)
+                          if cfg.pressure_pa_per_volt is not None else None)
             rec = read_pressure(pressure, cfg.pressure_group, cfg.pressure_channel, unit=cfg.pressure_unit,
-                                wav_pa_per_full_scale=cfg.wav_full_scale_pa)
+                                wav_pa_per_full_scale=cfg.wav_full_scale_pa, transducer=transducer)
             check_pressure_rate(rec.fs, ctx.config.sync.f0_max_hz, pressure)
             for line in pressure_unit_warnings(rec):
                 log.warning("%s: %s", pressure, line)
@@ -137,8 +140,11 @@ def run_ingest_hsc(ctx: RunContext, video: str | Path, pressure: str | Path | No
             duration = n / fps
             if t[0] > 0 or t[-1] < duration - 1 / fps:
                 log.warning("%s: pressure covers %.4f..%.4f s, the video 0..%.4f s", pressure, t[0], t[-1], duration)
+            volts = is_voltage_unit(rec.unit)
             s.put("pressure", rec.samples, attrs={"fs_hz": rec.fs, "unit_in_file": rec.unit, "unit_source": rec.unit_source,
-                                                  "source": rec.source})
+                                                  "source": rec.source,
+                                                  **({"pa_per_volt": transducer.pa_per_volt,
+                                                      "zero_volts": transducer.zero_volts} if volts else {})})
             s.put("pressure_time", t)
             s.set_attrs(pressure_fs_hz=rec.fs)
             summary["pressure_samples"] = int(rec.samples.size)

@@ -12,7 +12,8 @@ samples in Pa (float64), sampling rate in Hz, time of the first sample in s
 the unit the file stated, and a one-line description of the source. Each format module's
 docstring says which layouts it accepts.
 
-Units understood: Pa, hPa, kPa, mbar, bar, psi, cmH2O, mmH2O, inH2O, mmHg.
+Units understood: Pa, hPa, kPa, mbar, bar, psi, cmH2O, mmH2O, inH2O, mmHg; and V, mV, a transducer's output, with
+its calibration (:class:`~vfcli.io.pressure.record.Transducer`).
 """
 from __future__ import annotations
 
@@ -21,11 +22,11 @@ from pathlib import Path
 from vfcli.errors import InputDataError
 from vfcli.io._common import require_file
 from vfcli.io.pressure.csvfile import read_csv, write_pressure_csv
-from vfcli.io.pressure.record import PA_PER_UNIT, PressureRecord, pa_per_unit
+from vfcli.io.pressure.record import PA_PER_UNIT, PressureRecord, Transducer, pa_per_unit
 from vfcli.io.pressure.tdms import read_tdms, write_pressure_tdms
 from vfcli.io.pressure.wav import WAV_PA_PER_FULL_SCALE, read_wav
 
-__all__ = ["PA_PER_UNIT", "PressureRecord", "WAV_PA_PER_FULL_SCALE", "pa_per_unit", "read_pressure",
+__all__ = ["PA_PER_UNIT", "PressureRecord", "Transducer", "WAV_PA_PER_FULL_SCALE", "pa_per_unit", "read_pressure",
            "write_pressure_csv", "write_pressure_tdms"]
 
 
@@ -36,6 +37,7 @@ def read_pressure(
     unit: str | None = None,
     wav_pa_per_full_scale: float = WAV_PA_PER_FULL_SCALE,
     kind: str | None = None,
+    transducer: Transducer | None = None,
 ) -> PressureRecord:
     """Read a subglottal pressure recording (TDMS, CSV or WAV, by extension).
 
@@ -52,6 +54,8 @@ def read_pressure(
         WAV calibration, Pa at digital full scale.
     kind : {'tdms', 'csv', 'wav'} or None
         Force the format; default from the extension.
+    transducer : Transducer or None
+        The calibration of a record in V or mV (a transducer's output); None: such a record is refused.
 
     Returns
     -------
@@ -68,9 +72,9 @@ def read_pressure(
     p = require_file(path, "pressure file")
     kind = kind or p.suffix.lower().lstrip(".")
     if kind == "tdms":
-        return read_tdms(p, group, channel, unit)
+        return read_tdms(p, group, channel, unit, transducer)
     if kind in ("csv", "txt"):
-        return read_csv(p, channel, unit)
+        return read_csv(p, channel, unit, transducer)
     if kind == "wav":
         return read_wav(p, channel, wav_pa_per_full_scale)
     raise InputDataError(f"unsupported pressure file type {p.suffix!r} (tdms, csv, wav)", p)

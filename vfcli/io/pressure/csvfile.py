@@ -27,7 +27,8 @@ import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import check_finite, check_last_row_complete, numeric_rows
-from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, is_pressure_unit, resolve_unit, uniform_rate
+from vfcli.io.pressure.record import (PRESSURE_NAME, PressureRecord, Transducer, finish, is_pressure_unit,
+                                     is_voltage_unit, resolve_unit, uniform_rate)
 from vfcli.io.units import hz_per, seconds_per, time_units_text
 
 _TIME_NAME = re.compile(r"^\s*(t|time)(?=$|[\s_\[(])", re.IGNORECASE)
@@ -35,7 +36,7 @@ _UNIT_IN_NAME = re.compile(r"[\[(]\s*([^\])]+?)\s*[\])]")
 _COMMENT_KEY = re.compile(r"^#\s*([A-Za-z_ 0-9]+?)\s*[=:]\s*(.+?)\s*$")
 
 
-def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRecord:
+def read_csv(p: Path, column: str | int | None, unit: str | None, transducer: Transducer | None = None) -> PressureRecord:
     try:
         text = p.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
@@ -109,7 +110,7 @@ def read_csv(p: Path, column: str | int | None, unit: str | None) -> PressureRec
     else:
         raise InputDataError("CSV has neither a time column nor a '# fs = <Hz>' comment", p)
     unit_used, source = resolve_unit(file_unit, unit, p)
-    return finish(samples, fs, t0, unit_used, f"CSV {p.name} column {names[p_col]!r}", p, source)
+    return finish(samples, fs, t0, unit_used, f"CSV {p.name} column {names[p_col]!r}", p, source, transducer)
 
 
 def _is_number(s: str) -> bool:
@@ -142,7 +143,7 @@ def _pressure_unit_in_name(name: str) -> str | None:
     if m:
         return m.group(1)
     last = name.strip().rsplit("_", 1)[-1] if "_" in name else ""
-    return last if last and is_pressure_unit(last) else None
+    return last if last and (is_pressure_unit(last) or is_voltage_unit(last)) else None
 
 
 def _comment_value(text: str, key: str, per_unit, what: str, p: Path) -> float:

@@ -49,5 +49,6 @@ def pressure_unit_warnings(rec: PressureRecord) -> list[str]:
     if abs(mean) < MIN_PHONATION_PA and hi - lo < MIN_PHONATION_PA:
         out.append(f"the pressure's mean ({mean:.3g} Pa) and swing ({hi - lo:.3g} Pa, 5th to 95th percentile) are both "
                    f"below {MIN_PHONATION_PA:g} Pa, read in {rec.unit}: no phonation pressure is that small; is the "
-                   "file in kPa or bar (ingest_hsc.pressure_unit)?")
+                   "file in kPa or bar (ingest_hsc.pressure_unit), or a transducer's output in V (pressure_unit = "
+                   "'V' with ingest_hsc.pressure_pa_per_volt and pressure_zero_volts)?")
     return out

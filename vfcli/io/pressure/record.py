@@ -22,6 +22,9 @@ PA_PER_UNIT = {
     "cmh2o": 98.0665, "mmh2o": 9.80665, "inh2o": 249.08891, "mmhg": 133.322387415,
 }
 
+#: Volts per unit of the voltage units a transducer's output may be recorded in (a DAQ's raw channel).
+VOLTS_PER_UNIT = {"v": 1.0, "mv": 1e-3}
+
 #: Channel or column names that look like the subglottal pressure.
 PRESSURE_NAME = re.compile(r"p_?sub|subglottal|pressure|^p$", re.IGNORECASE)
 
@@ -39,8 +42,35 @@ class PressureRecord(NamedTuple):
     unit_source: str = "file"
 
 
+class Transducer(NamedTuple):
+    """A pressure transducer's calibration, for a record of its output voltage: ``Pa = (V - zero_volts) *
+    pa_per_volt`` (``ingest_hsc.pressure_pa_per_volt``, ``ingest_hsc.pressure_zero_volts``)."""
+
+    pa_per_volt: float
+    zero_volts: float = 0.0
+
+
 def _unit_key(unit: str) -> str:
     return re.sub(r"[\s_]", "", unit).lower()
+
+
+def is_voltage_unit(unit: str) -> bool:
+    """True for a unit string of :data:`VOLTS_PER_UNIT` (``'V'``, ``'mV'``)."""
+    return _unit_key(unit) in VOLTS_PER_UNIT
+
+
+def _known_units() -> str:
+    return ", ".join(PA_PER_UNIT) + "; a transducer's output in " + ", ".join(VOLTS_PER_UNIT)
+
+
+def _per_unit(unit: str, path: Path | None) -> tuple[str, float]:
+    """("pa", Pa per unit) for a pressure unit, ("v", V per unit) for a voltage unit; InputDataError otherwise."""
+    key = _unit_key(unit)
+    if key in PA_PER_UNIT:
+        return "pa", PA_PER_UNIT[key]
+    if key in VOLTS_PER_UNIT:
+        return "v", VOLTS_PER_UNIT[key]
+    raise InputDataError(f"pressure unit {unit!r} is not a unit vfcli knows ({_known_units()})", path)
 
 
 def is_pressure_unit(unit: str) -> bool:
@@ -52,16 +82,14 @@ def pa_per_unit(unit: str, path: str | Path | None = None) -> float:
     """Conversion factor to Pa for a unit string such as ``'kPa'`` or ``'cm H2O'``."""
     key = _unit_key(unit)
     if key not in PA_PER_UNIT:
-        raise InputDataError(
-            f"pressure unit {unit!r} is not a pressure unit vfcli knows "
-            f"({', '.join(PA_PER_UNIT)})", path)
+        raise InputDataError(f"pressure unit {unit!r} is not a pressure unit vfcli knows ({_known_units()})", path)
     return PA_PER_UNIT[key]
 
 
 def resolve_unit(file_unit: str | None, unit: str | None, path: Path) -> tuple[str, str]:
     """(unit, where it came from) to apply: the file's, checked against the configured one (``"file"``); the
     configured one where the file states none (``"config"``); Pa where neither does (``"assumed"``)."""
-    if file_unit and unit and pa_per_unit(file_unit, path) != pa_per_unit(unit, path):
+    if file_unit and unit and _per_unit(file_unit, path) != _per_unit(unit, path):
         raise InputDataError(f"unit mismatch: the file says {file_unit!r}, the config (ingest_hsc.pressure_unit) "
                              f"says {unit!r}", path)
     if file_unit:
@@ -86,7 +114,7 @@ def uniform_rate(t: np.ndarray, p: Path) -> tuple[float, float]:
 
 
 def finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
-           path: Path, unit_source: str = "file") -> PressureRecord:
+           path: Path, unit_source: str = "file", transducer: Transducer | None = None) -> PressureRecord:
     """Check a reader's samples and make the record.
 
     Parameters
@@ -95,14 +123,15 @@ def finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
     fs : float, Hz
     t0 : float, s
     unit : str
-        A unit of :data:`PA_PER_UNIT`.
+        A unit of :data:`PA_PER_UNIT`, or of :data:`VOLTS_PER_UNIT` with ``transducer``.
     unit_source : ``"file"``, ``"config"`` or ``"assumed"`` (:func:`resolve_unit`).
+    transducer : the calibration that turns a voltage record into Pa (None: a voltage record is refused).
 
     Raises
     ------
     InputDataError
         No samples, NaN/Inf (before or after the unit), a sampling rate outside
-        ``PRESSURE_FS_RANGE`` or a pressure beyond ``MAX_ABS_PRESSURE_PA``.
+        ``PRESSURE_FS_RANGE``, a pressure beyond ``MAX_ABS_PRESSURE_PA``, or a voltage without ``transducer``.
     """
     samples = np.asarray(samples, dtype=np.float64).reshape(-1)
     if samples.size == 0:
@@ -112,11 +141,16 @@ def finish(samples: np.ndarray, fs: float, t0: float, unit: str, source: str,
         raise InputDataError(f"sampling rate {fs} Hz is not positive", path)
     if not np.isfinite(t0):
         raise InputDataError(f"start time {t0} s is not finite", path)
-    scale = pa_per_unit(unit, path)
+    kind, scale = _per_unit(unit, path)
+    if kind == "v" and transducer is None:
+        raise InputDataError(
+            f"the pressure is recorded in {unit} (a transducer's output, not a pressure): set its calibration, "
+            "ingest_hsc.pressure_pa_per_volt (Pa per V, from the transducer's calibration sheet or a manometer) and "
+            "ingest_hsc.pressure_zero_volts (its output at zero pressure, e.g. before the flow starts)", path)
     fs = float(f"{fs:.12g}")  # 1 / wf_increment: drop the last-digit noise of the inverse
     check_range(fs, *PRESSURE_FS_RANGE, "pressure sampling rate", "Hz", path)
     with np.errstate(over="ignore"):
-        pa = samples * scale
+        pa = samples * scale if kind == "pa" else (samples * scale - transducer.zero_volts) * transducer.pa_per_volt
     check_finite(pa, path, "pressure signal (in Pa)")
     check_abs_max(pa, MAX_ABS_PRESSURE_PA, "pressure", "Pa", path)
     return PressureRecord(pa, fs, float(t0), unit, source, unit_source)

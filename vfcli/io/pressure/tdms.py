@@ -15,7 +15,7 @@ import numpy as np
 
 from vfcli.errors import ConfigError, InputDataError
 from vfcli.io._common import LibraryOutput, library_output
-from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, finish, resolve_unit, uniform_rate
+from vfcli.io.pressure.record import PRESSURE_NAME, PressureRecord, Transducer, finish, resolve_unit, uniform_rate
 from vfcli.io.units import seconds_per, time_units_text
 
 #: Names of a time channel beside a pressure channel without waveform properties.
@@ -32,7 +32,7 @@ def _unit_of(props) -> str | None:
 
 
 def read_tdms(p: Path, group: str | None, channel: str | int | None,
-               unit: str | None) -> PressureRecord:
+              unit: str | None, transducer: Transducer | None = None) -> PressureRecord:
     from nptdms import TdmsFile
 
     with open(p, "rb") as fh:
@@ -44,13 +44,13 @@ def read_tdms(p: Path, group: str | None, channel: str | int | None,
         except Exception as exc:  # npTDMS raises ValueError/struct.error/... on corrupt files
             raise InputDataError(f"unreadable TDMS: {type(exc).__name__}: {exc}", p) from None
         try:
-            return _read_tdms_channel(p, tdms, group, channel, unit, said)
+            return _read_tdms_channel(p, tdms, group, channel, unit, said, transducer)
         finally:
             tdms.close()
 
 
 def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | None,
-                       unit: str | None, said: LibraryOutput) -> PressureRecord:
+                       unit: str | None, said: LibraryOutput, transducer: Transducer | None = None) -> PressureRecord:
     try:
         chans = [(g.name, c) for g in tdms.groups() for c in g.channels()]
     except Exception as exc:
@@ -93,7 +93,7 @@ def _read_tdms_channel(p: Path, tdms, group: str | None, channel: str | int | No
     unit_used, unit_source = resolve_unit(_unit_of(props), unit, p)
     start = props.get("wf_start_time")
     src = f"TDMS {p.name} {gname}/{ch.name}" + (f", wf_start_time {start}" if start else "")
-    return finish(data, 1.0 / dt, t0, unit_used, src, p, unit_source)
+    return finish(data, 1.0 / dt, t0, unit_used, src, p, unit_source, transducer)
 
 
 def _time_channel_rate(p: Path, tdms, gname: str, ch) -> tuple[float, float]:
