@@ -50,8 +50,10 @@ def run_entry(entry_json: Mapping[str, Any], inner_map: bool = False) -> dict[st
         cluster ran its pieces), ``summary`` (:meth:`RunSummary.to_json`, None on
         error) and ``traceback`` (only for a bug).
     """
+    from vfcli.allocator import keep_freed_blocks
     from vfcli.stages.run import keep_overrides, run_recording
 
+    keep_freed_blocks()             # the worker's allocator as the CLI sets it (vfcli.allocator); idempotent
     entry = RecordingEntry.from_json(entry_json)
     t0 = time.perf_counter()
     out: dict[str, Any] = {"name": entry.name, "store": str(entry.store), "pid": os.getpid(), "inner_map": inner_map,

@@ -12,6 +12,7 @@ import sys
 import click
 
 from vfcli import __version__
+from vfcli.allocator import keep_freed_blocks
 from vfcli.errors import EXIT_INTERRUPTED, NotImplementedYet, VfcliError, interruption
 
 EPILOG = """\b
@@ -66,6 +67,7 @@ class VfcliGroup(click.Group):
             formatter.write_dl(rows)
 
     def invoke(self, ctx: click.Context):  # type: ignore[override]
+        keep_freed_blocks()         # numpy's large temporaries from the heap, not a fresh mmap each (vfcli.allocator)
         try:
             return super().invoke(ctx)
         except VfcliError as exc:
