@@ -29,8 +29,8 @@ import pytest  # noqa: E402
 from vfcli.allocator import keep_freed_blocks  # noqa: E402
 
 # The allocator as the CLI sets it at start (vfcli/allocator.py), for the code the tests run in this process: numpy's
-# large temporaries from the heap, not a fresh mmap and a page fault per 4 kB each (tests/test_diagnose_refit_inertia.py
-# 94 -> 81 s; docs/benchmarks.md "Session 69: the allocator"). The `vfcli` commands the tests start set it themselves.
+# large temporaries from the heap, not a fresh mmap and a page fault per 4 kB each (two inertia refit tests 77.9 -> 66.9 s;
+# docs/benchmarks.md "Session 69: the allocator"). The `vfcli` commands the tests start set it themselves.
 keep_freed_blocks()
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,8 +6,8 @@ frame into some twenty arrays of one value per fragment (84 000 fragments on a w
 far as the largest block freed so far) with a fresh ``mmap`` and gives it back with ``munmap``, so each such array
 pays a page fault per 4 kB page on first touch. Measured (session 69, one thread, a quiet 2-core machine):
 rasterising a frame of panel store 2002 took 7.2 ms with glibc's defaults and 3.2-3.5 ms with the blocks kept in
-the heap; tests/test_diagnose_refit_inertia.py 94 -> 81 s (minor page faults 812 000 -> 526 000)
-(docs/benchmarks.md, "Session 69: the allocator").
+the heap; two of tests/test_diagnose_refit_inertia.py's tests 77.9 -> 66.9 s, back to back (docs/benchmarks.md,
+"Session 69: the allocator").
 
 :func:`keep_freed_blocks` raises the mmap threshold to 32 MB (glibc's largest on 64-bit) and the trim threshold to
 128 MB: blocks below 32 MB come from the heap and return to it, and up to 128 MB of free memory at the heap's top is

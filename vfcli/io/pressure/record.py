@@ -80,10 +80,11 @@ def is_pressure_unit(unit: str) -> bool:
 
 def pa_per_unit(unit: str, path: str | Path | None = None) -> float:
     """Conversion factor to Pa for a unit string such as ``'kPa'`` or ``'cm H2O'``."""
-    key = _unit_key(unit)
-    if key not in PA_PER_UNIT:
-        raise InputDataError(f"pressure unit {unit!r} is not a pressure unit vfcli knows ({_known_units()})", path)
-    return PA_PER_UNIT[key]
+    kind, factor = _per_unit(unit, path)
+    if kind != "pa":
+        raise InputDataError(f"{unit!r} is a transducer's output, not a pressure unit: its Pa need the transducer's "
+                             "calibration (Transducer)", path)
+    return factor
 
 
 def resolve_unit(file_unit: str | None, unit: str | None, path: Path) -> tuple[str, str]:
