@@ -164,6 +164,43 @@ ForkMap(2)(piece, range(2))
 """
 
 
+_FLAG_ONLY = """
+import _thread, sys, threading, time
+from vfcli.fork_map import ForkMap
+
+def piece(i):
+    time.sleep(30)
+    return i
+
+threading.Timer(1.0, _thread.interrupt_main).start()   # the flag a signal sets, without waking any system call
+t0 = time.monotonic()
+try:
+    ForkMap(2)(piece, range(2))
+except KeyboardInterrupt:
+    print(f"{time.monotonic() - t0:.2f}", flush=True)
+    sys.exit(130)
+"""
+
+
+def test_a_ctrl_c_that_wakes_no_system_call_still_ends_the_wait_at_once():
+    """A SIGINT that lands after Python last looked at its signal flag and before the wait for the pieces' output
+    sets the flag and wakes nothing (CI lost one so in another command, session 69); ``_thread.interrupt_main``
+    sets the flag exactly so.  The wait looks again every ``WAKE_S`` (0.5 s): interrupted within that of the flag
+    (measured 1.00-1.01 s after the start, the flag set at 1 s), not after the pieces' 30 s (without the bound:
+    30.0 s)."""
+    import os
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+    from vfcli.fork_map import WAKE_S
+
+    proc = subprocess.run([sys.executable, "-c", _FLAG_ONLY], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 130, proc.stderr
+    assert 0.9 < float(proc.stdout) < 1.0 + WAKE_S + 2.0, proc.stdout
+
+
 def test_a_parent_killed_outright_leaves_no_forked_piece_running():
     """`kill -9` (or the out-of-memory killer) of the caller while two pieces run: the children die with it
     (PR_SET_PDEATHSIG), they do not compute on for their minute."""

@@ -30,6 +30,11 @@ R = TypeVar("R")
 #: bytes read from a child's pipe at a time
 CHUNK = 1 << 20
 
+#: Longest wait, s, for a piece's output before the loop looks at its own signals again: a SIGINT that lands between
+#: Python's last look at its signal flag and the ``select`` call sets the flag and wakes nothing, and an unbounded
+#: ``select`` then waited for the pieces to end (minutes) before Ctrl-C took effect.
+WAKE_S = 0.5
+
 
 class RemoteTraceback(Exception):
     """The traceback of a piece's error in its child, as text: the cause of the error the caller sees (as
@@ -206,7 +211,7 @@ class ForkMap:
                     running[r] = (nxt, pid, bytearray())
                     sel.register(r, selectors.EVENT_READ)
                     nxt += 1
-                for key, _ in sel.select():
+                for key, _ in sel.select(timeout=WAKE_S):     # [] after WAKE_S: the loop again
                     fd = key.fd
                     i, pid, buf = running[fd]
                     chunk = os.read(fd, CHUNK)
