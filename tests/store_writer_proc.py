@@ -27,8 +27,8 @@ def main() -> None:
     frames = frames_for(seed, n)
     with Store(path).write(f"writer {seed}") as w:
         print("writing", flush=True)
-        if hold:
-            time.sleep(hold)
+        for _ in range(round(hold / 0.05)):    # in slices: a signal that woke no sleep is seen within 50 ms
+            time.sleep(0.05)
         with w.stage("hsc", config_json=f'{{"seed": {seed}}}') as s:
             s.write_frames("frames", frames.shape, np.uint16, (frames[a:a + 16] for a in range(0, n, 16)))
             s.put("frame_time", np.arange(n) / 10000.0)
