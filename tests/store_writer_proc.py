@@ -16,6 +16,14 @@ import numpy as np
 from vfcli.store import Store
 
 
+def hold(seconds: float) -> None:
+    """Sleep ``seconds`` in 50 ms slices: a signal that lands between Python's last look at its signal flag and a
+    sleep's system call sets the flag and wakes nothing, and one long sleep would keep it waiting to its end (the same
+    lost wakeup as a Ctrl-C test's on CI, session 69); a slice ends within 50 ms."""
+    for _ in range(round(seconds / 0.05)):
+        time.sleep(0.05)
+
+
 def frames_for(seed: int, n: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     return rng.integers(0, 4096, size=(n, 128, 128), dtype=np.uint16)
@@ -23,12 +31,11 @@ def frames_for(seed: int, n: int) -> np.ndarray:
 
 def main() -> None:
     path, seed, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-    hold = float(sys.argv[4]) if len(sys.argv) > 4 else 0.0
+    seconds = float(sys.argv[4]) if len(sys.argv) > 4 else 0.0
     frames = frames_for(seed, n)
     with Store(path).write(f"writer {seed}") as w:
         print("writing", flush=True)
-        for _ in range(round(hold / 0.05)):    # in slices: a signal that woke no sleep is seen within 50 ms
-            time.sleep(0.05)
+        hold(seconds)
         with w.stage("hsc", config_json=f'{{"seed": {seed}}}') as s:
             s.write_frames("frames", frames.shape, np.uint16, (frames[a:a + 16] for a in range(0, n, 16)))
             s.put("frame_time", np.arange(n) / 10000.0)

@@ -32,12 +32,12 @@ HERE = Path(__file__).resolve().parent
 #: transaction open for HOLD seconds (inside the stage), then commits.
 #: usage: python -c WRITER STORE SEED N_FRAMES HOLD
 WRITER = """
-import sys, time
+import sys
 import numpy as np
-from store_writer_proc import frames_for
+from store_writer_proc import frames_for, hold
 from vfcli.errors import VfcliError
 from vfcli.store import Store
-path, seed, n, hold = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
+path, seed, n, seconds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), float(sys.argv[4])
 frames = frames_for(seed, n)
 try:
     with Store(path).write(f"writer {seed}") as w:
@@ -46,8 +46,7 @@ try:
             s.put("frame_time", np.arange(n) / 10000.0)
             s.set_attrs(seed=seed)
             print("writing", flush=True)
-            for _ in range(round(hold / 0.05)):   # in slices: a signal that woke no sleep is seen within 50 ms
-                time.sleep(0.05)
+            hold(seconds)
 except VfcliError as exc:
     print(exc, file=sys.stderr)
     sys.exit(exc.exit_code)
