@@ -20,7 +20,7 @@ candidates' columns are, leans further, and the null does not hold it: on widene
 load distribution and geometry the model does not have) the screening raised a lead on 30 of 59 (2155-2181 and
 2186-2217, sessions 66-71, docs/diagnose.md "Decide").  The rate stated for the verdict is therefore the
 findings': a lead must also pass its confirmation refit, and the findings' rate is measured on nulls (2 false
-findings in 205 distinct null phantoms, docs/benchmarks.md), not derived.  The terminal's first line says both.
+findings in 205 distinct null phantoms, docs/benchmarks.md), not derived.  The decision's first line says both.
 
 A **profile lead** (:mod:`vfcli.diagnose.profile`: a candidate the score test cannot reach, whose fit with
 the loads refitted at one of its start values beats the baseline's) is outside that calibration.  It
