@@ -58,3 +58,42 @@ def test_the_truth_half_turned_is_the_truth_seen_from_a_camera_turned_by_180_deg
     assert rms(unturned - expected[:, nodes]) > 0.5 * scale
     assert pose_half_turned(-84.2, 95.8) and pose_half_turned(170.0, -170.0 + 180.0 + 1.0)
     assert not pose_half_turned(179.0, -179.0) and not pose_half_turned(10.0, 99.0)
+
+
+def test_the_timing_error_over_the_frames_is_that_of_the_instants_matched_by_inverting_each_phase():
+    """Epochs whose phase is linear in their own time (each its f0 and start phase, estimated with an
+    error), a video phase estimated with a smooth error that grows along the record: the instant of each
+    epoch matched to each frame, found by inverting the estimated and the true phases numerically on a fine
+    grid, errs by what :func:`sync_frame_error` says (to the grid's interpolation), and not by the offset's
+    error alone, which holds at the first frame only."""
+    from vfcli.synth.scoring import sync_frame_error, sync_offset_error
+
+    rng = np.random.default_rng(5)
+    n_points, fps = 7, 10_000.0
+    f0 = 120.0 * (1 + 0.01 * rng.uniform(-1, 1, n_points))
+    start_true = rng.uniform(0, 1, n_points)                   # cycles, epoch phase at its first sample
+    start_est = start_true + rng.normal(0, 3e-4, n_points)     # the epochs' own phase errors
+    t_frame = np.arange(250) / fps
+    true_frame_phase = 0.37 + 119.8 * t_frame + 0.02 * np.sin(2 * np.pi * 40 * t_frame)
+    video_phase = true_frame_phase + 4e-4 - 0.03 * t_frame + 2e-4 * np.cos(2 * np.pi * 60 * t_frame)
+    tau = np.linspace(0, 0.2, 400_001)                         # epoch time, s
+
+    def matched(phase_of_tau, target):                         # first instant at or after 0 with that phase mod 1
+        k = np.ceil(phase_of_tau[0] - target)                  # the cycle whose phase lies ahead
+        return np.interp(target + k, phase_of_tau, tau)
+
+    err = np.empty((n_points, t_frame.size))
+    off_est, off_true = np.empty(n_points), np.empty(n_points)
+    for p in range(n_points):
+        est_phase, true_phase = start_est[p] + f0[p] * tau, start_true[p] + f0[p] * tau
+        off_est[p], off_true[p] = matched(est_phase, video_phase[0]), matched(true_phase, true_frame_phase[0])
+        # every frame's instant in the cycle after the offset's, where the two phases meet it
+        est_i = np.interp(video_phase - video_phase[0] + est_phase[0] + f0[p] * off_est[p] + 1, est_phase, tau)
+        true_i = np.interp(true_frame_phase - true_frame_phase[0] + true_phase[0] + f0[p] * off_true[p] + 1,
+                           true_phase, tau)
+        err[p] = est_i - true_i
+    offset_error = sync_offset_error(off_est, off_true, f0)
+    got = sync_frame_error(offset_error, video_phase, true_frame_phase, f0)
+    assert np.max(np.abs(got - err)) < 2e-9                     # s: the grid's 0.5 us steps, interpolated
+    assert np.sqrt(np.mean(err**2)) > 1e-6                        # the frames' error is not the offset's alone
+    assert np.max(np.abs(err - offset_error[:, None])) > 1.5e-6

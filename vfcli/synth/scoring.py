@@ -27,6 +27,30 @@ def sync_offset_error(offset_s: np.ndarray, true_offset_s: np.ndarray, f0_hz: np
     return np.mod(np.asarray(offset_s, float) - true_offset_s + period / 2, period) - period / 2
 
 
+def sync_frame_error(offset_error_s: np.ndarray, video_phase: np.ndarray, true_frame_phase: np.ndarray,
+                     f0_hz: np.ndarray) -> np.ndarray:
+    """(P, F) s: the timing error of each epoch's instant matched to each frame.
+
+    An epoch's offset is matched at the first frame, the end of the video's pressure record where its fitted
+    phase is least constrained; every other frame is matched through the video's phase at that frame.  With
+    each epoch's phase linear in its own time (f0 ``f0_hz``), the instant matched to frame i errs by the offset's
+    error plus the change of the video phase's error since the first frame.
+
+    Parameters
+    ----------
+    offset_error_s : (P,) s
+        :func:`sync_offset_error` of each epoch.
+    video_phase, true_frame_phase : (F,) cycles
+        The video's phase at each frame as sync estimated it (``/sync/video_phase``) and as it was; any constant
+        between the two conventions cancels.
+    f0_hz : (P,) Hz
+        Each epoch's f0.
+    """
+    drift = (np.asarray(video_phase, float) - video_phase[0]) - (np.asarray(true_frame_phase, float)
+                                                                   - true_frame_phase[0])
+    return np.asarray(offset_error_s, float)[:, None] + drift[None, :] / np.asarray(f0_hz, float)[:, None]
+
+
 def end_point_error(flow: np.ndarray, truth: np.ndarray, where: np.ndarray) -> tuple[float, float]:
     """(mean, 95th percentile) of |flow - truth| over ``where``; flow, truth (..., 2)."""
     err = np.linalg.norm(flow - truth, axis=-1)[where]
