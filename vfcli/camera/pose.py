@@ -6,9 +6,8 @@ the principal axis of the gap pixels over the recording (any in-plane angle; the
 axis is the one nearest a prior rotation). Along it, the folds are clamped at both ends
 (x = 0 and x = L), so they move symmetrically about mid-length: the amplitude of the surface velocity along
 the glottis is mirror-symmetric about it (:func:`motion_amplitude`, :func:`symmetry_mid`), over the whole
-superior surface in view. Mid-length is placed there, within what the gap's extent allows: with both ends of
-the gap in view, the glottis covers the visible gap; with one end cut, between the visible gap's centre and
-half a glottis from its visible end; with both cut, anywhere along the visible gap. The gap's extent itself is
+superior surface in view. Mid-length is placed there, within what the gap's extent allows: the glottis covers the
+visible gap, whichever ends the image cuts (the gap may be found over only part of it). The gap's extent itself is
 not taken as symmetric: its ends are where the opening first exceeds the folds' contact, where the opening
 grows slowly along the glottis, so one a little wider toward one end moves them by millimetres. Without the
 motion (or when it cannot say): with both ends in view, the midpoint of the visible gap's extent (however often
@@ -246,22 +245,19 @@ def symmetry_mid(amplitude: np.ndarray, ax: GapAxis, length_px: float, lo: float
 
 def symmetry_window(ax: GapAxis, half_px: float) -> tuple[float, float] | None:
     """(low, high) positions (px along the axis from ``ax.centre_px``) mid-length can lie between, from the
-    visible gap's extent and which ends the border cuts, or None when the extent allows none.
+    visible gap's extent, or None when the extent allows none.
 
-    half_px : half the glottis length L/2, px. The gap opens only inside the glottis, so with both ends in view
-    the glottis covers the visible gap: mid-length lies within L/2 of both of its ends. With one end cut, it lies
-    between the visible gap's centre (the rest of the gap is beyond the border) and L/2 from the visible end; with
-    both cut, anywhere along the visible gap. None (both ends in view) when the visible gap is longer than L.
+    half_px : half the glottis length L/2, px. The gap opens only inside the glottis, so the glottis covers the
+    visible gap, whichever of its ends the image's border cuts: mid-length lies within L/2 of both ends of the
+    visible gap. Nothing narrower is assumed: the gap may be found over only part of the glottis (its narrow
+    openings unresolved), off its middle and away from a cut end (widened null 2237: found over 72 px next to one
+    border of the 282 px of glottis in view, mid-length 120 px from the visible gap's centre, outside the window
+    "from the visible gap's centre to L/2 from its visible end" of optimize method 6, so the gap's envelope placed
+    it 8.1 mm off). None when the visible gap is longer than L.
     """
     lo, hi = ax.extent_px
-    if not ax.cut[0] and not ax.cut[1]:
-        low, high = max(hi - half_px, lo), min(lo + half_px, hi)
-        return (low, high) if low <= high else None
-    if not ax.cut[0]:
-        return 0.5 * (lo + hi), min(lo + half_px, hi)
-    if not ax.cut[1]:
-        return max(hi - half_px, lo), 0.5 * (lo + hi)
-    return lo, hi
+    low, high = hi - half_px, lo + half_px
+    return (low, high) if low <= high else None
 
 
 @dataclass(frozen=True)

@@ -282,7 +282,7 @@ STAGES: dict[str, Stage] = {
             "One optimisation run: force-field control values, history and the reconstructed motion.",
             reads=("mesh", "fields", "flow", "hsc"),
             has_runs=True,
-            method=6,
+            method=7,
             method_changes={2: "the model's velocity at the frame times (central differences), no longer half a "
                                "frame later (vfcli 2c4c8b6)",
                             3: "the L-curve scans 16 decades of ridge weight, to its real corner (it stopped on "
@@ -294,7 +294,10 @@ STAGES: dict[str, Stage] = {
                                "gap in view too (the midpoint of the gap's extent was off where the opening is "
                                "wider toward one end)",
                             6: "a ray the camera sees closed asks a simulated gap on it to close where it stands, not "
-                               "at the last known opening location (E jumped where the folds started to overlap)"},
+                               "at the last known opening location (E jumped where the folds started to overlap)",
+                            7: "the estimated pose searches mid-length by the motion's symmetry wherever the glottis "
+                               "covers the visible gap (a gap found over part of the glottis, away from its middle, "
+                               "left mid-length outside the search and the gap's envelope placed it 8 mm off)"},
             datasets={
                 "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),
                 "displacements": D("mm", "Reconstructed vertex displacements", ("sim_time", "node", "xyz"), True),
