@@ -313,6 +313,12 @@ def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg
         log.warning("pose: the image cuts the glottal gap at both ends, so its position along the glottis is not "
                     "measured; mid-length is taken at the visible gap's centre. Set camera.pose = 'config' with "
                     "camera.offset_px (and camera.rotation_deg) if the model origin is known")
+    if amplitude is not None and how in ("extent of the gap", "envelope of the gap"):
+        log.warning("pose: the motion's symmetry does not place mid-length (too little of the folds' motion in view "
+                    "on one side of it), so the %s does, which takes the gap as found along the whole glottis: where "
+                    "its narrow openings are not found the model lies millimetres off along the glottis. Set "
+                    "camera.pose = 'config' with camera.offset_px (and camera.rotation_deg) if the model origin is "
+                    "known", how)
     origin = ax.centre_px + (mid - half) * e
     return Pose(float(ax.rotation_deg), (float(origin[0]), float(origin[1])), how)
 
