@@ -315,8 +315,8 @@ def locate(gap_counts: np.ndarray, px_per_mm: float, length_mm: float, prior_deg
                     "camera.offset_px (and camera.rotation_deg) if the model origin is known")
     if amplitude is not None and how in ("extent of the gap", "envelope of the gap"):
         log.warning("pose: the motion's symmetry does not place mid-length (too little of the folds' motion in view "
-                    "on one side of it), so the %s does, which takes the gap as found along the whole glottis: where "
-                    "its narrow openings are not found the model lies millimetres off along the glottis. Set "
+                    "about it to compare), so the %s does, which takes the gap as found along the whole glottis: "
+                    "where its narrow openings are not found the model lies millimetres off along the glottis. Set "
                     "camera.pose = 'config' with camera.offset_px (and camera.rotation_deg) if the model origin is "
                     "known", how)
     origin = ax.centre_px + (mid - half) * e
