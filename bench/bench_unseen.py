@@ -233,8 +233,9 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             err = sync_offset_error(off, t["ldv/sync_offset_s"], t["ldv/f0_hz"])
             s["sync_rms_us"] = 1e6 * rms(err[ok]) if ok.any() else float("nan")
             video_phase = r.read("sync", "video_phase")
-            frame_err = sync_frame_error(err[ok], video_phase, t["frames/phase"][: len(video_phase)], t["ldv/f0_hz"][ok])
-            s["sync_frames_rms_us"] = 1e6 * rms(frame_err) if ok.any() else float("nan")
+            frame_err = sync_frame_error(err[ok], video_phase, t["frames/phase"][: len(video_phase)],
+                                         t["ldv/f0_hz"][ok])
+            s["sync_frames_rms_us"] = 1e6 * rms(frame_err)             # NaN when no point is aligned
         if stages["flow"][0] == 0:
             gap, area = r.read("flow", "gap_mask"), r.read("flow", "glottal_area")
             tg, ta = t["screen/gap"][: len(gap)], t["screen/glottal_area"][: len(area)]

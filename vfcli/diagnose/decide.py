@@ -17,10 +17,10 @@ The family-wise false-alarm rate of the leads is alpha (0.05) when the residual 
 error that leans on the candidates' signatures no more than it would at a random phase of the cycle (the
 calibration's null, :mod:`vfcli.diagnose.calibrate`).  A model error locked in phase with the motion, as the
 candidates' columns are, leans further, and the null does not hold it: on widened null phantoms (no effect, the
-load distribution and geometry the model does not have) the screening raised a lead on 35 of 71 (2155-2181 and
-2186-2229, sessions 66-71, docs/diagnose.md "Decide").  The rate stated for the verdict is therefore the
-findings': a lead must also pass its confirmation refit, and the findings' rate is measured on nulls (2 false
-findings in 217 distinct null phantoms, docs/benchmarks.md), not derived.  The decision's first line says both.
+load distribution and geometry the model does not have) the screening raises a lead on about half of them.  The rate
+stated for the verdict is therefore the findings': a lead must also pass its confirmation refit, and the
+findings' rate is measured on nulls, not derived (the running figures: docs/diagnose.md, "What the stated rate
+covers").  The decision's first line says both.
 
 A **profile lead** (:mod:`vfcli.diagnose.profile`: a candidate the score test cannot reach, whose fit with
 the loads refitted at one of its start values beats the baseline's) is outside that calibration.  It
