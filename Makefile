@@ -17,11 +17,15 @@ export PYTHONPYCACHEPREFIX := $(abspath $(VENV))/pycache
 
 venv: $(STAMP)
 
+# --no-compile: pip would byte-compile every module of every package (all of scipy's, VTK's and dask's tests
+# among them), 27 of the install's 60 s here (warm pip cache); the modules a command imports are compiled at
+# their first import instead, into the cache above (docs/benchmarks.md, "Session 73: the install, and the
+# steady state's transfers in one product").
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; set PYTHON=/path/to/python3.11" >&2; exit 2; }
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[export,test,viz,workflow]'
+	$(BIN)/python -m pip install --quiet --no-compile -e '.[export,test,viz,workflow]'
 	@touch $(STAMP)
 
 demo: venv

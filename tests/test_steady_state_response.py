@@ -15,7 +15,7 @@ import numpy as np
 
 from _candidates_case import pressure_case
 from vfcli.model.response.modal import ModalReduction, harmonic_fit
-from vfcli.model.response.steady_state import SteadyStateResponse
+from vfcli.model.response.steady_state import SteadyStateResponse, change_transfers
 
 
 @lru_cache(maxsize=1)
@@ -70,3 +70,16 @@ def test_change_is_the_modal_steady_state_of_the_loads_harmonics():
     want = (red.steady_state(amp, base.f0_hz, t, rho, 0.0, loss) - red.steady_state(amp, base.f0_hz, t, 0.0, 0.0, loss))
     got = _response(rho, loss).change(base.x, t)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+
+
+def test_the_transfers_of_every_harmonic_in_one_product_are_the_reductions_own_per_frequency():
+    """change_transfers (one product over every frequency, real and imaginary parts side by side) against the
+    reduction's transfer (an einsum per frequency), with mass, damping and loss on, at f0's harmonics and 0."""
+    base, red = _case()
+    omegas = 2 * np.pi * base.f0_hz * np.arange(7)
+    got = change_transfers(red, omegas, 1.7, 3e-4, 0.05)
+    assert got.shape == (7, red.vertex_modes_.shape[1], 3, red.modal_loads_.shape[1])
+    for k, w in enumerate(omegas):
+        want = red.transfer(w, 1.7, 3e-4, 0.05) - red.transfer(w, 0.0, 0.0, 0.05)
+        np.testing.assert_allclose(got[k], want, rtol=0, atol=1e-12 * np.abs(want).max() + 1e-300)
+    assert np.abs(got[0]).max() == 0.0 and np.abs(got[3]).max() > 0.1 * np.abs(red.transfer(omegas[3], 0.0)).max()

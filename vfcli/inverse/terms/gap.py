@@ -216,15 +216,15 @@ class GapTerm(FrameTerm):
             return
         scale_px = p.camera.px_per_mm * st.gap_length_mm
         pairs = term_pairs(lin.n_terms)
+        # every term's basis side by side: a frame's crossings are found once, not once per term
+        bases = np.concatenate(lin.full, axis=2)                          # (N, 3, n_terms * S)
         for f, fr in enumerate(ev.frames):
             pos = p.mesh.nodes + ev.disp[f]
-            q_rows = []
-            for r in lin.full:
-                q_r, dist = gap_rows(p, pos, fr.sil, r)
-                q_x, dist_x = gap_rows(p, pos, fr.excess, r)
-                q_rows.append(np.concatenate([q_r, q_x]))
+            q_r, dist = gap_rows(p, pos, fr.sil, bases)
+            q_x, dist_x = gap_rows(p, pos, fr.excess, bases)
             if not len(dist) + len(dist_x):
                 continue
+            q_rows = np.split(np.concatenate([q_r, q_x]), len(lin.full), axis=1)
             q = (dist / scale_px) ** 2
             # the arctan's majoriser on the silhouette rows, the quadratic's own curvature on the excess rows
             curv = (weight / (p.n_frames * self._n_sil(p))) * 2.0 / (np.append(1.0 + q * q, np.ones(len(dist_x)))

@@ -28,16 +28,24 @@ from vfcli.model.response.base import Linearization, SeparableTerm
 from vfcli.model.response.modal import harmonic_fit
 
 
-def change_transfer(reduction, omega: float, density: float, retardation_s: float, loss: float) -> np.ndarray:
-    """(N, 3, S) complex ``[H(rho, tau, eta) - H(0, 0, eta)] L`` at angular frequency omega (rad/s), mm per
-    unit load pattern, from the modal reduction."""
-    d = (reduction.modal_factors(omega, density, retardation_s, loss)
-         - reduction.modal_factors(omega, 0.0, 0.0, loss))
-    modes = reduction.vertex_modes_                                  # (r, N, 3) real
-    flat = modes.reshape(len(modes), -1).T                           # (3N, r), real products (no complex copy)
-    w = d[:, None] * reduction.modal_loads_                          # (r, S) complex
-    out = flat @ w.real + 1j * (flat @ w.imag)
-    return out.reshape(modes.shape[1], 3, -1)
+def change_transfers(reduction, omegas: np.ndarray, density: float, retardation_s: float, loss: float) -> np.ndarray:
+    """(K, N, 3, S) complex ``[H(rho, tau, eta) - H(0, 0, eta)] L`` at each angular frequency of ``omegas`` (K,)
+    rad/s, mm per unit load pattern, from the modal reduction.
+
+    One product with the reduction's vertex modes for every frequency and both the real and imaginary parts: the
+    modes (r, N, 3) are the large operand (the complete expansion of a 2.5 mm mesh: 6960 modes of 438 surface
+    vertices, 73 MB), read once instead of twice per frequency (docs/benchmarks.md, "Session 73: the install, and
+    the steady state's transfers in one product")."""
+    omegas = np.atleast_1d(np.asarray(omegas, dtype=float))
+    d = np.stack([reduction.modal_factors(w, density, retardation_s, loss) - reduction.modal_factors(w, 0.0, 0.0, loss)
+                  for w in omegas])                                              # (K, r) complex
+    modes = reduction.vertex_modes_                                              # (r, N, 3) real
+    flat = modes.reshape(len(modes), -1).T                                       # (3N, r), no complex copy
+    w = d[:, :, None] * reduction.modal_loads_[None]                             # (K, r, S) complex
+    k, r, n_s = w.shape
+    rhs = np.concatenate([w.real, w.imag]).transpose(1, 0, 2).reshape(r, 2 * k * n_s)
+    out = (flat @ rhs).reshape(-1, 2, k, n_s)                                    # (3N, re/im, K, S)
+    return (out[:, 0] + 1j * out[:, 1]).transpose(1, 0, 2).reshape(k, modes.shape[1], 3, n_s)
 
 
 class SteadyStateResponse:
@@ -68,8 +76,8 @@ class SteadyStateResponse:
         self.beta = harmonic_fit(self.load_model.time_basis(fit_times), fit_times, self.f0_hz,
                                  int(n_harmonics))                             # (K + 1, n_time) complex
         w0 = 2 * np.pi * self.f0_hz
-        self.delta = np.stack([change_transfer(reduction, k * w0, self.density, self.retardation_s, self.loss)
-                               for k in range(self.beta.shape[0])])             # (K + 1, N, 3, S) complex
+        self.delta = change_transfers(reduction, w0 * np.arange(self.beta.shape[0]), self.density,
+                                      self.retardation_s, self.loss)          # (K + 1, N, 3, S) complex
 
     @property
     def n_params(self) -> int:
