@@ -15,7 +15,8 @@ need it. Afterwards, and only then, truth.h5 is read and the products are scored
   frame (:func:`vfcli.synth.scoring.sync_frame_error`: what the phase-averaged velocities carry);
 * gap: IoU of ``/flow/gap_mask`` against the true gap (pooled over frames); glottal area
   error: total over frames (sum of the reconstructed / sum of the true - 1) and the median
-  relative error over frames open more than 10 % of the widest;
+  relative error over frames open more than 10 % of the widest; the frames with a gap, and how wide the
+  true gap opens in the open frames flow missed (:func:`vfcli.synth.scoring.opening_width_px`, the widest);
 * LDV points: fraction whose ``/fields/ldv_px`` lies on the image, and the true fraction;
 * flow: relative RMS error of ``/flow/flow`` (u, v) on the true visible surface against the true
   velocity in the model's (x, y) axes and in the image's (col, row) axes (which frame it is in);
@@ -71,7 +72,7 @@ from vfcli.model.mesh import FoldMesh  # noqa: E402
 from vfcli.store.mesh import read_mesh  # noqa: E402
 from vfcli.store.transaction import Store  # noqa: E402
 from vfcli.store.truth import read_truth, truth_datasets  # noqa: E402
-from vfcli.synth.scoring import (half_turned, interval_coverage, iou, pose_half_turned,  # noqa: E402
+from vfcli.synth.scoring import (half_turned, interval_coverage, iou, opening_width_px, pose_half_turned,  # noqa: E402
                                  relative_rms_error, rms, side_truth, sync_frame_error,
                                  sync_offset_error)
 
@@ -243,7 +244,13 @@ def score(raw: Path, store: Path, stages: dict) -> dict:
             s["area_total_err"] = float(area.sum() / ta.sum() - 1) if ta.sum() > 0 else float("nan")
             open_ = ta > 0.1 * ta.max()
             s["area_median_err"] = float(np.median(np.abs(area[open_] - ta[open_]) / ta[open_])) if open_.any() else float("nan")
-            s["frames_with_gap"] = f"{int(gap.any(axis=(1, 2)).sum())}/{len(gap)} (true {int(tg.any(axis=(1, 2)).sum())})"
+            # how wide the true gap opens in the open frames flow missed (the glottis along the model's x axis)
+            missed = tg.any(axis=(1, 2)) & ~gap.any(axis=(1, 2))
+            widest = opening_width_px(tg[missed], cam.project_vector(np.array([1.0, 0.0])))
+            s["missed_widest_px"] = float(widest.max()) if missed.any() else float("nan")
+            n_found, n_true = int(gap.any(axis=(1, 2)).sum()), int(tg.any(axis=(1, 2)).sum())
+            note = f"; the missed open {s['missed_widest_px']:.1f} px at most" if missed.any() else ""
+            s["frames_with_gap"] = f"{n_found}/{len(gap)} (true {n_true}{note})"
             s["gap_doubt"] = gap_doubt(r.attrs("flow"))
             px = r.read("fields", "ldv_px")
             s["ldv_on_image"] = float(np.mean(_on_image(px, w, h)))

@@ -1,7 +1,7 @@
 """The phantom scores' own arithmetic (vfcli/synth/scoring.py)."""
 import numpy as np
 
-from vfcli.synth.scoring import interval_coverage, rms
+from vfcli.synth.scoring import interval_coverage, opening_width_px, rms
 
 
 def test_coverage_leaves_out_what_the_model_fixes_and_counts_a_wrong_zero_interval_as_a_miss():
@@ -97,3 +97,24 @@ def test_the_timing_error_over_the_frames_is_that_of_the_instants_matched_by_inv
     assert np.max(np.abs(got - err)) < 2e-9                     # s: the grid's 0.5 us steps, interpolated
     assert np.sqrt(np.mean(err**2)) > 1e-6                        # the frames' error is not the offset's alone
     assert np.max(np.abs(err - offset_error[:, None])) > 1.5e-6
+
+
+def test_the_opening_width_is_the_gaps_area_per_length_of_glottis_at_any_angle():
+    """A drawn slit 41 px long, its pixel centres within 0.5, 1.5 or 2.5 px of its midline, at 0, 10, 30, 45 and 90
+    deg: the width read is its pixel count per pixel of length (the drawn 1, 3 and 5 px along the image axes, 3.49
+    px for the 3 px slit at 45 deg, where five rows of the lattice lie within 1.5 px), exactly along the image
+    axes and within half a pixel at the oblique angles (pieces one pixel long read up to twice that: 7 for the 5 px
+    slit at 45 deg), and 0 in a frame with no gap."""
+    rows, cols = np.mgrid[0:120, 0:120].astype(float)
+    for angle in (0.0, 10.0, 30.0, 45.0, 90.0):
+        a = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle))])
+        along = (cols - 60) * a[0] + (rows - 60) * a[1]
+        across = -(cols - 60) * a[1] + (rows - 60) * a[0]
+        frames = np.stack([np.zeros_like(rows, bool)] + [(np.abs(along) <= 20.5) & (np.abs(across) < w / 2)
+                                                          for w in (1.0, 3.0, 5.0)])
+        got = opening_width_px(frames, a)
+        drawn = frames[1:].sum(axis=(1, 2)) / 41.0
+        assert got[0] == 0.0
+        np.testing.assert_allclose(got[1:], drawn, atol=0.5 if angle % 90 else 1e-12)
+        if angle % 90 == 0:
+            np.testing.assert_allclose(got[1:], [1.0, 3.0, 5.0], atol=1e-12)

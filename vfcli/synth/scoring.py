@@ -13,6 +13,29 @@ def iou(mask: np.ndarray, truth: np.ndarray) -> float:
     return float(np.logical_and(mask, truth).sum() / union) if union else 1.0
 
 
+def opening_width_px(gap: np.ndarray, axis: np.ndarray, n_pieces: int = 3, piece_px: float = 4.0) -> np.ndarray:
+    """(F,) how wide each frame's gap opens, px: its area (pixel count) in each piece of ``piece_px`` px of the
+    glottis' length (along ``axis``) over that length, the mean of the ``n_pieces`` widest pieces; 0 in a frame with
+    no gap.  Pieces a few pixels long: one pixel long, an oblique glottis' pieces catch one or two lines of the pixel
+    lattice in turn, and the widest read up to twice the width.
+
+    gap : (F, H, W) bool, True in the gap.
+    axis : (2,) the glottis' direction in the image, (col, row) px, any length.
+    """
+    gap = np.asarray(gap, bool)
+    a = np.asarray(axis, float)
+    a = a / np.linalg.norm(a)
+    out = np.zeros(len(gap))
+    for f, frame in enumerate(gap):
+        rows, cols = np.nonzero(frame)
+        if rows.size:
+            along = cols * a[0] + rows * a[1]
+            piece = np.floor((along - along.min()) / piece_px + 1e-9).astype(int)      # + 1e-9: k / 4 * 4 is k
+            counts = np.sort(np.bincount(piece))[::-1][:n_pieces]
+            out[f] = float(np.mean(counts)) / piece_px
+    return out
+
+
 def rms(x: np.ndarray) -> float:
     """Root mean square of the finite entries."""
     x = np.asarray(x, float)
