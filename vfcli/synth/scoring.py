@@ -30,7 +30,7 @@ def opening_width_px(gap: np.ndarray, axis: np.ndarray, n_pieces: int = 3, piece
         rows, cols = np.nonzero(frame)
         if rows.size:
             along = cols * a[0] + rows * a[1]
-            piece = np.floor((along - along.min()) / piece_px + 1e-9).astype(int)      # + 1e-9: k / 4 * 4 is k
+            piece = np.floor((along - along.min()) / piece_px + 1e-9).astype(int)      # + 1e-9: a centre on a boundary starts its piece
             counts = np.sort(np.bincount(piece))[::-1][:n_pieces]
             out[f] = float(np.mean(counts)) / piece_px
     return out
