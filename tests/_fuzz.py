@@ -79,7 +79,7 @@ def fresh(path: Path) -> Path:
 
     Truncating a file that holds data to write it again (``write_bytes``, ``open(..., "wb")``) starts the
     file's writeback on ext4 (``auto_da_alloc``): 2.2-2.6 ms per write on the suite's machine against
-    0.06 ms for a new file (session 37, scratch /tmp/s37/hT/iot), and the fuzzers write about 27,000 case files.
+    0.06 ms for a new file (session 37, scratch hT/iot), and the fuzzers write about 27,000 case files.
     What the reader is given is the same bytes."""
     path.unlink(missing_ok=True)
     return path

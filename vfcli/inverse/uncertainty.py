@@ -140,7 +140,7 @@ def effective_sample_size(residuals: np.ndarray, max_lag_px: int = 64, pixel_str
     lag = min(max_lag_px, h - 1, w - 1)
     # zero-padded to at least (h + lag, w + lag): the circular correlation is then the linear one at every lag
     # up to ``lag`` (the only lags used); scipy's FFT at a fast length, not numpy's at (2h, 2w): 0.36 -> 0.19 s on
-    # 40 frames of 160 x 160 px x 3 (scratch /tmp/s36/ess_cmp.py), equal to round-off
+    # 40 frames of 160 x 160 px x 3 (scratch ess_cmp.py), equal to round-off
     shape = (sfft.next_fast_len(h + lag, real=True), sfft.next_fast_len(w + lag, real=True))
     # power spectra summed over frames and channels; the inverse transform is linear, so one at the end
     num_spec = np.zeros((shape[0], shape[1] // 2 + 1))
