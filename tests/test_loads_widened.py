@@ -91,13 +91,14 @@ def test_the_inferior_surface_of_a_widened_phantom_is_within_its_measured_error(
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the intervals overstate: coverage 97.8 %, error 5.2 % against a stated "
-                   "22.5 % (session 57), most of it the sandwich MSE's (vfcli/inverse/sandwich.py) since the instruments' part "
-                   "centres the ridge on the joint fit (session 13); on widened stores that part is mostly the expected "
-                   "bias the pressure gains' 1e-6 ridge share implies (session 32: 63-96 % of the vertical sd on twelve "
-                   "seeds; tests/test_optimize_stage.py); issue 15 item 6")
+@pytest.mark.xfail(strict=True, reason="the intervals overstate a little: coverage 95.5 % since optimize method 8 "
+                   "(the load model's error measured by the splits of vfcli/inverse/uncertainty.py, not the pressure "
+                   "gains' 1e-6 ridge share's expected bias); 97.8 %, error 5.2 % against a stated 22.5 %, before "
+                   "(session 57); "
+                   "issue 15 item 6")
 def test_the_90_percent_intervals_on_a_widened_phantom_cover_85_to_95_percent(widened_run):
-    """Two-sided: the stated 90 % intervals neither understate nor overstate (measured 97.4 % with the 50 Pa sensor,
+    """Two-sided: the stated 90 % intervals neither understate nor overstate (measured 95.5 % on optimize method 8;
+    97.4 % with the 50 Pa sensor,
     stated 21.6 %; with a 4 Pa sensor 97.3 % scored without the
     clamped nodes (96.5 % with them), stated 21.5 % of the motion, since the instruments' part centres the ridge
     on the joint fit; 97.3 % with session
@@ -111,9 +112,12 @@ def test_the_90_percent_intervals_on_a_widened_phantom_cover_85_to_95_percent(wi
 @pytest.mark.slow
 def test_the_intervals_on_a_widened_phantom_do_not_understate(widened_run):
     """The one-sided half of the claim above, which holds: the 90 % intervals cover at least 85 % and the
-    error is within the stated standard deviation (measured 97.4 %; error 7.0 %, stated 21.6 %; with the 50 Pa
+    error is within the stated standard deviation (measured 95.5 %, error 5.2 %, stated 21.5 % on optimize method 8;
+    before, 97.4 %; error 7.0 %, stated 21.6 %; with the 50 Pa
     sensor's record as it is 11.3 %, error 78.3 % against a stated 67.8 %)."""
     est, std, ref, _, coverage = widened_run
     assert coverage >= 0.85, f"coverage {100 * coverage:.1f} %"
     rms = lambda a: float(np.sqrt(np.mean(a ** 2)))  # noqa: E731
+    print(f"coverage {100 * coverage:.1f} %, error {100 * rms(est - ref) / rms(ref):.1f} %, stated "
+          f"{100 * rms(std) / rms(est):.1f} %")
     assert rms(est - ref) / rms(ref) <= rms(std) / rms(est)

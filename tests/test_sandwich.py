@@ -124,3 +124,16 @@ def test_what_nothing_determines_is_stated_as_not_determined():
     d = np.diag(mse.dense())
     assert d[3] > 1e6 * d[:3].max() and np.diag(scatter.dense())[3] == 0.0
     np.testing.assert_allclose(mse.dense()[:3, :3], 0.1 ** 2 * np.linalg.inv(a[:, :3].T @ a[:, :3]), rtol=1e-8)
+
+
+def test_the_expected_bias_leaves_out_the_ridges_device_entries():
+    """A ridge share far below Omega's largest entry (the pressure gains' 1e-6) keeps the problem well posed and
+    is no prior: its row and column leave the expected bias, the prior's entries stay as they are; an Omega whose
+    entries are all priors (the regularised force field's identity plus differences) is kept whole."""
+    from vfcli.inverse.sandwich import DEVICE_SHARE, prior_part
+
+    omega = sp.diags([1.0, 1e-6, 0.5, 2.0 * DEVICE_SHARE]).tocsr()
+    np.testing.assert_array_equal(prior_part(omega).toarray(), np.diag([1.0, 0.0, 0.5, 2.0 * DEVICE_SHARE]))
+    d = sp.diags([-1.0, 1.0], [0, 1], shape=(4, 5))
+    whole = (sp.identity(5) + d.T @ d).tocsr()
+    np.testing.assert_array_equal(prior_part(whole).toarray(), whole.toarray())

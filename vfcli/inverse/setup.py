@@ -240,6 +240,26 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
     return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve)
 
 
+def richer_load_problem(problem: Problem, field: LoadModel, model: ElasticModel,
+                        map: Callable[..., Iterable[Any]] | None = None) -> tuple[Problem, np.ndarray] | None:
+    """The fit's problem under the next richer load family, and where its control values sit in it.
+
+    problem : the fitted problem.  field : its load model.  model : its elastic model (the response's basis
+    solves of the richer shapes).  map : as :func:`build_problem`'s.
+
+    Returns (richer problem, (n,) index of each of ``problem``'s control values in the richer one's), or None
+    when the load model has no richer family (:meth:`vfcli.model.loads.pressure.PressureLoad.richer`; the free
+    force fields). The ridge weighs the same per control value: its weight scales with the number of them
+    (E's ridge term is ``ridge_weight x^T Omega x / n``).
+    """
+    if not isinstance(field, PressureLoad):
+        return None
+    rich = field.richer()
+    response = QuasiStaticResponse(model, rich, map=map)
+    settings = replace(problem.settings, ridge_weight=problem.settings.ridge_weight * rich.n_params / field.n_params)
+    return Problem(problem.mesh, problem.camera, response, problem.meas, settings), field.embedding(rich)
+
+
 def warn_unbounded_correction(curve) -> None:
     """Warn that the L-curve left the ``pressure`` loads' free correction practically unbounded
     (:attr:`vfcli.inverse.regularization.LCurve.unbounded`): the loads tied to the measured pressure do not

@@ -27,14 +27,15 @@ from vfcli.inverse.linearization import gauss_newton_model
 from vfcli.model.mesh import SIDE_INFERIOR, SIDE_SUPERIOR
 from vfcli.inverse.problem import Problem
 from vfcli.inverse.optimizers.base import FitOptions, FitState, fit, resume
-from vfcli.inverse.setup import setup_summary
+from vfcli.inverse.setup import richer_load_problem, setup_summary
 from vfcli.report.plots import convergence_plot, uncertainty_map
 from vfcli.store import StageWriter, StoreReader
 from vfcli.store.checkpoint import checkpoint_path, resume_flags
-from vfcli.store.fit import problem_of_store
+from vfcli.store.fit import problem_of_store, run_model
 from vfcli.inverse.sandwich import sandwich
-from vfcli.inverse.uncertainty import (displacement_std, effective_sample_size, instrument_fits, instrument_split,
-                                       instrument_std, relative_uncertainty, window_mean, window_oscillation)
+from vfcli.inverse.uncertainty import (data_kind_fits, displacement_std, effective_sample_size, instrument_fits,
+                                       instrument_split, instrument_std, load_family_fit, relative_uncertainty,
+                                       window_mean, window_oscillation)
 from vfcli.model.loads.pressure import PressureLoad
 from vfcli.progress import Phases
 from vfcli.stages.base import RunContext, StageResult, optimize_settings_json, run_stage
@@ -100,18 +101,21 @@ def check_convergence(result, method: str) -> bool:
     return True
 
 
-def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, minimum: bool = True
+def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, minimum: bool = True,
+                               richer: tuple[Problem, np.ndarray] | None = None
                                ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
     """Standard deviation of the displacements of a fit at ``x``, and its summary.
 
     The mean squared error of the fit (vfcli/inverse/sandwich.py: the sandwich covariance
-    from the per-frame scores, plus the ridge's expected bias), plus in quadrature the
-    systematic part the camera-only and vibrometer-only reconstructions disagree by
-    (vfcli/inverse/uncertainty.py), each split into the static part (the mean over the
-    window) and the oscillating part.
+    from the per-frame scores, plus the ridge's expected bias where the ridge is a prior), plus in
+    quadrature the systematic parts three splits of the fit measure (vfcli/inverse/uncertainty.py): what
+    the camera-only and the vibrometer-only reconstructions disagree by, what the velocities-only and the
+    gap-only ones disagree by, and how far the next richer load family moves the reconstruction (given
+    ``richer``); each split into the static part (the mean over the window) and the oscillating part.
 
     field : the load model (a :class:`vfcli.model.loads.pressure.PressureLoad` adds how much
         of the static inferior shape the measured pressure carries).
+    richer : (problem, embedding) of :func:`vfcli.inverse.setup.richer_load_problem`, or None.
     minimum : x is a fitted minimum (False: no warning that the recording leaves the static shape open,
         :func:`check_convergence` has said why the figures are what they are).
 
@@ -135,7 +139,22 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, mini
     inst = {k: problem.displacements(v) for k, v in instrument_fits(problem, x, frames, u).items()}
     systematic = instrument_std(inst)
     sys_static, sys_osc = instrument_split(inst)
-    std = np.sqrt(noise ** 2 + systematic[None] ** 2)
+    kinds = {k: problem.displacements(v) for k, v in data_kind_fits(problem, x, frames, u).items()}
+    splits = [(kinds, True)]
+    if richer is not None:
+        rich_problem, embed = richer
+        rich_u = rich_problem.displacements(load_family_fit(rich_problem, embed, x))
+        splits.append(({"fit": u, "richer": rich_u}, False))
+    parts = {"instruments": systematic}
+    other = np.zeros_like(systematic)
+    for (pair, independent), name in zip(splits, ("data_kinds", "load_family")):
+        part = instrument_std(pair, independent)
+        part_static, part_osc = instrument_split(pair, independent)
+        parts[name] = part
+        other = np.sqrt(other ** 2 + part ** 2)
+        sys_static = np.sqrt(sys_static ** 2 + part_static ** 2)
+        sys_osc = np.sqrt(sys_osc ** 2 + part_osc ** 2)
+    std = np.sqrt(noise ** 2 + systematic[None] ** 2 + other[None] ** 2)
     inferior = problem.mesh.node_side == SIDE_INFERIOR
     superior = problem.mesh.node_side == SIDE_SUPERIOR
     win = u[:-1]
@@ -147,7 +166,8 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, mini
     summary = {"inferior_uncertainty_rel": relative_uncertainty(std, u, inferior),
                "superior_uncertainty_rel": relative_uncertainty(std, u, superior),
                "inferior_posterior_rel": relative_uncertainty(noise, u, inferior),
-               "inferior_instruments_rel": relative_uncertainty(np.broadcast_to(systematic, u.shape), u, inferior),
+               **{f"inferior_{k}_rel": relative_uncertainty(np.broadcast_to(v, u.shape), u, inferior)
+                  for k, v in parts.items()},
                "inferior_oscillating_uncertainty_rel": relative_uncertainty(osc_std, osc, inferior),
                "inferior_static_rms_mm": rms(static[inferior]),
                "inferior_static_std_mm": rms(static_std[inferior]),
@@ -219,8 +239,9 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         if cfg.uncertainty:
             after = Phases(ctx.progress, f"optimize {run}", 1, log)
             after("stated uncertainty")
+            richer = richer_load_problem(problem, setup.field, run_model(reader), ctx.map)
             std, systematic, static_std, unc = reconstruction_uncertainty(problem, result.x, setup.field,
-                                                                          minimum=not stalled)
+                                                                          minimum=not stalled, richer=richer)
             s.put("displacement_std", std.astype(np.float32))
             s.put("displacement_std_instruments", systematic.astype(np.float32))
             s.put("displacement_std_static", static_std.astype(np.float32))

@@ -138,6 +138,26 @@ class PressureLoad(LoadModel):
         self.n_spatial = 1 + int(self.inferior_linear_x) + self.medial_z * self.medial_x
         self.n_time = self.time_degree + 2
 
+    def richer(self) -> "PressureLoad":
+        """The next richer pressure load: one more Legendre degree in the medial height, one more even degree
+        along the fold, and the inferior surface's linear variation; the same pressure record, window and time
+        basis. Its fit against this one's says how much the reconstruction hangs on the load's spatial family
+        (:func:`vfcli.inverse.uncertainty.load_family_fit`)."""
+        return PressureLoad(self.pressure_time, self.pressure_pa, self.t_range, time_degree=self.time_degree,
+                            medial_z=self.medial_z + 1, medial_x=self.medial_x + 1, inferior_linear_x=True)
+
+    def embedding(self, other: "PressureLoad") -> np.ndarray:
+        """(n_params,) int: the index in ``other``'s control values of each of this load's (the same shape and
+        time column); ``other`` must hold every shape of this one (as :meth:`richer` does)."""
+        if other.n_time != self.n_time:
+            raise ValueError(f"pressure loads with {self.n_time} and {other.n_time} time columns do not nest")
+        where = {name: k for k, name in enumerate(other.spatial_names())}
+        missing = [name for name in self.spatial_names() if name not in where]
+        if missing:
+            raise ValueError(f"the other pressure load has no shape {missing[0]!r}")
+        rows = np.array([where[name] for name in self.spatial_names()])
+        return (rows[:, None] * other.n_time + np.arange(self.n_time)[None, :]).ravel()
+
     # ------------------------------------------------------------ space
     def spatial_names(self) -> list[str]:
         names = ["inferior/uniform"] + (["inferior/x1"] if self.inferior_linear_x else [])
