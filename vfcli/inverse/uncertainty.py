@@ -95,9 +95,10 @@ that followed the share, not the data; the expected bias now leaves the ridge's 
   the difference itself, not over sqrt(2), is how much the reconstruction hangs on the family
   (tests/test_load_family.py: a load outside the family, the fit 7.45 % off, stated 9.42 %).
 
-On seven kept widened stores (session 74; docs/benchmarks.md "Session 74: the stated uncertainty
-measured") the 90 % intervals covered 82.4-92.9 % of the inferior surface (6 of 7 within 85-95 %)
-where the stand-in gave 91.4-96.6 % (5 of 7).
+On eleven kept stores refitted both ways (session 74; docs/benchmarks.md "Session 74: the stated
+uncertainty measured") the 90 % intervals covered 82.4-92.9 % of the inferior surface (7 of 11 within
+85-95 %) where the stand-in gave 88.8-96.6 % (9 of 11); on 24 fresh widened seeds 79.7-92.9 % (19 of
+24; every miss too narrow: each split is one difference, an order of magnitude of a variance).
 """
 from __future__ import annotations
 
