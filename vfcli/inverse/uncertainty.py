@@ -98,7 +98,7 @@ that followed the share, not the data; the expected bias now leaves the ridge's 
 On eleven kept stores refitted both ways (session 74; docs/benchmarks.md "Session 74: the stated
 uncertainty measured") the 90 % intervals covered 82.4-92.9 % of the inferior surface (7 of 11 within
 85-95 %) where the stand-in gave 88.8-96.6 % (9 of 11); on 40 fresh widened seeds 75.7-92.9 % (31 of
-40; every miss too narrow; by component the lateral is stated narrow, the vertical still wide).
+40; every miss too narrow; by component the horizontal is stated narrow, the vertical still wide).
 """
 from __future__ import annotations
 
