@@ -108,6 +108,9 @@ class Setup:
         The load model.
     lcurve : LCurve or None
         The L-curve that chose the ridge weight (None: the weight was given).
+    model : ElasticModel or None
+        The elastic model the response was solved on (factorised by then): the stated uncertainty's richer load
+        family solves on it (:func:`richer_load_problem`) instead of factorising the folds again.
     """
 
     rotation_deg: float
@@ -115,6 +118,7 @@ class Setup:
     pose_source: str
     field: LoadModel
     lcurve: LCurve | None
+    model: ElasticModel | None = None
 
 
 def camera_pose(inputs: OptimizeInputs, pose: tuple[float, tuple[float, float]] | None
@@ -237,7 +241,7 @@ def build_problem(inputs: OptimizeInputs, cfg: OptimizeConfig,
         if cfg.loads == "pressure" and curve.unbounded:
             warn_unbounded_correction(curve)
         problem = Problem(inputs.mesh, camera, response, measurement, replace(settings, ridge_weight=curve.chosen))
-    return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve)
+    return problem, Setup(rotation, (float(offset[0]), float(offset[1])), pose_source, field, curve, model)
 
 
 def richer_load_problem(problem: Problem, field: LoadModel, model: ElasticModel,

@@ -31,7 +31,7 @@ from vfcli.inverse.setup import richer_load_problem, setup_summary
 from vfcli.report.plots import convergence_plot, uncertainty_map
 from vfcli.store import StageWriter, StoreReader
 from vfcli.store.checkpoint import checkpoint_path, resume_flags
-from vfcli.store.fit import problem_of_store, run_model
+from vfcli.store.fit import problem_of_store
 from vfcli.inverse.sandwich import sandwich
 from vfcli.inverse.uncertainty import (data_kind_fits, displacement_std, effective_sample_size, instrument_fits,
                                        instrument_split, instrument_std, load_family_fit, relative_uncertainty,
@@ -140,14 +140,14 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, mini
     systematic = instrument_std(inst)
     sys_static, sys_osc = instrument_split(inst)
     kinds = {k: problem.displacements(v) for k, v in data_kind_fits(problem, x, frames, u).items()}
-    splits = [(kinds, True)]
+    splits = [("data_kinds", kinds, True)]
     if richer is not None:
         rich_problem, embed = richer
         rich_u = rich_problem.displacements(load_family_fit(rich_problem, embed, x))
-        splits.append(({"fit": u, "richer": rich_u}, False))
+        splits.append(("load_family", {"fit": u, "richer": rich_u}, False))
     parts = {"instruments": systematic}
     other = np.zeros_like(systematic)
-    for (pair, independent), name in zip(splits, ("data_kinds", "load_family")):
+    for name, pair, independent in splits:
         part = instrument_std(pair, independent)
         part_static, part_osc = instrument_split(pair, independent)
         parts[name] = part
@@ -239,7 +239,7 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
         if cfg.uncertainty:
             after = Phases(ctx.progress, f"optimize {run}", 1, log)
             after("stated uncertainty")
-            richer = richer_load_problem(problem, setup.field, run_model(reader), ctx.map)
+            richer = richer_load_problem(problem, setup.field, setup.model, ctx.map)
             std, systematic, static_std, unc = reconstruction_uncertainty(problem, result.x, setup.field,
                                                                           minimum=not stalled, richer=richer)
             s.put("displacement_std", std.astype(np.float32))
