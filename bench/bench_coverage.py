@@ -1,5 +1,6 @@
 """The stated uncertainty of stored optimize runs against the phantom's truth: how much of the inferior surface
-the 90 % intervals cover, the static part's, the stated sd against the error, and the parts of the stated sd.
+the 90 % intervals cover (in all and by component), the static part's, the stated sd against the error, and the parts
+of the stated sd.
 
 For kept stores (``bench_unseen.py --keep DIR`` or ``bench_diagnose.py --keep DIR``: a folder holding
 ``recording.h5`` and the phantom's ``truth.h5`` in ``raw/`` or ``truth/``), one markdown row per store and run.
@@ -25,7 +26,8 @@ from vfcli.synth.scoring import pose_half_turned  # noqa: E402
 
 MESH_KEYS = ("nodes", "tets", "tet_fold", "faces", "face_tag", "face_fold", "uv", "node_side")
 #: the parts of the stated sd a run's attributes give (relative to the RMS reconstructed motion; absent: "-")
-PARTS = ("inferior_posterior_rel", "inferior_instruments_rel", "inferior_data_kinds_rel", "inferior_load_family_rel")
+PARTS = ("inferior_posterior_rel", "inferior_instruments_rel", "inferior_data_kinds_rel", "inferior_load_family_rel",
+         "inferior_regularisation_rel")
 
 
 def truth_path(folder: Path) -> Path:
@@ -63,14 +65,16 @@ def main() -> None:
     ap.add_argument("folders", nargs="+", type=Path)
     ap.add_argument("--runs", nargs="+", default=["default"])
     args = ap.parse_args()
-    print("| store | run | inferior total error | 90 % coverage | static part's | stated sd / RMS true | parts: "
-          "posterior / instruments / kinds of data / load family | stated uncertainty, s |")
-    print("| --- | --- | ---: | ---: | ---: | ---: | --- | ---: |")
+    print("| store | run | inferior total error | 90 % coverage | static part's | by component: longitudinal / lateral / "
+          "vertical | stated sd / RMS true | parts: posterior / instruments / kinds of data / load family / "
+          "regularisation | stated uncertainty, s |")
+    print("| --- | --- | ---: | ---: | ---: | --- | ---: | --- | ---: |")
     for folder in args.folders:
         for run in args.runs:
             s = score_run(folder, run)
             print(f"| {folder.name} | {run} | {_pct(s['inf_total_err'])} | {_pct(s['coverage90'])} | "
-                  f"{_pct(s['coverage90_static'])} | {_pct(s['stated_std_rel'])} | "
+                  f"{_pct(s['coverage90_static'])} | {' / '.join(_pct(v) for v in s['coverage90_xyz'])} | "
+                  f"{_pct(s['stated_std_rel'])} | "
                   f"{' / '.join(_pct(v) for v in s['parts'])} | {s['uncertainty_time_s']:.1f} |")
 
 

@@ -25,7 +25,7 @@ need it. Afterwards, and only then, truth.h5 is read and the products are scored
   the window) RMS error relative to the RMS true oscillation; the static part (the mean over the
   window) RMS error, mm, and the true and reconstructed mean vertical displacement, mm; the
   total error relative to the RMS true displacement; the coverage of the 90 % intervals
-  ``displacement +- 1.645 displacement_std`` (every inferior node, component and time), and of the
+  ``displacement +- 1.645 displacement_std`` (every inferior node, component and time; and per component), and of the
   static part's ``mean +- 1.645 displacement_std_static`` (every inferior node and component), with
   the stated standard deviation of the static vertical displacement (``inferior_static_mean_z_std_mm``);
 * optimize's pose (from the config or estimated from the gap): rotation error (deg, wrapped) and
@@ -208,6 +208,7 @@ def score_inferior(t: dict, mesh: FoldMesh, disp: np.ndarray, std: np.ndarray, s
     s["inf_mean_z_est_mm"] = float(est_mean[:, 2].mean())
     s["inf_total_err"] = rms(est - ref) / rms(ref)
     s["coverage90"] = interval_coverage(est, std[:, nodes], ref)
+    s["coverage90_xyz"] = [interval_coverage(est[..., c], std[:, nodes][..., c], ref[..., c]) for c in range(3)]
     s["coverage90_static"] = (interval_coverage(est_mean, std_static[nodes], ref_mean) if std_static is not None
                               else float("nan"))
     s["stated_std_rel"] = rms(std[:, nodes]) / rms(ref)

@@ -87,7 +87,7 @@ def test_a_run_fitted_by_an_older_method_is_stale_with_what_changed(vfcli, tmp_p
         with w.stage("diagnose", run="default", config_json="{}", upstream=[("optimize", "default")]) as s:
             s.put("frame_time", np.arange(3.0))
     with store.read() as r:
-        assert r.group("optimize", "default").attrs[layout.METHOD_ATTR] == layout.stage("optimize").method == 8
+        assert r.group("optimize", "default").attrs[layout.METHOD_ATTR] == layout.stage("optimize").method == 9
         assert r.group("mesh").attrs[layout.METHOD_ATTR] == 1
         assert not any(st.stale for st in r.statuses())
         assert r.is_current("optimize", "{}", upstream=[("mesh", None)], run="default")
@@ -97,13 +97,14 @@ def test_a_run_fitted_by_an_older_method_is_stale_with_what_changed(vfcli, tmp_p
         del f["/optimize/default"].attrs[layout.METHOD_ATTR]
     res = vfcli("info", path, "--verify")
     assert res.returncode == 0, res.stderr   # not damaged: the version is not part of the checksums
-    assert ("STALE: method changed: optimize method 1 -> 8 (the model's velocity at the frame times "
+    assert ("STALE: method changed: optimize method 1 -> 9 (the model's velocity at the frame times "
             "(central differences)") in res.stdout
     assert "; the L-curve scans 16 decades" in res.stdout           # every change since the run's version
     assert "; the stated uncertainty's instrument part compares" in res.stdout
     assert "; the estimated pose places mid-length by the motion's symmetry" in res.stdout
     assert "; a ray the camera sees closed asks a simulated gap on it to close where it stands" in res.stdout
     assert "; the estimated pose searches mid-length by the motion's symmetry wherever the glottis" in res.stdout
+    assert "; the stated uncertainty adds how far the fit moves across the width of the L-curve's corner" in res.stdout
     assert "STALE: /optimize/default is stale" in res.stdout
     with store.read() as r:
         status = {st.path: st for st in r.statuses()}

@@ -6,7 +6,7 @@ import scipy.sparse as sp
 from vfcli.inverse.block_matrix import BlockMatrix
 from vfcli.inverse.linearization import QuadraticModel
 from vfcli.inverse.terms import Terms
-from vfcli.inverse.regularization import lcurve
+from vfcli.inverse.regularization import LCurve, lcurve
 
 
 def _ill_posed(seed: int, noise: float):
@@ -97,3 +97,33 @@ def test_the_default_scan_reaches_the_corner_where_the_free_correction_gives_way
     free = lambda lam: np.linalg.norm(solution(lam)[3:])                        # noqa: E731
     assert free(curve.chosen) < 1e-3 * free(curve.weights[0])
     np.testing.assert_allclose(solution(curve.chosen)[:3], g_true, atol=2e-3)   # measured 3e-4
+
+
+def _curve_with_curvature(curvature: np.ndarray, chosen_index: int) -> LCurve:
+    """An L-curve of 33 weights two per decade whose curvature is given (misfit and penalty do not enter)."""
+    weights = 10.0 ** np.linspace(-6.0, 10.0, 33)
+    ones = np.ones_like(weights)
+    return LCurve(weights, ones, ones, np.asarray(curvature, float), float(weights[chosen_index]))
+
+
+def test_the_corner_width_is_where_the_curvature_falls_to_half_its_peak():
+    """A corner whose curvature is a Gaussian in log10 weight, narrower on the weaker side (sd 0.4 decade) than on
+    the stronger (0.9 decade): the half-maximum lies sqrt(2 ln 2) sd from the peak on each side, read by linear
+    interpolation between the scanned weights (two per decade; measured 0.010 and 0.008 decade off). A curvature
+    that stays above half its peak to the scan's end gives that end; a corner of no positive curvature, its
+    neighbours."""
+    weights = 10.0 ** np.linspace(-6.0, 10.0, 33)
+    t = np.log10(weights)
+    peak = 20
+    sd = np.where(t < t[peak], 0.4, 0.9)
+    curve = _curve_with_curvature(3.0 * np.exp(-0.5 * ((t - t[peak]) / sd) ** 2), peak)
+    weaker, stronger = curve.corner_width()
+    half = np.sqrt(2.0 * np.log(2.0))
+    assert np.log10(weaker) == pytest.approx(t[peak] - half * 0.4, abs=0.02)
+    assert np.log10(stronger) == pytest.approx(t[peak] + half * 0.9, abs=0.02)
+    assert weaker < curve.chosen < stronger
+    plateau = _curve_with_curvature(np.where(t >= t[peak], 1.0, 0.1), peak)
+    assert plateau.corner_width()[1] == weights[-1]
+    assert plateau.corner_width()[0] == pytest.approx(10 ** (t[peak] - 0.5 * 5 / 9), rel=1e-9)  # 1 -> 0.1 over a step
+    flat = _curve_with_curvature(-np.ones_like(t), peak)
+    assert flat.corner_width() == (weights[peak - 1], weights[peak + 1])

@@ -37,6 +37,10 @@ from vfcli.inverse.linearization import QuadraticModel
 
 log = logging.getLogger(__name__)
 
+#: The share of the corner's curvature that bounds its width (:meth:`LCurve.corner_width`): half the maximum, the
+#: usual width of a peak.
+CORNER_LEVEL = 0.5
+
 
 @dataclass(frozen=True)
 class LCurve:
@@ -59,6 +63,35 @@ class LCurve:
         proof-panel phantoms) and 1-5 decades below it on the panel's three inertia phantoms, whose quasi-static model
         the tied loads cannot fit (docs/benchmarks.md, "Session 55")."""
         return bool(self.chosen < self.reference)
+
+    def corner_width(self, level: float = CORNER_LEVEL) -> tuple[float, float]:
+        """(weaker, stronger): the weights on either side of the corner where the curvature has fallen to ``level``
+        of the corner's, interpolated in log weight, 1/Pa^2.
+
+        The corner is a maximum of curvature; how sharply it stands out says how well the L-curve fixes the weight,
+        so the fits across this width are equally good readings of the curve (the stated uncertainty's
+        regularisation split, :func:`vfcli.inverse.uncertainty.corner_fits`).  Where the curvature stays above
+        ``level`` to the end of the scan, that end; a corner of no positive curvature has the scanned neighbours.
+        """
+        w, k = np.asarray(self.weights, float), np.asarray(self.curvature, float)
+        i = int(np.argmin(np.abs(np.log(w / self.chosen))))
+        if k[i] <= 0:
+            return float(w[max(i - 1, 0)]), float(w[min(i + 1, len(w) - 1)])
+        half = level * k[i]
+        out = []
+        for step in (-1, 1):
+            j = i + step
+            if not 0 <= j < len(w):
+                out.append(float(w[i]))
+                continue
+            while 0 <= j + step < len(w) and k[j] >= half:
+                j += step
+            if k[j] >= half:                               # the scan's end
+                out.append(float(w[j]))
+                continue
+            frac = (half - k[j]) / (k[j - step] - k[j])    # from w[j] (below) towards w[j - step] (above)
+            out.append(float(np.exp(np.log(w[j]) + frac * (np.log(w[j - step]) - np.log(w[j])))))
+        return out[0], out[1]
 
 
 def lcurve(model: QuadraticModel, x0: np.ndarray, omega: sp.spmatrix, n_points: int = 33,

@@ -33,9 +33,9 @@ from vfcli.store import StageWriter, StoreReader
 from vfcli.store.checkpoint import checkpoint_path, resume_flags
 from vfcli.store.fit import problem_of_store
 from vfcli.inverse.sandwich import sandwich
-from vfcli.inverse.uncertainty import (data_kind_fits, displacement_std, effective_sample_size, instrument_fits,
-                                       instrument_split, instrument_std, load_family_fit, relative_uncertainty,
-                                       window_mean, window_oscillation)
+from vfcli.inverse.uncertainty import (corner_fits, data_kind_fits, displacement_std, effective_sample_size,
+                                       instrument_fits, instrument_split, instrument_std, load_family_fit,
+                                       relative_uncertainty, window_mean, window_oscillation)
 from vfcli.model.loads.pressure import PressureLoad
 from vfcli.progress import Phases
 from vfcli.stages.base import RunContext, StageResult, optimize_settings_json, run_stage
@@ -102,20 +102,24 @@ def check_convergence(result, method: str) -> bool:
 
 
 def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, minimum: bool = True,
-                               richer: tuple[Problem, np.ndarray] | None = None
-                               ) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+                               richer: tuple[Problem, np.ndarray] | None = None,
+                               corner: tuple[float, float] | None = None
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, float]]:
     """Standard deviation of the displacements of a fit at ``x``, and its summary.
 
     The mean squared error of the fit (vfcli/inverse/sandwich.py: the sandwich covariance
     from the per-frame scores, plus the ridge's expected bias where the ridge is a prior), plus in
-    quadrature the systematic parts three splits of the fit measure (vfcli/inverse/uncertainty.py): what
+    quadrature the systematic parts four splits of the fit measure (vfcli/inverse/uncertainty.py): what
     the camera-only and the vibrometer-only reconstructions disagree by, what the velocities-only and the
-    gap-only ones disagree by, and how far the next richer load family moves the reconstruction (given
-    ``richer``); each split into the static part (the mean over the window) and the oscillating part.
+    gap-only ones disagree by, how far the next richer load family moves the reconstruction (given
+    ``richer``) and how far the ridge weights across the L-curve corner's width move it (given ``corner``: the RMS
+    of the two sides' moves); each split into the static part (the mean over the window) and the oscillating part.
 
     field : the load model (a :class:`vfcli.model.loads.pressure.PressureLoad` adds how much
         of the static inferior shape the measured pressure carries).
     richer : (problem, embedding) of :func:`vfcli.inverse.setup.richer_load_problem`, or None.
+    corner : (weaker, stronger) ridge weights of :meth:`vfcli.inverse.regularization.LCurve.corner_width`, or None
+        (the weight was given, not read off an L-curve).
     minimum : x is a fitted minimum (False: no warning that the recording leaves the static shape open,
         :func:`check_convergence` has said why the figures are what they are).
 
@@ -140,16 +144,21 @@ def reconstruction_uncertainty(problem: Problem, x: np.ndarray, field=None, mini
     systematic = instrument_std(inst)
     sys_static, sys_osc = instrument_split(inst)
     kinds = {k: problem.displacements(v) for k, v in data_kind_fits(problem, x, frames, u).items()}
-    splits = [("data_kinds", kinds, True)]
+    splits = [("data_kinds", [kinds], True)]
     if richer is not None:
         rich_problem, embed = richer
         rich_u = rich_problem.displacements(load_family_fit(rich_problem, embed, x))
-        splits.append(("load_family", {"fit": u, "richer": rich_u}, False))
+        splits.append(("load_family", [{"fit": u, "richer": rich_u}], False))
+    if corner is not None:
+        sides = corner_fits(problem, x, dict(zip(("weaker", "stronger"), corner)), frames, u)
+        splits.append(("regularisation", [{"fit": u, k: problem.displacements(v)} for k, v in sides.items()], False))
     parts = {"instruments": systematic}
     other = np.zeros_like(systematic)
-    for name, pair, independent in splits:
-        part = instrument_std(pair, independent)
-        part_static, part_osc = instrument_split(pair, independent)
+    for name, pairs, independent in splits:
+        # several pairs of one split (the corner's two sides): the RMS of their parts
+        part = np.sqrt(np.mean([instrument_std(p, independent) ** 2 for p in pairs], axis=0))
+        halves = [instrument_split(p, independent) for p in pairs]
+        part_static, part_osc = (np.sqrt(np.mean([h[i] ** 2 for h in halves], axis=0)) for i in (0, 1))
         parts[name] = part
         other = np.sqrt(other ** 2 + part ** 2)
         sys_static = np.sqrt(sys_static ** 2 + part_static ** 2)
@@ -240,8 +249,10 @@ def run_optimize(ctx: RunContext, run: str = "default", resume_run: bool = False
             after = Phases(ctx.progress, f"optimize {run}", 1, log)
             after("stated uncertainty")
             richer = richer_load_problem(problem, setup.field, setup.model, ctx.map)
+            corner = setup.lcurve.corner_width() if setup.lcurve is not None else None
             std, systematic, static_std, unc = reconstruction_uncertainty(problem, result.x, setup.field,
-                                                                          minimum=not stalled, richer=richer)
+                                                                          minimum=not stalled, richer=richer,
+                                                                          corner=corner)
             s.put("displacement_std", std.astype(np.float32))
             s.put("displacement_std_instruments", systematic.astype(np.float32))
             s.put("displacement_std_static", static_std.astype(np.float32))

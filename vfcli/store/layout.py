@@ -282,7 +282,7 @@ STAGES: dict[str, Stage] = {
             "One optimisation run: force-field control values, history and the reconstructed motion.",
             reads=("mesh", "fields", "flow", "hsc"),
             has_runs=True,
-            method=8,
+            method=9,
             method_changes={2: "the model's velocity at the frame times (central differences), no longer half a "
                                "frame later (vfcli 2c4c8b6)",
                             3: "the L-curve scans 16 decades of ridge weight, to its real corner (it stopped on "
@@ -301,7 +301,9 @@ STAGES: dict[str, Stage] = {
                             8: "the stated uncertainty measures what the load model leaves open (the velocities-only "
                                "against the gap-only reconstruction, and a step into the next richer pressure load "
                                "family) in place of the expected bias of the pressure gains' 1e-6 ridge share, which "
-                               "followed the share, not the data"},
+                               "followed the share, not the data",
+                            9: "the stated uncertainty adds how far the fit moves across the width of the L-curve's "
+                               "corner (the ridge weights where its curvature falls to half the corner's)"},
             datasets={
                 "sim_time": D("s", "Model times: the window's frame times and one step after", ("sim_time",)),
                 "displacements": D("mm", "Reconstructed vertex displacements", ("sim_time", "node", "xyz"), True),
@@ -319,7 +321,9 @@ STAGES: dict[str, Stage] = {
                 "history_ridge": D("1", "Ridge (Tikhonov) term of E", ("iteration",)),
                 "displacement_std": D("mm", "Standard deviation of each reconstructed displacement component: "
                                       "the fit's mean squared error (sandwich covariance and the ridge's expected bias, "
-                                      "vfcli/inverse/sandwich.py) and instrument disagreement in quadrature; absent "
+                                      "vfcli/inverse/sandwich.py) and the splits' systematic parts (the instruments, "
+                                      "the kinds of data, the load family, the L-curve corner's width; "
+                                      "vfcli/inverse/uncertainty.py) in quadrature; absent "
                                       "with optimize.uncertainty = false and in diagnose's refit runs (<run>+<term>), "
                                       "which state their parameter's interval (refit_theta_sd)",
                                       ("sim_time", "node", "xyz"), True),
@@ -327,7 +331,7 @@ STAGES: dict[str, Stage] = {
                                                   "difference between the camera-only and the vibrometer-only "
                                                   "reconstructions, / sqrt 2", ("node", "xyz")),
                 "displacement_std_static": D("mm", "Standard deviation of the static part of each displacement "
-                                             "component (its mean over the window): the fit's and the instruments' "
+                                             "component (its mean over the window): the fit's and the splits' "
                                              "parts in quadrature", ("node", "xyz")),
                 "lcurve_weight": D("1/Pa^2", "Tikhonov weights scanned by the L-curve (free-regularised)", ("lcurve",)),
                 "lcurve_misfit": D("1", "Predicted data misfit E_data at each weight", ("lcurve",)),
