@@ -165,8 +165,12 @@ ForkMap(2)(piece, range(2))
 
 
 _FLAG_ONLY = """
-import _thread, sys, threading, time
+import _thread, signal, sys, threading, time
 from vfcli.fork_map import ForkMap
+
+# Python's own Ctrl-C handler, which interrupt_main needs: a suite started as a background job (`make test &` from a
+# script) passes SIGINT on ignored, and interrupt_main then does nothing (the wait ran its 30 s, session 76)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 def piece(i):
     time.sleep(30)
