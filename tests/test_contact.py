@@ -198,3 +198,52 @@ def test_the_correction_is_the_elastic_solve_of_the_contact_forces():
     assert np.abs(direct).max() > 0.1                          # the crossing is pushed back by about its depth
     assert np.abs(got - direct).max() < 1e-9 * np.abs(direct).max()
     assert not np.any(term.correction(base, np.zeros_like(lam)))
+
+
+@pytest.mark.slow
+def test_a_crossing_that_comes_with_the_closure_is_contacts_signature_and_one_that_stays_is_not():
+    """Fresh null 2348 (session 77) was named "contact": its no-contact fit crossed the midplane by 0.33 mm in
+    every frame, open or closed (its rest shape), and the contact refit's constant push passed both held-out
+    comparisons.  Collision's signature is a crossing that comes with the closure: on the crossing case (0.004 to
+    0.26 mm over the cycle) with its deepest frames recorded closed it is there; said closed in its shallowest
+    frames, or the same crossing frozen at its deepest with a tenth of its swing left, it is not."""
+    base = crossing_case()
+    term = Contact()
+    depth = term.overlap(base)[:-1]
+    deep = np.zeros(len(depth), bool)
+    deep[np.argsort(depth)[-3:]] = True
+    assert term.missing_signature(base, deep) == ""
+    shallow = np.zeros(len(depth), bool)
+    shallow[np.argsort(depth)[:3]] = True
+    assert "no deeper while the glottis is closed" in term.missing_signature(base, shallow)
+    assert "closed in no frame" in term.missing_signature(base, np.zeros(len(depth), bool))
+    # the same folds held near their deepest crossing: a tenth of the swing about it is left
+    u = base.displacements
+    k = int(np.argmax(depth))
+    held = Baseline(base.problem, base.x, u[k] + 0.1 * (u - u[k]), base.frames, base.f0_hz, base.model)
+    d_held = term.overlap(held)[:-1]
+    assert d_held.min() > 0.2 and d_held.max() - d_held.min() < 0.1 * depth.max(), d_held   # 0.236-0.262 mm
+    words = term.missing_signature(held, deep)
+    assert "at every time of the window, open or closed" in words and "rest shape" in words, words
+
+
+def test_a_refit_without_its_terms_signature_confirms_nothing_and_says_why():
+    from vfcli.diagnose.confirmation import Confirmation, HeldOutError
+    from vfcli.diagnose.decide import decide
+
+    h = HeldOutError("cycles", "mm/s", np.array([2.0, 2.2, 1.8]), np.array([1.0, 1.2, 0.9]))
+    found = Confirmation("contact", ("contact_share",), np.array([0.18]), np.array([0.05]), heldout=(h,))
+    why = "the folds of the no-contact fit cross the midplane by 0.33 mm at every time of the window"
+    held = Confirmation("contact", ("contact_share",), np.array([0.18]), np.array([0.05]), heldout=(h,),
+                        signature_missing=why)
+    assert found.improves and not held.improves
+    assert held.shortfall == f"the baseline does not show its signature: {why}"
+    assert held.as_dict()["signature_missing"] == why and found.as_dict()["signature_missing"] == ""
+    names = ["inertia", "damping", "asymmetry", "contact"]
+    d = decide(names, np.array([0.6, 0.9, 0.5, 0.01]), [True] * 4, 199, confirmations={"contact": held})
+    assert d.findings == () and d.lines[-1] == "no missing physics detected (unconfirmed lead: contact)"
+    line = next(x for x in d.lines if x.startswith("contact: "))
+    assert line.endswith(f"a calibrated lead (family-wise p = 0.01), the baseline does not show its signature: {why}"), \
+        line
+    d = decide(names, np.array([0.6, 0.9, 0.5, 0.01]), [True] * 4, 199, confirmations={"contact": found})
+    assert d.findings == ("contact",)

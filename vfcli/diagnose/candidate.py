@@ -147,6 +147,9 @@ class Candidate(Protocol):
         crossing), said after the screening line.
     reading : optional ``reading(theta) -> str``: an estimate of theta in the lab's terms (the mounting offsets as
         the folds' mounting), said after the screening's one-step estimate and the refit's estimate.
+    missing_signature : optional ``missing_signature(baseline) -> str``: "" when the baseline shows what the term's
+        signature says it must, else why not; a refit of a term whose signature is missing confirms nothing
+        (:attr:`vfcli.diagnose.confirmation.Confirmation.signature_missing`; contact's crossing with the closure).
     """
 
     name: str

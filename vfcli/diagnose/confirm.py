@@ -141,10 +141,12 @@ def confirm_run(baseline: Baseline, candidate, window_phase: np.ndarray, locate=
     sd, name, dof, _ = heldout_sd(result.theta, result.sd, held, mesh)
     estimate, sd = mesh_corrected(result.theta, sd, shift)
     e_base = float(baseline.problem.evaluate(baseline.x).total)
+    missing = getattr(candidate, "missing_signature", None)
     conf = Confirmation(candidate.name, tuple(candidate.parameter_names), estimate, sd, name, held, dof=dof,
                         moved=len(result.history["iteration"]) > 1 or result.profiled,
                         lowers_e=bool(result.total_at(baseline.problem.settings.ridge_weight)
-                                      < e_base * (1.0 - LOWER_RTOL)), mesh_shift=shift)
+                                      < e_base * (1.0 - LOWER_RTOL)), mesh_shift=shift,
+                        signature_missing=missing(baseline) if callable(missing) else "")
     return Confirmed(result, conf, locate(extended_baseline(baseline, result)) if locate is not None else None)
 
 

@@ -174,6 +174,8 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
                      "; its refit, asked for by name, predicts held-out data better beyond the spread, but a finding "
                      "needs a calibrated lead as well (the false-alarm rate is controlled over the screening)"
                      if bool(getattr(confirmations[n], "improves", False)) else
+                     f"; its refit, asked for by name, does not confirm it either: {_shortfall(confirmations[n])}"
+                     if getattr(confirmations[n], "signature_missing", "") else
                      "; its refit, asked for by name, does not predict held-out data better beyond the spread either")
             lines.append(f"{n}: no evidence beyond noise and model error (calibrated family-wise "
                          f"{_p(p[i], n_replicates)})" + (f"; {limits[n]}" if n in limits else "") + asked)

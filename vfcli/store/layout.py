@@ -349,7 +349,7 @@ STAGES: dict[str, Stage] = {
             "bootstrap calibration, and the decision (attrs decision, alpha_family).",
             reads=("optimize", "mesh", "fields", "flow", "ldv", "sync"),
             has_runs=True,
-            method=8,
+            method=9,
             method_changes={2: "the model's velocity at the frame times in every motion row (vfcli 2c4c8b6)",
                             3: "a refit confirms a finding only when it lowers E below the baseline's (a refit that "
                                "kept no step had confirmed on its held-out fits alone; session 51)",
@@ -367,7 +367,10 @@ STAGES: dict[str, Stage] = {
                                "shape; session 55)",
                             8: "a refit that never left the value it started from (contact's full share) confirms no "
                                "finding: it estimates nothing (nulls 2061 and 2139 had been named contact on its "
-                               "held-out fits; session 65)"},
+                               "held-out fits; session 65)",
+                            9: "a refit confirms no finding where the baseline lacks its term's signature: contact's "
+                               "crossing of the midplane must come with the closure (null 2348 had been named contact "
+                               "on a crossing its fit held open as closed; session 77)"},
             datasets={
                 "frame_time": D("s", "Times of the run's window frames", ("frame_time",)),
                 "frame_phase": D("cycles", "Glottal cycle phase of each window frame (from the gap area)", ("frame_time",)),

@@ -248,6 +248,46 @@ class Contact(DisplacementTerm):
                              else f"not at all {when} ({int(mask.sum())} frames)")
         return "the folds of the no-contact fit cross the midplane " + "; ".join(parts)
 
+    def missing_signature(self, baseline, closed: np.ndarray | None = None) -> str:
+        """Why the no-contact fit's crossing of the midplane is not collision's signature ("" when it is).
+
+        Collision acts at closure: a no-contact fit that had to cross the midplane to match a closed glottis crosses
+        while the recording shows it closed, and less while it is open.  A crossing the fit holds at every time, open
+        or closed, is its rest shape and mounting (what the offset candidate reads), not a collision, and a refit
+        with contact then pushes the folds back by a constant: a finding of "contact" from it names the wrong physics
+        (fresh null 2348: 0.337 mm on average while closed, 0.329 mm while open, 0.33 mm in every frame; refit share
+        0.183 confirmed, docs/benchmarks.md "Session 77").  Missing when (in the frames at the frame times):
+
+        * the recording shows no closed frame in the window, or the fit does not cross while it is closed;
+        * the fit crosses no deeper on average while the recording is closed than while it is open;
+        * the crossing that comes with the closure (the closed frames' mean depth less the window's shallowest) is
+          smaller than the crossing that stays (the window's shallowest depth): most of it is the rest shape.
+
+        The last rule's bound (half the closed phase's crossing) is the definition of "most", not a value fitted to
+        recordings: on the fresh nulls and the blind panel's contact recordings measured in session 76 the crossing
+        that comes with the closure was within 0.02 mm of nothing on a crossing of 0.03-0.63 mm, which any bound
+        would have read alike.
+
+        closed : (F,) bool, the frames the recording shows closed (default :func:`closed_frames`).
+        """
+        depth = self.overlap(baseline)[:-1]
+        closed = closed_frames(baseline.problem.meas) if closed is None else np.asarray(closed, bool)
+        if not closed.any():
+            return "the recording shows the glottis closed in no frame of the window, so no crossing comes with a closure"
+        shut = float(depth[closed].mean())
+        if shut <= CROSSING_TOL_MM:
+            return "the folds of the no-contact fit do not cross the midplane while the recording shows the glottis closed"
+        if (~closed).any() and shut <= float(depth[~closed].mean()):
+            return (f"the folds of the no-contact fit cross the midplane no deeper while the glottis is closed "
+                    f"({shut:.2g} mm on average) than while it is open ({float(depth[~closed].mean()):.2g} mm): the "
+                    "crossing does not come with the closure")
+        stays = float(depth.min())
+        if shut - stays < stays:
+            return (f"the folds of the no-contact fit cross the midplane by {stays:.2g} mm at every time of the window, "
+                    f"open or closed, and by {shut:.2g} mm on average while closed: most of the crossing is the fit's "
+                    "rest shape (its mounting, the offset candidate's reading), not a collision at closure")
+        return ""
+
 
 def closed_frames(meas) -> np.ndarray:
     """(F,) bool: the frames whose recorded gap area is at most :data:`CLOSED_AREA_SHARE` of the
