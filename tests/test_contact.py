@@ -247,3 +247,8 @@ def test_a_refit_without_its_terms_signature_confirms_nothing_and_says_why():
         line
     d = decide(names, np.array([0.6, 0.9, 0.5, 0.01]), [True] * 4, 199, confirmations={"contact": found})
     assert d.findings == ("contact",)
+    # asked for by name (--refit contact) where contact is no lead: the line says why its refit cannot count
+    d = decide(names, np.array([0.6, 0.9, 0.5, 0.7]), [True] * 4, 199, confirmations={"contact": held})
+    line = next(x for x in d.lines if x.startswith("contact: "))
+    assert line.endswith(f"; its refit, asked for by name, does not confirm it either: the baseline does not show its "
+                         f"signature: {why}"), line
