@@ -147,7 +147,8 @@ def decide(names: Sequence[str], p_family: np.ndarray, identifiable: Sequence[bo
     head = (f"decision: screening at family-wise rate {alpha:g} over {len(names)} candidates, calibrated by "
             f"{n_replicates} bootstrap replicates (noise resampled in whole cycles, periodic model error included as "
             "if at a random phase of the cycle; a model error in phase with the motion raises leads beyond that "
-            "rate), and a lead named only when its refit predicts held-out data better beyond the spread")
+            "rate), and a lead named only when its refit predicts held-out data better beyond the spread and the "
+            "baseline shows the term's signature")
     lines = [head]
     for i in order:
         n = names[i]
