@@ -76,11 +76,15 @@ def pytest_unconfigure(config):
 #: the slowest last one worker ran test_diagnose_refit_phantom.py alone for its last three minutes
 #: (10 min 8 s on a quiet machine). Ordered by the files' time in session 29's run (tests/_zygote.py
 #: in use), 84 s down to 26 s; session 68 split inertia's refit tests (about 90 s, 46 s of them the mesh part's)
-#: out of test_diagnose_refit.py and put them second.
+#: out of test_diagnose_refit.py and put them second. test_contact_phantom.py builds the diagnosed contact phantom
+#: that test_diagnose_stage.py and test_report.py read (:func:`shared_product`): in collection order the two files
+#: started together and one worker waited 13 s on the other's build (session 77, the wait logged per product), so it
+#: comes early.
 SLOW_FIRST = ("test_diagnose_refit_phantom.py", "test_diagnose_refit_inertia.py", "test_examples_batch.py",
               "test_diagnose_refit.py", "test_run.py",
               "test_hostile_fuzz_files.py", "test_batch.py", "test_store_commit.py", "test_rotation_end_to_end.py",
-              "test_fem.py", "test_hostile_fuzz.py", "test_flow_stage.py", "test_diagnose_calibrate.py")
+              "test_fem.py", "test_contact_phantom.py", "test_hostile_fuzz.py", "test_flow_stage.py",
+              "test_diagnose_calibrate.py")
 
 
 def pytest_configure(config):
