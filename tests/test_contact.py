@@ -202,7 +202,7 @@ def test_the_correction_is_the_elastic_solve_of_the_contact_forces():
 
 @pytest.mark.slow
 def test_a_crossing_that_comes_with_the_closure_is_contacts_signature_and_one_that_stays_is_not():
-    """Fresh null 2348 (session 77) was named "contact": its no-contact fit crossed the midplane by 0.33 mm in
+    """Fresh null 2348 (session 76) was named "contact": its no-contact fit crossed the midplane by 0.33 mm in
     every frame, open or closed (its rest shape), and the contact refit's constant push passed both held-out
     comparisons.  Collision's signature is a crossing that comes with the closure: on the crossing case (0.004 to
     0.26 mm over the cycle) with its deepest frames recorded closed it is there; said closed in its shallowest
