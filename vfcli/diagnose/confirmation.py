@@ -260,12 +260,15 @@ class Confirmation:
         return next((h for h in self.heldout if h.kind == kind), None)
 
     @property
+    def predicts_better(self) -> bool:
+        """Every held-out comparison made improves beyond its spread (False when none could be made)."""
+        return bool(self.heldout) and all(h.beyond_spread() for h in self.heldout)
+
+    @property
     def improves(self) -> bool:
-        """The refit left its start (``moved``), lowers E below the baseline's, every held-out comparison made
-        improves beyond its spread (False when none could be made) and the baseline shows the term's signature
-        (``signature_missing`` empty)."""
-        return (self.moved and self.lowers_e and bool(self.heldout) and all(h.beyond_spread() for h in self.heldout)
-                and not self.signature_missing)
+        """The refit left its start (``moved``), lowers E below the baseline's, predicts held-out data better
+        (``predicts_better``) and the baseline shows the term's signature (``signature_missing`` empty)."""
+        return self.moved and self.lowers_e and self.predicts_better and not self.signature_missing
 
     @property
     def shortfall(self) -> str:
@@ -276,7 +279,7 @@ class Confirmation:
             return "its refit explains nothing the baseline did not (E not below the baseline's)"
         if not self.moved:
             return "its refit never left the value it started from, so it estimates nothing"
-        if self.signature_missing and bool(self.heldout) and all(h.beyond_spread() for h in self.heldout):
+        if self.signature_missing and self.predicts_better:
             return f"the baseline does not show its signature: {self.signature_missing}"
         return NOT_BEYOND_SPREAD
 
