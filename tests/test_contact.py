@@ -252,3 +252,52 @@ def test_a_refit_without_its_terms_signature_confirms_nothing_and_says_why():
     line = next(x for x in d.lines if x.startswith("contact: "))
     assert line.endswith(f"; its refit, asked for by name, does not confirm it either: the baseline does not show its "
                          f"signature: {why}"), line
+
+
+def _recorded_closed(base: Baseline, closed: np.ndarray) -> Baseline:
+    """``base`` with a recording whose gap masks show the glottis closed in the frames ``closed`` (F,) bool and
+    open in the others (what :func:`closed_frames` reads)."""
+    import copy
+    import dataclasses
+
+    problem = copy.copy(base.problem)
+    gap = np.ones((len(closed), 4, 4), bool)
+    gap[closed] = False
+    problem.meas = dataclasses.replace(problem.meas, gap=gap)
+    return Baseline(problem, base.x, base.displacements, base.frames, base.f0_hz, base.model)
+
+
+@pytest.mark.slow
+def test_a_lead_whose_baseline_lacks_its_signature_is_not_refitted_and_its_line_says_why():
+    """`vfcli diagnose` (--refit auto) refits no lead whose baseline lacks its term's signature
+    (:func:`vfcli.diagnose.confirm.without_signature`): its refit could confirm nothing (the test above) and
+    contact's takes a minute or more.  On the crossing case recorded closed in its deepest frames contact keeps its
+    refit; recorded closed in its shallowest it is dropped with the reason, a term that states no signature is kept,
+    and the decision's line says "not refitted" with the reason."""
+    from vfcli.diagnose.candidates import StiffnessAsymmetry
+    from vfcli.diagnose.confirm import without_signature
+    from vfcli.diagnose.confirmation import NotRefitted
+    from vfcli.diagnose.decide import decide
+
+    base = crossing_case()
+    depth = Contact().overlap(base)[:-1]
+    order = np.argsort(depth)
+    deep, shallow = np.zeros(len(depth), bool), np.zeros(len(depth), bool)
+    deep[order[-3:]] = True
+    shallow[order[:3]] = True
+    assert closed_frames(_recorded_closed(base, deep).problem.meas).tolist() == deep.tolist()
+    keep, missing = without_signature(_recorded_closed(base, deep), [Contact(), StiffnessAsymmetry()])
+    assert [c.name for c in keep] == ["contact", "asymmetry"] and missing == {}
+    keep, missing = without_signature(_recorded_closed(base, shallow), [Contact(), StiffnessAsymmetry()])
+    assert [c.name for c in keep] == ["asymmetry"] and list(missing) == ["contact"]
+    why = missing["contact"]
+    assert "no deeper while the glottis is closed" in why, why
+    skipped = NotRefitted("contact", why)
+    assert not skipped.improves and skipped.as_dict() == {"candidate": "contact", "refitted": False,
+                                                         "improves": False, "signature_missing": why}
+    names = ["inertia", "damping", "asymmetry", "contact"]
+    d = decide(names, np.array([0.6, 0.9, 0.5, 0.01]), [True] * 4, 199, confirmations={"contact": skipped})
+    assert d.findings == () and d.lines[-1] == "no missing physics detected (unconfirmed lead: contact)"
+    line = next(x for x in d.lines if x.startswith("contact: "))
+    assert line == ("contact: a calibrated lead (family-wise p = 0.01), not refitted: the baseline does not show its "
+                    f"signature: {why}"), line

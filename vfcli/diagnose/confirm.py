@@ -89,6 +89,22 @@ def refit_order(screening, candidates, mode: str, alpha: float = 0.05, profile_l
     return [by_name[n] for n in names if n in by_name][:max(int(limit), 0)]
 
 
+def without_signature(baseline: Baseline, candidates) -> tuple[list, dict[str, str]]:
+    """The candidates whose baseline shows their term's signature (or that state none), in their order, and
+    {name: why} of those whose baseline does not (the candidate's ``missing_signature(baseline)``): a refit of these
+    could confirm nothing (:attr:`vfcli.diagnose.confirmation.Confirmation.improves` needs the signature), so
+    ``--refit auto`` does not make it (:class:`vfcli.diagnose.confirmation.NotRefitted`)."""
+    keep, missing = [], {}
+    for c in candidates:
+        check = getattr(c, "missing_signature", None)
+        why = check(baseline) if callable(check) else ""
+        if why:
+            missing[c.name] = why
+        else:
+            keep.append(c)
+    return keep, missing
+
+
 def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:
     """The extended model at its refit as a :class:`Baseline` (raster frozen at its displacements)."""
     problem = with_displacements(baseline.problem, result.displacements)

@@ -194,6 +194,32 @@ def mesh_corrected(theta: np.ndarray, sd: np.ndarray, shift: np.ndarray | None) 
 
 
 @dataclass(frozen=True)
+class NotRefitted:
+    """A lead that was not refitted because the baseline does not show its term's signature: its refit could confirm
+    nothing (:attr:`Confirmation.improves` needs the signature), so ``vfcli diagnose`` (``--refit auto``) spares its
+    refit and held-out fits (contact's, a minute or more: docs/diagnose.md, "Session 78: a lead without its signature
+    is not refitted").  Duck-typed as a confirmation by :func:`vfcli.diagnose.decide.decide`.
+
+    candidate : its name.  signature_missing : why the baseline does not show its signature (the candidate's
+    ``missing_signature(baseline)``, never empty).
+    """
+
+    candidate: str
+    signature_missing: str
+
+    improves = False
+
+    @property
+    def shortfall(self) -> str:
+        """Why it is not confirmed, in words."""
+        return f"not refitted: the baseline does not show its signature: {self.signature_missing}"
+
+    def as_dict(self) -> dict:
+        return {"candidate": self.candidate, "refitted": False, "improves": False,
+                "signature_missing": self.signature_missing}
+
+
+@dataclass(frozen=True)
 class Confirmation:
     """The confirmation refit of one candidate.
 

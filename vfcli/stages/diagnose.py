@@ -269,13 +269,15 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
 
     map_path : the residual map image (PNG), written when given.
     refit : "auto" (refit the leads in turn, at most :data:`vfcli.diagnose.confirm.MAX_REFITS`:
-        :func:`vfcli.diagnose.confirm.refit_order`; the confirmed one that predicts held-out data best is named),
+        :func:`vfcli.diagnose.confirm.refit_order`; the confirmed one that predicts held-out data best is named; a
+        lead whose baseline lacks its term's signature is not refitted, :func:`vfcli.diagnose.confirm.without_signature`),
         "none", or a candidate's name (refit it whatever the screening says).  A refit is stored as its own run
         /optimize/<run>+<candidate>, with before/after residual maps and velocity-at-point plots (PNG) beside
         --map, or beside the store without --map.
     """
     from vfcli.diagnose.candidate import available_candidates
-    from vfcli.diagnose.confirm import choose, refit_order
+    from vfcli.diagnose.confirm import choose, refit_order, without_signature
+    from vfcli.diagnose.confirmation import NotRefitted
 
     dcfg = ctx.config.diagnose
     try:
@@ -325,11 +327,22 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         profiled = d.decision.profile_leads if d.decision is not None else ()
         # with auto, every lead in turn (calibrated leads first, then profile leads); the best confirmed is named
         tries = refit_order(d.screening, cands, refit, alpha, profiled)
+        unrefitted: dict[str, str] = {}
+        if refit == "auto":
+            # a lead whose baseline lacks its term's signature cannot be confirmed: its refit is not made
+            tries, unrefitted = without_signature(inputs.baseline, tries)
+            for name, why in unrefitted.items():
+                log.info("diagnose: %s not refitted: the baseline does not show its signature: %s", name, why)
         extra: dict[str, Any] = {}
+        confs: list = []
         if tries:
             extra, confs = confirm_and_write(s, inputs, d, tries, run, settings,
                                              figure_paths(reader.path, run, map_path), done, phases, ctx.local_map)
-            d = redecide(d, {c.candidate: c for c in confs})
+        if tries or unrefitted:
+            d = redecide(d, {**{n: NotRefitted(n, why) for n, why in unrefitted.items()},
+                             **{c.candidate: c for c in confs}})
+        if unrefitted:
+            extra["not_refitted"] = {n: NotRefitted(n, why).as_dict() for n, why in unrefitted.items()}
         # the pictures the diagnosis wrote, --map's first, by absolute path: the report embeds them from anywhere
         images = {**({"before": map_path} if map_path is not None else {}), **extra.get("images", {})}
         if images:
