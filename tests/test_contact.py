@@ -254,6 +254,16 @@ def test_a_refit_without_its_terms_signature_confirms_nothing_and_says_why():
                          f"signature: {why}"), line
 
 
+def _closed_at(base: Baseline) -> tuple[np.ndarray, np.ndarray]:
+    """(F,) bool twice: the three frames at the frame times where ``base``'s folds cross the midplane deepest, and
+    the three where they cross least."""
+    order = np.argsort(Contact().overlap(base)[:-1])
+    deep, shallow = np.zeros(len(order), bool), np.zeros(len(order), bool)
+    deep[order[-3:]] = True
+    shallow[order[:3]] = True
+    return deep, shallow
+
+
 def _recorded_closed(base: Baseline, closed: np.ndarray) -> Baseline:
     """``base`` with a recording whose gap masks show the glottis closed in the frames ``closed`` (F,) bool and
     open in the others (what :func:`closed_frames` reads)."""
@@ -280,11 +290,7 @@ def test_a_lead_whose_baseline_lacks_its_signature_is_not_refitted_and_its_line_
     from vfcli.diagnose.decide import decide
 
     base = crossing_case()
-    depth = Contact().overlap(base)[:-1]
-    order = np.argsort(depth)
-    deep, shallow = np.zeros(len(depth), bool), np.zeros(len(depth), bool)
-    deep[order[-3:]] = True
-    shallow[order[:3]] = True
+    deep, shallow = _closed_at(base)
     assert closed_frames(_recorded_closed(base, deep).problem.meas).tolist() == deep.tolist()
     keep, missing = without_signature(_recorded_closed(base, deep), [Contact(), StiffnessAsymmetry()])
     assert [c.name for c in keep] == ["contact", "asymmetry"] and missing == {}
@@ -301,3 +307,29 @@ def test_a_lead_whose_baseline_lacks_its_signature_is_not_refitted_and_its_line_
     line = next(x for x in d.lines if x.startswith("contact: "))
     assert line == ("contact: a calibrated lead (family-wise p = 0.01), not refitted: the baseline does not show its "
                     f"signature: {why}"), line
+
+
+@pytest.mark.slow
+def test_a_lead_not_refitted_leaves_its_place_among_the_refits_to_the_next_and_a_named_refit_is_made():
+    """The leads of blind-panel 2012 (contact and asymmetry calibrated leads, inertia and damping profile leads;
+    tests/test_diagnose_decide.py): with contact's signature missing the three refits are asymmetry, inertia and
+    damping, not asymmetry and inertia alone; with it present, contact, asymmetry and inertia; `--refit contact`
+    refits contact whatever the baseline shows."""
+    from vfcli.diagnose.candidate import Screening
+    from vfcli.diagnose.confirm import MAX_REFITS, refits_to_make
+
+    base = crossing_case()
+    deep, shallow = _closed_at(base)
+    cands = list(CANDIDATES)
+    p = {"inertia": (0.065, 0.58), "damping": (1.0, 0.76), "asymmetry": (0.03, 0.22), "offset": (0.975, 0.78),
+         "contact": (0.005, 0.17)}
+    scr = [Screening(c.name, 1.0, p[c.name][1], True, p_family=p[c.name][0]) for c in cands]
+    leads = ("inertia", "damping")
+    tries, missing = refits_to_make(_recorded_closed(base, shallow), scr, cands, "auto", profile_leads=leads)
+    assert MAX_REFITS == 3 and [c.name for c in tries] == ["asymmetry", "inertia", "damping"]
+    assert list(missing) == ["contact"] and "no deeper while the glottis is closed" in missing["contact"]
+    tries, missing = refits_to_make(_recorded_closed(base, deep), scr, cands, "auto", profile_leads=leads)
+    assert [c.name for c in tries] == ["contact", "asymmetry", "inertia"] and missing == {}
+    tries, missing = refits_to_make(_recorded_closed(base, shallow), scr, cands, "contact", profile_leads=leads)
+    assert [c.name for c in tries] == ["contact"] and missing == {}
+    assert refits_to_make(_recorded_closed(base, shallow), scr, cands, "none") == ([], {})

@@ -105,6 +105,25 @@ def without_signature(baseline: Baseline, candidates) -> tuple[list, dict[str, s
     return keep, missing
 
 
+def refits_to_make(baseline: Baseline, screening, candidates, mode: str, alpha: float = 0.05, profile_leads=(),
+                   limit: int = MAX_REFITS) -> tuple[list, dict[str, str]]:
+    """The refits a diagnosis makes, in turn (:func:`refit_order`), and {name: why} of the leads it does not refit
+    because the baseline lacks their term's signature (:func:`without_signature`; with ``mode`` "auto" only: a refit
+    asked for by name is made whatever the baseline shows).  A lead not refitted takes no place among the ``limit``:
+    the leads after it are refitted instead.
+
+    Raises
+    ------
+    ValueError
+        ``mode`` names no candidate (as :func:`refit_order`).
+    """
+    if mode != "auto":
+        return refit_order(screening, candidates, mode, alpha, profile_leads, limit), {}
+    keep, missing = without_signature(baseline, refit_order(screening, candidates, mode, alpha, profile_leads,
+                                                            limit=len(candidates)))
+    return keep[:max(int(limit), 0)], missing
+
+
 def extended_baseline(baseline: Baseline, result: RefitResult) -> Baseline:
     """The extended model at its refit as a :class:`Baseline` (raster frozen at its displacements)."""
     problem = with_displacements(baseline.problem, result.displacements)

@@ -270,13 +270,13 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
     map_path : the residual map image (PNG), written when given.
     refit : "auto" (refit the leads in turn, at most :data:`vfcli.diagnose.confirm.MAX_REFITS`:
         :func:`vfcli.diagnose.confirm.refit_order`; the confirmed one that predicts held-out data best is named; a
-        lead whose baseline lacks its term's signature is not refitted, :func:`vfcli.diagnose.confirm.without_signature`),
+        lead whose baseline lacks its term's signature is not refitted, :func:`vfcli.diagnose.confirm.refits_to_make`),
         "none", or a candidate's name (refit it whatever the screening says).  A refit is stored as its own run
         /optimize/<run>+<candidate>, with before/after residual maps and velocity-at-point plots (PNG) beside
         --map, or beside the store without --map.
     """
     from vfcli.diagnose.candidate import available_candidates
-    from vfcli.diagnose.confirm import choose, refit_order, without_signature
+    from vfcli.diagnose.confirm import choose, refits_to_make
     from vfcli.diagnose.confirmation import NotRefitted
 
     dcfg = ctx.config.diagnose
@@ -326,13 +326,10 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         cands = available_candidates()
         profiled = d.decision.profile_leads if d.decision is not None else ()
         # with auto, every lead in turn (calibrated leads first, then profile leads); the best confirmed is named
-        tries = refit_order(d.screening, cands, refit, alpha, profiled)
-        unrefitted: dict[str, str] = {}
-        if refit == "auto":
-            # a lead whose baseline lacks its term's signature cannot be confirmed: its refit is not made
-            tries, unrefitted = without_signature(inputs.baseline, tries)
-            for name, why in unrefitted.items():
-                log.info("diagnose: %s not refitted: the baseline does not show its signature: %s", name, why)
+        # a lead whose baseline lacks its term's signature cannot be confirmed: with auto its refit is not made
+        tries, unrefitted = refits_to_make(inputs.baseline, d.screening, cands, refit, alpha, profiled)
+        for name, why in unrefitted.items():
+            log.info("diagnose: %s not refitted: the baseline does not show its signature: %s", name, why)
         extra: dict[str, Any] = {}
         confs: list = []
         if tries:
