@@ -16,8 +16,10 @@ from vfcli.cli.common import jobs_option, store_command
 @click.option("--map", "map_path", type=click.Path(dir_okay=False), help="Write the residual map to this PNG.")
 @click.option("--refit", "refit", default="auto", show_default=True, metavar="auto|none|NAME",
               help="Confirm by refit: 'auto' refits the leads in turn (calibrated leads first, then profile leads; "
-                   "at most 3 refits) and names the confirmed one whose refit predicts held-out data best, 'none' "
-                   "never refits, a candidate's name (inertia, damping, asymmetry, offset, contact) refits that one.")
+                   "at most 3 refits; a lead whose fit does not show its term's signature, such as contact's crossing "
+                   "of the midplane at closure, is not refitted and its line says why) and names the confirmed one "
+                   "whose refit predicts held-out data best, 'none' never refits, a candidate's name (inertia, "
+                   "damping, asymmetry, offset, contact) refits that one.")
 @jobs_option
 def diagnose_cmd(ctx, run_name, alpha, n_harmonics, map_path, refit, jobs):  # type: ignore[no-untyped-def]
     """Locate where a fitted run disagrees with its recording, and name the missing physics.
