@@ -328,18 +328,18 @@ def run_diagnose(ctx: RunContext, run: str = "default", alpha: float = 0.05, n_h
         # with auto, every lead in turn (calibrated leads first, then profile leads); the best confirmed is named
         # a lead whose baseline lacks its term's signature cannot be confirmed: with auto its refit is not made
         tries, unrefitted = refits_to_make(inputs.baseline, d.screening, cands, refit, alpha, profiled)
-        for name, why in unrefitted.items():
-            log.info("diagnose: %s not refitted: the baseline does not show its signature: %s", name, why)
+        skipped = {n: NotRefitted(n, why) for n, why in unrefitted.items()}
+        for c in skipped.values():
+            log.info("diagnose: %s %s", c.candidate, c.shortfall)
         extra: dict[str, Any] = {}
         confs: list = []
         if tries:
             extra, confs = confirm_and_write(s, inputs, d, tries, run, settings,
                                              figure_paths(reader.path, run, map_path), done, phases, ctx.local_map)
-        if tries or unrefitted:
-            d = redecide(d, {**{n: NotRefitted(n, why) for n, why in unrefitted.items()},
-                             **{c.candidate: c for c in confs}})
-        if unrefitted:
-            extra["not_refitted"] = {n: NotRefitted(n, why).as_dict() for n, why in unrefitted.items()}
+        if tries or skipped:
+            d = redecide(d, {**skipped, **{c.candidate: c for c in confs}})
+        if skipped:
+            extra["not_refitted"] = {n: c.as_dict() for n, c in skipped.items()}
         # the pictures the diagnosis wrote, --map's first, by absolute path: the report embeds them from anywhere
         images = {**({"before": map_path} if map_path is not None else {}), **extra.get("images", {})}
         if images:
